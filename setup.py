@@ -1,0 +1,42 @@
+"""Build script of the ament_python package suture_lfd."""
+
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'suture_lfd'
+HERE = Path(__file__).resolve().parent
+
+# One console_scripts entry per node executable (ros2 run suture_lfd <name>), plus the CLI.
+NODES = {
+    'footpedals': 'sim_bridge.nodes.footpedals:main',
+}
+CLI = {
+    'suture-lfd': 'suture_lfd.cli:main',
+}
+
+
+def config_files():
+    return sorted(str(p.relative_to(HERE)) for p in (HERE / 'config').glob('*.yaml'))
+
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(include=['sim_bridge', 'sim_bridge.*', 'suture_lfd', 'suture_lfd.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', config_files()),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='suture_lfd maintainers',
+    maintainer_email='suture-lfd@users.noreply.github.com',
+    description='Simulated dVRK (PyBullet, CRTK ROS 2) and learning from demonstration for '
+                'autonomous suturing.',
+    license='MIT',
+    entry_points={
+        'console_scripts': [f'{name} = {target}' for name, target in {**NODES, **CLI}.items()],
+    },
+)

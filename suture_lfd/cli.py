@@ -1,0 +1,72 @@
+"""
+Command line of suture_lfd: ``suture-lfd study`` (the main job) and ``suture-lfd info``.
+
+``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
+phantoms and their entry/exit marker pairs.
+"""
+
+import argparse
+import logging
+import sys
+
+import numpy as np
+
+
+def _fmt(v):
+    return '(' + ', '.join(f'{x * 1000:7.2f}' for x in np.asarray(v, float)) + ') mm'
+
+
+def cmd_info(args):
+    """Start the simulator in-process and report the scene."""
+    from sim_bridge.simulation import Simulation
+
+    for phantom in ('synthetic', 'scanned'):
+        sim = Simulation(phantom=phantom, rng=np.random.default_rng(args.seed))
+        sim.run(args.seconds)
+        print(f'phantom {phantom}: t = {sim.time:.3f} s simulated')
+        for name, arm in sim.arms.items():
+            state = arm.operating_state
+            tip = (sim.T_world_base(name) @ arm.measured_cp)[:3, 3]
+            print(f'  {name:5s} {state.state:9s} homed={state.is_homed!s:5s} tip {_fmt(tip)}')
+        print(f'  needle centre {_fmt(sim.needle_pose()[:3, 3])}')
+        for name, pair in sim.phantom.markers.items():
+            gap = np.linalg.norm(np.asarray(pair.exit) - np.asarray(pair.entry)) * 1000
+            print(f'  pair {name}: entry {_fmt(pair.entry)} exit {_fmt(pair.exit)} '
+                  f'gap {gap:.1f} mm')
+    return 0
+
+
+def cmd_study(args):
+    """Run the study of the seed paper and write its report."""
+    try:
+        from suture_lfd import study
+    except ImportError:
+        logging.getLogger('suture_lfd').warning(
+            'the study runner is not available in this version; reporting the scene instead')
+        return cmd_info(args)
+    return study.main(args)
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog='suture-lfd', description=__doc__.split('\n\n')[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+    info = sub.add_parser('info', help='start the simulator in-process and report the scene')
+    info.add_argument('--seed', type=int, default=0)
+    info.add_argument('--seconds', type=float, default=0.5, help='simulated seconds to run')
+    info.set_defaults(func=cmd_info)
+    study = sub.add_parser('study', help="reproduce the seed paper's evaluation")
+    study.add_argument('--seed', type=int, default=0)
+    study.add_argument('--seconds', type=float, default=0.5)
+    study.add_argument('--out', default='study', help='report folder')
+    study.set_defaults(func=cmd_study)
+    return parser
+
+
+def main(argv=None):
+    logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
