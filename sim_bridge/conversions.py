@@ -1,0 +1,216 @@
+"""
+Messages <-> arrays: the one place that knows both ROS message fields and array layouts.
+
+Poses are 4x4 homogeneous matrices (metres), quaternions ``(x, y, z, w)``, twists and wrenches
+``(6,)`` arrays ``[linear, angular]``, times in seconds. Incoming commands are validated here:
+NaN or infinite values, zero or non-unit quaternions raise ``ValueError`` with a message that
+says what is wrong, which the nodes forward to the arm's ``error`` topic.
+"""
+
+import json
+import math
+
+from builtin_interfaces.msg import Time
+from crtk_msgs.msg import OperatingState, StringStamped
+from geometry_msgs.msg import Pose, PoseStamped, TransformStamped, TwistStamped, WrenchStamped
+import numpy as np
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+# A commanded quaternion may deviate this much from unit norm (clients round to float32 etc.).
+UNIT_QUATERNION_TOLERANCE = 1e-3
+
+
+def stamp_from_seconds(t):
+    """Return a ``builtin_interfaces/Time`` for ``t`` seconds (t >= 0)."""
+    ns = int(round(float(t) * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def seconds_from_stamp(stamp):
+    """Return the seconds of a ``builtin_interfaces/Time``."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def nanoseconds_from_stamp(stamp):
+    """Return the integer nanoseconds of a ``builtin_interfaces/Time``."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def matrix_from_pose(pose, what='pose'):
+    """
+    Return the 4x4 matrix of a ``geometry_msgs/Pose``.
+
+    Raises
+    ------
+    ValueError
+        If a value is NaN or infinite, or the quaternion is zero or not of unit norm.
+
+    """
+    p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=float)
+    q = np.array([pose.orientation.x, pose.orientation.y, pose.orientation.z,
+                  pose.orientation.w], dtype=float)
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise ValueError(f'{what} has NaN or infinite values (position {p.tolist()}, '
+                         f'orientation {q.tolist()})')
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
+        raise ValueError(f'{what} orientation is not a unit quaternion (norm {norm:.6g})')
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
+    T[:3, 3] = p
+    return T
+
+
+def pose_from_matrix(T):
+    """Return the ``geometry_msgs/Pose`` of a 4x4 matrix."""
+    T = np.asarray(T, dtype=float)
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
+    (pose.orientation.x, pose.orientation.y, pose.orientation.z,
+     pose.orientation.w) = (float(v) for v in q)
+    return pose
+
+
+def pose_stamped(T, frame_id, stamp):
+    """Return a ``geometry_msgs/PoseStamped`` of a 4x4 matrix in ``frame_id`` at ``stamp``."""
+    msg = PoseStamped()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.pose = pose_from_matrix(T)
+    return msg
+
+
+def transform_stamped(T, parent, child, stamp):
+    """Return a ``geometry_msgs/TransformStamped`` ``parent -> child`` of a 4x4 matrix."""
+    T = np.asarray(T, dtype=float)
+    msg = TransformStamped()
+    msg.header.frame_id = parent
+    msg.header.stamp = stamp
+    msg.child_frame_id = child
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    tr = msg.transform
+    tr.translation.x, tr.translation.y, tr.translation.z = (float(v) for v in T[:3, 3])
+    tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w = (float(v) for v in q)
+    return msg
+
+
+def _floats(values):
+    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
+
+
+def joint_state(names, stamp, position=(), velocity=(), effort=()):
+    """Return a ``sensor_msgs/JointState`` (frame_id empty, as the dVRK publishes it)."""
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    msg.position = _floats(position)
+    msg.velocity = _floats(velocity)
+    msg.effort = _floats(effort)
+    return msg
+
+
+def positions_from_joint_state(msg, n, what='servo_jp'):
+    """
+    Return the ``position`` field of a command JointState as an ``(n,)`` array.
+
+    Names are ignored (dVRK clients send none).
+
+    Raises
+    ------
+    ValueError
+        If the vector has the wrong length or holds NaN or infinite values.
+
+    """
+    q = np.asarray(msg.position, dtype=float)
+    if q.shape != (n,):
+        raise ValueError(f'{what}: expected {n} joint positions, got {q.size}')
+    if not np.all(np.isfinite(q)):
+        raise ValueError(f'{what}: joint positions must be finite, got {q.tolist()}')
+    return q
+
+
+def twist_stamped(v, frame_id, stamp):
+    """Return a ``geometry_msgs/TwistStamped`` of a ``(6,)`` twist ``[linear, angular]``."""
+    v = np.asarray(v, dtype=float)
+    msg = TwistStamped()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    lin, ang = msg.twist.linear, msg.twist.angular
+    lin.x, lin.y, lin.z, ang.x, ang.y, ang.z = (float(x) for x in v[:6])
+    return msg
+
+
+def wrench_stamped(w, frame_id, stamp):
+    """Return a ``geometry_msgs/WrenchStamped`` of a ``(6,)`` wrench ``[force, torque]``."""
+    w = np.asarray(w, dtype=float)
+    msg = WrenchStamped()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    f, t = msg.wrench.force, msg.wrench.torque
+    f.x, f.y, f.z, t.x, t.y, t.z = (float(x) for x in w[:6])
+    return msg
+
+
+def jacobian_array(J):
+    """
+    Return a ``std_msgs/Float64MultiArray`` of a ``(6, n)`` Jacobian, as cisst-ros lays it out.
+
+    ``layout.dim[0]`` is ``rows`` (6), ``dim[1]`` is ``cols`` (n); data is row-major, so a client
+    reshapes with ``(dim[0].size, dim[1].size)``.
+    """
+    J = np.asarray(J, dtype=float)
+    rows, cols = J.shape
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label='rows', size=rows, stride=rows * cols),
+                      MultiArrayDimension(label='cols', size=cols, stride=cols)]
+    msg.data = _floats(J)
+    return msg
+
+
+def operating_state(state, is_homed, is_busy, stamp):
+    """Return a ``crtk_msgs/OperatingState``."""
+    msg = OperatingState(state=state, is_homed=bool(is_homed), is_busy=bool(is_busy))
+    msg.header.stamp = stamp
+    return msg
+
+
+def event_message(kind, stamp, **fields):
+    """
+    Return a simulator event as ``crtk_msgs/StringStamped`` holding one JSON object.
+
+    NumPy arrays and scalars become JSON lists and numbers; NaN becomes ``null``.
+    """
+    def plain(value):
+        if isinstance(value, np.ndarray):
+            return [plain(v) for v in value.tolist()]
+        if isinstance(value, (list, tuple)):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {str(k): plain(v) for k, v in value.items()}
+        if isinstance(value, (np.floating, float)):
+            value = float(value)
+            return value if math.isfinite(value) else None
+        if isinstance(value, np.integer):
+            return int(value)
+        if isinstance(value, np.bool_):
+            return bool(value)
+        return value
+
+    msg = StringStamped()
+    msg.header.stamp = stamp
+    msg.string = json.dumps({'kind': kind, **plain(fields)}, sort_keys=True)
+    return msg
+
+
+def event_from_message(msg):
+    """Return ``(t_seconds, dict)`` of a simulator event message."""
+    try:
+        data = json.loads(msg.string)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f'event is not a JSON object: {msg.string!r} ({exc})') from exc
+    if not isinstance(data, dict) or 'kind' not in data:
+        raise ValueError(f'event JSON must be an object with a "kind": {msg.string!r}')
+    return seconds_from_stamp(msg.header.stamp), data

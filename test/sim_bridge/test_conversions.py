@@ -1,0 +1,66 @@
+"""Message <-> array conversions: round trips and the validation of incoming commands."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from sim_bridge import conversions as cv
+
+
+def random_pose(rng):
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+    T[:3, 3] = rng.uniform(-0.2, 0.2, 3)
+    return T
+
+
+def test_poses_round_trip():
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        T = random_pose(rng)
+        msg = cv.pose_stamped(T, 'PSM1_base', cv.stamp_from_seconds(12.5))
+        assert msg.header.frame_id == 'PSM1_base'
+        assert cv.seconds_from_stamp(msg.header.stamp) == 12.5
+        np.testing.assert_allclose(cv.matrix_from_pose(msg.pose), T, atol=1e-12)
+
+
+@pytest.mark.parametrize('q, message', [
+    ((0.0, 0.0, 0.0, 0.0), 'not a unit quaternion (norm 0)'),
+    ((0.0, 0.0, 0.0, 2.0), 'not a unit quaternion (norm 2)'),
+    ((math.nan, 0.0, 0.0, 1.0), 'NaN or infinite'),
+])
+def test_bad_command_orientations_are_rejected(q, message):
+    pose = cv.pose_from_matrix(np.eye(4))
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = q
+    with pytest.raises(ValueError, match=message.replace('(', r'\(').replace(')', r'\)')):
+        cv.matrix_from_pose(pose, 'servo_cp')
+
+
+def test_joint_commands_are_checked_for_length_and_finiteness():
+    msg = cv.joint_state([], cv.stamp_from_seconds(0), position=[0, 0, 0.1, 0, 0, 0])
+    np.testing.assert_array_equal(cv.positions_from_joint_state(msg, 6), [0, 0, 0.1, 0, 0, 0])
+    with pytest.raises(ValueError, match='expected 6 joint positions, got 5'):
+        cv.positions_from_joint_state(cv.joint_state([], msg.header.stamp, [0] * 5), 6)
+    with pytest.raises(ValueError, match='must be finite'):
+        cv.positions_from_joint_state(
+            cv.joint_state([], msg.header.stamp, [0, 0, math.inf, 0, 0, 0]), 6)
+
+
+def test_jacobian_layout_matches_the_dvrk_client_reshape():
+    J = np.arange(36.0).reshape(6, 6)[:, :5]
+    msg = cv.jacobian_array(J)
+    rows, cols = msg.layout.dim[0].size, msg.layout.dim[1].size
+    np.testing.assert_array_equal(np.array(msg.data).reshape(rows, cols), J)
+
+
+def test_events_carry_json_and_sim_time():
+    msg = cv.event_message('entry', cv.stamp_from_seconds(3.25), point=np.array([1.0, 2.0, 3.0]),
+                           distance_to_marker=np.float64(0.001), bad=math.nan)
+    t, data = cv.event_from_message(msg)
+    assert t == 3.25
+    assert data == {'kind': 'entry', 'point': [1.0, 2.0, 3.0], 'distance_to_marker': 0.001,
+                    'bad': None}
+    msg.string = 'not json'
+    with pytest.raises(ValueError, match='not a JSON object'):
+        cv.event_from_message(msg)
