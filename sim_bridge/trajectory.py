@@ -1,0 +1,237 @@
+"""
+Joint-space motion: synchronised trapezoidal trajectories and limited setpoint tracking.
+
+:class:`JointTrajectory` is what a dVRK ``move_jp`` runs (the dVRK uses Reflexxes): every joint
+follows a velocity trapezoid (or triangle) inside its velocity and acceleration limits, scaled by
+the ``trajectory_j/set_ratio`` ratio, and the slower joints set one common duration so that all
+joints start and arrive together. A trajectory may start while the joints are moving (a move that
+replaces a running one), in which case the profile first ramps from the current velocity.
+
+:func:`track_step` moves a measured position one time step towards a setpoint within the same
+limits: the kinematic stand-in for the dVRK's joint PID when a ``servo_*`` command jumps the
+setpoint.
+
+Units: joint positions in rad or m, velocities per second, accelerations per second squared;
+arrays have shape (n,) for n joints.
+"""
+
+import numpy as np
+
+
+def _rest_to_rest_time(distance, v, a):
+    """Minimum time to travel ``distance`` >= 0 from rest to rest (triangle or trapezoid)."""
+    return np.where(distance <= v * v / a, 2.0 * np.sqrt(np.maximum(distance, 0.0) / a),
+                    distance / v + v / a)
+
+
+def minimum_duration(distance, v0, v_max, a_max):
+    """
+    Minimum time to travel a displacement from velocity ``v0`` to rest, per joint.
+
+    Parameters
+    ----------
+    distance : array_like, shape (n,)
+        Signed displacement (rad or m).
+    v0 : array_like, shape (n,)
+        Initial velocity (rad/s or m/s); may exceed ``v_max``.
+    v_max, a_max : array_like, shape (n,)
+        Velocity and acceleration limits, > 0.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Durations (s).
+
+    """
+    distance = np.asarray(distance, dtype=float)
+    flip = distance < 0.0
+    D = np.where(flip, -distance, distance)
+    w = np.where(flip, -np.asarray(v0, dtype=float), v0)
+    v = np.asarray(v_max, dtype=float)
+    a = np.asarray(a_max, dtype=float)
+    stop = w * np.abs(w) / (2.0 * a)  # signed displacement needed to stop
+    # moving towards the goal too fast to stop in time: stop, then come back
+    t_over = w / a + _rest_to_rest_time(stop - D, v, a)
+    # moving away from the goal: stop, then go
+    t_away = -w / a + _rest_to_rest_time(D - stop, v, a)
+    # moving towards the goal (or at rest) above the limit: slow down to v_max, cruise, stop
+    t_fast = w / a + (D - stop) / v
+    # at or below the limit: accelerate to the peak (triangle) or to v_max (trapezoid)
+    peak = np.sqrt(np.maximum(a * D + 0.5 * w * w, 0.0))
+    t_tri = (2.0 * peak - w) / a
+    t_trap = (v - w) / a + v / a + (D - (2.0 * v * v - w * w) / (2.0 * a)) / v
+    t_near = np.where(peak <= v, t_tri, t_trap)
+    return np.where(w < 0.0, t_away,
+                    np.where(stop > D, t_over, np.where(w > v, t_fast, t_near)))
+
+
+def _profile_distance(vc, T, v0, a):
+    """Displacement of the ramp(v0 -> vc), cruise(vc), ramp(vc -> 0) profile of duration T."""
+    return vc * T + (v0 - vc) * np.abs(vc - v0) / (2.0 * a) - vc * np.abs(vc) / (2.0 * a)
+
+
+class JointTrajectory:
+    """
+    Time-synchronised trapezoidal joint trajectory from ``start`` to ``goal``.
+
+    Each joint ramps from its start velocity to a cruise velocity, cruises and ramps down to rest,
+    never above ``ratio * v_max`` (unless it starts faster, then it only slows down) nor above
+    ``ratio * a_max``. The duration is that of the slowest joint; the others cruise slower so that
+    all arrive together.
+
+    Parameters
+    ----------
+    start, goal : array_like, shape (n,)
+        Joint positions (rad / m).
+    v_max, a_max : array_like, shape (n,)
+        Velocity (rad/s, m/s) and acceleration (rad/s^2, m/s^2) limits, > 0.
+    ratio : float
+        Scaling in ]0, 1] applied to both ``v_max`` and ``a_max`` (dVRK
+        ``trajectory_j/set_ratio``).
+    start_velocity : array_like, shape (n,), optional
+        Joint velocities at ``t = 0`` (default: at rest).
+
+    Attributes
+    ----------
+    start, goal : ndarray, shape (n,)
+    duration : float
+        Time (s) at which every joint is at ``goal`` and at rest.
+
+    """
+
+    def __init__(self, start, goal, v_max, a_max, ratio=1.0, start_velocity=None):
+        self.start = np.array(start, dtype=float)
+        self.goal = np.array(goal, dtype=float)
+        n = self.start.shape
+        if self.goal.shape != n or self.start.ndim != 1:
+            raise ValueError(f'start and goal must both have shape (n,), got {n} and '
+                             f'{self.goal.shape}')
+        if not (np.all(np.isfinite(self.start)) and np.all(np.isfinite(self.goal))):
+            raise ValueError('start and goal must be finite')
+        if not (np.isfinite(ratio) and 0.0 < ratio <= 1.0):
+            raise ValueError(f'ratio must be in ]0, 1], got {ratio}')
+        self.v_limit = ratio * np.broadcast_to(np.asarray(v_max, dtype=float), n)
+        self.a_limit = ratio * np.broadcast_to(np.asarray(a_max, dtype=float), n)
+        if not (np.all(self.v_limit > 0.0) and np.all(self.a_limit > 0.0)):
+            raise ValueError('v_max and a_max must be positive')
+        v0 = np.zeros(n) if start_velocity is None else np.array(start_velocity, dtype=float)
+        if v0.shape != n or not np.all(np.isfinite(v0)):
+            raise ValueError(f'start_velocity must be finite with shape {n}')
+        self._v0 = v0
+        distance = self.goal - self.start
+        durations = minimum_duration(distance, v0, self.v_limit, self.a_limit)
+        self.duration = float(np.max(durations)) if durations.size else 0.0
+        self._vc = self._cruise_velocities(distance, self.duration)
+        a = self.a_limit
+        self._t1 = np.abs(self._vc - v0) / a
+        self._s1 = np.sign(self._vc - v0)
+        self._b2 = np.maximum(self._t1, self.duration - np.abs(self._vc) / a)
+        self._s3 = -np.sign(self._vc)
+
+    def _cruise_velocities(self, distance, T):
+        """Bisect the cruise velocity per joint so that the profile of duration T covers it."""
+        v0, a, v = self._v0, self.a_limit, self.v_limit
+        aT = a * T
+        lo = np.maximum(-v, 0.5 * (v0 - aT))
+        hi = np.minimum(v, 0.5 * (v0 + aT))
+        lo = np.minimum(lo, hi)
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            below = _profile_distance(mid, T, v0, a) < distance
+            lo = np.where(below, mid, lo)
+            hi = np.where(below, hi, mid)
+        return 0.5 * (lo + hi)
+
+    def sample(self, t):
+        """
+        Position and velocity at time ``t``.
+
+        Parameters
+        ----------
+        t : float
+            Time since the start (s); clamped to ``[0, duration]``.
+
+        Returns
+        -------
+        q : ndarray, shape (n,)
+            Joint positions (rad / m); exactly ``goal`` once ``t >= duration``.
+        qd : ndarray, shape (n,)
+            Joint velocities (rad/s, m/s).
+
+        """
+        if t >= self.duration:
+            return self.goal.copy(), np.zeros_like(self.goal)
+        t = max(float(t), 0.0)
+        a, v0, vc = self.a_limit, self._v0, self._vc
+        tau1 = np.minimum(t, self._t1)
+        tau2 = np.clip(t - self._t1, 0.0, self._b2 - self._t1)
+        tau3 = np.maximum(t - self._b2, 0.0)
+        q = (self.start + v0 * tau1 + 0.5 * self._s1 * a * tau1 * tau1 + vc * tau2
+             + vc * tau3 + 0.5 * self._s3 * a * tau3 * tau3)
+        qd = np.where(t <= self._t1, v0 + self._s1 * a * t,
+                      np.where(t <= self._b2, vc, vc + self._s3 * a * tau3))
+        return q, qd
+
+    def done(self, t):
+        """
+        Whether the trajectory has arrived at time ``t``.
+
+        Parameters
+        ----------
+        t : float
+            Time since the start (s).
+
+        Returns
+        -------
+        bool
+
+        """
+        return t >= self.duration
+
+
+def track_step(q, qd, target, v_max, a_max, dt, target_velocity=None):
+    """
+    Move a measured position one time step towards a setpoint within velocity/acceleration limits.
+
+    The commanded velocity is the setpoint velocity ``v_s`` (feed-forward) plus a correction that
+    can still stop at the setpoint, ``sign(e) * min(sqrt(2 a |e|), |e| / dt)`` with
+    ``e = target - q - v_s dt`` the error seen from the moving setpoint; it is clipped to
+    ``v_max`` and reached with at most ``a_max * dt`` change of velocity. ``target`` is the
+    setpoint at the end of the step.
+
+    Parameters
+    ----------
+    q, qd : array_like, shape (n,)
+        Current position (rad / m) and velocity (rad/s, m/s).
+    target : array_like, shape (n,)
+        Setpoint position (rad / m).
+    v_max, a_max : array_like, shape (n,)
+        Limits (per second, per second squared), > 0.
+    dt : float
+        Time step (s), > 0.
+    target_velocity : array_like, shape (n,), optional
+        Setpoint velocity (rad/s, m/s) used as feed-forward; default zero.
+
+    Returns
+    -------
+    q : ndarray, shape (n,)
+        New position.
+    qd : ndarray, shape (n,)
+        New velocity.
+
+    """
+    q = np.asarray(q, dtype=float)
+    qd = np.asarray(qd, dtype=float)
+    target = np.asarray(target, dtype=float)
+    tv = 0.0 if target_velocity is None else np.asarray(target_velocity, dtype=float)
+    # error to close, seen from a frame moving with the setpoint during this step
+    e = target - q - tv * dt
+    a = np.asarray(a_max, dtype=float)
+    v = np.asarray(v_max, dtype=float)
+    mag = np.abs(e)
+    correction = np.sign(e) * np.minimum(np.sqrt(2.0 * a * mag), mag / dt)
+    v_des = np.clip(tv + correction, -v, v)
+    qd_new = qd + np.clip(v_des - qd, -a * dt, a * dt)
+    q_new = q + qd_new * dt
+    arrived = (np.abs(target - q_new) < 1e-12) & (np.abs(qd_new) <= a * dt)
+    return np.where(arrived, target, q_new), qd_new
