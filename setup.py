@@ -10,10 +10,21 @@ HERE = Path(__file__).resolve().parent
 # One console_scripts entry per node executable (ros2 run suture_lfd <name>), plus the CLI.
 NODES = {
     'footpedals': 'sim_bridge.nodes.footpedals:main',
+    'recorder': 'suture_lfd.nodes.recorder:main',
+    'player': 'suture_lfd.nodes.player:main',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',
 }
+
+
+def interface_files():
+    """List the interface definitions (.msg) that suture_lfd.bags reads for message types."""
+    groups = {}
+    for path in sorted((HERE / 'interfaces').glob('*/msg/*.msg')):
+        dest = f'share/{PACKAGE}/interfaces/{path.parent.parent.name}/msg'
+        groups.setdefault(dest, []).append(str(path.relative_to(HERE)))
+    return sorted(groups.items())
 
 
 def config_files():
@@ -28,6 +39,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', config_files()),
+        *interface_files(),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -1,0 +1,384 @@
+"""
+Recorder of demonstrations: selected topics into one rosbag2 bag per demonstration.
+
+Subscribes to the CRTK state and commands of the arms, the foot pedals, the simulator's ground
+truth and events (``config/recorder.yaml``; optional camera images and ``/clock``) and to the
+topics that match its patterns as they appear in the graph, receiving CDR bytes (raw
+subscriptions, RELIABLE, deep history, TRANSIENT_LOCAL where the publisher latches). Recording
+starts and stops on the ``~/start`` and ``~/stop`` services (std_srvs/Trigger; the start response
+holds the bag path, the stop response a JSON object of counts) and on a press of the toggle pedal
+(``/footpedals/camera`` by default). A writer thread empties a queue into the bag and closes an
+MCAP chunk every ``chunk_seconds``, so a recorder killed mid-recording leaves a bag that
+``suture-lfd bag recover`` restores. ``~/status`` (std_msgs/String, JSON, latched) reports
+per topic the messages received while recording, carried over into the bag and written.
+"""
+
+from dataclasses import dataclass
+import datetime
+import fnmatch
+import importlib
+import json
+from pathlib import Path
+import queue
+import sys
+import threading
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Joy
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from suture_lfd import bags
+from suture_lfd.nodes import declare_config
+
+STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_STOP = object()
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    """Parameters of the recorder node (names as in ``config/recorder.yaml``)."""
+
+    output_dir: str = 'demonstrations'
+    prefix: str = 'demo'
+    arms: tuple[str, ...] = ('PSM1', 'PSM2', 'ECM')
+    arm_topics: tuple[str, ...] = ()
+    topics: tuple[str, ...] = ()
+    patterns: tuple[str, ...] = ()
+    discovery_period: float = 1.0
+    types: tuple[str, ...] = ()
+    latched: tuple[str, ...] = ()
+    best_effort: tuple[str, ...] = ()
+    carry_over: tuple[str, ...] = ()
+    record_images: bool = False
+    image_topics: tuple[str, ...] = ()
+    record_clock: bool = False
+    toggle_pedal: str = '/footpedals/camera'
+    depth: int = 1000
+    chunk_bytes: int = bags.CHUNK_BYTES
+    chunk_seconds: float = bags.CHUNK_SECONDS
+    status_period: float = 1.0
+
+    def __post_init__(self):
+        for name in ('discovery_period', 'chunk_seconds', 'status_period'):
+            if not getattr(self, name) > 0:
+                raise ValueError(f'parameter {name} must be > 0 s, got {getattr(self, name)}')
+        if self.depth < 1:
+            raise ValueError(f'parameter depth must be >= 1, got {self.depth}')
+        for rule in self.types:
+            if '=' not in rule:
+                raise ValueError(f'parameter types: rule {rule!r} must read <glob>=<pkg/msg/Type>')
+
+    def type_for(self, topic):
+        """Return the message type the rules give the absolute ``topic``, or None."""
+        for rule in self.types:
+            glob, _, msgtype = rule.partition('=')
+            if fnmatch.fnmatchcase(topic, glob.strip()):
+                return msgtype.strip()
+        return None
+
+    def matches(self, name, topic):
+        """Whether the absolute ``topic`` matches a glob of the list parameter ``name``."""
+        return any(fnmatch.fnmatchcase(topic, glob) for glob in getattr(self, name))
+
+
+def message_class(msgtype):
+    """Return the rclpy message class of ``'pkg/msg/Name'``."""
+    pkg, _, name = msgtype.partition('/msg/')
+    try:
+        return getattr(importlib.import_module(f'{pkg}.msg'), name)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f'message type {msgtype!r} is not installed ({exc})') from exc
+
+
+def offered_qos(endpoints, fallback):
+    """Return the rosbags QoS profiles of a topic's publishers (``fallback`` if none)."""
+    profiles = [bags.make_qos(
+        reliable=e.qos_profile.reliability != ReliabilityPolicy.BEST_EFFORT,
+        transient_local=e.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL,
+        depth=e.qos_profile.depth) for e in endpoints]
+    return profiles or [fallback]
+
+
+class BagSession:
+    """One bag being written: the queue, the writer thread and the counts."""
+
+    def __init__(self, path, config, logger):
+        self.path = path
+        self.received = {}
+        self.carried = {}
+        self.types = {}
+        self.qos = {}
+        self.error = None
+        self._logger = logger
+        self._queue = queue.SimpleQueue()
+        self._writer = bags.BagWriter(path, chunk_bytes=config.chunk_bytes,
+                                      chunk_seconds=config.chunk_seconds)
+        self._writer.set_custom_data('suture_lfd.recorder', 'demonstration')
+        self._poll = min(0.1, config.chunk_seconds / 2)
+        self._thread = threading.Thread(target=self._run, name='bag-writer', daemon=True)
+        self._thread.start()
+
+    def put(self, topic, t_ns, rawdata):
+        self._queue.put((topic, t_ns, rawdata))
+
+    def _run(self):
+        writer = self._writer
+        while True:
+            try:
+                item = self._queue.get(timeout=self._poll)
+            except queue.Empty:
+                writer.flush_if_due()
+                continue
+            if item is _STOP:
+                break
+            if self.error is not None:
+                continue
+            topic, t_ns, rawdata = item
+            try:
+                if not writer.has_topic(topic):
+                    writer.add_topic(topic, self.types[topic], qos=self.qos[topic])
+                writer.write(topic, t_ns, rawdata)
+                writer.flush_if_due()
+            except (OSError, ValueError) as exc:
+                self.error = f'writing {topic} to {self.path} failed: {exc}'
+                self._logger.error(self.error)
+
+    def counts(self):
+        """Return per-topic counts and totals as a JSON-ready mapping."""
+        written = dict(self._writer.counts)
+        topics = sorted(set(self.received) | set(self.carried) | set(written))
+        per_topic = {t: {'received': self.received.get(t, 0), 'carried': self.carried.get(t, 0),
+                         'written': written.get(t, 0)} for t in topics}
+        total = {k: sum(v[k] for v in per_topic.values())
+                 for k in ('received', 'carried', 'written')}
+        lost = total['received'] + total['carried'] - total['written']
+        return {'bag': str(self.path), **total, 'lost': lost, 'topics': per_topic}
+
+    def close(self):
+        """Write what is queued, close the bag; return the counts."""
+        self._queue.put(_STOP)
+        self._thread.join()
+        summary = self.counts()
+        self._writer.set_custom_data('suture_lfd.counts', json.dumps(summary['topics']))
+        try:
+            self._writer.close()
+        except (OSError, ValueError) as exc:
+            self.error = self.error or f'closing {self.path} failed: {exc}'
+        return summary
+
+
+class Recorder(Node):
+    """Record demonstrations into rosbag2 bags, started and stopped on command."""
+
+    def __init__(self):
+        super().__init__('recorder')
+        self.config = declare_config(self, RecorderConfig, 'recorder.yaml', 'recorder')
+        self._session = None
+        self._counter = 0
+        self._topic_subs = {}   # absolute topic -> subscription
+        self._types = {}           # absolute topic -> msgtype
+        self._latched = {}         # absolute topic -> subscribed TRANSIENT_LOCAL
+        self._last = {}            # carry-over topic -> last CDR bytes
+        self._ros_clock = self.get_clock()
+        self._status_pub = self.create_publisher(String, '~/status', STATUS_QOS)
+        self.create_service(Trigger, '~/start', self._on_start)
+        self.create_service(Trigger, '~/stop', self._on_stop)
+        if self.config.toggle_pedal:
+            # VOLATILE: a press latched before this node started must not toggle it.
+            self.create_subscription(Joy, self.config.toggle_pedal, self._on_pedal,
+                                     QoSProfile(depth=10))
+        self._wanted = []
+        for name in self._listed_topics():
+            topic = self.resolve_topic_name(name)
+            if topic in self._wanted:
+                continue
+            self._wanted.append(topic)
+            msgtype = self.config.type_for(topic)
+            if msgtype is not None:
+                self._subscribe(topic, msgtype)
+        self.create_timer(self.config.discovery_period, self._discover)
+        self.create_timer(self.config.status_period, self._publish_status)
+        self._publish_status()
+        self.get_logger().info(
+            f'recording {len(self._topic_subs)} topics (+ discovered ones) into '
+            f'{Path(self.config.output_dir).resolve()} on ~/start, ~/stop'
+            + (f' or {self.config.toggle_pedal}' if self.config.toggle_pedal else ''))
+
+    # --- topics ----------------------------------------------------------------------------
+
+    def _listed_topics(self):
+        cfg = self.config
+        names = [f'{arm}/{t}' for arm in cfg.arms for t in cfg.arm_topics]
+        names += list(cfg.topics)
+        if cfg.record_images:
+            names += list(cfg.image_topics)
+        if cfg.record_clock:
+            names.append('/clock')
+        return names
+
+    def _subscribe(self, topic, msgtype, endpoints=()):
+        try:
+            cls = message_class(msgtype)
+        except ValueError as exc:
+            self.get_logger().warning(f'{topic}: not recorded: {exc}')
+            self._topic_subs[topic] = None
+            return
+        latched = self.config.matches('latched', topic) or (
+            bool(endpoints) and all(e.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                    for e in endpoints))
+        best_effort = self.config.matches('best_effort', topic) or any(
+            e.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for e in endpoints)
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=self.config.depth,
+            reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
+                         else ReliabilityPolicy.RELIABLE),
+            durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                        else DurabilityPolicy.VOLATILE))
+        carry = self.config.matches('carry_over', topic)
+        self._types[topic] = msgtype
+        self._latched[topic] = latched
+        self._topic_subs[topic] = self.create_subscription(
+            cls, topic, lambda raw, t=topic, c=carry: self._on_message(t, c, raw), qos, raw=True)
+
+    def _discover(self):
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._topic_subs or not types:
+                continue
+            if topic not in self._wanted and not self.config.matches('patterns', topic):
+                continue
+            msgtype = self.config.type_for(topic) or types[0]
+            endpoints = self.get_publishers_info_by_topic(topic)
+            self.get_logger().info(f'discovered {topic} ({msgtype})')
+            self._subscribe(topic, msgtype, endpoints)
+
+    def _on_message(self, topic, carry, rawdata):
+        if carry:
+            self._last[topic] = rawdata
+        session = self._session
+        if session is None:
+            return
+        if topic not in session.types:
+            session.types[topic] = self._types[topic]
+            fallback = bags.make_qos(transient_local=self._latched[topic],
+                                     depth=self.config.depth)
+            session.qos[topic] = offered_qos(self.get_publishers_info_by_topic(topic), fallback)
+        session.received[topic] = session.received.get(topic, 0) + 1
+        session.put(topic, self._ros_clock.now().nanoseconds, rawdata)
+
+    # --- start / stop ----------------------------------------------------------------------
+
+    def _next_path(self):
+        out = Path(self.config.output_dir)
+        stamp = datetime.datetime.now().strftime('%Y%m%d-%H%M%S')
+        while True:
+            self._counter += 1
+            path = (out / f'{self.config.prefix}_{stamp}_{self._counter:03d}').resolve()
+            if not path.exists():
+                return path
+
+    def start(self):
+        """Open a new bag; return its path."""
+        if self._session is not None:
+            raise ValueError(f'already recording to {self._session.path}; call ~/stop first')
+        path = self._next_path()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        session = BagSession(path, self.config, self.get_logger())
+        now = self._ros_clock.now().nanoseconds
+        for topic, rawdata in self._last.items():
+            session.types[topic] = self._types[topic]
+            fallback = bags.make_qos(transient_local=self._latched[topic],
+                                     depth=self.config.depth)
+            session.qos[topic] = offered_qos(self.get_publishers_info_by_topic(topic), fallback)
+            session.carried[topic] = 1
+            session.put(topic, now, rawdata)
+        self._session = session
+        self.get_logger().info(f'recording to {path}')
+        self._publish_status()
+        return path
+
+    def stop(self, publish=True):
+        """Close the bag being written; return its counts."""
+        session, self._session = self._session, None
+        if session is None:
+            raise ValueError('not recording; call ~/start first')
+        counts = session.close()
+        self.get_logger().info(
+            f'closed {session.path}: {counts["written"]} messages written, '
+            f'{counts["received"]} received, {counts["carried"]} carried over, '
+            f'{counts["lost"]} lost')
+        if publish:
+            self._publish_status(counts)
+        if session.error:
+            raise ValueError(session.error)
+        return counts
+
+    def _on_start(self, request, response):
+        try:
+            response.message = str(self.start())
+            response.success = True
+        except (ValueError, OSError) as exc:
+            response.success, response.message = False, str(exc)
+            self.get_logger().warning(f'~/start refused: {exc}')
+        return response
+
+    def _on_stop(self, request, response):
+        try:
+            response.message = json.dumps(self.stop())
+            response.success = True
+        except (ValueError, OSError) as exc:
+            response.success, response.message = False, str(exc)
+            self.get_logger().warning(f'~/stop refused: {exc}')
+        return response
+
+    def _on_pedal(self, msg):
+        if list(msg.buttons[:1]) != [1]:
+            return
+        try:
+            if self._session is None:
+                self.start()
+            else:
+                self.stop()
+        except (ValueError, OSError) as exc:
+            self.get_logger().error(f'{self.config.toggle_pedal}: {exc}')
+
+    def _publish_status(self, counts=None):
+        session = self._session
+        if counts is None and session is not None:
+            counts = session.counts()
+        status = {'recording': session is not None, **(counts or {})}
+        self._status_pub.publish(String(data=json.dumps(status)))
+
+    def shutdown(self):
+        """Close the bag if one is open (on exit)."""
+        if self._session is not None:
+            try:
+                self.stop(publish=False)
+            except ValueError as exc:
+                self.get_logger().error(str(exc))
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = Recorder()
+    except (ValueError, OSError) as exc:
+        rclpy.logging.get_logger('recorder').fatal(str(exc))
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
