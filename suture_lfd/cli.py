@@ -1,8 +1,9 @@
 """
-Command line of suture_lfd: ``suture-lfd study`` (the main job) and ``suture-lfd info``.
+Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info`` and ``bag``.
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
-phantoms and their entry/exit marker pairs.
+phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
+``bag recover PATH [--out OUT]`` rebuilds a valid bag from one whose recording was interrupted.
 """
 
 import argparse
@@ -47,6 +48,32 @@ def cmd_study(args):
     return study.main(args)
 
 
+def cmd_bag_info(args):
+    """Print the topics, types, message counts and duration of a bag."""
+    from suture_lfd import bags
+
+    try:
+        summary = bags.bag_summary(args.path)
+    except bags.BagError as exc:
+        print(f'suture-lfd bag info: error: {exc}', file=sys.stderr)
+        return 1
+    print(bags.format_summary(summary))
+    return 0
+
+
+def cmd_bag_recover(args):
+    """Rebuild a valid bag from an unfinished or truncated one."""
+    from suture_lfd import bags
+
+    try:
+        summary = bags.recover_bag(args.path, args.out)
+    except bags.BagError as exc:
+        print(f'suture-lfd bag recover: error: {exc}', file=sys.stderr)
+        return 1
+    print(bags.format_summary(summary))
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='suture-lfd', description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -59,6 +86,18 @@ def build_parser():
     study.add_argument('--seconds', type=float, default=0.5)
     study.add_argument('--out', default='study', help='report folder')
     study.set_defaults(func=cmd_study)
+    bag = sub.add_parser('bag', help='inspect and recover rosbag2 bags (demonstrations)')
+    bag_sub = bag.add_subparsers(dest='bag_command', required=True)
+    bag_info = bag_sub.add_parser('info', help='topics, types, counts and duration of a bag')
+    bag_info.add_argument('path', help='bag directory (holding metadata.yaml)')
+    bag_info.set_defaults(func=cmd_bag_info)
+    recover = bag_sub.add_parser(
+        'recover', help='rebuild a valid bag from an unfinished one (recorder killed, file '
+        'truncated), keeping every message of its complete chunks')
+    recover.add_argument('path', help='bag directory or .mcap file to recover')
+    recover.add_argument('--out', default=None,
+                         help='new bag directory (default: PATH-recovered next to PATH)')
+    recover.set_defaults(func=cmd_bag_recover)
     return parser
 
 
