@@ -506,7 +506,7 @@ class BagReader:
             path=self.path, storage=self.files[0].suffix.lstrip('.') if self.files else '',
             message_count=count,
             start_ns=int(self._reader.start_time) if count else 0,
-            end_ns=int(self._reader.end_time) if count else 0, topics=topics)
+            end_ns=int(self._reader.end_time) - 1 if count else 0, topics=topics)
 
     def _files_text(self):
         return ', '.join(str(f) for f in self.files) or str(self.path)
