@@ -1,0 +1,313 @@
+"""
+The ECM's stereo endoscope: pinhole intrinsics, camera_info matrices and CPU rendering.
+
+Camera frames (optical convention, as ROS ``sensor_msgs/CameraInfo`` and OpenCV use them)
+-----------------------------------------------------------------------------------------
+- ``z`` forward along the viewing direction, ``x`` right in the image, ``y`` down in the image.
+- The ECM tool-tip frame (ECM ``measured_cp`` with the endoscope's tooltip offset) has ``z`` along
+  the endoscope axis, looking away from the arm; it is taken as the optical frame of the stereo
+  rig's centre. The left camera sits ``baseline / 2`` along ``-x`` of it, the right camera
+  ``baseline / 2`` along ``+x``; both have the tip's orientation (a rectified pair, ``R = I``).
+- A point ``p`` (left-camera frame) projects to pixel ``(u, v) = (fx x / z + cx, fy y / z + cy)``
+  with ``(0, 0)`` at the centre of the top-left pixel; in homogeneous form ``P_left [p; 1]`` with
+  ``P_left = [K | 0]``. The right camera's ``P_right = [K | (-fx * baseline, 0, 0)^T]`` takes
+  left-camera coordinates, as camera_info defines it for a rectified stereo pair.
+- Distortion model ``plumb_bob`` with all coefficients zero (the renderer is an ideal pinhole).
+
+Rendering uses PyBullet's CPU renderer (``ER_TINY_RENDERER``) through an injected client; depth is
+metric: the ``z`` coordinate (m) of the surface point seen in each pixel, in the camera frame.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+import pybullet
+
+# Optical frame (x right, y down, z forward) -> OpenGL camera frame (x right, y up, z backward).
+_OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """
+    Stereo endoscope intrinsics and rendering settings.
+
+    Attributes
+    ----------
+    width, height : int
+        Image size (pixels).
+    vertical_fov : float
+        Vertical field of view (rad); used when ``fy`` is 0.
+    fx, fy : float
+        Focal lengths (pixels); 0 derives them from ``vertical_fov`` (square pixels).
+    cx, cy : float
+        Principal point (pixels, (0, 0) = centre of the top-left pixel); negative values put it
+        at the image centre ``((width - 1) / 2, (height - 1) / 2)``.
+    baseline : float
+        Distance (m) between the left and right optical centres.
+    near, far : float
+        Clipping distances (m) of the renderer; depth outside them is not seen.
+    light_direction : tuple of float
+        Direction (world frame) towards the light for shading.
+
+    """
+
+    width: int = 640
+    height: int = 480
+    vertical_fov: float = 0.9
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = -1.0
+    cy: float = -1.0
+    baseline: float = 0.005
+    near: float = 0.01
+    far: float = 1.0
+    light_direction: tuple[float, float, float] = (0.2, -0.3, 1.0)
+
+    def __post_init__(self):
+        if self.width < 2 or self.height < 2:
+            raise ValueError(
+                f'camera width and height must be >= 2 pixels, got {self.width}x{self.height}')
+        if not (0.0 < self.vertical_fov < math.pi) and self.fy <= 0.0:
+            raise ValueError(
+                f'camera vertical_fov must be in (0, pi) rad, got {self.vertical_fov}')
+        if self.fx < 0.0 or self.fy < 0.0:
+            raise ValueError(f'camera fx, fy must be >= 0 pixels, got {self.fx}, {self.fy}')
+        if not self.baseline >= 0.0:
+            raise ValueError(f'camera baseline must be >= 0 m, got {self.baseline}')
+        if not 0.0 < self.near < self.far:
+            raise ValueError(
+                f'camera near/far must satisfy 0 < near < far, got {self.near}, {self.far}')
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """
+    What a ``sensor_msgs/CameraInfo`` carries, as arrays.
+
+    Attributes
+    ----------
+    width, height : int
+        Image size (pixels).
+    distortion_model : str
+        ``'plumb_bob'``.
+    D : ndarray, shape (5,)
+        Distortion coefficients (zeros).
+    K : ndarray, shape (3, 3)
+        Intrinsic matrix.
+    R : ndarray, shape (3, 3)
+        Rectification rotation (identity).
+    P : ndarray, shape (3, 4)
+        Projection matrix; ``P[0, 3] = -fx * baseline`` for the right camera.
+
+    """
+
+    width: int
+    height: int
+    distortion_model: str
+    D: np.ndarray
+    K: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+
+
+@dataclass(frozen=True)
+class StereoFrame:
+    """
+    One rendered stereo pair.
+
+    Attributes
+    ----------
+    left_rgb, right_rgb : ndarray, shape (height, width, 3), uint8
+        Colour images, row 0 at the top.
+    left_depth, right_depth : ndarray, shape (height, width), float32
+        Metric depth (m): camera-frame ``z`` of the surface in each pixel; ``inf`` where
+        nothing is closer than ``far``.
+    T_world_left, T_world_right : ndarray, shape (4, 4)
+        Optical frames of the two cameras in ``world``.
+
+    """
+
+    left_rgb: np.ndarray
+    left_depth: np.ndarray
+    right_rgb: np.ndarray
+    right_depth: np.ndarray
+    T_world_left: np.ndarray
+    T_world_right: np.ndarray
+
+
+class StereoCamera:
+    """
+    A rectified stereo pair rendered on the CPU at the ECM tool-tip pose.
+
+    Parameters
+    ----------
+    config : CameraConfig
+        Intrinsics and rendering settings.
+    client : pybullet_utils.bullet_client.BulletClient, optional
+        PyBullet client to render with; needed only by :meth:`render` and :meth:`render_view`.
+
+    """
+
+    def __init__(self, config=None, client=None):
+        self.config = config or CameraConfig()
+        self._client = client
+        c = self.config
+        fy = c.fy if c.fy > 0.0 else 0.5 * c.height / math.tan(0.5 * c.vertical_fov)
+        fx = c.fx if c.fx > 0.0 else fy
+        cx = c.cx if c.cx >= 0.0 else 0.5 * (c.width - 1)
+        cy = c.cy if c.cy >= 0.0 else 0.5 * (c.height - 1)
+        self.K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        self._projection = self._gl_projection(fx, fy, cx, cy)
+        self.T_tip_left = np.eye(4)
+        self.T_tip_left[0, 3] = -0.5 * c.baseline
+        self.T_tip_right = np.eye(4)
+        self.T_tip_right[0, 3] = 0.5 * c.baseline
+
+    # ------------------------------------------------------------------ intrinsics
+    @property
+    def P_left(self):  # noqa: N802 (camera_info names)
+        """Left projection matrix ``[K | 0]``, shape (3, 4)."""
+        return np.hstack([self.K, np.zeros((3, 1))])
+
+    @property
+    def P_right(self):  # noqa: N802 (camera_info names)
+        """Right projection matrix ``[K | (-fx * baseline, 0, 0)]``, shape (3, 4)."""
+        P = self.P_left
+        P[0, 3] = -self.K[0, 0] * self.config.baseline
+        return P
+
+    def camera_info(self, side):
+        """
+        Calibration of one camera, as camera_info carries it.
+
+        Parameters
+        ----------
+        side : {'left', 'right'}
+            Which camera.
+
+        Returns
+        -------
+        CameraInfo
+            Intrinsics, rectification and projection matrices.
+
+        """
+        if side not in ('left', 'right'):
+            raise ValueError(f"camera side must be 'left' or 'right', got {side!r}")
+        P = self.P_left if side == 'left' else self.P_right
+        return CameraInfo(width=self.config.width, height=self.config.height,
+                          distortion_model='plumb_bob', D=np.zeros(5), K=self.K.copy(),
+                          R=np.eye(3), P=P)
+
+    def camera_poses(self, T_world_tip):
+        """
+        Optical frames of the left and right cameras.
+
+        Parameters
+        ----------
+        T_world_tip : array_like, shape (4, 4)
+            ECM tool-tip pose in ``world``.
+
+        Returns
+        -------
+        tuple of ndarray, shape (4, 4)
+            ``(T_world_left, T_world_right)``.
+
+        """
+        T = np.asarray(T_world_tip, dtype=float)
+        return T @ self.T_tip_left, T @ self.T_tip_right
+
+    def project(self, points_world, T_world_camera):
+        """
+        Project world points into a camera's image with ``K``.
+
+        Parameters
+        ----------
+        points_world : array_like, shape (n, 3)
+            Points (m) in ``world``.
+        T_world_camera : array_like, shape (4, 4)
+            Optical frame of the camera in ``world``.
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+            Pixel coordinates ``(u, v)``; ``(0, 0)`` is the centre of the top-left pixel.
+
+        """
+        T = np.asarray(T_world_camera, dtype=float)
+        p = np.atleast_2d(np.asarray(points_world, dtype=float))
+        cam = (p - T[:3, 3]) @ T[:3, :3]
+        uvw = cam @ self.K.T
+        return uvw[:, :2] / uvw[:, 2:3]
+
+    # ------------------------------------------------------------------ rendering
+    def _gl_projection(self, fx, fy, cx, cy):
+        """OpenGL projection (column-major list of 16) for pinhole ``K`` and near/far planes."""
+        c = self.config
+        w, h, n, f = c.width, c.height, c.near, c.far
+        P = np.zeros((4, 4))
+        P[0, 0] = 2.0 * fx / w
+        # TinyRenderer samples pixel column i at window x = i and writes row r from window
+        # y = h - 1 - r, so pixel (u, v) = window (u, h - 1 - v).
+        P[0, 2] = 1.0 - 2.0 * cx / w
+        P[1, 1] = 2.0 * fy / h
+        P[1, 2] = 2.0 * (cy + 1.0) / h - 1.0
+        P[2, 2] = -(f + n) / (f - n)
+        P[2, 3] = -2.0 * f * n / (f - n)
+        P[3, 2] = -1.0
+        return P.T.reshape(-1).tolist()
+
+    def render_view(self, T_world_camera):
+        """
+        Render one camera's colour and metric depth images.
+
+        Parameters
+        ----------
+        T_world_camera : array_like, shape (4, 4)
+            Optical frame of the camera in ``world``.
+
+        Returns
+        -------
+        rgb : ndarray, shape (height, width, 3), uint8
+            Colour image, row 0 at the top.
+        depth : ndarray, shape (height, width), float32
+            Camera-frame ``z`` (m) of the surface seen in each pixel; ``inf`` beyond ``far``.
+
+        """
+        if self._client is None:
+            raise ValueError('StereoCamera was built without a PyBullet client; pass client=')
+        c = self.config
+        T_gl = np.asarray(T_world_camera, dtype=float) @ _OPTICAL_TO_GL
+        view = np.linalg.inv(T_gl)
+        _, _, rgba, depth_buffer, _ = self._client.getCameraImage(
+            c.width, c.height, viewMatrix=view.T.reshape(-1).tolist(),
+            projectionMatrix=self._projection, lightDirection=list(c.light_direction),
+            shadow=0, renderer=pybullet.ER_TINY_RENDERER,
+            flags=pybullet.ER_NO_SEGMENTATION_MASK)
+        rgba = np.asarray(rgba, dtype=np.uint8).reshape(c.height, c.width, 4)
+        d = np.asarray(depth_buffer, dtype=np.float64).reshape(c.height, c.width)
+        depth = c.far * c.near / (c.far - (c.far - c.near) * d)
+        depth[d >= 1.0] = np.inf
+        return rgba[:, :, :3].copy(), depth.astype(np.float32)
+
+    def render(self, T_world_tip):
+        """
+        Render the stereo pair at the ECM tool-tip pose.
+
+        Parameters
+        ----------
+        T_world_tip : array_like, shape (4, 4)
+            ECM tool-tip pose in ``world``.
+
+        Returns
+        -------
+        StereoFrame
+            Left and right colour and depth images and the two camera poses.
+
+        """
+        T_left, T_right = self.camera_poses(T_world_tip)
+        left_rgb, left_depth = self.render_view(T_left)
+        right_rgb, right_depth = self.render_view(T_right)
+        return StereoFrame(left_rgb=left_rgb, left_depth=left_depth, right_rgb=right_rgb,
+                           right_depth=right_depth, T_world_left=T_left, T_world_right=T_right)
