@@ -235,3 +235,167 @@ def track_step(q, qd, target, v_max, a_max, dt, target_velocity=None):
     q_new = q + qd_new * dt
     arrived = (np.abs(target - q_new) < 1e-12) & (np.abs(qd_new) <= a * dt)
     return np.where(arrived, target, q_new), qd_new
+
+
+class JointMotion:
+    """
+    A joint group (the arm joints or the jaw) following its setpoint within limits.
+
+    Holds the measured state, the setpoint and what drives the setpoint: a
+    :class:`JointTrajectory` (``move_*``), a stream of servo setpoints (``servo_*``: the measured
+    joints glide from one setpoint to the next over the command interval), or nothing (hold).
+
+    Parameters
+    ----------
+    q0 : array_like, shape (n,)
+        Initial position (rad / m); also the initial setpoint.
+    lower, upper : array_like, shape (n,)
+        Position limits (rad / m).
+    v_max, a_max : array_like, shape (n,)
+        Velocity and acceleration limits (per s, per s^2).
+
+    Attributes
+    ----------
+    q, qd : ndarray, shape (n,)
+        Measured position and velocity.
+    setpoint : ndarray, shape (n,)
+        Servo goal, or the trajectory sample at the last :meth:`advance`.
+    trajectory : JointTrajectory or None
+        The running move.
+
+    """
+
+    def __init__(self, q0, lower, upper, v_max, a_max):
+        self.q = np.array(q0, dtype=float)
+        self.qd = np.zeros_like(self.q)
+        self.setpoint = self.q.copy()
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.v_max = np.asarray(v_max, dtype=float)
+        self.a_max = np.asarray(a_max, dtype=float)
+        self.trajectory = None
+        self._t0 = 0.0
+        self._ramp = None  # (start, goal, start time, interval)
+        self._last_servo_time = None
+
+    def target(self, now):
+        """
+        Setpoint to track at time ``now`` (s) and its velocity (None when standing still).
+
+        Returns
+        -------
+        q : ndarray, shape (n,)
+        qd : ndarray, shape (n,) or None
+
+        """
+        if self.trajectory is not None:
+            return self.trajectory.sample(now - self._t0)
+        if self._ramp is not None:
+            start, goal, t0, interval = self._ramp
+            s = (now - t0) / interval
+            if s <= 1.0 + 1e-9:
+                return start + (goal - start) * min(s, 1.0), (goal - start) / interval
+        return self.setpoint, None
+
+    def setpoint_velocity(self, now):
+        """Velocity (per s) of the tracked setpoint at time ``now``, shape (n,)."""
+        velocity = self.target(now)[1]
+        return np.zeros_like(self.q) if velocity is None else velocity
+
+    def servo(self, goal, now, stream_gap):
+        """
+        Jump the setpoint to ``goal`` (stopping any trajectory).
+
+        Parameters
+        ----------
+        goal : ndarray, shape (n,)
+            New setpoint (rad / m), already inside the limits.
+        now : float
+            Current time (s).
+        stream_gap : float
+            Commands closer than this (s) to the previous one glide from it over the interval.
+
+        """
+        last = self._last_servo_time
+        if last is not None and 0.0 < now - last <= stream_gap:
+            self._ramp = (self.target(now)[0], goal, now, now - last)
+        elif last is not None and now == last and self._ramp is not None:
+            start, _, t0, interval = self._ramp
+            self._ramp = (start, goal, t0, interval)
+        else:
+            self._ramp = None
+        self._last_servo_time = now
+        self.trajectory = None
+        self.setpoint = np.array(goal, dtype=float)
+
+    def move(self, goal, now, ratio):
+        """
+        Start a trajectory to ``goal`` from the current setpoint and its velocity.
+
+        Parameters
+        ----------
+        goal : ndarray, shape (n,)
+            Goal (rad / m), already inside the limits.
+        now : float
+            Current time (s).
+        ratio : float
+            Trajectory ratio in ]0, 1].
+
+        Returns
+        -------
+        JointTrajectory
+
+        """
+        start, velocity = self.target(now)
+        velocity = np.zeros_like(self.q) if velocity is None else velocity
+        velocity = np.clip(velocity, -self.v_max, self.v_max)
+        self.trajectory = JointTrajectory(start, goal, self.v_max, self.a_max, ratio=ratio,
+                                          start_velocity=velocity)
+        self._t0 = now
+        self._ramp = None
+        self.setpoint = self.trajectory.start.copy()
+        return self.trajectory
+
+    def hold(self):
+        """Stop where the measured joints are: no trajectory, setpoint = measured, at rest."""
+        self.trajectory = None
+        self._ramp = None
+        self.setpoint = self.q.copy()
+        self.qd = np.zeros_like(self.q)
+
+    def advance(self, now, dt, exact=False):
+        """
+        Move the measured joints over one step ending at ``now`` and update the setpoint.
+
+        Parameters
+        ----------
+        now : float
+            Time at the end of the step (s).
+        dt : float
+            Step length (s).
+        exact : bool
+            Measured = setpoint instead of limited tracking.
+
+        Returns
+        -------
+        bool
+            True when a trajectory arrived during this step.
+
+        """
+        target, velocity = self.target(now)
+        if exact:
+            q = target
+            qd = np.zeros_like(self.q) if velocity is None else np.array(velocity)
+        else:
+            q, qd = track_step(self.q, self.qd, target, self.v_max, self.a_max, dt, velocity)
+        self.q = np.clip(q, self.lower, self.upper)
+        self.qd = np.where(self.q == q, qd, 0.0)
+        if self._ramp is not None and now > self._ramp[2] + self._ramp[3] * (1.0 + 1e-9):
+            self._ramp = None
+        if self.trajectory is None:
+            return False
+        self.setpoint = target.copy()
+        if self.trajectory.done(now - self._t0):
+            self.trajectory = None
+            return True
+        return False

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from sim_bridge.trajectory import JointTrajectory, minimum_duration, track_step
+from sim_bridge.trajectory import JointMotion, JointTrajectory, minimum_duration, track_step
 
 
 def sampled(trajectory, n=1001):
@@ -120,3 +120,51 @@ def test_tracking_a_trajectory_with_feed_forward_follows_it():
         q, qd = track_step(q, qd, setpoint, v_max, a_max, dt, velocity)
         worst = max(worst, np.max(np.abs(q - setpoint)))
     assert worst < 1e-9
+
+
+def make_motion(q0=(0.0,)):
+    n = len(q0)
+    return JointMotion(q0, [-3.0] * n, [3.0] * n, [1.5] * n, [1.5] * n)
+
+
+def test_a_servo_stream_glides_from_setpoint_to_setpoint():
+    motion = make_motion()
+    t, dt, speed = 0.0, 0.002, 0.2
+    worst_lag = 0.0
+    for k in range(500):
+        if k % 5 == 0:  # 100 Hz commands of a ramp
+            motion.servo(np.array([speed * t]), t, stream_gap=0.1)
+        t += dt
+        assert not motion.advance(t, dt)
+        if k > 200:  # after the acceleration-limited start of the stream
+            worst_lag = max(worst_lag, abs(speed * t - motion.q[0]))
+            assert motion.qd[0] == pytest.approx(speed, rel=1e-6)
+    assert worst_lag <= speed * 0.01 + 1e-9  # one command interval behind
+
+
+def test_a_move_replacing_a_move_starts_from_its_setpoint_and_velocity():
+    motion = make_motion()
+    dt, t = 0.002, 0.0
+    motion.move(np.array([2.0]), t, ratio=1.0)
+    for _ in range(300):
+        t += dt
+        motion.advance(t, dt)
+    position, velocity = motion.target(t)
+    second = motion.move(np.array([-1.0]), t, ratio=1.0)
+    assert second.start[0] == position[0]
+    assert second.sample(0.0)[1][0] == pytest.approx(velocity[0])
+    arrived = False
+    while not arrived:
+        t += dt
+        arrived = motion.advance(t, dt)
+    assert motion.setpoint[0] == -1.0
+    assert motion.q[0] == pytest.approx(-1.0, abs=1e-9)
+
+
+def test_hold_stops_at_the_measured_position():
+    motion = make_motion()
+    motion.move(np.array([1.0]), 0.0, ratio=1.0)
+    motion.advance(0.1, 0.1)
+    motion.hold()
+    assert motion.trajectory is None and motion.qd[0] == 0.0
+    assert motion.setpoint[0] == motion.q[0]

@@ -1,0 +1,840 @@
+"""
+A simulated dVRK arm behind the CRTK command set: operating state, servo/move, jaw, events.
+
+The arm is kinematic: ``step(dt)`` advances trajectories and moves the measured joints towards
+the setpoint within the joint velocity/acceleration limits (the stand-in for the dVRK PID). The
+owner (the simulation) calls ``step`` at a fixed period and reads the state properties; commands
+may arrive at any time between steps and never raise: bad input becomes an ``error`` event and
+the arm keeps holding its setpoint.
+
+Operating-state rules follow the dVRK (cisst ``prmOperatingState``, sawIntuitiveResearchKit
+``mtsIntuitiveResearchKitArm``):
+
+- states ``DISABLED``, ``ENABLED``, ``PAUSED``, ``FAULT``; commands ``enable``, ``disable``,
+  ``home``, ``unhome``, ``pause``, ``resume``; every ``state_command`` first re-emits the current
+  state, a command that the current state does not accept becomes the warning
+  ``"<ARM>: command <cmd> is not supported in state <STATE>"``;
+- ``enable`` from DISABLED emits (DISABLED, busy) then (ENABLED, idle);
+- ``home`` (ENABLED only) emits busy, runs a trajectory to the homing goal (all joints 0,
+  insertion 0.12 m) and ends with (ENABLED, homed, idle);
+- ``move_*`` (and ``jaw_move_jp``) emit busy at the start, ``goal_reached(True)`` and idle at the
+  end, also for zero-length moves (at the next step); a move that arrives while another runs
+  replaces it; ``servo_*`` supersede any running move of the same part and leave busy false;
+- motion commands while not ready (not ENABLED, not homed, or no tool for Cartesian/jaw
+  commands) are ignored with the throttled warning ``"<ARM>: <command>, arm not ready"``.
+
+Frames: ``measured_cp = base_frame @ local_measured_cp``, ``local_measured_cp`` being the tool tip
+in the RCM frame ``<ARM>_base`` (DH chain and tooltip offset). Units are SI.
+"""
+
+from dataclasses import dataclass
+import logging
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from sim_bridge.kinematics import PsmKinematics, UnreachableError, check_pose
+from sim_bridge.trajectory import JointMotion
+
+logger = logging.getLogger(__name__)
+
+STATES = ('DISABLED', 'ENABLED', 'PAUSED', 'FAULT')
+STATE_COMMANDS = ('enable', 'disable', 'home', 'unhome', 'pause', 'resume')
+# cisst prmOperatingState::ValidCommand
+VALID_COMMANDS = {
+    'DISABLED': ('enable', 'disable', 'unhome'),
+    'ENABLED': ('enable', 'disable', 'pause', 'unhome', 'home'),
+    'PAUSED': ('disable', 'pause', 'resume', 'unhome'),
+    'FAULT': ('enable', 'disable', 'unhome'),
+}
+EVENT_KINDS = ('operating_state', 'goal_reached', 'error', 'warning', 'status', 'ratio')
+_QUATERNION_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class OperatingState:
+    """
+    CRTK operating state (crtk_msgs/OperatingState without the header).
+
+    Attributes
+    ----------
+    state : str
+        ``'DISABLED'``, ``'ENABLED'``, ``'PAUSED'`` or ``'FAULT'``.
+    is_homed : bool
+    is_busy : bool
+        A ``move_*``, ``jaw_move_jp`` or homing trajectory is running.
+
+    """
+
+    state: str
+    is_homed: bool
+    is_busy: bool
+
+
+@dataclass(frozen=True)
+class ArmEvent:
+    """
+    Something the dVRK publishes as an event topic.
+
+    Attributes
+    ----------
+    kind : str
+        ``'operating_state'`` (value OperatingState), ``'goal_reached'`` (bool), ``'error'``,
+        ``'warning'``, ``'status'`` (str) or ``'ratio'`` (float).
+    value : object
+
+    """
+
+    kind: str
+    value: object
+
+
+@dataclass(frozen=True)
+class ArmConfig:
+    """
+    Configuration of a simulated arm.
+
+    Attributes
+    ----------
+    initial_jp : tuple of float, optional
+        Joint positions (rad / m) at start-up; default: the homing goal.
+    initial_jaw : float
+        PSM jaw angle at start-up (rad).
+    home_jp : tuple of float, optional
+        Homing goal (rad / m); default: the kinematics' home (insertion 0.12 m, others 0).
+    tracking : str
+        ``'limited'``: the measured joints follow the setpoint within the velocity and
+        acceleration limits; ``'exact'``: measured = setpoint.
+    throttle_period : float
+        Repeated "not ready" warnings, clipping warnings and errors of streaming (``servo_*``)
+        commands are emitted at most once per this much simulated time (s).
+    servo_stream_gap : float
+        ``servo_*`` commands closer than this (s) form a stream: the measured joints glide from
+        one setpoint to the next over the command interval; further apart, a command is a jump.
+    tool_present : bool
+        PSM instrument present at start-up (Cartesian and jaw commands need it).
+
+    """
+
+    initial_jp: tuple[float, ...] | None = None
+    initial_jaw: float = 0.0
+    home_jp: tuple[float, ...] | None = None
+    tracking: str = 'limited'
+    throttle_period: float = 1.0
+    servo_stream_gap: float = 0.1
+    tool_present: bool = True
+
+    def __post_init__(self):
+        if self.tracking not in ('limited', 'exact'):
+            raise ValueError(f"tracking must be 'limited' or 'exact', got {self.tracking!r}")
+        if not self.throttle_period >= 0.0:
+            raise ValueError(f'throttle_period must be >= 0 s, got {self.throttle_period}')
+        if not self.servo_stream_gap > 0.0:
+            raise ValueError(f'servo_stream_gap must be > 0 s, got {self.servo_stream_gap}')
+
+
+class Arm:
+    """
+    A simulated dVRK arm (PSM or ECM) with the CRTK command set and operating-state machine.
+
+    Parameters
+    ----------
+    name : str
+        Arm name (``'PSM1'``, ``'ECM'``), used in messages and the default frame id.
+    kinematics : PsmKinematics or EcmKinematics
+        The arm's chain; a PSM chain adds the jaw.
+    config : ArmConfig
+        Start-up position, homing goal and tracking options.
+
+    Notes
+    -----
+    Command methods never raise; results arrive as events (:meth:`pop_events`). Time advances
+    only in :meth:`step`.
+
+    """
+
+    def __init__(self, name, kinematics, config=ArmConfig()):
+        self.name = str(name)
+        self.kinematics = kinematics
+        self.config = config
+        k = kinematics
+        self._has_jaw = isinstance(k, PsmKinematics)
+        home = k.home if config.home_jp is None else k.check_q(config.home_jp, name='home_jp')
+        if not k.within_limits(home):
+            raise ValueError(f'{self.name}: home_jp {home.tolist()} is outside the joint limits')
+        self._home = home
+        q0 = home if config.initial_jp is None else k.check_q(config.initial_jp,
+                                                                name='initial_jp')
+        if not k.within_limits(q0):
+            raise ValueError(f'{self.name}: initial_jp {q0.tolist()} is outside the joint limits '
+                             f'[{k.lower.tolist()}, {k.upper.tolist()}]')
+        self._arm = JointMotion(q0, k.lower, k.upper, k.v_max, k.a_max)
+        if self._has_jaw:
+            jaw0 = float(config.initial_jaw)
+            if not k.jaw_lower <= jaw0 <= k.jaw_upper:
+                raise ValueError(f'{self.name}: initial_jaw {jaw0} is outside '
+                                 f'[{k.jaw_lower}, {k.jaw_upper}]')
+            self._jaw = JointMotion([jaw0], [k.jaw_lower], [k.jaw_upper], [k.jaw_v_max],
+                                    [k.jaw_a_max])
+        else:
+            self._jaw = None
+        self._state = 'DISABLED'
+        self._homed = False
+        self._busy = False
+        self._homing = False
+        self._free = False
+        self._tool_present = bool(config.tool_present)
+        self._ratio = 1.0
+        self._base_frame = np.eye(4)
+        self._reference_frame = f'{self.name}_base'
+        self._setpoint_jf = np.zeros(k.n_joints)
+        self._time = 0.0
+        self._events = []
+        self._last_message = {}
+
+    # -- events --------------------------------------------------------------------------------
+
+    def pop_events(self):
+        """
+        Return and clear the events emitted since the last call, oldest first.
+
+        Returns
+        -------
+        list of ArmEvent
+
+        """
+        events, self._events = self._events, []
+        return events
+
+    def _emit(self, kind, value):
+        self._events.append(ArmEvent(kind, value))
+
+    def _emit_state(self):
+        self._emit('operating_state', self.operating_state)
+
+    def _message(self, kind, text, throttle_key=None):
+        if throttle_key is not None:
+            last = self._last_message.get(throttle_key)
+            if last is not None and self._time - last < self.config.throttle_period:
+                return
+            self._last_message[throttle_key] = self._time
+        (logger.error if kind == 'error' else logger.warning if kind == 'warning'
+         else logger.info)(text)
+        self._emit(kind, text)
+
+    def _set_busy(self, busy, force=False):
+        """Emit an operating_state event when busy changes (or always with ``force``)."""
+        if busy != self._busy or force:
+            self._busy = busy
+            self._emit_state()
+
+    def _motion_running(self):
+        jaw_moving = self._jaw is not None and self._jaw.trajectory is not None
+        return self._homing or self._arm.trajectory is not None or jaw_moving
+
+    # -- operating state -----------------------------------------------------------------------
+
+    def state_command(self, command):
+        """
+        Apply a CRTK state command.
+
+        Parameters
+        ----------
+        command : str
+            ``'enable'``, ``'disable'``, ``'home'``, ``'unhome'``, ``'pause'`` or ``'resume'``.
+
+        Notes
+        -----
+        Always emits the current operating state first; an unknown command emits an error, a
+        command the current state does not accept emits a warning, both without state change.
+
+        """
+        self._emit_state()
+        if command not in STATE_COMMANDS:
+            self._message('error', f'{self.name}: unknown state command {command!r}; expected '
+                          f'one of {", ".join(STATE_COMMANDS)}')
+            return
+        if command not in VALID_COMMANDS[self._state]:
+            self._message('warning', f'{self.name}: command {command} is not supported in '
+                          f'state {self._state}')
+            return
+        getattr(self, f'_command_{command}')()
+
+    def _abort_motions(self):
+        """Stop every running move (goal_reached False) and homing; hold the measured joints."""
+        for part in (self._arm, self._jaw):
+            if part is None:
+                continue
+            homing = part is self._arm and self._homing
+            if part.trajectory is not None and not homing:
+                self._emit('goal_reached', False)
+            part.hold()
+        self._homing = False
+
+    def _command_enable(self):
+        if self._state == 'ENABLED':
+            return
+        self._busy = True
+        self._emit_state()  # powering
+        self._arm.hold()
+        if self._jaw is not None:
+            self._jaw.hold()
+        self._state = 'ENABLED'
+        self._free = False
+        self._busy = False
+        self._emit_state()
+
+    def _command_disable(self):
+        if self._state == 'DISABLED':
+            return
+        self._abort_motions()
+        self._state = 'DISABLED'
+        self._busy = False
+        self._emit_state()
+
+    def _command_pause(self):
+        if self._state == 'PAUSED':
+            return
+        self._abort_motions()
+        self._state = 'PAUSED'
+        self._busy = False
+        self._emit_state()
+
+    def _command_resume(self):
+        self._state = 'ENABLED'
+        self._emit_state()
+
+    def _command_unhome(self):
+        if not self._homed and not self._motion_running():
+            return
+        self._abort_motions()
+        self._homed = False
+        self._busy = False
+        self._emit_state()
+
+    def _command_home(self):
+        self._abort_motions()
+        self._homed = False
+        self._free = False
+        self._arm.move(self._home, self._time, self._ratio)
+        self._homing = True
+        self._set_busy(True, force=True)
+
+    # -- readiness, validation -----------------------------------------------------------------
+
+    def _ready(self, command, needs_tool=False):
+        ready = self._state == 'ENABLED' and self._homed
+        if ready and needs_tool and self._has_jaw and not self._tool_present:
+            ready = False
+        if not ready:
+            self._message('warning', f'{self.name}: {command}, arm not ready',
+                          throttle_key=(command, 'not ready'))
+        return ready
+
+    def _clip_arm(self, command, q, stream):
+        clipped = self.kinematics.clip(q)
+        if np.any(clipped != q):
+            names = [n for n, a, b in zip(self.kinematics.joint_names, q, clipped) if a != b]
+            self._message('warning', f'{self.name}: {command} goal clipped to the joint limits '
+                          f'({", ".join(names)})',
+                          throttle_key=(command, 'clipped') if stream else None)
+        return clipped
+
+    def _clip_jaw(self, command, angle, stream):
+        clipped = self.kinematics.clip_jaw(angle)
+        if clipped != angle:
+            k = self.kinematics
+            self._message('warning', f'{self.name}: {command} angle {angle:.4f} rad clipped to '
+                          f'[{k.jaw_lower:.4f}, {k.jaw_upper:.4f}]',
+                          throttle_key=(command, 'clipped') if stream else None)
+        return clipped
+
+    def _pose_in_rcm(self, pose, command):
+        """Validate a Cartesian goal (in the measured_cp frame) and express it in <ARM>_base."""
+        arr = np.asarray(pose, dtype=float) if _is_numeric(pose) else None
+        if arr is None:
+            raise ValueError(f'{command} goal must be a 4x4 pose or (x, y, z, qx, qy, qz, qw)')
+        if arr.shape == (7,):
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f'{command} goal contains NaN or infinite values')
+            norm = float(np.linalg.norm(arr[3:]))
+            if abs(norm - 1.0) > _QUATERNION_TOLERANCE:
+                raise ValueError(f'{command} orientation is not a unit quaternion '
+                                 f'(norm {norm:.6g})')
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_quat(arr[3:] / norm).as_matrix()
+            T[:3, 3] = arr[:3]
+        else:
+            T = check_pose(arr, name=f'{command} goal')
+        return np.linalg.solve(self._base_frame, T)
+
+    # -- arm commands --------------------------------------------------------------------------
+
+    def _servo_arm(self, q):
+        if self._arm.trajectory is not None:
+            self._emit('goal_reached', False)
+        self._free = False
+        self._arm.servo(q, self._time, self.config.servo_stream_gap)
+        self._set_busy(self._motion_running())
+
+    def servo_jp(self, q):
+        """
+        Set the joint setpoint directly (no trajectory; leaves busy false).
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Joint positions (rad / m); clipped to the limits with a warning.
+
+        """
+        if not self._ready('servo_jp'):
+            return
+        try:
+            q = self.kinematics.check_q(q, name='servo_jp position')
+        except ValueError as exc:
+            self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jp', 'input'))
+            return
+        self._servo_arm(self._clip_arm('servo_jp', q, stream=True))
+
+    def servo_jr(self, dq):
+        """
+        Add a joint increment to the current setpoint.
+
+        Parameters
+        ----------
+        dq : array_like, shape (n,)
+            Joint increments (rad / m).
+
+        """
+        if not self._ready('servo_jr'):
+            return
+        try:
+            dq = self.kinematics.check_q(dq, name='servo_jr increment')
+        except ValueError as exc:
+            self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jr', 'input'))
+            return
+        self._servo_arm(self._clip_arm('servo_jr', self._arm.setpoint + dq, stream=True))
+
+    def servo_cp(self, pose):
+        """
+        Set a Cartesian setpoint: closed-form IK near the current setpoint.
+
+        Parameters
+        ----------
+        pose : array_like, shape (4, 4) or (7,)
+            Tool-tip goal in the ``measured_cp`` frame (``base_frame`` applied), as a matrix or as
+            ``(x, y, z, qx, qy, qz, qw)`` (metres, unit quaternion).
+
+        """
+        if not self._ready('servo_cp', needs_tool=True):
+            return
+        try:
+            T = self._pose_in_rcm(pose, 'servo_cp')
+            q = self.kinematics.ik(T, q_ref=self._arm.setpoint)
+        except UnreachableError as exc:
+            self._message('error', f'{self.name}: servo_cp {exc}',
+                          throttle_key=('servo_cp', 'unreachable'))
+            return
+        except ValueError as exc:
+            self._message('error', f'{self.name}: {exc}', throttle_key=('servo_cp', 'input'))
+            return
+        self._servo_arm(q)
+
+    def _reject_move(self, text):
+        """Error, then a busy pulse closed by goal_reached(False), the arm holding its goal."""
+        self._message('error', text)
+        self._set_busy(True, force=True)
+        self._emit('goal_reached', False)
+        self._set_busy(self._motion_running())
+
+    def _move_arm(self, goal):
+        self._arm.move(goal, self._time, self._ratio)
+        self._free = False
+        self._set_busy(True, force=True)
+
+    def move_jp(self, q):
+        """
+        Start a joint trajectory to ``q`` (busy until it arrives, then goal_reached True).
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Goal joint positions (rad / m); clipped to the limits with a warning.
+
+        """
+        if not self._ready('move_jp'):
+            return
+        try:
+            q = self.kinematics.check_q(q, name='move_jp position')
+        except ValueError as exc:
+            self._reject_move(f'{self.name}: {exc}')
+            return
+        self._move_arm(self._clip_arm('move_jp', q, stream=False))
+
+    def move_jr(self, dq):
+        """
+        Start a joint trajectory by an increment from the current setpoint.
+
+        Parameters
+        ----------
+        dq : array_like, shape (n,)
+            Joint increments (rad / m).
+
+        """
+        if not self._ready('move_jr'):
+            return
+        try:
+            dq = self.kinematics.check_q(dq, name='move_jr increment')
+        except ValueError as exc:
+            self._reject_move(f'{self.name}: {exc}')
+            return
+        goal = self._arm.target(self._time)[0] + dq
+        self._move_arm(self._clip_arm('move_jr', goal, stream=False))
+
+    def move_cp(self, pose):
+        """
+        Start a joint trajectory to the IK solution of a Cartesian goal (not a straight line).
+
+        Parameters
+        ----------
+        pose : array_like, shape (4, 4) or (7,)
+            Tool-tip goal in the ``measured_cp`` frame, matrix or ``(x, y, z, qx, qy, qz, qw)``.
+
+        Notes
+        -----
+        An unreachable goal emits an error and a busy pulse ending with goal_reached False.
+
+        """
+        if not self._ready('move_cp', needs_tool=True):
+            return
+        try:
+            T = self._pose_in_rcm(pose, 'move_cp')
+            q = self.kinematics.ik(T, q_ref=self._arm.target(self._time)[0])
+        except UnreachableError as exc:
+            self._reject_move(f'{self.name}: move_cp {exc}')
+            return
+        except ValueError as exc:
+            self._reject_move(f'{self.name}: {exc}')
+            return
+        self._move_arm(q)
+
+    def servo_jf(self, effort):
+        """
+        Record a joint effort setpoint (N, N m); the kinematic simulation does not act on it.
+
+        Parameters
+        ----------
+        effort : array_like, shape (n,)
+
+        """
+        try:
+            self._setpoint_jf = self.kinematics.check_q(effort, name='servo_jf effort')
+        except ValueError as exc:
+            self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jf', 'input'))
+
+    def hold(self):
+        """Stop every motion and hold the measured position (running moves: goal_reached False)."""
+        if self._state != 'ENABLED':
+            return
+        self._abort_motions()
+        self._free = False
+        self._set_busy(False)
+
+    def free(self):
+        """Stop holding: the arm stays where it is and setpoints follow the measured joints."""
+        if self._state != 'ENABLED':
+            return
+        self._abort_motions()
+        self._free = True
+        self._set_busy(False)
+
+    # -- jaw -----------------------------------------------------------------------------------
+
+    def _jaw_angle(self, command, angle):
+        if not self._has_jaw:
+            self._message('error', f'{self.name}: {command}: this arm has no jaw')
+            return None
+        if not self._ready(command, needs_tool=True):
+            return None
+        try:
+            value = np.asarray(angle, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            value = np.array([np.nan, np.nan])
+        if value.shape != (1,) or not np.isfinite(value[0]):
+            text = f'{self.name}: {command} needs one finite angle (rad), got {angle!r}'
+            if command == 'jaw_move_jp':
+                self._reject_move(text)
+            else:
+                self._message('error', text, throttle_key=(command, 'input'))
+            return None
+        return self._clip_jaw(command, float(value[0]), stream=command == 'jaw_servo_jp')
+
+    def jaw_servo_jp(self, angle):
+        """
+        Set the jaw setpoint directly (PSM only).
+
+        Parameters
+        ----------
+        angle : float or array_like, shape (1,)
+            Jaw opening angle (rad); clipped to the jaw range with a warning.
+
+        """
+        angle = self._jaw_angle('jaw_servo_jp', angle)
+        if angle is None:
+            return
+        if self._jaw.trajectory is not None:
+            self._emit('goal_reached', False)
+        self._jaw.servo(np.array([angle]), self._time, self.config.servo_stream_gap)
+        self._set_busy(self._motion_running())
+
+    def jaw_move_jp(self, angle):
+        """
+        Start a jaw trajectory (PSM only); shares the arm's busy flag, runs alongside arm moves.
+
+        Parameters
+        ----------
+        angle : float or array_like, shape (1,)
+            Goal jaw angle (rad); clipped to the jaw range with a warning.
+
+        """
+        angle = self._jaw_angle('jaw_move_jp', angle)
+        if angle is None:
+            return
+        self._jaw.move(np.array([angle]), self._time, self._ratio)
+        self._set_busy(True, force=True)
+
+    # -- settings ------------------------------------------------------------------------------
+
+    def set_ratio(self, ratio):
+        """
+        Scale the trajectory velocity and acceleration limits (``trajectory_j/set_ratio``).
+
+        Parameters
+        ----------
+        ratio : float
+            In ]0, 1]; applies to trajectories started afterwards. Emits a ``ratio`` event.
+
+        """
+        try:
+            r = float(ratio)
+        except (TypeError, ValueError):
+            r = float('nan')
+        if not (np.isfinite(r) and 0.0 < r <= 1.0):
+            self._message('error', f'{self.name}: trajectory ratio must be in ]0, 1], '
+                          f'got {ratio!r}')
+            return
+        self._ratio = r
+        self._emit('ratio', r)
+
+    def set_base_frame(self, pose, frame_id=None):
+        """
+        Set the base frame: ``measured_cp = base_frame @ local_measured_cp``.
+
+        Parameters
+        ----------
+        pose : array_like, shape (4, 4)
+            ``T_ref_base``: the RCM frame ``<ARM>_base`` in the new reference frame (metres).
+        frame_id : str, optional
+            Name of the new reference frame (the ``measured_cp`` frame id); default keeps the
+            current one.
+
+        """
+        try:
+            T = check_pose(pose, name='set_base_frame pose')
+        except ValueError as exc:
+            self._message('error', f'{self.name}: {exc}')
+            return
+        self._base_frame = T
+        if frame_id:
+            self._reference_frame = str(frame_id)
+
+    def emulate_tool_present(self, present):
+        """
+        Pretend a PSM instrument is (or is not) mounted; Cartesian and jaw commands need one.
+
+        Parameters
+        ----------
+        present : bool
+
+        """
+        self._tool_present = bool(present)
+        self._message('status', f'{self.name}: tool {"present" if present else "removed"} '
+                      '(emulated)')
+
+    # -- time ----------------------------------------------------------------------------------
+
+    def step(self, dt):
+        """
+        Advance the arm by ``dt`` seconds of simulated time.
+
+        Parameters
+        ----------
+        dt : float
+            Time step (s), > 0.
+
+        """
+        dt = float(dt)
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ValueError(f'step dt must be a positive number of seconds, got {dt}')
+        self._time += dt
+        now = self._time
+        if self._state != 'ENABLED':
+            self._arm.qd[:] = 0.0
+            if self._jaw is not None:
+                self._jaw.qd[:] = 0.0
+            return
+        exact = self.config.tracking == 'exact'
+        finished = []
+        for part in (self._arm, self._jaw):
+            if part is None:
+                continue
+            if self._free and part is self._arm:
+                part.hold()
+            elif part.advance(now, dt, exact):
+                finished.append(part)
+        for part in finished:
+            if part is self._arm and self._homing:
+                self._homing = False
+                self._homed = True
+                self._busy = self._motion_running()
+                self._emit_state()
+            else:
+                self._emit('goal_reached', True)
+        self._set_busy(self._motion_running())
+
+    # -- state ---------------------------------------------------------------------------------
+
+    @property
+    def time(self):
+        """Simulated time (s) accumulated by :meth:`step`."""
+        return self._time
+
+    @property
+    def has_jaw(self):
+        """Whether the arm has a jaw (PSM)."""
+        return self._has_jaw
+
+    @property
+    def operating_state(self):
+        """Current :class:`OperatingState`."""
+        return OperatingState(self._state, self._homed, self._busy)
+
+    @property
+    def ratio(self):
+        """Trajectory ratio in ]0, 1]."""
+        return self._ratio
+
+    @property
+    def base_frame(self):
+        """``T_ref_base``, shape (4, 4): the RCM frame in the ``measured_cp`` reference frame."""
+        return self._base_frame.copy()
+
+    @property
+    def reference_frame(self):
+        """Frame id of ``measured_cp`` / ``setpoint_cp`` (default ``'<ARM>_base'``)."""
+        return self._reference_frame
+
+    @property
+    def tool_present(self):
+        """Whether a PSM instrument is (emulated as) mounted."""
+        return self._tool_present
+
+    @property
+    def measured_jp(self):
+        """Measured joint positions, shape (n,) (rad / m)."""
+        return self._arm.q.copy()
+
+    @property
+    def measured_jv(self):
+        """Measured joint velocities, shape (n,) (rad/s, m/s)."""
+        return self._arm.qd.copy()
+
+    @property
+    def measured_jf(self):
+        """Measured joint efforts, shape (n,) (N, N m); zero in the kinematic simulation."""
+        return np.zeros(self.kinematics.n_joints)
+
+    @property
+    def setpoint_jp(self):
+        """Joint setpoint, shape (n,) (rad / m): servo goal or current trajectory sample."""
+        return self._arm.setpoint.copy()
+
+    @property
+    def setpoint_jf(self):
+        """Joint effort setpoint, shape (n,) (N, N m): the last ``servo_jf``."""
+        return self._setpoint_jf.copy()
+
+    @property
+    def local_measured_cp(self):
+        """Tool tip in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
+        return self.kinematics.fk(self._arm.q)
+
+    @property
+    def local_setpoint_cp(self):
+        """Tool-tip setpoint in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
+        return self.kinematics.fk(self._arm.setpoint)
+
+    @property
+    def measured_cp(self):
+        """Tool tip in :attr:`reference_frame`: ``base_frame @ local_measured_cp``, (4, 4)."""
+        return self._base_frame @ self.local_measured_cp
+
+    @property
+    def setpoint_cp(self):
+        """Tool-tip setpoint in :attr:`reference_frame`, shape (4, 4) (metres)."""
+        return self._base_frame @ self.local_setpoint_cp
+
+    @property
+    def jacobian_spatial(self):
+        """Spatial Jacobian at the measured joints, shape (6, n): ``[v; w]`` in ``<ARM>_base``."""
+        return self.kinematics.jacobian(self._arm.q)
+
+    @property
+    def jacobian_body(self):
+        """Body Jacobian at the measured joints, shape (6, n): ``[v; w]`` in the tip frame."""
+        return self.kinematics.jacobian_body(self._arm.q)
+
+    @property
+    def measured_cv(self):
+        """
+        Tool-tip twist, shape (6,): linear (m/s) and angular (rad/s) velocity.
+
+        Expressed in the orientation of :attr:`reference_frame` (base frame applied), as the dVRK
+        rotates the body twist by the ``measured_cp`` rotation.
+
+        """
+        twist = self.kinematics.jacobian(self._arm.q) @ self._arm.qd
+        R = self._base_frame[:3, :3]
+        return np.concatenate([R @ twist[:3], R @ twist[3:]])
+
+    @property
+    def local_measured_cv(self):
+        """Body twist of the tool tip, shape (6,): ``[v; w]`` in the tool-tip frame."""
+        return self.kinematics.jacobian_body(self._arm.q) @ self._arm.qd
+
+    def _require_jaw(self):
+        if not self._has_jaw:
+            raise AttributeError(f'{self.name} has no jaw')
+        return self._jaw
+
+    @property
+    def jaw_measured_jp(self):
+        """Measured jaw angle (rad), PSM only."""
+        return float(self._require_jaw().q[0])
+
+    @property
+    def jaw_measured_jv(self):
+        """Measured jaw velocity (rad/s), PSM only."""
+        return float(self._require_jaw().qd[0])
+
+    @property
+    def jaw_setpoint_jp(self):
+        """Jaw setpoint (rad), PSM only."""
+        return float(self._require_jaw().setpoint[0])
+
+
+def _is_numeric(value):
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return True
