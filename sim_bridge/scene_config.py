@@ -1,5 +1,5 @@
 """
-Scene configuration (``config/scene.yaml``): needle, thread, phantoms, tissue and scoring.
+Scene configuration (``config/scene.yaml``): needle, thread, phantoms, tissue, scoring, expert.
 
 ``load_scene_config`` reads the YAML file through :mod:`sim_bridge.configfile` into frozen
 dataclasses. Errors name the file, the key and what was expected. Relative phantom mesh paths
@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
+from sim_bridge.expert import ExpertConfig
 from sim_bridge.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.paths import config_path
 from sim_bridge.phantom import PhantomConfig, build_phantom
@@ -40,6 +41,8 @@ class SceneConfig:
         Needle-tissue tracker settings.
     scoring : ScoringConfig
         Throw scoring tolerances.
+    expert : ExpertConfig
+        Motion parameters of the scripted expert.
 
     """
 
@@ -49,6 +52,7 @@ class SceneConfig:
     active_phantom: str = 'synthetic'
     tissue: TissueConfig = field(default_factory=TissueConfig)
     scoring: ScoringConfig = field(default_factory=ScoringConfig)
+    expert: ExpertConfig = field(default_factory=ExpertConfig)
 
     def phantom_config(self, name=None):
         """
