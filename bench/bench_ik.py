@@ -29,19 +29,9 @@ def rate(fn, repeat):
     return repeat / (time.perf_counter() - start)
 
 
-def dh_joint_frame(chain, i):
-    """Fixed part of link i: RotX(alpha) TransX(a) RotZ(theta0) TransZ(d0)."""
-    T = chain._const[i].copy()
-    c, s = np.cos(chain._theta0[i]), np.sin(chain._theta0[i])
-    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    T[:3, :3] = T[:3, :3] @ Rz
-    T[:3, 3] += T[:3, :3] @ np.array([0.0, 0.0, chain._d0[i]])
-    return T
-
-
 def pybullet_chain(client, chain):
     """The DH chain as a massless PyBullet multibody; the last link is the tool tip."""
-    frames = [dh_joint_frame(chain, i) for i in range(chain.n_joints)] + [chain.tooltip_offset]
+    frames = list(chain.joint_placements()) + [chain.tooltip_offset]
     types = [pybullet.JOINT_REVOLUTE if r else pybullet.JOINT_PRISMATIC
              for r in chain.is_revolute] + [pybullet.JOINT_FIXED]
     n = len(frames)

@@ -390,6 +390,22 @@ class SerialChain:
 
     # -- forward kinematics --------------------------------------------------------------------
 
+    def joint_placements(self):
+        """
+        Return the fixed part of every link transform (the joint frames at ``q = 0``).
+
+        Returns
+        -------
+        ndarray, shape (n, 4, 4)
+            ``RotX(alpha) TransX(a) RotZ(theta0) TransZ(d0)`` of each joint in its parent link
+            frame, offsets included (``theta0 = theta + offset`` for revolute joints,
+            ``d0 = d + offset`` for prismatic ones); joint ``i`` then rotates about / slides
+            along the z axis of this frame: ``T_i(q) = placement_i @ RotZ(q)`` or
+            ``placement_i @ TransZ(q)``.
+
+        """
+        return self._link_transforms(np.zeros((1, self.n_joints)))[0]
+
     def _link_transforms(self, Q):
         """Link transforms T_i(q_i), shape (m, n, 4, 4), for Q of shape (m, n)."""
         theta = self._theta0 + np.where(self.is_revolute, Q, 0.0)
@@ -579,10 +595,7 @@ def pinocchio_model(chain):
     model = pin.Model()
     model.name = chain.name
     parent = 0
-    for j, C, theta0, d0 in zip(chain.joints, chain._const, chain._theta0, chain._d0):
-        M = C.copy()
-        M[:3, :3] = M[:3, :3] @ rotation_z(theta0)
-        M[:3, 3] = M[:3, 3] + M[:3, :3] @ np.array([0.0, 0.0, d0])
+    for j, M in zip(chain.joints, chain.joint_placements()):
         joint_model = pin.JointModelRZ() if j.is_revolute else pin.JointModelPZ()
         parent = model.addJoint(parent, joint_model, pin.SE3(M[:3, :3], M[:3, 3]), j.name)
         model.appendBodyToJoint(parent, pin.Inertia.Identity(), pin.SE3.Identity())

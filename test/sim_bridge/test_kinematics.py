@@ -311,3 +311,10 @@ def test_jacobian_equals_pinocchio_and_finite_differences(which, request):
         np.testing.assert_allclose(J, finite_difference_jacobian(chain, q), atol=1e-7)
         J_body = pin.computeFrameJacobian(model, data, q, tip, pin.LOCAL)
         np.testing.assert_allclose(chain.jacobian_body(q), J_body, atol=1e-12)
+
+
+def test_joint_placements_are_the_link_transforms_at_zero(psm):
+    placements = psm.joint_placements()
+    np.testing.assert_allclose(psm.fk_links(np.zeros(6))[1:],
+                               np.stack([np.linalg.multi_dot([np.eye(4)] + list(placements[:i]))
+                                         for i in range(1, 7)]), atol=1e-15)
