@@ -431,7 +431,7 @@ class Arm:
             T = self._pose_in_rcm(pose, 'servo_cp')
             q = self.kinematics.ik(T, q_ref=self._arm.setpoint)
         except UnreachableError as exc:
-            self._message('error', f'{self.name}: servo_cp {exc}',
+            self._message('error', f'{self.name}: servo_cp goal unreachable: {exc}',
                           throttle_key=('servo_cp', 'unreachable'))
             return
         except ValueError as exc:
@@ -510,7 +510,7 @@ class Arm:
             T = self._pose_in_rcm(pose, 'move_cp')
             q = self.kinematics.ik(T, q_ref=self._arm.target(self._time)[0])
         except UnreachableError as exc:
-            self._reject_move(f'{self.name}: move_cp {exc}')
+            self._reject_move(f'{self.name}: move_cp goal unreachable: {exc}')
             return
         except ValueError as exc:
             self._reject_move(f'{self.name}: {exc}')
