@@ -185,7 +185,7 @@ class PositionDmp(Primitive):
 
     def _phase_error(self, measured):
         measured = check_array(measured, 'measured', shape=(self.n_dims,))
-        return self.params.phase_stop_position * float(np.linalg.norm(measured - self._y))
+        return self.params.phase_stop_position * float(np.sum((measured - self._y) ** 2))
 
     def _forcing_at(self, x, goal):
         features = normalised_features(np.array([x]), self._centres, self._widths)[0]

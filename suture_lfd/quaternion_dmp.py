@@ -267,7 +267,7 @@ class QuaternionDmp(Primitive):
 
     def _phase_error(self, measured):
         measured = check_quaternions(check_array(measured, 'measured', shape=(4,)), 'measured')
-        return self.params.phase_stop_orientation * float(quaternion_angle(measured, self._q))
+        return self.params.phase_stop_orientation * float(quaternion_angle(measured, self._q)) ** 2
 
     def _advance(self, h, x0, x1):
         p = self.params
