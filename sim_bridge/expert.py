@@ -96,6 +96,11 @@ class ExpertConfig:
         Height (m) of the next initial pose above the next pre-entry pose.
     roll_step_deg : float
         Step (deg) of the jaw rolls tried when choosing a grasp.
+    jaw_length, jaw_half_width : float
+        Closed jaw outline (m) along and across tool ``z``, for keeping it off the tissue.
+    jaw_clearance : float
+        Height (m) the closed jaw keeps above the surface plane of the pair while the needle
+        is in the tissue, where a grasp allows it.
     gate_timeout : float
         Longest wait (s) for a grasp or release to be confirmed.
     aim_std : float
@@ -130,6 +135,9 @@ class ExpertConfig:
     extract_lift: float = 0.015
     next_lift: float = 0.010
     roll_step_deg: float = 15.0
+    jaw_length: float = 0.009
+    jaw_half_width: float = 0.00125
+    jaw_clearance: float = 0.0003
     gate_timeout: float = 1.0
     aim_std: float = 0.0
     tilt_std_deg: float = 0.0
@@ -167,6 +175,9 @@ class Observation:
         Target marker pair.
     T_world_base : dict of str to ndarray (4, 4)
         RCM frame of each arm.
+    q : dict of str to ndarray (6,) or None
+        Joint positions of each PSM (rad, m), if known; they tell the roll joint's turn count
+        (otherwise taken from the inverse kinematics nearest the home configuration).
 
     """
 
@@ -177,6 +188,7 @@ class Observation:
     holders: tuple
     pair: object
     T_world_base: dict
+    q: dict | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -387,6 +399,13 @@ def _backed_off(T, distance):
     return _translated(T, -distance * np.asarray(T)[:3, 2])
 
 
+def _dense(A, B, step=0.1, spacing=0.002):
+    """Poses from A towards B (B excluded), about ``step`` rad and ``spacing`` m apart."""
+    path = RigidPath(A, B)
+    n = max(2, int(math.ceil(max(path.angle / step, path.distance / spacing))))
+    return [path(x) for x in np.linspace(0.0, 1.0, n, endpoint=False)]
+
+
 class _Track:
     """One arm's timeline under construction (plan time, current pose, jaw, held needle)."""
 
@@ -503,34 +522,96 @@ class ScriptedExpert:
         self._t0 = 0.0
 
     # ------------------------------------------------------------------ grasp choice
-    def _reach(self, arm, T_world_base, tools):
-        """Largest wrist angle (rad) over the tool poses, or inf if one is unreachable."""
+    def _path_cost(self, arm, T_world_base, roll0, tools):
+        """
+        Cost of a dense tool path for an arm whose roll joint starts at ``roll0``.
+
+        The path must be reachable everywhere, must not switch IK branches between samples,
+        and its continuous roll (as an arm servoing along it reaches it) must stay inside the
+        roll limits. Returns ``(largest wrist angle (rad), final roll)``, or ``(inf, None)``.
+        """
         chain = self.kinematics[arm]
         T_base_world = invert_transform(T_world_base[arm])
         Q, ok = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.asarray(tools)))
         if not ok.all():
-            return math.inf
-        return float(np.abs(Q[:, 4:6]).max())
+            return math.inf, None
+        roll = np.unwrap(Q[:, 3])
+        roll += 2.0 * math.pi * round((roll0 - roll[0]) / (2.0 * math.pi))
+        margin = 0.2
+        if roll.max() > chain.upper[3] - margin or roll.min() < chain.lower[3] + margin:
+            return math.inf, None
+        if len(Q) > 1 and np.abs(np.diff(Q[:, [0, 1, 2, 4, 5]], axis=0)).max() > 0.3:
+            return math.inf, None
+        return float(np.abs(Q[:, 4:6]).max()), float(roll[-1])
 
-    def _choose_grasp(self, arm, s, needle_poses, approach_at, T_world_base, what):
-        """Grasp at arc parameter ``s`` with the smallest wrist angles over the poses."""
-        best, best_cost = None, math.inf
-        step = math.radians(self.config.roll_step_deg)
+    def _start_roll(self, arm, obs):
+        q = getattr(obs, 'q', None)
+        if q is not None and arm in q:
+            return float(np.asarray(q[arm])[3])
+        chain = self.kinematics[arm]
+        T = invert_transform(obs.T_world_base[arm]) @ np.asarray(obs.T_world_tool[arm])
+        return float(chain.ik(T)[3])
+
+    def _jaw_clearance(self, tools):
+        """Lowest height (m) of the closed jaw's outline above the pair's surface plane."""
+        c = self.config
+        L, w = c.jaw_length, c.jaw_half_width
+        outline = np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, L, 1.0], [w, 0.0, L, 1.0],
+                            [-w, 0.0, L, 1.0], [w, 0.0, 0.0, 1.0], [-w, 0.0, 0.0, 1.0]])
+        pts = np.einsum('nij,kj->nki', np.asarray(tools), outline)[..., :3]
+        return float(((pts - self.pair.midpoint) @ self.pair.normal).min())
+
+    def _choose_grasp(self, arm, s, phase, what):
+        """
+        Grasp at arc parameter ``s`` that keeps a holding phase reachable.
+
+        Parameters
+        ----------
+        arm : str
+            Arm.
+        s : float
+            Arc parameter of the grasp.
+        phase : dict
+            ``start`` (tool pose the arm comes from, or None if it already holds the needle),
+            ``roll0`` (its roll joint), ``grasp_at`` (needle pose where the grasp closes),
+            ``paths`` (needle paths carried afterwards), ``clear`` (needle poses where the jaw
+            must keep ``jaw_clearance`` off the surface plane), ``bases``.
+        what : str
+            Phase name for error messages.
+
+        Returns
+        -------
+        grasp : ndarray, shape (4, 4)
+            ``T_tool_needle``.
+        roll : float
+            Roll joint (rad) at the end of the phase.
+
+        """
+        c = self.config
+        needles = [path(x) for path in phase['paths'] for x in np.linspace(0.0, 1.0, 12)]
+        best, best_cost, best_roll = None, math.inf, None
+        step = math.radians(c.roll_step_deg)
         rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
         for flip in (False, True):
             for roll in rolls:
                 G = self.needle.grasp_transform(s, roll=roll, flip=flip)
                 inv = invert_transform(G)
-                tools = [N @ inv for N in needle_poses]
-                tools += [_backed_off(needle_poses[i] @ inv, self.config.approach_distance)
-                          for i in approach_at]
-                cost = self._reach(arm, T_world_base, tools)
+                grasp_pose = phase['grasp_at'] @ inv
+                tools = []
+                if phase['start'] is not None:
+                    pre = _backed_off(grasp_pose, c.approach_distance)
+                    tools += _dense(phase['start'], pre) + _dense(pre, grasp_pose)
+                tools += [N @ inv for N in needles]
+                cost, end_roll = self._path_cost(arm, phase['bases'], phase['roll0'], tools)
+                if phase['clear'] and math.isfinite(cost):
+                    low = self._jaw_clearance([N @ inv for N in phase['clear']])
+                    cost += 1000.0 * max(0.0, c.jaw_clearance - low)
                 if cost < best_cost - 1e-9:
-                    best, best_cost = G, cost
+                    best, best_cost, best_roll = G, cost, end_roll
         if best is None:
             raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
                              f'{what} of pair {self.pair.name}; move the arm or the needle')
-        return best
+        return best, best_roll
 
     def _noisy_pair(self):
         c = self.config
@@ -603,14 +684,32 @@ class ScriptedExpert:
         holders = tuple(obs.holders)
         bases = obs.T_world_base
         picked = 'PSM2' in holders
+        N_up = _translated(N0, c.pick_lift * up)
+        drive_paths = [RigidPath(N_pre_hi, N_pre), ArcPath(arc, a_pre, a_entry),
+                       ArcPath(arc, a_entry, a_ins)]
         if picked:
             G2 = invert_transform(obs.T_world_tool['PSM2']) @ N0
+            _, roll2 = self._path_cost(
+                'PSM2', bases, self._start_roll('PSM2', obs),
+                [N @ invert_transform(G2) for path in [RigidPath(N0, N_pre_hi)] + drive_paths
+                 for N in (path(x) for x in np.linspace(0.0, 1.0, 12))])
+            if roll2 is None:
+                raise ValueError(f'PSM2 cannot carry the needle it holds through the insertion '
+                                 f'of pair {self.pair.name}; regrasp it first')
         else:
-            N_up = _translated(N0, c.pick_lift * up)
-            G2 = self._choose_grasp('PSM2', s_g, [N0, N_up, N_pre_hi] + drive, [0], bases,
-                                    'the pick-up and insertion')
-        G1 = self._choose_grasp('PSM1', s_1, extract + [N_lift], [0], bases, 'the extraction')
-        Gh = self._choose_grasp('PSM2', s_g, [N_lift, N_next], [0], bases, 'the handover')
+            G2, roll2 = self._choose_grasp('PSM2', s_g, {
+                'start': obs.T_world_tool['PSM2'], 'roll0': self._start_roll('PSM2', obs),
+                'grasp_at': N0, 'paths': [RigidPath(N0, N_up), RigidPath(N_up, N_pre_hi)]
+                + drive_paths, 'clear': drive, 'bases': bases}, 'the pick-up and insertion')
+        G1, _ = self._choose_grasp('PSM1', s_1, {
+            'start': obs.T_world_tool['PSM1'], 'roll0': self._start_roll('PSM1', obs),
+            'grasp_at': N_ins, 'paths': [ArcPath(arc, a_ins, a_out), RigidPath(N_out, N_lift)],
+            'clear': extract[:1], 'bases': bases}, 'the extraction')
+        park2 = _translated(_backed_off(N_ins @ invert_transform(G2), c.retreat_distance),
+                            c.retreat_distance * up)
+        Gh, _ = self._choose_grasp('PSM2', s_g, {
+            'start': park2, 'roll0': roll2, 'grasp_at': N_lift,
+            'paths': [RigidPath(N_lift, N_next)], 'clear': (), 'bases': bases}, 'the handover')
 
         t1 = _Track('PSM1', obs.T_world_tool['PSM1'], obs.jaw['PSM1'], c)
         t2 = _Track('PSM2', obs.T_world_tool['PSM2'], obs.jaw['PSM2'], c)

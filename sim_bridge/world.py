@@ -5,13 +5,13 @@ Everything lives in one injected PyBullet client (``pybullet_utils.bullet_client
 in SI units without world scaling, with a fixed physics step.
 
 Arms are kinematic multibodies: each DH joint becomes a PyBullet joint whose frame in its parent
-link is the fixed part of the modified-DH transform, ``RotX(alpha) TransX(a) RotZ(theta0)
-TransZ(d0)`` (offsets included), and which turns about (revolute) or slides along (prismatic)
-its local ``z``; the PyBullet link frame of joint ``i`` is therefore the DH frame ``i`` and the
-multibody's base frame is the arm's RCM frame ``<ARM>_base``. A fixed ``tip`` link carries the
-tooltip offset (its frame is ``measured_cp``); PSMs add two jaw links hinged about tool ``x``,
-each turned by half the jaw angle. Joint values are set with ``resetJointStatesMultiDof``; the
-arms never move under physics.
+link is the fixed part of the modified-DH transform (``SerialChain.joint_placements``:
+``RotX(alpha) TransX(a) RotZ(theta0) TransZ(d0)``, offsets included), and which turns about
+(revolute) or slides along (prismatic) its local ``z``; the PyBullet link frame of joint ``i`` is
+therefore the DH frame ``i`` and the multibody's base frame is the arm's RCM frame
+``<ARM>_base``. A fixed ``tip`` link carries the tooltip offset (its frame is ``measured_cp``);
+PSMs add two jaw links hinged about tool ``x``, each turned by half the jaw angle. Joint values
+are set with ``resetJointStatesMultiDof``; the arms never move under physics.
 
 Link indices (``World.link_index``): PSM ``yaw, pitch, insertion, roll, wrist_pitch, wrist_yaw,
 tip, jaw_a, jaw_b`` = 0..8; ECM ``yaw, pitch, insertion, roll, tip`` = 0..4.
@@ -193,34 +193,6 @@ def read_world_config(path=None):
     return dataclass_from_mapping(WorldConfig, data, source=str(path), prefix='world')
 
 
-def dh_joint_frame(joint):
-    """
-    Return the fixed part of a modified-DH link transform (the PyBullet joint frame).
-
-    Parameters
-    ----------
-    joint : sim_bridge.kinematics.DhJoint
-        The joint.
-
-    Returns
-    -------
-    ndarray, shape (4, 4)
-        ``RotX(alpha) TransX(a) RotZ(theta0) TransZ(d0)`` with the joint offset folded into
-        ``theta0`` (revolute) or ``d0`` (prismatic).
-
-    """
-    theta = joint.theta + (joint.offset if joint.is_revolute else 0.0)
-    d = joint.d + (0.0 if joint.is_revolute else joint.offset)
-    ca, sa = math.cos(joint.alpha), math.sin(joint.alpha)
-    ct, st = math.cos(theta), math.sin(theta)
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
-    rz = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
-    T = np.eye(4)
-    T[:3, :3] = rx @ rz
-    T[:3, 3] = rx @ np.array([joint.a, 0.0, 0.0]) + T[:3, :3] @ np.array([0.0, 0.0, d])
-    return T
-
-
 def quat_from_matrix(R):
     """
     Quaternion ``(x, y, z, w)`` of a rotation matrix.
@@ -336,7 +308,7 @@ class World:
         c = self.client
         shape = self.config.instrument
         is_psm = hasattr(chain, 'jaw_lower')
-        frames = [dh_joint_frame(j) for j in chain.joints]
+        frames = list(chain.joint_placements())
         types = [pybullet.JOINT_REVOLUTE if j.is_revolute else pybullet.JOINT_PRISMATIC
                  for j in chain.joints]
         axes = [[0.0, 0.0, 1.0]] * len(frames)
@@ -596,6 +568,43 @@ class World:
         s = self.client.getLinkState(self.arm_body[name], self.link_index[name]['tip'],
                                      computeForwardKinematics=1)
         return matrix_from_pose(s[4], s[5])
+
+    def instrument_points(self, name, q, jaw):
+        """
+        Points on a PSM instrument's end that can touch tissue, from the DH chain (no PyBullet).
+
+        Parameters
+        ----------
+        name : str
+            PSM name.
+        q : array_like, shape (6,)
+            Joint values (rad / m).
+        jaw : float
+            Jaw opening angle (rad).
+
+        Returns
+        -------
+        ndarray, shape (7, 3)
+            ``world`` points (m): the two jaw tips, the jaw middles, the hinge (tool tip), the
+            wrist-pitch axis point and the shaft end one shaft radius behind it.
+
+        """
+        chain = self.kinematics[name]
+        shape = self.config.instrument
+        frames = self.T_world_base[name] @ chain.fk_links(q)
+        tip = frames[-1] @ chain.tooltip_offset
+        R = tip[:3, :3]
+        hinge = tip[:3, 3]
+        half = 0.5 * float(jaw)
+        c, s = math.cos(half), math.sin(half)
+        # each jaw turns by half the opening about tool x, towards -y (jaw_a) and +y (jaw_b)
+        dir_a = R @ np.array([0.0, -s, c])
+        dir_b = R @ np.array([0.0, s, c])
+        L = shape.jaw_length
+        wrist = frames[4][:3, 3]
+        shaft_end = wrist - shape.shaft_radius * frames[4][:3, 2]
+        return np.array([hinge + L * dir_a, hinge + L * dir_b, hinge + 0.5 * L * dir_a,
+                         hinge + 0.5 * L * dir_b, hinge, wrist, shaft_end])
 
     # ------------------------------------------------------------------ needle
     def set_needle_collisions(self, enabled):

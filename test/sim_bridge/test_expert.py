@@ -94,6 +94,22 @@ def test_every_planned_tool_pose_is_reachable_with_the_wrist_within_limits(
             assert np.abs(Q[:, 4:6]).max() < math.radians(70.0)
 
 
+def test_jaws_stay_off_the_tissue_once_the_needle_is_picked(scene, phantoms, bases, chain):
+    cfg = scene.expert
+    outline = np.array([[0.0, 0.0, z, 1.0] for z in (0.0, 0.003, 0.006, cfg.jaw_length)]
+                       + [[x, 0.0, cfg.jaw_length, 1.0]
+                          for x in (-cfg.jaw_half_width, cfg.jaw_half_width)])
+    for phantom, name in all_pairs(phantoms):
+        pair = phantom.markers[name]
+        plan = ScriptedExpert(pair, scene.needle, cfg, kinematics=chain).plan(
+            start(pair, bases, chain, lying_needle()))
+        data = plan.sampled(0.01)
+        after_pick = data['t'] >= plan.gates[0].t + cfg.settle_time + 0.3
+        for arm in ARMS:
+            pts = np.einsum('nij,kj->nki', data[arm][after_pick], outline)[..., :3]
+            assert phantom.penetration(pts.reshape(-1, 3)).max() == 0.0, (name, arm)
+
+
 def test_subtasks_run_in_order_and_tools_move_smoothly(scene, phantoms, bases, chain):
     pair = phantoms['scanned'].markers['scan2']
     cfg = scene.expert

@@ -1,0 +1,789 @@
+"""
+The simulated dVRK suturing scene: arms, world, grasping, tissue, scoring, time and events.
+
+One :meth:`Simulation.step` is one fixed physics step (``world.physics_step``, 2 ms by default):
+
+1. every arm's state machine advances (:class:`sim_bridge.arm.Arm`: trajectories, joint
+   tracking within the dVRK velocity and acceleration limits);
+2. the jaws are read and the needle is grasped or released (:mod:`sim_bridge.grasp`);
+3. the needle moves: held, it follows the leading tool exactly; free inside the tissue, it stays
+   where it is (the tissue holds it); free outside, PyBullet moves it under gravity until it
+   rests on the pad or the table (a fall of ``drop_distance`` reports a ``drop``);
+4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.tissue`) and the
+   throw scorer takes every event (:mod:`sim_bridge.scoring`);
+5. every ``thread_period`` the thread follows the needle tail; every ``collision_period`` the
+   instrument ends are tested against the tissue (``collision`` events when contact starts).
+
+PyBullet holds the arms, needle and thread only for drawing and for the free needle's dynamics;
+their poses are copied into it when an image is rendered (:meth:`Simulation.render`) or when
+:meth:`Simulation.sync_world` is called, so a step costs no PyBullet calls unless the needle is
+falling.
+
+Events (:class:`SimEvent`, stamped with simulation time): ``grasp``, ``release``, ``drop``,
+``entry``, ``exit``, ``withdrawn``, ``extracted``, ``trauma``, ``collision``, ``score``.
+
+Frames: ``world`` (z up; phantom at the origin, see ``config/world.yaml``) unless a name says
+otherwise; poses are 4x4 ``T_world_*``; SI units. Time is simulation time in seconds, counted in
+whole physics steps, and the same seed gives bit-identical runs.
+"""
+
+from dataclasses import dataclass, field, replace
+import logging
+from pathlib import Path
+
+import numpy as np
+import pybullet
+from pybullet_utils import bullet_client
+from sim_bridge.arm import Arm, ArmConfig
+from sim_bridge.camera import CameraConfig, StereoCamera
+from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
+from sim_bridge.expert import Observation
+from sim_bridge.grasp import GraspConfig, GraspManager
+from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
+from sim_bridge.needle import invert_transform
+from sim_bridge.paths import config_path
+from sim_bridge.phantom import build_phantom
+from sim_bridge.scene_config import SceneConfig, load_scene_config
+from sim_bridge.scoring import ThrowScorer
+from sim_bridge.thread_dynamics import ThreadChain, ThreadDynamicsConfig
+from sim_bridge.tissue import TissueTracker
+from sim_bridge.world import World, WorldConfig
+
+_LOG = logging.getLogger(__name__)
+
+PSMS = ('PSM1', 'PSM2')
+ARMS = ('PSM1', 'PSM2', 'ECM')
+# Height (m) above the tissue's top within which the tissue tracker follows the needle.
+_TRACK_MARGIN = 0.01
+EVENT_KINDS = ('grasp', 'release', 'drop', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
+               'collision', 'score')
+
+
+@dataclass(frozen=True)
+class NeedleStart:
+    """
+    Where the needle lies when a scene starts: flat on the pad, dropped and settled.
+
+    Attributes
+    ----------
+    position : (x, y)
+        World x-y (m) of the needle frame origin (the arc centre).
+    yaw : float
+        Turn (rad) of the needle about world z (needle z up).
+    position_jitter : float
+        Half-width (m) of the seeded uniform offset of ``position``.
+    yaw_jitter : float
+        Half-width (rad) of the seeded uniform offset of ``yaw``.
+    drop_height : float
+        Height (m) above the support the needle is released from.
+    settle_time : float
+        Simulated time (s) the needle gets to come to rest (not part of the scene's time).
+
+    """
+
+    position: tuple[float, float] = (0.012, -0.010)
+    yaw: float = 3.141592653589793
+    position_jitter: float = 0.001
+    yaw_jitter: float = 0.15
+    drop_height: float = 0.002
+    settle_time: float = 0.4
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """
+    Settings of the simulation loop (``simulation`` section of ``config/world.yaml``).
+
+    Attributes
+    ----------
+    thread_period : float
+        Time (s) between thread updates; a multiple of the physics step.
+    collision_period : float
+        Time (s) between instrument-tissue contact checks; a multiple of the physics step.
+    collision_depth : float
+        Depth (m) an instrument point must reach below the tissue surface to be in contact.
+    drop_distance : float
+        Fall (m) of a released needle, below where it was released, that counts as a drop.
+    rest_speed : float
+        Speed (m/s) below which a free needle counts as still.
+    rest_time : float
+        Time (s) a free needle must stay still to be at rest (then physics stops moving it).
+    initial_jaw : float
+        PSM jaw angle (rad) when a scene starts.
+    needle_start : NeedleStart
+        Where the needle lies when a scene starts.
+    target_pair : str or None
+        Marker pair a scene starts aimed at (None: the phantom's first pair).
+
+    """
+
+    thread_period: float = 0.01
+    collision_period: float = 0.01
+    collision_depth: float = 0.0003
+    drop_distance: float = 0.003
+    rest_speed: float = 0.002
+    rest_time: float = 0.1
+    initial_jaw: float = 0.0
+    needle_start: NeedleStart = field(default_factory=NeedleStart)
+    target_pair: str | None = None
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """
+    Everything the simulation needs: ``config/world.yaml`` sections plus the scene.
+
+    Attributes
+    ----------
+    world : WorldConfig
+    grasp : GraspConfig
+    camera : CameraConfig
+    thread : ThreadDynamicsConfig
+    loop : LoopConfig
+    scene : SceneConfig
+    psm_tool : str or None
+        PSM instrument for :func:`sim_bridge.kinematics.psm_kinematics` (None: its default).
+    arm : ArmConfig
+        Arm options (tracking); ``initial_jaw`` is taken from ``loop``.
+
+    """
+
+    world: WorldConfig = field(default_factory=WorldConfig)
+    grasp: GraspConfig = field(default_factory=GraspConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    thread: ThreadDynamicsConfig = field(default_factory=ThreadDynamicsConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    psm_tool: str | None = None
+    arm: ArmConfig = field(default_factory=ArmConfig)
+
+
+def load_simulation_config(world_path=None, scene_path=None):
+    """
+    Read ``config/world.yaml`` and ``config/scene.yaml`` into a :class:`SimulationConfig`.
+
+    Parameters
+    ----------
+    world_path, scene_path : str or Path, optional
+        Files to read; default: the package's configuration files.
+
+    Returns
+    -------
+    SimulationConfig
+
+    """
+    world_path = config_path('world.yaml') if world_path is None else world_path
+    source = str(world_path)
+    data = load_yaml(world_path)
+    parts = {}
+    for key, cls in (('world', WorldConfig), ('grasp', GraspConfig), ('camera', CameraConfig),
+                     ('thread', ThreadDynamicsConfig), ('simulation', LoopConfig)):
+        mapping = section(data, key, source=source)
+        parts[key] = dataclass_from_mapping(cls, mapping, source=source, prefix=key)
+    return SimulationConfig(world=parts['world'], grasp=parts['grasp'], camera=parts['camera'],
+                            thread=parts['thread'], loop=parts['simulation'],
+                            scene=load_scene_config(scene_path))
+
+
+@dataclass(frozen=True, eq=False)
+class SimEvent:
+    """
+    Something that happened in the scene.
+
+    Attributes
+    ----------
+    t : float
+        Simulation time (s).
+    kind : str
+        One of :data:`EVENT_KINDS`.
+    data : dict
+        Details: ``arm`` (grasp, release, collision), ``leader`` (grasp, release),
+        ``point`` (ndarray (3,), world m), ``distance_to_marker`` (m), ``marker`` (tissue
+        events), ``deviation`` (m, trauma/extracted), ``depth`` (m, collision), ``fall`` (m,
+        drop), ``score`` (ThrowScore, score).
+
+    """
+
+    t: float
+    kind: str
+    data: dict
+
+
+def _needs_steps(period, dt, name):
+    steps = int(round(period / dt))
+    if steps < 1 or abs(steps * dt - period) > 1e-9:
+        raise ValueError(f'simulation {name} ({period} s) must be a positive multiple of the '
+                         f'physics step ({dt} s)')
+    return steps
+
+
+class Simulation:
+    """
+    The simulated dVRK suturing scene, stepped at a fixed rate.
+
+    Parameters
+    ----------
+    config : SimulationConfig, optional
+        Configuration; default: :func:`load_simulation_config`.
+    rng : numpy.random.Generator, optional
+        Randomness of the scene (needle start pose); default ``default_rng(0)``.
+    client : pybullet_utils.bullet_client.BulletClient, optional
+        PyBullet client to use (reset and owned by the simulation while it runs); default: a
+        new DIRECT client, disconnected by :meth:`close`.
+    phantom : str or Path
+        ``'synthetic'``, ``'scanned'`` (phantoms of the scene) or the path of an STL/OBJ/PLY
+        mesh (metres; markers placed along the synthetic phantom's wound line on its surface).
+    gui : bool
+        Open a PyBullet GUI window instead of a DIRECT client (ignored with ``client``).
+
+    Attributes
+    ----------
+    arms : dict of str to Arm
+        ``'PSM1'``, ``'PSM2'``, ``'ECM'``; :meth:`reset` replaces the Arm objects in this dict.
+    world : World
+        PyBullet bodies.
+    phantom : sim_bridge.phantom.Phantom
+    grasp : GraspManager
+    tissue : TissueTracker
+    camera : StereoCamera
+
+    """
+
+    def __init__(self, config=None, rng=None, client=None, phantom='synthetic', gui=False):
+        self.config = config or load_simulation_config()
+        cfg = self.config
+        self._own_client = client is None
+        if client is None:
+            client = bullet_client.BulletClient(
+                connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        self.client = client
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.needle_geometry = cfg.scene.needle
+        self.thread_geometry = cfg.scene.thread
+        self.phantom = self._build_phantom(phantom)
+        psm = psm_kinematics(cfg.psm_tool) if cfg.psm_tool else psm_kinematics()
+        self.kinematics = {'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
+        self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
+                           self.thread_geometry, client)
+        self.camera = StereoCamera(cfg.camera, client)
+        self._dt = cfg.world.physics_step
+        self._thread_every = _needs_steps(cfg.loop.thread_period, self._dt, 'thread_period')
+        self._collision_every = _needs_steps(cfg.loop.collision_period, self._dt,
+                                             'collision_period')
+        self._rest_steps = max(1, int(round(cfg.loop.rest_time / self._dt)))
+        self._T_world_base = dict(self.world.T_world_base)
+        self._T_base_world = {k: invert_transform(v) for k, v in self._T_world_base.items()}
+        self.grasp = GraspManager(cfg.grasp, self.needle_geometry, PSMS)
+        self.tissue = TissueTracker(self.phantom, self.needle_geometry, cfg.scene.tissue)
+        # Highest point of the tissue (world z): far above it nothing can touch the tissue.
+        self._tissue_top = float(self.phantom.mesh_world().vertices[:, 2].max())
+        self._needle_reach = self.needle_geometry.radius + self.needle_geometry.wire_diameter
+        shape = cfg.world.instrument
+        self._instrument_reach = shape.jaw_length + shape.shaft_radius
+        self._thread_world = client.saveState()
+        self.arms = {}
+        self.reset()
+
+    # ------------------------------------------------------------------ construction
+    def _build_phantom(self, phantom):
+        scene = self.config.scene
+        if str(phantom) in scene.phantoms:
+            return scene.build_phantom(str(phantom))
+        path = Path(phantom)
+        if path.suffix.lower() not in ('.stl', '.obj', '.ply'):
+            raise ValueError(f'phantom must be one of {sorted(scene.phantoms)} or an STL, OBJ '
+                             f'or PLY mesh file, got {phantom!r}')
+        if not path.is_file():
+            raise ValueError(f'phantom mesh file {path} does not exist')
+        template = scene.phantoms.get('synthetic', next(iter(scene.phantoms.values())))
+        config = replace(template, kind='mesh', mesh=str(path), marker_prefix='mesh')
+        return build_phantom(config, name=path.stem)
+
+    def close(self):
+        """Disconnect the PyBullet client if the simulation created it."""
+        if self._own_client and self.client is not None:
+            self.client.disconnect()
+            self.client = None
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, seed=None):
+        """
+        Start the scene again: arms at home (DISABLED), jaws at ``initial_jaw``, needle on the pad.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Reseed the scene's random generator (the needle start pose); without it the
+            generator continues.
+
+        """
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        cfg = self.config
+        self.client.restoreState(self._thread_world)
+        arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
+        self.arms.clear()
+        for name in ARMS:
+            self.arms[name] = Arm(name, self.kinematics[name],
+                                  arm_config if name in PSMS else replace(arm_config,
+                                                                          initial_jaw=0.0))
+        self._arm_list = [self.arms[n] for n in ARMS]
+        self._tool_cache = {}
+        self._steps = 0
+        self._events = []
+        self.grasp.reset()
+        self.tissue.reset()
+        self._contact = dict.fromkeys(PSMS, False)
+        self._collisions = 0
+        self._last_score = None
+        self._needle_mode = 'resting'
+        self._still_steps = 0
+        self._release_height = None
+        self._dropped = False
+        self._T_needle = self._settled_needle_start()
+        self._T_needle_prev = self._T_needle.copy()
+        self.world.set_needle_collisions(False)
+        thread_nodes = self.thread_geometry.rest_points(self.needle_geometry, self._T_needle)
+        self.thread = ThreadChain(thread_nodes, self.thread_geometry.radius, cfg.thread)
+        for _ in range(int(round(cfg.loop.needle_start.settle_time / cfg.loop.thread_period))):
+            self.thread.step(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
+        pairs = list(self.phantom.markers)
+        target = cfg.loop.target_pair if cfg.loop.target_pair is not None else pairs[0]
+        self.set_target_pair(target)
+        self.grasp.update(self._jaws(), self._tool_pose, self._T_needle)
+
+    def _settled_needle_start(self):
+        """Drop the needle flat onto the support at the seeded start pose and let it settle."""
+        start = self.config.loop.needle_start
+        xy = np.asarray(start.position, dtype=float)
+        xy = xy + self.rng.uniform(-start.position_jitter, start.position_jitter, 2)
+        yaw = start.yaw + self.rng.uniform(-start.yaw_jitter, start.yaw_jitter)
+        c, s = np.cos(yaw), np.sin(yaw)
+        T = np.eye(4)
+        T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        T[:2, 3] = xy
+        wire = self.needle_geometry.points_world(T, 24)
+        top = float(self.world.support_height(wire[:, :2]).max())
+        T[2, 3] = top + 0.5 * self.needle_geometry.wire_diameter + start.drop_height
+        world = self.world
+        world.set_needle_pose(T)
+        world.set_needle_collisions(True)
+        for _ in range(int(round(start.settle_time / self._dt))):
+            world.step()
+        world.set_needle_collisions(False)
+        return world.needle_pose()
+
+    # ------------------------------------------------------------------ small helpers
+    def _jaws(self):
+        return {name: self.arms[name].jaw_measured_jp for name in PSMS}
+
+    def _tool_pose(self, name):
+        """Tool-tip pose in ``world``, computed at most once per step."""
+        cached = self._tool_cache.get(name)
+        if cached is not None and cached[0] == self._steps:
+            return cached[1]
+        T = self._T_world_base[name] @ self.arms[name].local_measured_cp
+        self._tool_cache[name] = (self._steps, T)
+        return T
+
+    def _emit(self, kind, **data):
+        self._events.append(SimEvent(self.time, kind, data))
+
+    # ------------------------------------------------------------------ time
+    @property
+    def dt(self):
+        """Physics step (s)."""
+        return self._dt
+
+    @property
+    def time(self):
+        """Simulation time (s): whole physics steps since :meth:`reset`."""
+        return self._steps * self._dt
+
+    def step(self):
+        """Advance the scene by one physics step (see the module docstring for the order)."""
+        dt = self._dt
+        self._steps += 1
+        t = self._steps * dt
+        for arm in self._arm_list:
+            arm.step(dt)
+        for ev in self.grasp.update(self._jaws(), self._tool_pose, self._T_needle):
+            self._on_grasp_event(t, ev)
+        self._move_needle()
+        if self._needle_near_tissue():
+            for ev in self.tissue.update(t, self._T_needle):
+                self._on_tissue_event(t, ev)
+        if self._steps % self._thread_every == 0:
+            tail = self._T_needle[:3, :3] @ self.needle_geometry.tail + self._T_needle[:3, 3]
+            self.thread.step(self._thread_every * dt, tail, self.world.support_height)
+        if self._steps % self._collision_every == 0:
+            self._check_contacts(t)
+
+    def run(self, seconds, controller=None, control_period=None):
+        """
+        Step for ``seconds`` of simulated time, optionally under a controller.
+
+        Parameters
+        ----------
+        seconds : float
+            Duration (s); rounded to whole physics steps.
+        controller : object, optional
+            Anything with ``step(observation) -> Command`` (e.g.
+            :class:`sim_bridge.expert.ScriptedExpert`); called every ``control_period`` and
+            its command applied with :meth:`apply`.
+        control_period : float, optional
+            Time (s) between controller calls (default: every physics step); a multiple of the
+            physics step.
+
+        """
+        n = int(round(seconds / self._dt))
+        every = 1 if control_period is None else _needs_steps(control_period, self._dt,
+                                                               'control_period')
+        for k in range(n):
+            if controller is not None and k % every == 0:
+                self.apply(controller.step(self.observation()))
+            self.step()
+
+    def enable_and_home_all(self, timeout=30.0):
+        """
+        Enable and home every arm, stepping until all are homed and idle.
+
+        Parameters
+        ----------
+        timeout : float
+            Longest simulated time (s) to wait.
+
+        """
+        for arm in self._arm_list:
+            arm.state_command('enable')
+            arm.state_command('home')
+        for _ in range(int(round(timeout / self._dt))):
+            states = [arm.operating_state for arm in self._arm_list]
+            if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
+                return
+            self.step()
+        raise RuntimeError(f'arms not homed after {timeout} s: '
+                           + ', '.join(f'{a.name} {a.operating_state}' for a in self._arm_list))
+
+    # ------------------------------------------------------------------ grasp and needle
+    def _on_grasp_event(self, t, ev):
+        if ev.kind == 'grasp':
+            self._needle_mode = 'held'
+            self._release_height = None
+            self._dropped = False
+            self.world.set_needle_collisions(False)
+            self.scorer.on_grasp(t, ev.arm)
+        else:
+            self.scorer.on_release(t, ev.arm)
+        self._emit(ev.kind, arm=ev.arm, leader=ev.leader, distance=ev.distance)
+        self._report_score()
+
+    def _move_needle(self):
+        leader = self.grasp.leader
+        self._T_needle_prev = self._T_needle
+        if leader is not None:
+            self._T_needle = self.grasp.needle_pose(self._tool_pose(leader))
+            return
+        if self._needle_mode == 'held':
+            # just released by every arm
+            if self.tissue.in_tissue:
+                self._needle_mode = 'tissue'
+            else:
+                self._start_falling()
+        if self._needle_mode != 'free':
+            return
+        world = self.world
+        world.step()
+        self._T_needle = world.needle_pose()
+        fall = self._release_height - self._T_needle[2, 3]
+        if not self._dropped and fall > self.config.loop.drop_distance:
+            self._dropped = True
+            self.scorer.on_drop(self.time)
+            self._emit('drop', fall=float(fall))
+            self._report_score()
+        linear, angular = world.needle_speed()
+        slow = linear < self.config.loop.rest_speed and angular * self.needle_geometry.radius \
+            < self.config.loop.rest_speed
+        self._still_steps = self._still_steps + 1 if slow else 0
+        if self._still_steps >= self._rest_steps:
+            self._needle_mode = 'resting'
+            world.set_needle_collisions(False)
+
+    def _start_falling(self):
+        """Hand the released needle to PyBullet with the velocity it had in the jaw."""
+        dt = self._dt
+        T0, T1 = self._T_needle_prev, self._T_needle
+        v = (T1[:3, 3] - T0[:3, 3]) / dt
+        dR = T1[:3, :3] @ T0[:3, :3].T
+        angle_axis = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+        w = 0.5 * angle_axis / dt
+        self.world.set_needle_pose(T1, v, w)
+        self.world.set_needle_collisions(True)
+        self._needle_mode = 'free'
+        self._still_steps = 0
+        self._release_height = float(T1[2, 3])
+
+    def _on_tissue_event(self, t, ev):
+        self.scorer.on_tissue_event(ev)
+        self._emit(ev.kind, point=ev.point, distance_to_marker=ev.distance_to_marker,
+                   marker=ev.marker_name, deviation=ev.deviation)
+        self._report_score()
+
+    def _needle_near_tissue(self):
+        """
+        Whether the tissue tracker must look: the needle is in or within ~1 cm of the tissue.
+
+        A needle entirely higher than ``margin`` above the tissue's highest point cannot cross
+        the surface within a step, so the tracker (which only reacts to crossings and to
+        punctures it holds) has nothing to see.
+        """
+        lowest = self._T_needle[2, 3] - self._needle_reach
+        return self.tissue.in_tissue or lowest < self._tissue_top + _TRACK_MARGIN
+
+    def _check_contacts(self, t):
+        depth_limit = self.config.loop.collision_depth
+        for name in PSMS:
+            arm = self.arms[name]
+            if self._tool_pose(name)[2, 3] - self._instrument_reach > self._tissue_top:
+                self._contact[name] = False
+                continue
+            points = self.world.instrument_points(name, arm.measured_jp, arm.jaw_measured_jp)
+            depth = float(self.phantom.penetration(points).max())
+            touching = depth > depth_limit
+            if touching and not self._contact[name]:
+                self._collisions += 1
+                self.scorer.on_collision(t, name)
+                self._emit('collision', arm=name, depth=depth)
+                self._report_score()
+            self._contact[name] = touching
+
+    def _report_score(self):
+        result = self.scorer.result(self.time)
+        key = (result.score, tuple(sorted(result.subtasks.items())))
+        if key != self._last_score:
+            self._last_score = key
+            self._emit('score', score=result)
+
+    # ------------------------------------------------------------------ commands
+    def apply(self, command):
+        """
+        Send a controller's command to the arms.
+
+        Tool targets ``T_world_tool`` become each PSM's ``servo_cp`` (expressed in the arm's
+        ``measured_cp`` frame), jaw targets its ``jaw_servo_jp``; None entries are skipped.
+        Invalid targets (NaN, inf, unreachable) are rejected by the arm as ``error`` events.
+
+        Parameters
+        ----------
+        command : sim_bridge.expert.Command
+            Targets per arm (``world`` frame).
+
+        """
+        for name, T in (command.T_world_tool or {}).items():
+            if T is None:
+                continue
+            arm = self.arms[name]
+            T = np.asarray(T, dtype=float)
+            if T.shape == (4, 4) and np.all(np.isfinite(T)):
+                T = arm.base_frame @ self._T_base_world[name] @ T
+            arm.servo_cp(T)  # the arm rejects malformed goals with an error event
+        for name, jaw in (command.jaw or {}).items():
+            if jaw is not None:
+                self.arms[name].jaw_servo_jp(jaw)
+
+    def set_target_pair(self, name):
+        """
+        Aim the next throw at a marker pair: the tissue tracker and the scorer start afresh.
+
+        Parameters
+        ----------
+        name : str
+            Pair name (``'synth1'`` .. ``'synth4'``, ``'scan1'`` ..).
+
+        """
+        if name not in self.phantom.markers:
+            raise ValueError(f'unknown marker pair {name!r}; the phantom has '
+                             f'{sorted(self.phantom.markers)}')
+        self._pair = self.phantom.markers[name]
+        self.tissue.reset()
+        self.tissue.set_target_pair(name)
+        self.tissue.update(self.time, self._T_needle)
+        self.scorer = ThrowScorer(self.config.scene.scoring, t_start=self.time)
+        for arm in self.grasp.holders:
+            self.scorer.on_grasp(self.time, arm)
+        self._last_score = None
+
+    def attach_needle(self, arm, T_tool_needle=None):
+        """
+        Put the needle in a PSM's jaw (scene setup): closes the jaw, no grasp event.
+
+        Parameters
+        ----------
+        arm : str
+            ``'PSM1'`` or ``'PSM2'``.
+        T_tool_needle : array_like, shape (4, 4), optional
+            Grasp; default: the needle's canonical grasp.
+
+        """
+        if arm not in PSMS:
+            raise ValueError(f'attach_needle needs a PSM, got {arm!r}')
+        G = self.needle_geometry.T_tool_needle if T_tool_needle is None else T_tool_needle
+        self.grasp.attach(arm, G)
+        self._needle_mode = 'held'
+        self._T_needle = self.grasp.needle_pose(self._tool_pose(arm))
+        self._T_needle_prev = self._T_needle.copy()
+        self.scorer.on_grasp(self.time, arm)
+        self.tissue.update(self.time, self._T_needle)
+
+    # ------------------------------------------------------------------ observation and state
+    @property
+    def target_pair(self):
+        """The target :class:`~sim_bridge.phantom.MarkerPair` (world frame)."""
+        return self._pair
+
+    @property
+    def needle_mode(self):
+        """``'held'``, ``'tissue'`` (free, held by the tissue), ``'free'`` or ``'resting'``."""
+        return self._needle_mode
+
+    def observation(self):
+        """
+        Return what a controller sees now.
+
+        Returns
+        -------
+        sim_bridge.expert.Observation
+            Tool poses and jaws of both PSMs, needle pose, holders, target pair, arm bases.
+
+        """
+        return Observation(t=self.time,
+                           T_world_tool={n: self._tool_pose(n) for n in PSMS},
+                           jaw=self._jaws(), T_world_needle=self._T_needle.copy(),
+                           holders=self.grasp.holders, pair=self._pair,
+                           T_world_base=dict(self._T_world_base))
+
+    def score(self):
+        """
+        Score of the current throw as it stands now.
+
+        Returns
+        -------
+        sim_bridge.scoring.ThrowScore
+
+        """
+        return self.scorer.result(self.time)
+
+    def pop_events(self):
+        """
+        Return and clear the scene events since the last call, oldest first.
+
+        Returns
+        -------
+        list of SimEvent
+
+        """
+        events, self._events = self._events, []
+        return events
+
+    # ------------------------------------------------------------------ ground truth
+    def needle_pose(self):
+        """Needle frame in ``world``, shape (4, 4)."""
+        return self._T_needle.copy()
+
+    def needle_tip(self):
+        """Needle tip position (m, ``world``), shape (3,)."""
+        return self._T_needle[:3, :3] @ self.needle_geometry.tip + self._T_needle[:3, 3]
+
+    def thread_points(self):
+        """Thread node positions (m, ``world``), shape (n_segments + 1, 3), node 0 at the tail."""
+        return self.thread.nodes
+
+    def T_world_base(self, arm):  # noqa: N802 (the project names poses T_a_b)
+        """
+        RCM frame ``<ARM>_base`` of an arm in ``world``.
+
+        Parameters
+        ----------
+        arm : str
+            ``'PSM1'``, ``'PSM2'`` or ``'ECM'``.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+
+        """
+        return self._T_world_base[arm].copy()
+
+    def phantom_pose(self):
+        """Phantom frame in ``world``, shape (4, 4)."""
+        return self.phantom.T_world_phantom.copy()
+
+    def marker_poses(self):
+        """
+        Frames of the red markers in ``world``.
+
+        Returns
+        -------
+        dict of str to ndarray, shape (4, 4)
+            ``'<pair>.entry'`` and ``'<pair>.exit'``: origin at the marker centre on the
+            surface, ``z`` the surface normal, ``x`` towards the pair's other marker.
+
+        """
+        out = {}
+        for pair in self.phantom.markers.values():
+            for which, point, normal, other in (
+                    ('entry', pair.entry, pair.entry_normal, pair.exit),
+                    ('exit', pair.exit, pair.exit_normal, pair.entry)):
+                z = normal / np.linalg.norm(normal)
+                x = other - point
+                x = x - (x @ z) * z
+                x /= np.linalg.norm(x)
+                T = np.eye(4)
+                T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+                T[:3, 3] = point
+                out[f'{pair.name}.{which}'] = T
+        return out
+
+    def tool_pose(self, arm):
+        """
+        Tool-tip (``measured_cp``) pose of an arm in ``world``.
+
+        Parameters
+        ----------
+        arm : str
+            Arm name.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+
+        """
+        return self._tool_pose(arm)
+
+    # ------------------------------------------------------------------ drawing
+    def sync_world(self):
+        """Copy arm joints, jaw angles, needle pose and thread into PyBullet (for drawing)."""
+        world = self.world
+        for name, arm in self.arms.items():
+            world.set_arm_joints(name, arm.measured_jp,
+                                 arm.jaw_measured_jp if name in PSMS else None)
+        if self._needle_mode != 'free':
+            world.set_needle_pose(self._T_needle)
+        world.set_thread_points(self.thread.nodes)
+
+    def camera_pose(self):
+        """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4)."""
+        return self._tool_pose('ECM')
+
+    def render(self):
+        """
+        Render the stereo endoscope images of the scene as it is now.
+
+        Returns
+        -------
+        sim_bridge.camera.StereoFrame
+            Left/right colour and metric depth images and camera poses.
+
+        """
+        self.sync_world()
+        return self.camera.render(self.camera_pose())
