@@ -92,12 +92,13 @@ def declare_config(node, cls, config_file, default_name):
         if _parameter_type(hints[field.name]) == Parameter.Type.DOUBLE and \
                 isinstance(default, int) and not isinstance(default, bool):
             default = float(default)
-        descriptor = ParameterDescriptor(dynamic_typing=True)
         if default == []:
-            value = node.declare_parameter(
-                field.name, _parameter_type(hints[field.name]), descriptor).value
+            # an empty list has no type of its own: declare the field's type
+            value = node.declare_parameter(field.name, _parameter_type(hints[field.name])).value
         else:
-            value = node.declare_parameter(field.name, default, descriptor).value
+            # dynamic typing: `-p rate:=2` is accepted for a float; the dataclass checks types
+            value = node.declare_parameter(
+                field.name, default, ParameterDescriptor(dynamic_typing=True)).value
         values[field.name] = default if value is None else value
     for name, value in values.items():
         if not isinstance(value, (str, bytes)) and hasattr(value, '__len__') \

@@ -146,20 +146,23 @@ class Player(Node):
                 f'playing {self.config.bag}: {len(self._topic_pubs)} topics, '
                 f'{self.reader.summary.duration_s:.3f} s at rate {self.config.rate}')
             loops = 0
+            began = time.monotonic()
             while not self._stop.is_set():
                 if not self._play_once():
                     return
                 loops += 1
                 if not self.config.loop:
                     break
+            played = time.monotonic() - began
             for pub in self._topic_pubs.values():
                 pub.wait_for_all_acked(Duration(seconds=5.0))
             total = sum(self.published.values())
             done = {'bag': self.config.bag, 'published': total, 'loops': loops,
-                    'topics': self.published}
+                    'topics': self.published, 'wall_time': played}
             self._done_pub.publish(String(data=json.dumps(done)))
             self._done_pub.wait_for_all_acked(Duration(seconds=1.0))
-            self.get_logger().info(f'done: {total} messages on {len(self.published)} topics')
+            self.get_logger().info(f'done: {total} messages on {len(self.published)} topics '
+                                   f'in {played:.3f} s')
         except bags.BagError as exc:
             self.get_logger().error(str(exc))
         finally:

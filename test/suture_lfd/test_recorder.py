@@ -168,6 +168,8 @@ def test_recorder_writes_every_message_of_a_burst_readable_by_rosbags_and_mcap(
     total = burst.run(1.5)
     elapsed = time.monotonic() - t0
     assert burst.wait_acked()
+    # acknowledged = in the recorder's reader; wait until its callbacks have taken them too
+    assert wait_for(lambda: statuses[-1].get('received') == total, 5.0), statuses[-1]
     stopped = call(ros, node, '/recorder/stop')
     assert stopped.success, stopped.message
     counts = json.loads(stopped.message)
