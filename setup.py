@@ -9,9 +9,13 @@ HERE = Path(__file__).resolve().parent
 
 # One console_scripts entry per node executable (ros2 run suture_lfd <name>), plus the CLI.
 NODES = {
+    'simulator': 'sim_bridge.nodes.simulator:main',
     'footpedals': 'sim_bridge.nodes.footpedals:main',
+    'demonstrator': 'suture_lfd.nodes.demonstrator:main',
     'recorder': 'suture_lfd.nodes.recorder:main',
     'player': 'suture_lfd.nodes.player:main',
+    'segmenter': 'suture_lfd.nodes.segmenter:main',
+    'executor': 'suture_lfd.nodes.executor:main',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',
