@@ -81,11 +81,15 @@ def build_parser():
     info.add_argument('--seed', type=int, default=0)
     info.add_argument('--seconds', type=float, default=0.5, help='simulated seconds to run')
     info.set_defaults(func=cmd_info)
-    study = sub.add_parser('study', help="reproduce the seed paper's evaluation")
-    study.add_argument('--seed', type=int, default=0)
-    study.add_argument('--seconds', type=float, default=0.5)
-    study.add_argument('--out', default='study', help='report folder')
-    study.set_defaults(func=cmd_study)
+    study = sub.add_parser('study', help="reproduce the seed paper's evaluation",
+                           description="Run the seed paper's user study and evaluation in "
+                           "simulation and write its report (tables beside the paper's, "
+                           'figures, CSV); rerun the same command to resume an interrupted '
+                           'study.')
+    from suture_lfd.study import add_arguments as add_study_arguments
+
+    add_study_arguments(study)
+    study.set_defaults(func=cmd_study, seconds=0.5)
     bag = sub.add_parser('bag', help='inspect and recover rosbag2 bags (demonstrations)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True)
     bag_info = bag_sub.add_parser('info', help='topics, types, counts and duration of a bag')

@@ -1,0 +1,325 @@
+"""
+The two kinds of study job, run in-process on the package's simulation (no ROS).
+
+``demo`` (one per subject and pair)
+    The subject demonstrates the throw (:func:`suture_lfd.demonstrator.run_demonstration`,
+    failed throws repeated), the demonstration is written as a rosbag2 bag
+    (:func:`suture_lfd.demo_bag.write_demonstration_bag`, what the recorder node writes), read
+    back (:func:`suture_lfd.demo_bag.demonstration_from_bag`, what the segmenter node reads),
+    segmented by the segmenter's code (:mod:`suture_lfd.segmentation`,
+    :mod:`suture_lfd.segments`) and its segment file saved for the throws.
+``throw`` (one per subject, method, pair learnt on and pair executed on)
+    The skill is learnt from the segment file (:func:`suture_lfd.skill.learn_skill`) and
+    executed on the test pair (:func:`suture_lfd.executor.execute_throw`); on the pair it was
+    learnt on (a regeneration) the regenerated needle trajectories of ii and iv are also
+    compared with the demonstrated ones (Table II) and saved for the Fig. 7 plot.
+
+A job is a plain ``dict`` (picklable for worker processes); :func:`run_job` returns the flat
+result record stored by :mod:`suture_lfd.study_store`. Paths in jobs and records are relative
+to the study's output folder. Each worker process keeps one simulation per phantom and
+reuses it (``reset(seed)`` per throw).
+
+Units of the records: times s (simulated), position errors mm, orientation errors deg.
+"""
+
+from dataclasses import dataclass
+import logging
+import math
+import os
+from pathlib import Path
+import shutil
+
+import numpy as np
+from suture_lfd.geometry import quaternion_angle
+from suture_lfd.metrics import orientation_trajectory_error, trajectory_error
+from suture_lfd.resampling import resample_poses
+
+_LOG = logging.getLogger(__name__)
+TASKS = ('ii', 'iv')
+SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
+
+
+@dataclass(frozen=True)
+class JobSettings:
+    """
+    Settings shared by every job of a study (set once per worker process).
+
+    Attributes
+    ----------
+    out : str
+        Output folder (absolute).
+    cohort_path : str or None
+        ``cohort.yaml`` (None: the installed one).
+    cohort_seed : int
+        Cohort seed.
+    demo_attempts : int
+        Throws a subject gets to produce a successful demonstration.
+    timeout : float
+        Longest simulated time (s) of one throw.
+    sample_rate : float
+        Demonstration sampling and command rate (Hz).
+    control_period : float
+        Executor control period (s).
+
+    """
+
+    out: str
+    cohort_path: str | None = None
+    cohort_seed: int = 0
+    demo_attempts: int = 3
+    timeout: float = 60.0
+    sample_rate: float = 100.0
+    control_period: float = 0.01
+
+
+_STATE = {}
+
+
+def init_worker(settings):
+    """Set the job settings of this process (worker initializer)."""
+    logging.getLogger('suture_lfd').setLevel(logging.WARNING)
+    logging.getLogger('sim_bridge').setLevel(logging.WARNING)
+    _STATE.clear()
+    _STATE['settings'] = settings
+    _STATE['sims'] = {}
+    _STATE['data'] = {}
+    _STATE['skills'] = {}
+
+
+def _settings():
+    if 'settings' not in _STATE:
+        raise RuntimeError('study jobs need init_worker(settings) first')
+    return _STATE['settings']
+
+
+def _simulation(phantom):
+    sims = _STATE['sims']
+    if phantom not in sims:
+        from sim_bridge.simulation import Simulation
+
+        sims[phantom] = Simulation(phantom=phantom, rng=np.random.default_rng(0))
+    return sims[phantom]
+
+
+def _subject(name):
+    subjects = _STATE.get('subjects')
+    if subjects is None:
+        from suture_lfd.cohort import load_cohort
+
+        s = _settings()
+        subjects = {x.name: x for x in load_cohort(s.cohort_path, seed=s.cohort_seed)}
+        _STATE['subjects'] = subjects
+    if name not in subjects:
+        raise ValueError(f'subject {name!r} is not in the cohort ({sorted(subjects)})')
+    return subjects[name]
+
+
+def run_job(job):
+    """
+    Run one study job and return its record.
+
+    Parameters
+    ----------
+    job : dict
+        ``kind`` 'demo' or 'throw' and the fields :func:`demo_job` / :func:`throw_job` need.
+
+    Returns
+    -------
+    dict
+        Flat record (JSON-serialisable) with the job's fields and its results.
+
+    """
+    if job['kind'] == 'demo':
+        return demo_job(job)
+    if job['kind'] == 'throw':
+        return throw_job(job)
+    raise ValueError(f'unknown study job kind {job["kind"]!r}')
+
+
+# ---------------------------------------------------------------------- demonstrations
+def demo_job(job):
+    """
+    Record, store, read back and segment one demonstration (a ``demo`` job).
+
+    Parameters
+    ----------
+    job : dict
+        ``key``, ``subject``, ``group``, ``phantom``, ``pair``, ``next_pair`` (or None),
+        ``seed`` (scene seed), ``order``, ``bag`` and ``segments`` (paths relative to the
+        output folder).
+
+    Returns
+    -------
+    dict
+        The job's fields plus ``attempts``, ``ok``, ``demo_score``, ``failure``, ``time_s``
+        (full-throw time of the demonstration) and ``t_i`` .. ``t_v`` (segmented subtask
+        durations, s).
+
+    """
+    from suture_lfd.demo_bag import demonstration_from_bag, write_demonstration_bag
+    from suture_lfd.demonstrator import run_demonstration
+    from suture_lfd.segmentation import segment_demonstration
+    from suture_lfd.segments import make_segment_file
+
+    s = _settings()
+    out = Path(s.out)
+    subject = _subject(job['subject'])
+    sim = _simulation(job['phantom'])
+    run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
+                            sample_rate=s.sample_rate, timeout=s.timeout,
+                            attempts=s.demo_attempts, next_pair=job.get('next_pair'),
+                            require_success=False)
+    record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),
+              'failure': run.score.failure, 'time_s': float(run.score.time_s), 'ok': False}
+    # What the recorder would have written, then what the segmenter reads.
+    bag = out / job['bag']
+    if bag.exists():
+        shutil.rmtree(bag)  # left by a run killed while writing it
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    write_demonstration_bag(bag, run.demo)
+    demo = demonstration_from_bag(bag, pair=job['pair'])
+    if run.score.score < 1.0:
+        record['failure'] = f'no successful demonstration: {run.score.failure}'
+        return record
+    segmentation = segment_demonstration(demo)
+    for seg in segmentation.subtasks:
+        record[f't_{seg.name}'] = float(seg.duration)
+    segment_file = make_segment_file(demo, segmentation)
+    target = out / job['segments']
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(target.stem + '.part' + target.suffix)
+    segment_file.save(tmp)
+    os.replace(tmp, target)
+    record['ok'] = True
+    return record
+
+
+# ---------------------------------------------------------------------- throws
+def _training(path):
+    data = _STATE['data']
+    if path not in data:
+        from suture_lfd.segments import SegmentFile
+        from suture_lfd.skill import training_data
+
+        data[path] = training_data(SegmentFile.load(path))
+    return data[path]
+
+
+def _skill(path, method):
+    skills = _STATE['skills']
+    key = (path, method)
+    if key not in skills:
+        from suture_lfd.skill import learn_skill
+
+        if len(skills) > 64:
+            skills.clear()
+        skills[key] = learn_skill(_training(path), method=method)
+    return skills[key]
+
+
+def _angle_deg(q1, q2):
+    return math.degrees(float(quaternion_angle(np.asarray(q1), np.asarray(q2))))
+
+
+def regeneration_errors(reference, regenerated):
+    """
+    Return the Table II errors of a regenerated needle trajectory against the demonstrated one.
+
+    Parameters
+    ----------
+    reference : tuple of ndarray
+        ``(P (n, 3), Q (n, 4))`` demonstrated needle positions (m) and quaternions.
+    regenerated : tuple of ndarray
+        ``(P (m, 3), Q (m, 4))`` regenerated trajectory, same frame.
+
+    Returns
+    -------
+    dict
+        ``start_mm``, ``goal_mm``, ``traj_mm`` (mean distance along the DTW path),
+        ``start_deg``, ``goal_deg``, ``traj_deg`` (mean angle along the orientation DTW path).
+
+    """
+    P0, Q0 = (np.asarray(a, float) for a in reference)
+    P1, Q1 = (np.asarray(a, float) for a in regenerated)
+    return {'start_mm': float(np.linalg.norm(P1[0] - P0[0]) * 1e3),
+            'goal_mm': float(np.linalg.norm(P1[-1] - P0[-1]) * 1e3),
+            'traj_mm': trajectory_error(P0, P1)['mean_mm'],
+            'start_deg': _angle_deg(Q1[0], Q0[0]), 'goal_deg': _angle_deg(Q1[-1], Q0[-1]),
+            'traj_deg': orientation_trajectory_error(Q0, Q1)['mean_deg']}
+
+
+def _nan():
+    return float('nan')
+
+
+def throw_job(job):
+    """
+    Learn a skill from a demonstration and execute it on a pair (a ``throw`` job).
+
+    Parameters
+    ----------
+    job : dict
+        ``key``, ``subject``, ``group``, ``method``, ``train_phantom``, ``train_pair``,
+        ``test_phantom``, ``test_pair``, ``seed`` (scene seed), ``segments`` (the training
+        demonstration's segment file, relative, or None when that demonstration failed),
+        ``demo_time_s``, ``trajectories`` (where to save the curves of a regeneration, or
+        None).
+
+    Returns
+    -------
+    dict
+        The job's fields plus ``score``, ``i`` .. ``v``, ``failure``, ``time_s`` (simulated
+        full-throw time), ``entry_error_mm``, ``exit_error_mm``, ``regeneration`` and, for a
+        regeneration, the Table II errors ``<task>_<start|goal|traj>_<mm|deg>`` and
+        ``<task>_exec_traj_mm``.
+
+    """
+    s = _settings()
+    out = Path(s.out)
+    record = {**job, 'regeneration': job['train_pair'] == job['test_pair']}
+    if not job.get('segments'):
+        record.update(score=0.0, failure='no demonstration to learn from', time_s=_nan(),
+                      entry_error_mm=_nan(), exit_error_mm=_nan(), trajectories=None,
+                      **dict.fromkeys(SUBTASKS, False))
+        return record
+    from suture_lfd.executor import execute_throw
+
+    path = str(out / job['segments'])
+    skill = _skill(path, job['method'])
+    sim = _simulation(job['test_phantom'])
+    outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'], timeout=s.timeout,
+                            control_period=s.control_period)
+    record.update(score=float(outcome.score), failure=outcome.failure,
+                  time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
+                  exit_error_mm=float(outcome.exit_error_mm),
+                  **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS})
+    if not record['regeneration']:
+        record['trajectories'] = None
+        return record
+    data = _training(path)
+    pair = sim.phantom.markers[job['test_pair']]
+    curves = {}
+    for task in TASKS:
+        n_pts = skill.dmps[task].params.n_pts if hasattr(skill.dmps[task], 'params') else None
+        T, P, Q = data.needle[task]
+        _, P0, Q0 = resample_poses(T, P, Q, n_pts=n_pts or len(T))
+        _, P1, Q1 = skill.rollout(task, pair)
+        for name, value in regeneration_errors((P0, Q0), (P1, Q1)).items():
+            record[f'{task}_{name}'] = value
+        curves[f'demo_{task}'] = np.hstack((P0, Q0))
+        curves[f'rollout_{task}'] = np.hstack((P1, Q1))
+        executed = outcome.executed.get(task)
+        if executed is not None and len(executed[0]) > 1:
+            poses = np.asarray(executed[1], float)
+            record[f'{task}_exec_traj_mm'] = trajectory_error(P0, poses[:, :3])['mean_mm']
+            curves[f'exec_{task}'] = poses
+        else:
+            record[f'{task}_exec_traj_mm'] = _nan()
+            curves[f'exec_{task}'] = np.zeros((0, 7))
+    if job.get('trajectories'):
+        target = out / job['trajectories']
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(target.stem + '.part.npz')
+        np.savez_compressed(tmp, **curves)
+        os.replace(tmp, target)
+    return record
