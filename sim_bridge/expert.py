@@ -58,6 +58,12 @@ class ExpertConfig:
         Peak speed (m/s) of free tool motions.
     tool_angular_speed : float
         Peak angular speed (rad/s) of tool and needle motions.
+    tool_acceleration : float
+        Peak acceleration (m/s^2) of a minimum-jerk tool motion (5.77 d / T^2); kept below the
+        dVRK's joint acceleration limits (insertion 0.2 m/s^2, yaw/pitch 90 deg/s^2 at the
+        insertion depth) so the arms track the plan without overshooting it.
+    tool_angular_acceleration : float
+        Peak angular acceleration (rad/s^2) of a minimum-jerk tool rotation.
     drive_speed : float
         Peak angular speed (rad/s) of the needle turning about its arc centre.
     min_move_time : float
@@ -115,6 +121,8 @@ class ExpertConfig:
 
     tool_speed: float = 0.04
     tool_angular_speed: float = 2.0
+    tool_acceleration: float = 0.1
+    tool_angular_acceleration: float = 6.0
     drive_speed: float = 1.0
     min_move_time: float = 0.2
     jaw_time: float = 0.2
@@ -144,8 +152,8 @@ class ExpertConfig:
     speed_scale: float = 1.0
 
     def __post_init__(self):
-        for name in ('tool_speed', 'tool_angular_speed', 'drive_speed', 'speed_scale',
-                     'roll_step_deg'):
+        for name in ('tool_speed', 'tool_angular_speed', 'tool_acceleration',
+                     'tool_angular_acceleration', 'drive_speed', 'speed_scale', 'roll_step_deg'):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f'expert {name} must be > 0, got {getattr(self, name)}')
         if not 0.0 <= self.grasp_s_min <= self.grasp_s_max <= 1.0:
@@ -421,8 +429,10 @@ class _Track:
     def _duration(self, distance, angle, angular_speed=None):
         c = self.cfg
         w = c.tool_angular_speed if angular_speed is None else angular_speed
-        return max(c.min_move_time, 1.875 * distance / c.tool_speed,
-                   1.875 * angle / w) / c.speed_scale
+        # minimum jerk: peak speed 1.875 d / T, peak acceleration 5.7735 d / T^2
+        return max(c.min_move_time, 1.875 * distance / c.tool_speed, 1.875 * angle / w,
+                   math.sqrt(5.7735 * distance / c.tool_acceleration),
+                   math.sqrt(5.7735 * angle / c.tool_angular_acceleration)) / c.speed_scale
 
     def _still(self, t1, jaw):
         if self.held is None:
