@@ -53,6 +53,8 @@ def add_arguments(parser):
                         help='number of subjects, taken in turn from each group')
     parser.add_argument('--pairs', type=int, default=None,
                         help='marker pairs per phantom (the first ones in suturing order)')
+    parser.add_argument('--phantoms', default=None,
+                        help='comma-separated phantoms (default: every phantom of the design)')
     parser.add_argument('--cohort', default=None, help='cohort file (default config/cohort.yaml)')
     parser.add_argument('--via-ros', action='store_true',
                         help='execute the throws through the ROS node graph (not available yet)')
@@ -138,6 +140,13 @@ def build_config(args):
     subjects = _pick_subjects(cohort, n_subjects)
     phantoms = {ph: list(pairs[:n_pairs] if n_pairs else pairs)
                 for ph, pairs in design.phantoms.items()}
+    if args.phantoms:
+        chosen = [p.strip() for p in args.phantoms.split(',') if p.strip()]
+        unknown = [p for p in chosen if p not in phantoms]
+        if unknown or not chosen:
+            raise ValueError(f'unknown phantom {unknown[0] if unknown else args.phantoms!r}; '
+                             f'--phantoms takes names from {sorted(phantoms)}')
+        phantoms = {p: phantoms[p] for p in chosen}
     if args.methods:
         methods = [m.strip() for m in args.methods.split(',') if m.strip()]
         unknown = [m for m in methods if m not in METHODS]
@@ -223,12 +232,21 @@ def plan_jobs(config):
 
 
 def _attach_demos(throws, store):
-    """Fill each throw job with its training demonstration's segment file and time."""
+    """
+    Fill each throw job with its training demonstration's segment file and time.
+
+    A throw whose demonstration job raised an error (or is missing) gets ``blocked``: it is
+    stored as an error too, so that a later run does it again once the demonstration exists.
+    """
     out = []
     for job in throws:
-        demo = store.records.get(job['demo_key'], {})
-        ok = bool(demo.get('ok')) and not demo.get('error')
-        out.append({**job, 'segments': demo.get('segments') if ok else None,
+        demo = store.records.get(job['demo_key'])
+        if demo is None or demo.get('error'):
+            out.append({**job, 'segments': None, 'demo_time_s': None,
+                        'blocked': f'demonstration {job["demo_key"]} '
+                                   + ('failed: ' + demo['error'] if demo else 'missing')})
+            continue
+        out.append({**job, 'segments': demo.get('segments') if demo.get('ok') else None,
                     'demo_time_s': demo.get('time_s')})
     return out
 

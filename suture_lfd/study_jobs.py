@@ -156,10 +156,8 @@ def demo_job(job):
         durations, s).
 
     """
-    from suture_lfd.demo_bag import demonstration_from_bag, write_demonstration_bag
     from suture_lfd.demonstrator import run_demonstration
     from suture_lfd.segmentation import segment_demonstration
-    from suture_lfd.segments import make_segment_file
 
     s = _settings()
     out = Path(s.out)
@@ -171,37 +169,64 @@ def demo_job(job):
                             require_success=False)
     record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),
               'failure': run.score.failure, 'time_s': float(run.score.time_s), 'ok': False}
-    # What the recorder would have written, then what the segmenter reads.
-    bag = out / job['bag']
-    if bag.exists():
-        shutil.rmtree(bag)  # left by a run killed while writing it
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    write_demonstration_bag(bag, run.demo)
-    demo = demonstration_from_bag(bag, pair=job['pair'])
+    demo = _through_bag(run.demo, out / job['bag'], job['pair'])
+    if demo is None:
+        demo, record['bag'] = run.demo, None
     if run.score.score < 1.0:
         record['failure'] = f'no successful demonstration: {run.score.failure}'
         return record
     segmentation = segment_demonstration(demo)
     for seg in segmentation.subtasks:
         record[f't_{seg.name}'] = float(seg.duration)
-    segment_file = make_segment_file(demo, segmentation)
     target = out / job['segments']
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(target.stem + '.part' + target.suffix)
-    segment_file.save(tmp)
+    _save_segments(demo, segmentation, tmp)
     os.replace(tmp, target)
     record['ok'] = True
     return record
+
+
+def _through_bag(demo, bag, pair):
+    """Write the demonstration as the recorder would and read it back as the segmenter does."""
+    try:
+        from suture_lfd.demo_bag import demonstration_from_bag, write_demonstration_bag
+    except ImportError:  # the bag codec of demonstrations is not in this version
+        return None
+    if bag.exists():
+        shutil.rmtree(bag)  # left by a run killed while writing it
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    write_demonstration_bag(bag, demo)
+    return demonstration_from_bag(bag, pair=pair)
+
+
+def _save_segments(demo, segmentation, path):
+    """Save what the throws learn from: the segment file (or the demonstration without it)."""
+    try:
+        from suture_lfd.segments import make_segment_file
+    except ImportError:  # no segment files in this version: keep the demonstration itself
+        demo.save(path)
+        return
+    make_segment_file(demo, segmentation).save(path)
 
 
 # ---------------------------------------------------------------------- throws
 def _training(path):
     data = _STATE['data']
     if path not in data:
-        from suture_lfd.segments import SegmentFile
-        from suture_lfd.skill import training_data
+        from suture_lfd.skill import training_data, training_data_from_demonstration
 
-        data[path] = training_data(SegmentFile.load(path))
+        try:
+            from suture_lfd.segments import SegmentFile
+        except ImportError:  # the demonstration was kept instead of a segment file
+            from suture_lfd.demonstration import Demonstration
+            from suture_lfd.segmentation import segment_demonstration
+
+            demo = Demonstration.load(path)
+            data[path] = training_data_from_demonstration(demo, segment_demonstration(demo),
+                                                          source=path)
+        else:
+            data[path] = training_data(SegmentFile.load(path))
     return data[path]
 
 
@@ -274,13 +299,15 @@ def throw_job(job):
         ``<task>_exec_traj_mm``.
 
     """
+    if job.get('blocked'):  # stored as an error: done again once the demonstration exists
+        return {**job, 'error': job['blocked']}
     s = _settings()
     out = Path(s.out)
     record = {**job, 'regeneration': job['train_pair'] == job['test_pair']}
     if not job.get('segments'):
-        record.update(score=0.0, failure='no demonstration to learn from', time_s=_nan(),
-                      entry_error_mm=_nan(), exit_error_mm=_nan(), trajectories=None,
-                      **dict.fromkeys(SUBTASKS, False))
+        record.update(score=0.0, failure='no successful demonstration to learn from',
+                      time_s=_nan(), entry_error_mm=_nan(), exit_error_mm=_nan(),
+                      trajectories=None, **dict.fromkeys(SUBTASKS, False))
         return record
     from suture_lfd.executor import execute_throw
 

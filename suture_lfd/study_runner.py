@@ -105,8 +105,7 @@ def _call(job_fn, job):
         record = job_fn(job)
     except Exception as exc:  # noqa: BLE001 -- one broken throw must not stop the study
         _LOG.error('job %s failed:\n%s', job['key'], traceback.format_exc())
-        record = {'key': job['key'], 'kind': job['kind'],
-                  'error': f'{type(exc).__name__}: {exc}'}
+        record = {**job, 'error': f'{type(exc).__name__}: {exc}'}
     record.setdefault('error', '')
     record['wall_s'] = time.perf_counter() - t0
     return record

@@ -63,7 +63,7 @@ def methods(records):
     """Return the methods present, in first-seen order."""
     seen = []
     for r in records:
-        if r.get('kind') == 'throw' and r['method'] not in seen:
+        if r.get('kind') == 'throw' and r.get('method') and r['method'] not in seen:
             seen.append(r['method'])
     return seen
 
