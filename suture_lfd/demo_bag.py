@@ -1,0 +1,397 @@
+"""
+Demonstration bags: the simulator topics a recorder keeps for one throw, written and read back.
+
+A demonstration bag is a rosbag2 directory (:mod:`suture_lfd.bags`) holding, among whatever
+else the recorder took, the topics of :data:`DEMO_TOPICS` (the simulator's topic contract, node
+namespace ``/``):
+
+- ``/PSM1/measured_cp``, ``/PSM2/measured_cp`` (geometry_msgs/PoseStamped): tool tip in the
+  arm's base frame (frame_id ``<ARM>_base``, the dVRK default) or in ``world``;
+- ``/sim/PSM1/base_frame``, ``/sim/PSM2/base_frame`` (PoseStamped, latched): ``T_world_base``;
+- ``/PSM1/jaw/measured_js``, ``/PSM2/jaw/measured_js`` (sensor_msgs/JointState): jaw angle;
+- ``/sim/needle/measured_cp`` (PoseStamped, ``world``): needle pose;
+- ``/sim/markers/<pair>/entry`` and ``.../exit`` (PoseStamped, ``world``, latched): marker
+  centres, ``z`` axis the outward surface normal;
+- ``/sim/events`` (crtk_msgs/StringStamped, JSON ``{"kind", "t", ...}``): ``grasp`` and
+  ``release`` (with ``arm``) give who holds the needle; ``target_pair`` (with ``pair``) the pair;
+- ``/sim/target_pair`` (std_msgs/String): the pair chosen for the throw.
+
+:func:`write_demonstration_bag` writes a :class:`suture_lfd.demonstration.Demonstration` as the
+recorder would have recorded it from the simulator; :func:`demonstration_from_bag` reads any
+such bag (written here or by the recorder node) back into a Demonstration, on the time axis of
+the message header stamps (simulation time), resampled to a common rate.
+
+Frames: ``world`` unless a frame_id says otherwise; m, rad, s; quaternions (x, y, z, w).
+"""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from suture_lfd import bags
+from suture_lfd.demonstration import Demonstration
+from suture_lfd.geometry import (
+    pose_from_transform,
+    quaternion_from_matrix,
+    transform_from_pose,
+)
+from suture_lfd.resampling import resample_quaternions
+
+PSMS = ('PSM1', 'PSM2')
+POSE = 'geometry_msgs/msg/PoseStamped'
+JOINTS = 'sensor_msgs/msg/JointState'
+EVENTS = 'crtk_msgs/msg/StringStamped'
+STRING = 'std_msgs/msg/String'
+
+#: Topics of a demonstration bag (besides the marker topics of its pairs) and their types.
+DEMO_TOPICS = {
+    '/PSM1/measured_cp': POSE,
+    '/PSM2/measured_cp': POSE,
+    '/PSM1/jaw/measured_js': JOINTS,
+    '/PSM2/jaw/measured_js': JOINTS,
+    '/sim/PSM1/base_frame': POSE,
+    '/sim/PSM2/base_frame': POSE,
+    '/sim/needle/measured_cp': POSE,
+    '/sim/events': EVENTS,
+    '/sim/target_pair': STRING,
+}
+#: Topics a bag must hold for :func:`demonstration_from_bag`.
+REQUIRED_TOPICS = ('/PSM1/measured_cp', '/PSM2/measured_cp', '/PSM1/jaw/measured_js',
+                   '/PSM2/jaw/measured_js', '/sim/PSM1/base_frame', '/sim/PSM2/base_frame',
+                   '/sim/needle/measured_cp')
+MARKER_TOPIC = '/sim/markers/{pair}/{which}'
+_LATCHED = bags.make_qos(transient_local=True, depth=1)
+_EVENT_QOS = bags.make_qos(transient_local=True, depth=1000)
+_STATE_QOS = bags.make_qos(depth=100)
+
+
+def marker_topics(pair):
+    """Return the entry and exit marker topics of a pair (absolute names)."""
+    return (MARKER_TOPIC.format(pair=pair, which='entry'),
+            MARKER_TOPIC.format(pair=pair, which='exit'))
+
+
+# --- messages (rosbags objects) <-> arrays ---------------------------------------------------
+
+def _stamp(store, t):
+    ns = int(round(float(t) * 1e9))
+    return store.types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def _header(store, t, frame_id=''):
+    return store.types['std_msgs/msg/Header'](stamp=_stamp(store, t), frame_id=frame_id)
+
+
+def _pose_stamped(store, T, frame_id, t):
+    T = np.asarray(T, dtype=float)
+    q = quaternion_from_matrix(T[:3, :3])
+    ty = store.types
+    pose = ty['geometry_msgs/msg/Pose'](
+        position=ty['geometry_msgs/msg/Point'](x=float(T[0, 3]), y=float(T[1, 3]),
+                                               z=float(T[2, 3])),
+        orientation=ty['geometry_msgs/msg/Quaternion'](x=float(q[0]), y=float(q[1]),
+                                                       z=float(q[2]), w=float(q[3])))
+    return ty[POSE](header=_header(store, t, frame_id), pose=pose)
+
+
+def _joint_state(store, names, position, t):
+    return store.types[JOINTS](header=_header(store, t), name=list(names),
+                               position=np.asarray(position, dtype=np.float64),
+                               velocity=np.zeros(0), effort=np.zeros(0))
+
+
+def _event(store, t, kind, **data):
+    text = json.dumps({'kind': kind, 't': float(t), **data}, sort_keys=True)
+    return store.types[EVENTS](header=_header(store, t), string=text)
+
+
+def _seconds(stamp):
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def _pose_vector(msg):
+    p, q = msg.pose.position, msg.pose.orientation
+    return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
+
+
+def _marker_frame(point, normal, other):
+    z = normal / np.linalg.norm(normal)
+    x = other - point
+    x = x - (x @ z) * z
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = point
+    return T
+
+
+# --- writing ---------------------------------------------------------------------------------
+
+def default_base_frames():
+    """Return ``T_world_base`` of PSM1 and PSM2 from ``config/world.yaml`` (4x4 each)."""
+    from sim_bridge.world import read_world_config
+    world = read_world_config()
+    return {arm: np.array(world.arms[arm].T, dtype=float) for arm in PSMS}
+
+
+def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='base',
+                            other_pairs=None, typestore=None):
+    """
+    Write a demonstration as the recorder records it from the simulator.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory to create (must not exist).
+    demo : suture_lfd.demonstration.Demonstration
+        The record (world frame).
+    base_frames : dict of str to array_like (4, 4), optional
+        ``T_world_base`` of PSM1 and PSM2; default :func:`default_base_frames`.
+    measured_frame : {'base', 'world'}
+        Frame of ``measured_cp``: ``<ARM>_base`` (dVRK default) or ``world``.
+    other_pairs : dict, optional
+        More marker pairs to publish, ``name -> (entry (3,), exit (3,), normal (3,))``.
+    typestore : rosbags typestore, optional
+        Default :func:`suture_lfd.bags.make_typestore`.
+
+    Returns
+    -------
+    dict of str to int
+        Messages written per topic.
+
+    """
+    if not isinstance(demo, Demonstration):
+        raise ValueError(f'demo must be a Demonstration, got {type(demo).__name__}')
+    if measured_frame not in ('base', 'world'):
+        raise ValueError(f"measured_frame must be 'base' or 'world', got {measured_frame!r}")
+    if not demo.pair:
+        raise ValueError('the demonstration has no pair name; a bag names its marker topics '
+                         'after the pair')
+    store = typestore if typestore is not None else bags.make_typestore()
+    frames = default_base_frames() if base_frames is None else {
+        arm: np.asarray(base_frames[arm], dtype=float) for arm in PSMS}
+    pairs = {demo.pair: (demo.entry, demo.exit, demo.normal)}
+    pairs.update(other_pairs or {})
+    t = demo.t
+    t0 = float(t[0])
+    messages = []   # (t, topic, msg)
+
+    def put(time, topic, msg):
+        messages.append((float(time), topic, msg))
+
+    for arm in PSMS:
+        put(t0, f'/sim/{arm}/base_frame', _pose_stamped(store, frames[arm], 'world', t0))
+    for name, (entry, exit_, normal) in pairs.items():
+        entry, exit_, normal = (np.asarray(v, dtype=float) for v in (entry, exit_, normal))
+        topic_in, topic_out = marker_topics(name)
+        put(t0, topic_in, _pose_stamped(store, _marker_frame(entry, normal, exit_), 'world', t0))
+        put(t0, topic_out, _pose_stamped(store, _marker_frame(exit_, normal, entry), 'world',
+                                         t0))
+    put(t0, '/sim/target_pair', store.types[STRING](data=demo.pair))
+    put(t0, '/sim/events', _event(store, t0, 'target_pair', pair=demo.pair))
+    poses = {'PSM1': transform_from_pose(demo.psm1_pose),
+             'PSM2': transform_from_pose(demo.psm2_pose)}
+    jaws = {'PSM1': demo.psm1_jaw, 'PSM2': demo.psm2_jaw}
+    holds = {'PSM1': demo.psm1_holds, 'PSM2': demo.psm2_holds}
+    needle = transform_from_pose(demo.needle_pose)
+    inverse = {arm: np.linalg.inv(frames[arm]) for arm in PSMS}
+    for k, tk in enumerate(t):
+        for arm in PSMS:
+            T = poses[arm][k] if measured_frame == 'world' else inverse[arm] @ poses[arm][k]
+            frame = 'world' if measured_frame == 'world' else f'{arm}_base'
+            put(tk, f'/{arm}/measured_cp', _pose_stamped(store, T, frame, tk))
+            put(tk, f'/{arm}/jaw/measured_js', _joint_state(store, ['jaw'], [jaws[arm][k]], tk))
+            if holds[arm][k] != (holds[arm][k - 1] if k else False):
+                kind = 'grasp' if holds[arm][k] else 'release'
+                put(tk, '/sim/events', _event(store, tk, kind, arm=arm))
+        put(tk, '/sim/needle/measured_cp', _pose_stamped(store, needle[k], 'world', tk))
+    messages.sort(key=lambda m: m[0])   # stable: keeps the order within one instant
+    qos = {topic: [_LATCHED] for topic in messages_topics(messages)
+           if topic.startswith('/sim/markers/') or topic.endswith('/base_frame')}
+    qos['/sim/events'] = [_EVENT_QOS]
+    with bags.BagWriter(path, typestore=store) as writer:
+        for time, topic, msg in messages:
+            msgtype = DEMO_TOPICS.get(topic, POSE)
+            if not writer.has_topic(topic):
+                writer.add_topic(topic, msgtype, qos=qos.get(topic, [_STATE_QOS]))
+            writer.write(topic, int(round(time * 1e9)), store.serialize_cdr(msg, msgtype))
+        writer.set_custom_data('suture_lfd.demonstration', demo.pair)
+        return dict(writer.counts)
+
+
+def messages_topics(messages):
+    """Return the distinct topics of ``(t, topic, msg)`` tuples, in first-seen order."""
+    return list(dict.fromkeys(topic for _, topic, _ in messages))
+
+
+# --- reading ---------------------------------------------------------------------------------
+
+def _series(reader, topic, decode):
+    """Return (stamps (n,), values list) of a topic, by header stamp, sorted."""
+    times, values = [], []
+    for message in reader.messages([topic]):
+        msg = reader.deserialize(message)
+        stamp = _seconds(msg.header.stamp) if hasattr(msg, 'header') else message.t_ns * 1e-9
+        times.append(stamp)
+        values.append(decode(msg))
+    order = np.argsort(np.asarray(times), kind='stable')
+    return np.asarray(times)[order], [values[i] for i in order]
+
+
+def _unique(times, values, path, topic):
+    keep = np.concatenate(([True], np.diff(times) > 0.0))
+    times = times[keep]
+    values = np.asarray(values)[keep]
+    if times.size < 2:
+        raise bags.BagError(f'{path}: topic {topic} has fewer than two distinct time stamps')
+    return times, values
+
+
+def _world_pose(msg, arm, T_world_base, path):
+    frame = msg.header.frame_id
+    T = transform_from_pose(_pose_vector(msg))
+    if frame in ('world',):
+        return T
+    if frame in ('', f'{arm}_base'):
+        return T_world_base @ T
+    raise bags.BagError(f'{path}: /{arm}/measured_cp is in frame {frame!r}; expected '
+                        f'{arm}_base or world')
+
+
+def _events(reader):
+    out = []
+    if '/sim/events' not in reader.topics:
+        return out
+    for message in reader.messages(['/sim/events']):
+        msg = reader.deserialize(message)
+        try:
+            data = json.loads(msg.string)
+        except json.JSONDecodeError as exc:
+            raise bags.BagError(f'{reader.path}: a /sim/events message is not JSON '
+                                f'({exc})') from exc
+        if not isinstance(data, dict) or 'kind' not in data:
+            continue
+        t = data.get('t')
+        t = float(t) if isinstance(t, (int, float)) else _seconds(msg.header.stamp)
+        out.append((t, data))
+    out.sort(key=lambda e: e[0])
+    return out
+
+
+def _pair_name(reader, events, path):
+    names = []
+    if '/sim/target_pair' in reader.topics:
+        for message in reader.messages(['/sim/target_pair']):
+            names.append(reader.deserialize(message).data)
+    names += [d['pair'] for _, d in events if d['kind'] == 'target_pair' and 'pair' in d]
+    if names:
+        return names[-1]
+    pairs = sorted({t.split('/')[3] for t in reader.topics if t.startswith('/sim/markers/')})
+    if len(pairs) == 1:
+        return pairs[0]
+    raise bags.BagError(f'{path}: the bag does not say which pair was sutured (no '
+                        f'/sim/target_pair message or target_pair event); pass pair= one of '
+                        f'{pairs}')
+
+
+def demonstration_from_bag(path, pair=None, sample_rate=100.0):
+    """
+    Read a demonstration bag into a Demonstration (world frame).
+
+    The arm, jaw and needle topics are resampled (linear positions and angles, SLERP
+    orientations) to ``sample_rate`` over the span all of them cover, on their header stamps
+    (simulation time). Grasp flags come from the ``grasp``/``release`` events of
+    ``/sim/events`` (nobody holds the needle before the first event).
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory.
+    pair : str, optional
+        Sutured pair; default the bag's last ``/sim/target_pair`` (or ``target_pair`` event).
+    sample_rate : float
+        Samples per second of the result.
+
+    Returns
+    -------
+    suture_lfd.demonstration.Demonstration
+
+    Raises
+    ------
+    suture_lfd.bags.BagError
+        Naming the bag and the missing topic or the problem.
+
+    """
+    path = Path(path)
+    if not sample_rate > 0.0:
+        raise ValueError(f'sample_rate must be > 0 Hz, got {sample_rate}')
+    with bags.open_bag(path, required=REQUIRED_TOPICS) as reader:
+        events = _events(reader)
+        name = pair if pair is not None else _pair_name(reader, events, path)
+        topic_in, topic_out = marker_topics(name)
+        missing = [t for t in (topic_in, topic_out)
+                   if t not in reader.topics or reader.topics[t].count == 0]
+        if missing:
+            have = sorted({t.split('/')[3] for t in reader.topics
+                           if t.startswith('/sim/markers/')})
+            raise bags.BagError(f'{path}: bag has no messages on {", ".join(missing)} (marker '
+                                f'pair {name!r}; pairs in the bag: {have})')
+        markers = {}
+        for topic in (topic_in, topic_out):
+            _, values = _series(reader, topic, lambda m: transform_from_pose(_pose_vector(m)))
+            markers[topic] = values[-1]
+        bases = {}
+        for arm in PSMS:
+            _, values = _series(reader, f'/sim/{arm}/base_frame',
+                                lambda m: transform_from_pose(_pose_vector(m)))
+            bases[arm] = values[-1]
+        series = {}
+        for arm in PSMS:
+            times, values = _series(reader, f'/{arm}/measured_cp',
+                                    lambda m, a=arm: pose_from_transform(
+                                        _world_pose(m, a, bases[a], path)))
+            series[f'{arm}_pose'] = _unique(times, values, path, f'/{arm}/measured_cp')
+
+            def jaw(m, a=arm):
+                if len(m.position) < 1:
+                    raise bags.BagError(f'{path}: a /{a}/jaw/measured_js message has no '
+                                        'position')
+                return float(m.position[0])
+            times, values = _series(reader, f'/{arm}/jaw/measured_js', jaw)
+            series[f'{arm}_jaw'] = _unique(times, values, path, f'/{arm}/jaw/measured_js')
+        times, values = _series(reader, '/sim/needle/measured_cp', _pose_vector)
+        series['needle'] = _unique(times, values, path, '/sim/needle/measured_cp')
+    start = max(s[0][0] for s in series.values())
+    stop = min(s[0][-1] for s in series.values())
+    if not stop > start:
+        raise bags.BagError(f'{path}: the arm, jaw and needle topics do not overlap in time')
+    n = int(math.floor((stop - start) * sample_rate + 1e-9)) + 1
+    T = start + np.arange(n) / float(sample_rate)
+    if n < 6:
+        raise bags.BagError(f'{path}: only {n} samples of the demonstration overlap '
+                            f'({stop - start:.3f} s)')
+
+    def poses(key):
+        times, values = series[key]
+        values = np.asarray(values)
+        P = np.column_stack([np.interp(T, times, values[:, k]) for k in range(3)])
+        return np.hstack((P, resample_quaternions(times, values[:, 3:], T)))
+
+    def signal(key):
+        times, values = series[key]
+        return np.interp(T, times, np.asarray(values, dtype=float))
+
+    holds = {arm: np.zeros(n, dtype=bool) for arm in PSMS}
+    for t_event, data in events:
+        arm = data.get('arm')
+        if data['kind'] in ('grasp', 'release') and arm in holds:
+            holds[arm][T >= t_event - 1e-9] = data['kind'] == 'grasp'
+    T_in, T_out = markers[topic_in], markers[topic_out]
+    normal = T_in[:3, 2] + T_out[:3, 2]
+    normal /= np.linalg.norm(normal)
+    return Demonstration(
+        t=T, psm1_pose=poses('PSM1_pose'), psm2_pose=poses('PSM2_pose'),
+        psm1_jaw=signal('PSM1_jaw'), psm2_jaw=signal('PSM2_jaw'), needle_pose=poses('needle'),
+        psm1_holds=holds['PSM1'], psm2_holds=holds['PSM2'], entry=T_in[:3, 3].copy(),
+        exit=T_out[:3, 3].copy(), normal=normal, pair=name)

@@ -1,0 +1,86 @@
+"""The synthetic subject: successful, reproducible, segmentable demonstrations."""
+
+import numpy as np
+import pytest
+from suture_lfd.demonstrator import Demonstrator, run_demonstration
+from suture_lfd.segmentation import SUBTASKS, segment_demonstration
+
+NAMES = [name for name, _, _ in SUBTASKS]
+
+
+@pytest.fixture(scope='module')
+def naive_run(simulation, cohort):
+    subject = next(s for s in cohort if s.group == 'naive')
+    return run_demonstration(simulation, subject, 'synth2', seed=0)
+
+
+def test_an_experienced_subject_completes_the_throw_sampled_at_100_hz(experienced_run,
+                                                                      simulation):
+    run = experienced_run
+    demo = run.demo
+    assert run.score.score == 1.0 and all(run.score.subtasks.values())
+    assert np.allclose(np.diff(demo.t), 0.01)
+    pair = simulation.phantom.markers['synth1']
+    assert demo.pair == 'synth1'
+    assert np.allclose(demo.entry, pair.entry) and np.allclose(demo.exit, pair.exit)
+    labels = list(dict.fromkeys(run.labels))
+    assert labels == NAMES + ['done'] or labels == NAMES
+    kinds = [e.kind for e in run.events]
+    assert kinds.count('grasp') == 3 and kinds.count('release') == 2
+    assert 'entry' in kinds and 'exit' in kinds and 'extracted' in kinds
+    assert demo.psm2_holds.any() and demo.psm1_holds.any()
+
+
+def test_a_naive_subject_succeeds_too_but_slower_and_less_steadily(experienced_run, naive_run):
+    assert naive_run.score.score == 1.0
+    assert naive_run.demo.duration > 1.2 * experienced_run.demo.duration
+    assert naive_run.score.trauma_mm > experienced_run.score.trauma_mm
+
+
+@pytest.mark.parametrize('which', ['experienced_run', 'naive_run'])
+def test_the_velocity_segmentation_finds_the_subjects_five_subtasks(which, request):
+    run = request.getfixturevalue(which)
+    seg = segment_demonstration(run.demo)
+    t = run.demo.t
+    for sub in seg.subtasks:
+        labelled = t[run.labels == sub.name]
+        # each found subtask overlaps the one the subject was doing for most of its length
+        overlap = min(sub.end_time, labelled[-1]) - max(sub.start_time, labelled[0])
+        assert overlap > 0.5 * sub.duration, sub.name
+    # the insertion starts after the pause on the entry marker and ends before PSM1 grasps
+    labelled_ii = t[run.labels == 'ii']
+    assert labelled_ii[0] <= seg['ii'].start_time <= labelled_ii[-1]
+
+
+def test_the_same_subject_and_seed_give_the_same_commands(simulation, cohort):
+    simulation.reset(seed=1)
+    simulation.enable_and_home_all()
+    obs = simulation.observation()
+    subject = cohort[5]
+
+    def commands(seed):
+        dem = Demonstrator(subject, obs.pair, simulation.needle_geometry,
+                           kinematics=simulation.kinematics['PSM2'],
+                           rng=np.random.default_rng(seed))
+        dem.reset(obs)
+        out = []
+        for k in range(0, 3000, 7):
+            o = type(obs)(t=obs.t + 0.01 * k, T_world_tool=obs.T_world_tool, jaw=obs.jaw,
+                          T_world_needle=obs.T_world_needle, holders=('PSM2',), pair=obs.pair,
+                          T_world_base=obs.T_world_base)
+            dem._last_cmd = {}
+            out.append(np.stack([dem.step(o).T_world_tool[a] for a in ('PSM1', 'PSM2')]))
+        return np.array(out), dem.pauses
+
+    a, pauses_a = commands(7)
+    b, pauses_b = commands(7)
+    c, _ = commands(8)
+    assert np.array_equal(a, b)
+    assert [(p.t, p.duration, p.kind) for p in pauses_a] == [
+        (p.t, p.duration, p.kind) for p in pauses_b]
+    assert not np.allclose(a, c)
+
+
+def test_an_unknown_pair_is_named_in_the_error(simulation, cohort):
+    with pytest.raises(ValueError, match='synth9'):
+        run_demonstration(simulation, cohort[0], 'synth9')
