@@ -1,75 +1,15 @@
 """
-Test harness: DDS confined to loopback, a private domain, real node processes.
+Fixtures of the test harness (:mod:`harness`): ``ros`` and ``launch``.
 
-Every test run sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a private ``ROS_DOMAIN_ID``
-before anything imports rclpy; subprocess nodes inherit both. Node processes are stopped with
-SIGINT so that Fast DDS removes its shared-memory files from /dev/shm.
+Importing :mod:`harness` first sets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a private
+``ROS_DOMAIN_ID`` before anything imports rclpy. Tests import helpers from ``harness`` (not
+from ``conftest``: a folder may hold its own conftest.py).
 """
 
 import os
-from pathlib import Path
-import shutil
-import signal
-import subprocess
-import sys
-import threading
-import time
 
+from harness import NodeProcess, RosHarness, executable
 import pytest
-
-REPO = Path(__file__).resolve().parent.parent
-DOMAIN_ID = 10 + os.getpid() % 90
-os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-os.environ['PYTHONUNBUFFERED'] = '1'
-
-
-def wait_for(predicate, timeout=10.0, period=0.005):
-    """Poll ``predicate`` until it is true or ``timeout`` seconds pass; return its last value."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value or time.monotonic() > deadline:
-            return value
-        time.sleep(period)
-
-
-class RosHarness:
-    """One rclpy context on the private domain, spun by a background executor."""
-
-    def __init__(self):
-        import rclpy
-        from rclpy.executors import MultiThreadedExecutor
-        import rclpy.signals
-
-        self._rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=DOMAIN_ID,
-                   signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-        self.executor = MultiThreadedExecutor(num_threads=2, context=self.context)
-        self.nodes = []
-        self._thread = None
-
-    def node(self, name, **kwargs):
-        """Create a node in this context and spin it."""
-        node = self._rclpy.create_node(name, context=self.context, **kwargs)
-        self.nodes.append(node)
-        self.executor.add_node(node)
-        if self._thread is None:
-            self._thread = threading.Thread(target=self.executor.spin, daemon=True)
-            self._thread.start()
-        return node
-
-    wait_for = staticmethod(wait_for)
-
-    def close(self):
-        self.executor.shutdown(timeout_sec=2.0)
-        if self._thread is not None:
-            self._thread.join(3.0)
-        for node in self.nodes:
-            node.destroy_node()
-        self._rclpy.shutdown(context=self.context)
 
 
 @pytest.fixture
@@ -80,66 +20,6 @@ def ros():
         yield harness
     finally:
         harness.close()
-
-
-def executable(name):
-    """Return the path of a console script installed with the package."""
-    path = shutil.which(name, path=str(Path(sys.executable).parent))
-    if path is None:
-        raise FileNotFoundError(f'executable {name!r} is not installed next to {sys.executable}')
-    return path
-
-
-class NodeProcess:
-    """A node executable running as a real subprocess in its own process group."""
-
-    def __init__(self, argv, log_dir, env=None, cwd=None):
-        self.argv = [str(a) for a in argv]
-        name = Path(self.argv[0]).name
-        self.log_path = Path(log_dir) / f'{name}-{int(time.monotonic() * 1e6)}.log'
-        self._log = open(self.log_path, 'w')
-        self.popen = subprocess.Popen(
-            self.argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd,
-            env={**os.environ, **(env or {})}, start_new_session=True)
-
-    @property
-    def pid(self):
-        return self.popen.pid
-
-    def running(self):
-        return self.popen.poll() is None
-
-    def log(self):
-        self._log.flush()
-        return self.log_path.read_text()
-
-    def stop(self, timeout=10.0):
-        """Ask the process to stop (SIGINT), escalate if it does not; return its exit code."""
-        if self.popen.poll() is None:
-            for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0),
-                              (signal.SIGKILL, 3.0)):
-                try:
-                    os.killpg(self.popen.pid, sig)
-                except ProcessLookupError:
-                    break
-                try:
-                    self.popen.wait(wait)
-                    break
-                except subprocess.TimeoutExpired:
-                    continue
-        code = self.popen.wait(5.0)
-        # Nothing of the group may survive its leader.
-        try:
-            os.killpg(self.popen.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        self._log.close()
-        return code
-
-    def kill(self):
-        """Kill the process hard (SIGKILL), as a crash would."""
-        os.killpg(self.popen.pid, signal.SIGKILL)
-        return self.popen.wait(5.0)
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import DOMAIN_ID, REPO, wait_for
+from harness import DOMAIN_ID, REPO, wait_for
 import pytest
 
 ROS_FACES = ('nodes', 'conversions.py')
@@ -145,7 +145,7 @@ def test_colcon_build_installs_every_node_executable(ros, launch, tmp_path):
 
 
 def test_node_process_stops_cleanly_and_leaves_nothing_behind(launch):
-    from conftest import RosHarness
+    from harness import RosHarness
 
     shm = Path('/dev/shm')
     before = {p.name for p in shm.glob('*fastrtps*')} if shm.is_dir() else set()

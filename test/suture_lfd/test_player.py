@@ -5,7 +5,7 @@ from pathlib import Path
 import re
 import time
 
-from conftest import wait_for
+from harness import wait_for
 import pytest
 from suture_lfd import bags
 from test_recorder import BURST_TOPICS, call, launch_recorder, make_message, message_types

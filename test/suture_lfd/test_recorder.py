@@ -7,7 +7,7 @@ import sys
 import threading
 import time
 
-from conftest import wait_for
+from harness import wait_for
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import pytest
