@@ -12,8 +12,9 @@ namespace ``/``):
 - ``/sim/needle/measured_cp`` (PoseStamped, ``world``): needle pose;
 - ``/sim/markers/<pair>/entry`` and ``.../exit`` (PoseStamped, ``world``, latched): marker
   centres, ``z`` axis the outward surface normal;
-- ``/sim/events`` (crtk_msgs/StringStamped, JSON ``{"kind", "t", ...}``): ``grasp`` and
-  ``release`` (with ``arm``) give who holds the needle; ``target_pair`` (with ``pair``) the pair;
+- ``/sim/events`` (crtk_msgs/StringStamped, JSON ``{"kind", "t", ...}``, stamped on the
+  clock of the other topics): ``grasp`` and ``release`` (with ``arm``) give who holds the
+  needle, ``reset`` clears it; ``target_pair`` (with ``pair``) names the pair;
 - ``/sim/target_pair`` (std_msgs/String): the pair chosen for the throw.
 
 :func:`write_demonstration_bag` writes a :class:`suture_lfd.demonstration.Demonstration` as the
@@ -272,8 +273,10 @@ def _events(reader):
                                 f'({exc})') from exc
         if not isinstance(data, dict) or 'kind' not in data:
             continue
-        t = data.get('t')
-        t = float(t) if isinstance(t, (int, float)) else _seconds(msg.header.stamp)
+        # the header stamp is on the clock of the other topics; "t" counts from the scene start
+        t = _seconds(msg.header.stamp)
+        if t == 0.0 and isinstance(data.get('t'), (int, float)):
+            t = float(data['t'])
         out.append((t, data))
     out.sort(key=lambda e: e[0])
     return out
@@ -387,6 +390,9 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
         arm = data.get('arm')
         if data['kind'] in ('grasp', 'release') and arm in holds:
             holds[arm][T >= t_event - 1e-9] = data['kind'] == 'grasp'
+        elif data['kind'] == 'reset':
+            for flags in holds.values():
+                flags[T >= t_event - 1e-9] = False
     T_in, T_out = markers[topic_in], markers[topic_out]
     normal = T_in[:3, 2] + T_out[:3, 2]
     normal /= np.linalg.norm(normal)

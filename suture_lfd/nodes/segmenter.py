@@ -1,0 +1,129 @@
+"""
+Segmenter node: a demonstration bag in, a segment file for the executor out.
+
+Reads the bag named by the ``bag`` parameter (:func:`suture_lfd.demo_bag.demonstration_from_bag`:
+tool, jaw, needle, marker and event topics of the simulator), cuts it into the five subtasks
+(:func:`suture_lfd.segmentation.segment_demonstration`), resamples the needle trajectories of
+tasks ii and iv and writes the :class:`suture_lfd.segments.SegmentFile` to ``output`` (default
+``<bag>.segments.npz`` beside the bag). Publishes a JSON summary on ``~/result`` (latched) and
+exits: code 0 when the file was written, 1 when the bag could not be segmented (the error names
+the bag and what is missing). Parameters: ``config/segmenter.yaml``.
+"""
+
+from dataclasses import dataclass
+import json
+from pathlib import Path
+import sys
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+from suture_lfd.demo_bag import demonstration_from_bag
+from suture_lfd.nodes import declare_config
+from suture_lfd.segmentation import segment_demonstration
+from suture_lfd.segments import make_segment_file
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@dataclass(frozen=True)
+class SegmenterConfig:
+    """Parameters of the segmenter node (names as in ``config/segmenter.yaml``)."""
+
+    bag: str = ''
+    output: str = ''
+    pair: str = ''
+    subject: str = ''
+    sample_rate: float = 100.0
+    dmp_config: str = ''
+
+    def __post_init__(self):
+        if not self.sample_rate > 0:
+            raise ValueError(f'parameter sample_rate must be > 0 Hz, got {self.sample_rate}')
+
+
+def default_output(bag):
+    """Return the default segment file of a bag: ``<bag>.segments.npz`` beside it."""
+    bag = Path(bag)
+    return bag.with_name(bag.name + '.segments.npz')
+
+
+def segment_bag(config):
+    """
+    Segment the configured bag and write its segment file.
+
+    Parameters
+    ----------
+    config : SegmenterConfig
+        Bag, output and options.
+
+    Returns
+    -------
+    dict
+        Summary: bag, output, pair, subtask times (s) and durations.
+
+    """
+    if not config.bag:
+        raise ValueError('parameter bag is empty: name the demonstration bag to segment')
+    demo = demonstration_from_bag(config.bag, pair=config.pair or None,
+                                  sample_rate=config.sample_rate)
+    try:
+        segmentation = segment_demonstration(demo)
+    except ValueError as exc:
+        raise ValueError(f'{config.bag}: cannot segment the demonstration: {exc}') from exc
+    segments = make_segment_file(demo, segmentation, dmp_config=config.dmp_config or None,
+                                 source=str(config.bag), subject=config.subject)
+    output = Path(config.output) if config.output else default_output(config.bag)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    segments.save(output)
+    return {'bag': str(config.bag), 'output': str(output), 'pair': demo.pair,
+            'duration': demo.duration,
+            'subtasks': {name: list(segments.times(name)) for name in segments.durations},
+            'durations': segments.durations}
+
+
+class Segmenter(Node):
+    """Segment one bag into a segment file."""
+
+    def __init__(self):
+        super().__init__('segmenter')
+        self.config = declare_config(self, SegmenterConfig, 'segmenter.yaml', 'segmenter')
+        self._result = self.create_publisher(String, '~/result', LATCHED)
+
+    def run(self):
+        """Segment the bag; return the exit code."""
+        try:
+            summary = segment_bag(self.config)
+        except (ValueError, OSError) as exc:
+            self.get_logger().error(str(exc))
+            self._result.publish(String(data=json.dumps({'bag': self.config.bag,
+                                                         'error': str(exc)})))
+            return 1
+        self.get_logger().info(
+            f'{summary["bag"]}: five subtasks ('
+            + ', '.join(f'{k} {v:.2f} s' for k, v in summary['durations'].items())
+            + f') written to {summary["output"]}')
+        self._result.publish(String(data=json.dumps(summary, sort_keys=True)))
+        return 0
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = Segmenter()
+    except (ValueError, OSError) as exc:
+        rclpy.logging.get_logger('segmenter').fatal(str(exc))
+        rclpy.try_shutdown()
+        return 2
+    try:
+        code = node.run()
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
