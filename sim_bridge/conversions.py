@@ -7,16 +7,27 @@ NaN or infinite values, zero or non-unit quaternions raise ``ValueError`` with a
 says what is wrong, which the nodes forward to the arm's ``error`` topic.
 """
 
+import dataclasses
 import json
 import math
 
 from builtin_interfaces.msg import Time
 from crtk_msgs.msg import OperatingState, StringStamped
-from geometry_msgs.msg import Pose, PoseStamped, TransformStamped, TwistStamped, WrenchStamped
+from geometry_msgs.msg import (
+    Point,
+    Pose,
+    PoseStamped,
+    TransformStamped,
+    TwistStamped,
+    WrenchStamped,
+)
 import numpy as np
+from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from sensor_msgs.msg import CameraInfo, Image, JointState
+from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker
 
 # A commanded quaternion may deviate this much from unit norm (clients round to float32 etc.).
 UNIT_QUATERNION_TOLERANCE = 1e-3
@@ -26,6 +37,17 @@ def stamp_from_seconds(t):
     """Return a ``builtin_interfaces/Time`` for ``t`` seconds (t >= 0)."""
     ns = int(round(float(t) * 1e9))
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def stamp_from_nanoseconds(ns):
+    """Return a ``builtin_interfaces/Time`` for ``ns`` integer nanoseconds (ns >= 0)."""
+    ns = int(ns)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def clock_message(stamp):
+    """Return a ``rosgraph_msgs/Clock`` holding ``stamp``."""
+    return Clock(clock=stamp)
 
 
 def seconds_from_stamp(stamp):
@@ -63,6 +85,17 @@ def matrix_from_pose(pose, what='pose'):
     return T
 
 
+def vector_from_pose(pose):
+    """
+    Return ``(x, y, z, qx, qy, qz, qw)`` of a ``geometry_msgs/Pose``, unchecked, shape (7,).
+
+    For commands that the receiver validates itself (``sim_bridge.arm.Arm.servo_cp`` rejects NaN,
+    infinite values and non-unit quaternions with an ``error`` event).
+    """
+    p, q = pose.position, pose.orientation
+    return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
+
+
 def pose_from_matrix(T):
     """Return the ``geometry_msgs/Pose`` of a 4x4 matrix."""
     T = np.asarray(T, dtype=float)
@@ -97,6 +130,11 @@ def transform_stamped(T, parent, child, stamp):
     return msg
 
 
+def tf_message(transforms):
+    """Return a ``tf2_msgs/TFMessage`` of ``TransformStamped`` messages."""
+    return TFMessage(transforms=list(transforms))
+
+
 def _floats(values):
     return [float(v) for v in np.asarray(values, dtype=float).ravel()]
 
@@ -110,6 +148,21 @@ def joint_state(names, stamp, position=(), velocity=(), effort=()):
     msg.velocity = _floats(velocity)
     msg.effort = _floats(effort)
     return msg
+
+
+def raw_positions(msg):
+    """
+    Return the ``position`` field of a JointState as a float array, unchecked, shape (k,).
+
+    For commands that the receiver validates itself (``sim_bridge.arm.Arm`` checks length and
+    finiteness and reports on its ``error`` event).
+    """
+    return np.asarray(msg.position, dtype=float)
+
+
+def raw_efforts(msg):
+    """Return the ``effort`` field of a JointState as a float array, unchecked, shape (k,)."""
+    return np.asarray(msg.effort, dtype=float)
 
 
 def positions_from_joint_state(msg, n, what='servo_jp'):
@@ -184,6 +237,8 @@ def event_message(kind, stamp, **fields):
     NumPy arrays and scalars become JSON lists and numbers; NaN becomes ``null``.
     """
     def plain(value):
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return plain({f.name: getattr(value, f.name) for f in dataclasses.fields(value)})
         if isinstance(value, np.ndarray):
             return [plain(v) for v in value.tolist()]
         if isinstance(value, (list, tuple)):
@@ -214,3 +269,118 @@ def event_from_message(msg):
     if not isinstance(data, dict) or 'kind' not in data:
         raise ValueError(f'event JSON must be an object with a "kind": {msg.string!r}')
     return seconds_from_stamp(msg.header.stamp), data
+
+
+def image_message(rgb, frame_id, stamp):
+    """
+    Return a ``sensor_msgs/Image`` (``rgb8``) of an RGB image.
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (height, width, 3), uint8
+        Colour image, row 0 at the top.
+    frame_id : str
+        Optical frame of the camera (x right, y down, z forward).
+    stamp : builtin_interfaces/Time
+
+    """
+    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
+    height, width = rgb.shape[:2]
+    msg = Image()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.height, msg.width = int(height), int(width)
+    msg.encoding = 'rgb8'
+    msg.is_bigendian = 0
+    msg.step = int(3 * width)
+    msg.data = rgb.tobytes()
+    return msg
+
+
+def camera_info_message(info, frame_id, stamp):
+    """
+    Return a ``sensor_msgs/CameraInfo`` of a :class:`sim_bridge.camera.CameraInfo`.
+
+    ``K`` (3, 3), ``R`` (3, 3) and ``P`` (3, 4) are written row-major as the message wants;
+    ``P[0, 3] = -fx * baseline`` (m) for the right camera.
+    """
+    msg = CameraInfo()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.width, msg.height = int(info.width), int(info.height)
+    msg.distortion_model = info.distortion_model
+    msg.d = _floats(info.D)
+    msg.k = _floats(info.K)
+    msg.r = _floats(info.R)
+    msg.p = _floats(info.P)
+    return msg
+
+
+def _color(rgba):
+    r, g, b, a = (float(v) for v in rgba)
+    return ColorRGBA(r=r, g=g, b=b, a=a)
+
+
+def _points(points):
+    return [Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+            for p in np.asarray(points, dtype=float).reshape(-1, 3)]
+
+
+def line_strip_marker(points, ns, marker_id, frame_id, stamp, rgba, width):
+    """
+    Return a ``visualization_msgs/Marker`` LINE_STRIP through ``points``.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Vertices (m) in ``frame_id``.
+    ns : str
+        Marker namespace.
+    marker_id : int
+    frame_id : str
+    stamp : builtin_interfaces/Time
+    rgba : sequence of 4 float
+        Colour, components in [0, 1].
+    width : float
+        Line width (m).
+
+    """
+    msg = Marker()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.ns, msg.id = ns, int(marker_id)
+    msg.type, msg.action = Marker.LINE_STRIP, Marker.ADD
+    msg.pose.orientation.w = 1.0
+    msg.scale.x = float(width)
+    msg.color = _color(rgba)
+    msg.points = _points(points)
+    return msg
+
+
+def sphere_list_marker(points, ns, marker_id, frame_id, stamp, rgba, diameter):
+    """
+    Return a ``visualization_msgs/Marker`` SPHERE_LIST, one sphere per point.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Sphere centres (m) in ``frame_id``.
+    ns : str
+    marker_id : int
+    frame_id : str
+    stamp : builtin_interfaces/Time
+    rgba : sequence of 4 float
+    diameter : float
+        Sphere diameter (m).
+
+    """
+    msg = Marker()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.ns, msg.id = ns, int(marker_id)
+    msg.type, msg.action = Marker.SPHERE_LIST, Marker.ADD
+    msg.pose.orientation.w = 1.0
+    msg.scale.x = msg.scale.y = msg.scale.z = float(diameter)
+    msg.color = _color(rgba)
+    msg.points = _points(points)
+    return msg

@@ -1,0 +1,305 @@
+"""
+The dVRK CRTK ROS 2 face of one simulated arm: topics, services and events under ``<ARM>/``.
+
+Names are relative (``PSM1/measured_js``), so ``--ros-args -r __ns:=/x`` and per-topic remaps
+apply. Types, frame ids, joint names and QoS follow the dVRK 2.x (sawIntuitiveResearchKit with
+cisst-ros):
+
+- state (published at the simulator's ``rate``, RELIABLE, VOLATILE, depth 100; skipped while a
+  topic has no subscriber, as cisst-ros does): ``measured_js``, ``setpoint_js``,
+  ``measured_cp``, ``setpoint_cp``, ``local/measured_cp``, ``local/setpoint_cp``,
+  ``measured_cv``, ``local/measured_cv``, ``body/measured_cf``, ``spatial/measured_cf``,
+  ``body/jacobian``, ``spatial/jacobian``, ``gravity_compensation/setpoint_js``; PSMs add
+  ``jaw/measured_js`` and ``jaw/setpoint_js``;
+- events (RELIABLE, TRANSIENT_LOCAL, depth 100): ``operating_state``, ``goal_reached``,
+  ``error``, ``warning``, ``status``, ``trajectory_j/ratio``, and ``tool_type`` (PSM) or
+  ``endoscope_type`` (ECM); operating_state stamps are non-zero and strictly increasing;
+- commands (RELIABLE, VOLATILE, depth 1): ``state_command``, ``servo_jp``, ``servo_jr``,
+  ``servo_jf``, ``servo_cp``, ``move_jp``, ``move_jr``, ``move_cp``, ``hold``, ``free``,
+  ``spatial/servo_cf``, ``body/servo_cf``, ``body/set_cf_orientation_absolute``,
+  ``use_gravity_compensation``, ``trajectory_j/set_ratio``, ``set_base_frame``; PSMs add
+  ``jaw/servo_jp``, ``jaw/move_jp``, ``jaw/servo_jf`` and ``emulate_tool_present``;
+- services: ``operating_state``, ``crtk_version``, ``forward_kinematics``,
+  ``local/forward_kinematics``, ``inverse_kinematics``.
+
+Frames: ``measured_cp``/``setpoint_cp``/``measured_cv`` in the arm's reference frame
+(``<ARM>_base``, the RCM frame, unless ``set_base_frame`` names another); ``local/*`` always in
+``<ARM>_base``; body quantities in the tool-tip frame ``<ARM>``. SI units.
+
+Every command is handed to :class:`sim_bridge.arm.Arm` unchanged; the arm validates it (NaN,
+infinite values, non-unit quaternions, wrong vector lengths, joint limits, reachability, readiness)
+and reports problems as ``error``/``warning`` events, which this face publishes.
+"""
+
+from crtk_msgs.msg import OperatingState, StringStamped
+from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+import numpy as np
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from sim_bridge import conversions as cv
+from sim_bridge.kinematics import UnreachableError
+from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
+from std_srvs.srv import Trigger
+
+STATE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+CRTK_VERSION = '1.1.0'
+_ZERO6 = np.zeros(6)
+# Smallest step between two operating_state stamps: 1 us, so that clients comparing stamps as
+# float seconds (about 0.24 us resolution at today's epoch) still see them increase.
+_STAMP_STEP_NS = 1000
+
+
+class CrtkArm:
+    """
+    Publishers, subscriptions and services of one arm.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The simulator node that owns the endpoints.
+    name : str
+        Arm name and namespace (``'PSM1'``, ``'PSM2'``, ``'ECM'``).
+    get_arm : callable
+        Returns the current :class:`sim_bridge.arm.Arm` (a scene reset replaces the object).
+    now_ns : callable
+        Returns the simulator clock now (int nanoseconds).
+    on_command : callable, optional
+        Called after every command the arm received (the node flushes events there).
+
+    Notes
+    -----
+    Not thread-safe: the owner calls everything from one thread (the node's executor).
+
+    """
+
+    def __init__(self, node, name, get_arm, now_ns, on_command=None):
+        self.name = name
+        self._node = node
+        self._get_arm = get_arm
+        self._now_ns = now_ns
+        self._on_command = on_command or (lambda: None)
+        self._last_state_ns = 0
+        arm = get_arm()
+        self._has_jaw = arm.has_jaw
+        k = arm.kinematics
+        self._joint_names = list(k.joint_names)
+        self._state = {}
+        self._add_state('measured_js', JointState, self._measured_js)
+        self._add_state('setpoint_js', JointState, self._setpoint_js)
+        self._add_state('measured_cp', PoseStamped,
+                        lambda a, s: cv.pose_stamped(a.measured_cp, a.reference_frame, s))
+        self._add_state('setpoint_cp', PoseStamped,
+                        lambda a, s: cv.pose_stamped(a.setpoint_cp, a.reference_frame, s))
+        self._add_state('local/measured_cp', PoseStamped,
+                        lambda a, s: cv.pose_stamped(a.local_measured_cp, self.base_frame_id, s))
+        self._add_state('local/setpoint_cp', PoseStamped,
+                        lambda a, s: cv.pose_stamped(a.local_setpoint_cp, self.base_frame_id, s))
+        self._add_state('measured_cv', TwistStamped,
+                        lambda a, s: cv.twist_stamped(a.measured_cv, a.reference_frame, s))
+        self._add_state('local/measured_cv', TwistStamped,
+                        lambda a, s: cv.twist_stamped(a.local_measured_cv, self.name, s))
+        self._add_state('body/measured_cf', WrenchStamped,
+                        lambda a, s: cv.wrench_stamped(_ZERO6, self.name, s))
+        self._add_state('spatial/measured_cf', WrenchStamped,
+                        lambda a, s: cv.wrench_stamped(_ZERO6, a.reference_frame, s))
+        self._add_state('body/jacobian', Float64MultiArray,
+                        lambda a, s: cv.jacobian_array(a.jacobian_body))
+        self._add_state('spatial/jacobian', Float64MultiArray,
+                        lambda a, s: cv.jacobian_array(a.jacobian_spatial))
+        self._add_state('gravity_compensation/setpoint_js', JointState,
+                        lambda a, s: cv.joint_state(self._joint_names, s,
+                                                    effort=np.zeros(len(self._joint_names))))
+        if self._has_jaw:
+            self._add_state('jaw/measured_js', JointState,
+                            lambda a, s: cv.joint_state(['jaw'], s, [a.jaw_measured_jp],
+                                                        [a.jaw_measured_jv], [0.0]))
+            self._add_state('jaw/setpoint_js', JointState,
+                            lambda a, s: cv.joint_state(['jaw'], s, [a.jaw_setpoint_jp],
+                                                        effort=[0.0]))
+
+        pub = node.create_publisher
+        self._events = {
+            'operating_state': pub(OperatingState, f'{name}/operating_state', EVENT_QOS),
+            'goal_reached': pub(Bool, f'{name}/goal_reached', EVENT_QOS),
+            'error': pub(String, f'{name}/error', EVENT_QOS),
+            'warning': pub(String, f'{name}/warning', EVENT_QOS),
+            'status': pub(String, f'{name}/status', EVENT_QOS),
+            'ratio': pub(Float64, f'{name}/trajectory_j/ratio', EVENT_QOS),
+        }
+        if self._has_jaw:
+            self._type_pub = pub(String, f'{name}/tool_type', EVENT_QOS)
+            self._type_pub.publish(String(data=str(getattr(k, 'tool_type', ''))))
+        else:
+            self._type_pub = pub(String, f'{name}/endoscope_type', EVENT_QOS)
+            self._type_pub.publish(String(data=str(getattr(k, 'endoscope_type', ''))))
+
+        sub = self._subscribe
+        sub('state_command', StringStamped, lambda a, m: a.state_command(m.string))
+        sub('servo_jp', JointState, lambda a, m: a.servo_jp(cv.raw_positions(m)))
+        sub('servo_jr', JointState, lambda a, m: a.servo_jr(cv.raw_positions(m)))
+        sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m)))
+        sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m)))
+        sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m)))
+        sub('servo_cp', PoseStamped, lambda a, m: a.servo_cp(cv.vector_from_pose(m.pose)))
+        sub('move_cp', PoseStamped, lambda a, m: a.move_cp(cv.vector_from_pose(m.pose)))
+        sub('hold', Empty, lambda a, m: a.hold())
+        sub('free', Empty, lambda a, m: a.free())
+        sub('trajectory_j/set_ratio', Float64, lambda a, m: a.set_ratio(m.data))
+        sub('set_base_frame', PoseStamped, self._on_set_base_frame)
+        for topic in ('spatial/servo_cf', 'body/servo_cf'):
+            sub(topic, WrenchStamped, lambda a, m, t=topic: self._not_simulated(t))
+        # accepted for compatibility; the kinematic simulation has no forces to act on
+        sub('body/set_cf_orientation_absolute', Bool, lambda a, m: None)
+        sub('use_gravity_compensation', Bool, lambda a, m: None)
+        if self._has_jaw:
+            sub('jaw/servo_jp', JointState, lambda a, m: a.jaw_servo_jp(cv.raw_positions(m)))
+            sub('jaw/move_jp', JointState, lambda a, m: a.jaw_move_jp(cv.raw_positions(m)))
+            sub('jaw/servo_jf', JointState, lambda a, m: None)
+            sub('emulate_tool_present', Bool, lambda a, m: a.emulate_tool_present(m.data))
+
+        srv = node.create_service
+        srv(TriggerOperatingState, f'{name}/operating_state', self._srv_operating_state)
+        srv(Trigger, f'{name}/crtk_version', self._srv_crtk_version)
+        srv(QueryForwardKinematics, f'{name}/forward_kinematics',
+            lambda req, resp: self._srv_fk(req, resp, local=False))
+        srv(QueryForwardKinematics, f'{name}/local/forward_kinematics',
+            lambda req, resp: self._srv_fk(req, resp, local=True))
+        srv(QueryInverseKinematics, f'{name}/inverse_kinematics', self._srv_ik)
+        self._warned = set()
+
+    @property
+    def base_frame_id(self):
+        """Frame id of ``local/*``: the RCM frame ``<ARM>_base``."""
+        return f'{self.name}_base'
+
+    # -- wiring --------------------------------------------------------------------------------
+
+    def _add_state(self, topic, msg_type, build):
+        pub = self._node.create_publisher(msg_type, f'{self.name}/{topic}', STATE_QOS)
+        self._state[topic] = (pub, build)
+
+    def _subscribe(self, topic, msg_type, handler):
+        def callback(msg):
+            handler(self._get_arm(), msg)
+            self._on_command()
+        self._node.create_subscription(msg_type, f'{self.name}/{topic}', callback, COMMAND_QOS)
+
+    def _not_simulated(self, topic):
+        if topic not in self._warned:
+            self._warned.add(topic)
+            self._publish_text('warning', f'{self.name}: {topic} is not simulated (the '
+                               'simulated arm is kinematic); ignored')
+
+    def _on_set_base_frame(self, arm, msg):
+        try:
+            T = cv.matrix_from_pose(msg.pose, what='set_base_frame pose')
+        except ValueError as exc:
+            self._publish_text('error', f'{self.name}: {exc}')
+            return
+        arm.set_base_frame(T, msg.header.frame_id or None)
+
+    # -- publishing ----------------------------------------------------------------------------
+
+    def publish_state(self, stamp):
+        """Publish every state topic that has a subscriber, stamped ``stamp``."""
+        arm = self._get_arm()
+        for pub, build in self._state.values():
+            if pub.get_subscription_count():
+                pub.publish(build(arm, stamp))
+
+    def _measured_js(self, arm, stamp):
+        return cv.joint_state(self._joint_names, stamp, arm.measured_jp, arm.measured_jv,
+                              arm.measured_jf)
+
+    def _setpoint_js(self, arm, stamp):
+        return cv.joint_state(self._joint_names, stamp, arm.setpoint_jp, effort=arm.setpoint_jf)
+
+    def _state_stamp(self):
+        """Return the simulator clock now, bumped so operating_state stamps strictly increase."""
+        ns = max(self._now_ns(), self._last_state_ns + _STAMP_STEP_NS, 1)
+        self._last_state_ns = ns
+        return cv.stamp_from_nanoseconds(ns)
+
+    def publish_operating_state(self, state=None):
+        """Publish an operating state (default: the arm's current one)."""
+        state = state or self._get_arm().operating_state
+        self._events['operating_state'].publish(
+            cv.operating_state(state.state, state.is_homed, state.is_busy, self._state_stamp()))
+
+    def _publish_text(self, kind, text):
+        log = self._node.get_logger()
+        (log.error if kind == 'error' else log.warning if kind == 'warning' else log.info)(text)
+        self._events[kind].publish(String(data=text))
+
+    def flush_events(self, arm=None):
+        """Publish the arm's pending events (operating_state, goal_reached, messages, ratio)."""
+        arm = arm or self._get_arm()
+        for event in arm.pop_events():
+            kind = event.kind
+            if kind == 'operating_state':
+                self.publish_operating_state(event.value)
+            elif kind == 'goal_reached':
+                self._events['goal_reached'].publish(Bool(data=bool(event.value)))
+            elif kind == 'ratio':
+                self._events['ratio'].publish(Float64(data=float(event.value)))
+            else:  # error, warning, status: the arm has already logged them
+                self._events[kind].publish(String(data=str(event.value)))
+
+    # -- services ------------------------------------------------------------------------------
+
+    def _srv_operating_state(self, request, response):
+        state = self._get_arm().operating_state
+        response.operating_state = cv.operating_state(state.state, state.is_homed,
+                                                      state.is_busy, self._state_stamp())
+        return response
+
+    def _srv_crtk_version(self, request, response):
+        response.success = True
+        response.message = CRTK_VERSION
+        return response
+
+    def _srv_fk(self, request, response, local):
+        """Return the FK of the first ``len(jp)`` joints (all of them: the tool tip)."""
+        arm = self._get_arm()
+        k = arm.kinematics
+        jp = np.asarray(request.jp, dtype=float)
+        n = jp.size
+        if not 1 <= n <= k.n_joints or not np.all(np.isfinite(jp)):
+            response.result = False
+            response.message = (f'{self.name}: forward_kinematics needs 1 to {k.n_joints} finite '
+                                f'joint values, got {jp.tolist()}')
+            return response
+        if n == k.n_joints:
+            T = k.fk(jp)
+        else:
+            q = np.concatenate([jp, np.zeros(k.n_joints - n)])
+            T = k.fk_links(q)[n]
+        if not local:
+            T = arm.base_frame @ T
+        response.cp = cv.pose_from_matrix(T)
+        response.result = True
+        return response
+
+    def _srv_ik(self, request, response):
+        """Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint)."""
+        arm = self._get_arm()
+        k = arm.kinematics
+        try:
+            T = cv.matrix_from_pose(request.cp, what='inverse_kinematics cp')
+            q_ref = np.asarray(request.jp, dtype=float) if len(request.jp) else arm.setpoint_jp
+            q = k.ik(T, q_ref=k.check_q(q_ref, name='inverse_kinematics jp'))
+        except UnreachableError as exc:
+            response.result, response.message = False, f'{self.name}: unreachable: {exc}'
+            return response
+        except ValueError as exc:
+            response.result, response.message = False, f'{self.name}: {exc}'
+            return response
+        response.jp = [float(v) for v in q]
+        response.result = True
+        return response

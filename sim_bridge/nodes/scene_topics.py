@@ -1,0 +1,137 @@
+"""
+Ground truth of the simulated scene on ROS topics, with TF, markers and the stereo camera.
+
+All poses are in ``world`` (z up, phantom at the origin; SI units):
+
+- ``sim/needle/measured_cp`` (geometry_msgs/PoseStamped, at the state rate, RELIABLE);
+- ``sim/phantom/measured_cp``, ``sim/markers/<pair>/entry``, ``sim/markers/<pair>/exit``
+  (z axis = outward surface normal) and ``sim/<ARM>/base_frame`` (``T_world_<ARM>_base``):
+  PoseStamped, latched (RELIABLE, TRANSIENT_LOCAL, depth 1);
+- ``/tf``: ``<reference frame> -> <ARM>`` (``measured_cp``) per arm and ``world -> needle``;
+  ``/tf_static``: ``world -> <ARM>_base``, ``world -> phantom``, ``world -> <pair>_entry|exit``
+  and ``ECM -> ECM_left|right_optical``;
+- ``sim/visualization`` (visualization_msgs/MarkerArray): needle arc, thread, red markers, tool
+  tips;
+- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8) and ``ECM/left|right/camera_info``.
+
+The node calls these publishers from its one executor thread; they skip topics nobody reads.
+"""
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from sim_bridge import conversions as cv
+from sim_bridge.simulation import ARMS, PSMS
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
+
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.VOLATILE)
+IMAGE_QOS = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+WORLD = 'world'
+_RED = (0.85, 0.05, 0.05, 1.0)
+_SILVER = (0.75, 0.75, 0.8, 1.0)
+_THREAD = (0.2, 0.3, 0.9, 1.0)
+_TOOL = (0.1, 0.8, 0.2, 1.0)
+
+
+class SceneTopics:
+    """
+    Publishers of the scene's ground truth, TF, visualization and camera.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    sim : sim_bridge.simulation.Simulation
+
+    """
+
+    def __init__(self, node, sim):
+        self._node = node
+        self._sim = sim
+        pub = node.create_publisher
+        self._needle = pub(PoseStamped, 'sim/needle/measured_cp', STATE_QOS)
+        self._phantom = pub(PoseStamped, 'sim/phantom/measured_cp', LATCHED_QOS)
+        self._bases = {a: pub(PoseStamped, f'sim/{a}/base_frame', LATCHED_QOS) for a in ARMS}
+        self._markers = {}
+        for key in sim.marker_poses():
+            pair, which = key.split('.')
+            self._markers[key] = pub(PoseStamped, f'sim/markers/{pair}/{which}', LATCHED_QOS)
+        self._tf = pub(TFMessage, '/tf', TF_QOS)
+        self._tf_static = pub(TFMessage, '/tf_static', LATCHED_QOS)
+        self._viz = pub(MarkerArray, 'sim/visualization', STATE_QOS)
+        self._images = {s: pub(Image, f'ECM/{s}/image_raw', IMAGE_QOS) for s in ('left', 'right')}
+        self._infos = {s: pub(CameraInfo, f'ECM/{s}/camera_info', IMAGE_QOS)
+                       for s in ('left', 'right')}
+
+    def publish_latched(self, stamp):
+        """Publish the scene's fixed frames (after start-up and after a reset)."""
+        sim = self._sim
+        self._phantom.publish(cv.pose_stamped(sim.phantom_pose(), WORLD, stamp))
+        for arm, pub in self._bases.items():
+            pub.publish(cv.pose_stamped(sim.T_world_base(arm), WORLD, stamp))
+        markers = sim.marker_poses()
+        for key, pub in self._markers.items():
+            pub.publish(cv.pose_stamped(markers[key], WORLD, stamp))
+        transforms = [cv.transform_stamped(sim.T_world_base(a), WORLD, f'{a}_base', stamp)
+                      for a in ARMS]
+        transforms.append(cv.transform_stamped(sim.phantom_pose(), WORLD, 'phantom', stamp))
+        transforms += [cv.transform_stamped(T, WORLD, key.replace('.', '_'), stamp)
+                       for key, T in markers.items()]
+        camera = sim.camera
+        transforms += [cv.transform_stamped(camera.T_tip_left, 'ECM', 'ECM_left_optical', stamp),
+                       cv.transform_stamped(camera.T_tip_right, 'ECM', 'ECM_right_optical',
+                                            stamp)]
+        self._tf_static.publish(cv.tf_message(transforms))
+
+    def publish_state(self, stamp):
+        """Publish the needle pose (state rate)."""
+        if self._needle.get_subscription_count():
+            self._needle.publish(cv.pose_stamped(self._sim.needle_pose(), WORLD, stamp))
+
+    def publish_tf(self, stamp):
+        """Publish the moving frames: each arm's ``measured_cp`` and the needle."""
+        if not self._tf.get_subscription_count():
+            return
+        sim = self._sim
+        transforms = [cv.transform_stamped(arm.measured_cp, arm.reference_frame, name, stamp)
+                      for name, arm in sim.arms.items()]
+        transforms.append(cv.transform_stamped(sim.needle_pose(), WORLD, 'needle', stamp))
+        self._tf.publish(cv.tf_message(transforms))
+
+    def publish_visualization(self, stamp):
+        """Publish the needle arc, thread, markers and tool tips as a MarkerArray."""
+        if not self._viz.get_subscription_count():
+            return
+        sim = self._sim
+        needle = sim.needle_geometry.points_world(sim.needle_pose(), 24)
+        markers = [p[:3, 3] for p in sim.marker_poses().values()]
+        tips = [sim.tool_pose(a)[:3, 3] for a in PSMS]
+        diameter = sim.needle_geometry.wire_diameter
+        msg = MarkerArray(markers=[
+            cv.line_strip_marker(needle, 'needle', 0, WORLD, stamp, _SILVER, diameter),
+            cv.line_strip_marker(sim.thread_points(), 'thread', 0, WORLD, stamp, _THREAD,
+                                 2 * sim.thread_geometry.radius),
+            cv.sphere_list_marker(markers, 'markers', 0, WORLD, stamp, _RED, 0.002),
+            cv.sphere_list_marker(tips, 'tool_tips', 0, WORLD, stamp, _TOOL, 0.003),
+        ])
+        self._viz.publish(msg)
+
+    def publish_camera(self, stamp):
+        """Render and publish the stereo pair and its calibration (only if someone listens)."""
+        listening = any(p.get_subscription_count() for p in (*self._images.values(),
+                                                              *self._infos.values()))
+        if not listening:
+            return
+        frame = self._sim.render()
+        camera = self._sim.camera
+        for side, rgb in (('left', frame.left_rgb), ('right', frame.right_rgb)):
+            frame_id = f'ECM_{side}_optical'
+            self._images[side].publish(cv.image_message(rgb, frame_id, stamp))
+            self._infos[side].publish(cv.camera_info_message(camera.camera_info(side), frame_id,
+                                                             stamp))

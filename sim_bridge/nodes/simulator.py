@@ -1,0 +1,364 @@
+"""
+The simulator node: the simulated dVRK scene behind the dVRK 2.x CRTK ROS 2 interface.
+
+Runs :class:`sim_bridge.simulation.Simulation` and gives each arm (``PSM1``, ``PSM2``, ``ECM``) the
+topics, services and events of a physical dVRK (:mod:`sim_bridge.nodes.crtk_arm`), so a dVRK client
+drives it unchanged; adds the scene's ground truth, ``/tf``, visualization and the ECM stereo
+camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
+(:mod:`sim_bridge.nodes.footpedals`), and:
+
+- ``sim/events`` (crtk_msgs/StringStamped, RELIABLE, TRANSIENT_LOCAL, depth 1000): one JSON
+  object per scene event, ``{"kind": ..., "t": <s since the scene started>, ...}``, kinds
+  ``grasp``, ``release``, ``entry``, ``exit``, ``withdrawn``, ``extracted``, ``trauma``, ``drop``,
+  ``collision``, ``score``, ``reset``, ``target_pair``; stamped with the simulator clock;
+- ``sim/target_pair`` (std_msgs/String, subscribed): the marker pair scored next;
+- ``sim/stats`` (std_msgs/String, JSON, every second of wall time): the requested
+  ``real_time_factor``, the factor ``achieved`` over the last second, simulation seconds
+  ``skipped`` so far because the loop fell behind, ``sim_time`` and ``clock``;
+- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED, needle on the pad; the
+  needle start is seeded with ``seed + number of resets``).
+
+Time: the node owns it. Every ``tick`` the simulation is stepped (fixed physics step) up to
+``real_time_factor`` times the wall time elapsed (0: as fast as it goes); when it falls more than
+``max_lag`` wall seconds behind it skips the backlog instead of bursting. ``/clock`` carries the
+simulator clock, ``clock_start + simulation time`` (``clock_start < 0``: the wall clock at
+start-up, so that at ``real_time_factor`` 1 clients without ``use_sim_time`` see current stamps);
+every stamp the node publishes is on that clock; state topics are published every ``1/rate``
+seconds of simulation time. Other nodes run with ``use_sim_time:=true``.
+
+Everything (stepping, publishing, command callbacks) runs in the node's one executor thread, so
+the simulation needs no lock. Parameters: ``config/simulator.yaml``.
+"""
+
+from dataclasses import dataclass, replace
+import json
+import math
+import sys
+import time
+
+from crtk_msgs.msg import StringStamped
+import numpy as np
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sim_bridge import conversions as cv
+from sim_bridge.nodes.crtk_arm import CrtkArm
+from sim_bridge.nodes.footpedals import FootPedals
+from sim_bridge.nodes.scene_topics import SceneTopics
+from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from suture_lfd.nodes import declare_config
+
+EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
+COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+
+
+@dataclass(frozen=True)
+class SimulatorConfig:
+    """
+    Parameters of the simulator node (names as in ``config/simulator.yaml``).
+
+    Attributes
+    ----------
+    phantom : str
+        ``'synthetic'``, ``'scanned'`` or an STL/OBJ/PLY mesh path.
+    seed : int
+        Seed of the scene (needle start pose).
+    target_pair : str
+        Marker pair scored first (``''``: the phantom's first pair).
+    real_time_factor : float
+        Simulated seconds per wall second; 0 = as fast as possible.
+    rate : float
+        State publishing rate (Hz of simulation time); the dVRK publishes at 100 Hz.
+    tf_rate, visualization_rate, camera_rate : float
+        Rates (Hz of simulation time) of ``/tf``, ``sim/visualization`` and the stereo images;
+        0 = off.
+    clock_start : float
+        Simulator clock (s) when the simulation starts; < 0: the wall clock at start-up.
+    tick : float
+        Wall time (s) between stepping rounds (at most; shorter when rate x factor needs it).
+    max_lag : float
+        Wall time (s) the simulation may fall behind before it skips the backlog.
+    tracking : str
+        ``'limited'`` (joints follow setpoints within the dVRK limits) or ``'exact'``.
+    tool_present : bool
+        PSM instruments mounted at start-up.
+    footpedals : bool
+        Run the console foot pedals (``/footpedals/*``) in this process.
+
+    """
+
+    phantom: str = 'synthetic'
+    seed: int = 0
+    target_pair: str = ''
+    real_time_factor: float = 1.0
+    rate: float = 100.0
+    tf_rate: float = 50.0
+    visualization_rate: float = 10.0
+    camera_rate: float = 0.0
+    clock_start: float = -1.0
+    tick: float = 0.005
+    max_lag: float = 0.25
+    tracking: str = 'limited'
+    tool_present: bool = True
+    footpedals: bool = True
+
+    def __post_init__(self):
+        if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
+            raise ValueError(f'parameter real_time_factor must be >= 0 (0: as fast as possible), '
+                             f'got {self.real_time_factor}')
+        if not (math.isfinite(self.rate) and self.rate > 0):
+            raise ValueError(f'parameter rate must be > 0 Hz, got {self.rate}')
+        for name in ('tf_rate', 'visualization_rate', 'camera_rate'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f'parameter {name} must be >= 0 Hz (0: off), got {value}')
+        for name in ('tick', 'max_lag'):
+            if not getattr(self, name) > 0:
+                raise ValueError(f'parameter {name} must be > 0 s, got {getattr(self, name)}')
+        if self.tracking not in ('limited', 'exact'):
+            raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
+                             f'got {self.tracking!r}')
+
+
+class _Every:
+    """Fires when simulation time crosses a multiple of ``1/rate`` (never for rate 0)."""
+
+    def __init__(self, rate):
+        self.rate = rate
+        self.last = -1
+
+    def due(self, t):
+        if not self.rate:
+            return False
+        k = int(t * self.rate + 1e-6)
+        if k != self.last:
+            self.last = k
+            return True
+        return False
+
+
+class Simulator(Node):
+    """The simulated dVRK: CRTK arms, scene ground truth, events, time."""
+
+    def __init__(self):
+        super().__init__('simulator')
+        self.config = cfg = declare_config(self, SimulatorConfig, 'simulator.yaml', 'simulator')
+        sim_config = load_simulation_config()
+        sim_config = replace(
+            sim_config,
+            arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present),
+            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None))
+        self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
+                              phantom=cfg.phantom)
+        self._resets = 0
+        self._pair = self.sim.target_pair.name
+        self._dt_ns = int(round(self.sim.dt * 1e9))
+        start = time.time() if cfg.clock_start < 0 else cfg.clock_start
+        self._t0_ns = max(int(round(start * 1e9)), 1)
+        self._state = _Every(cfg.rate)
+        self._tf = _Every(cfg.tf_rate)
+        self._viz = _Every(cfg.visualization_rate)
+        self._camera = _Every(cfg.camera_rate)
+        self._rtf = cfg.real_time_factor
+        period = cfg.tick if self._rtf == 0 else min(cfg.tick, 0.5 / (cfg.rate * self._rtf))
+        period = max(period, 0.001)
+        # steps per round: four rounds' worth, so the loop catches up after a slow round but
+        # never holds the executor (and the command callbacks) for long
+        self._chunk = max(1, int(math.ceil(4 * period * max(self._rtf, 1.0) / self.sim.dt)))
+        self._max_behind = int(math.ceil(cfg.max_lag * max(self._rtf, 1.0) / self.sim.dt))
+        self._anchor_wall = None  # set by the first stepping round
+        self._anchor_sim = self.sim.time
+        self.skipped = 0.0  # simulation seconds dropped because the loop fell behind
+        self._stepped = 0
+        self._stats_wall = time.monotonic()
+
+        self._clock_pub = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
+        self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
+        self._stats_pub = self.create_publisher(String, 'sim/stats', COMMAND_QOS)
+        self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
+                                   on_command=self._flush_arm_events)
+                     for name in ARMS}
+        self.scene = SceneTopics(self, self.sim)
+        self.create_subscription(String, 'sim/target_pair', self._on_target_pair, COMMAND_QOS)
+        self.create_service(Trigger, 'sim/reset', self._on_reset)
+
+        stamp = self.stamp()
+        self._clock_pub.publish(cv.clock_message(stamp))
+        self.scene.publish_latched(stamp)
+        for face in self.arms.values():
+            face.publish_operating_state()
+        self._publish_event('target_pair', self.sim.time, pair=self._pair)
+        self._timer = self.create_timer(period, self._on_tick,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(
+            f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
+            f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
+
+    # -- time ----------------------------------------------------------------------------------
+
+    def now_ns(self):
+        """Return the simulator clock now (int ns): ``clock_start + simulation time``."""
+        return self._t0_ns + int(round(self.sim.time * 1e9))
+
+    def stamp(self, t=None):
+        """Return the stamp of simulation time ``t`` (s, default now) on the simulator clock."""
+        if t is None:
+            return cv.stamp_from_nanoseconds(self.now_ns())
+        return cv.stamp_from_nanoseconds(self._t0_ns + int(round(t * 1e9)))
+
+    def _on_tick(self):
+        try:
+            self._advance()
+        except Exception:  # noqa: BLE001 (only a shut-down context is expected here)
+            if self.context.ok():
+                raise
+            # SIGINT/SIGTERM shut the context down in the middle of a round: stop quietly
+
+    def _advance(self):
+        """Step the simulation up to the wall clock times the real-time factor; publish."""
+        sim = self.sim
+        wall = time.monotonic()
+        if self._anchor_wall is None:
+            # the first round: simulation time starts now (start-up work is not simulated)
+            self._anchor_wall, self._anchor_sim = wall, sim.time
+            if self.config.clock_start < 0:
+                self._t0_ns = max(self._t0_ns, time.time_ns() - int(round(sim.time * 1e9)))
+        if self._rtf > 0:
+            behind = int((self._anchor_sim + self._rtf * (wall - self._anchor_wall) - sim.time)
+                         / sim.dt + 1e-6)
+            if behind > self._max_behind:
+                # too far behind the wall clock: drop the backlog rather than burst through it
+                self.skipped += (behind - self._chunk) * sim.dt
+                self._anchor_wall, self._anchor_sim = wall, sim.time + self._chunk * sim.dt
+                behind = self._chunk
+            n = min(behind, self._chunk)
+        else:
+            n = self._chunk
+        for _ in range(n):
+            self._step()
+        if n:
+            self._clock_pub.publish(cv.clock_message(self.stamp()))
+        self._stepped += n
+        if wall - self._stats_wall >= STATS_PERIOD:
+            self._publish_stats(wall)
+
+    def _publish_stats(self, wall):
+        """Publish ``sim/stats``: the loop's pace over the last period (JSON)."""
+        span = wall - self._stats_wall
+        simulated = self._stepped * self.sim.dt
+        stats = {'real_time_factor': self._rtf, 'achieved': simulated / span,
+                 'skipped': self.skipped, 'simulated': simulated, 'wall': span,
+                 'sim_time': self.sim.time, 'clock': self.now_ns() * 1e-9}
+        self._stats_pub.publish(String(data=json.dumps(stats, sort_keys=True)))
+        self._stats_wall, self._stepped = wall, 0
+
+    def _step(self):
+        sim = self.sim
+        sim.step()
+        self._flush_arm_events()
+        self._flush_sim_events()
+        t = sim.time
+        if self._state.due(t):
+            stamp = self.stamp()
+            for face in self.arms.values():
+                face.publish_state(stamp)
+            self.scene.publish_state(stamp)
+        if self._tf.due(t):
+            self.scene.publish_tf(self.stamp())
+        if self._viz.due(t):
+            self.scene.publish_visualization(self.stamp())
+        if self._camera.due(t):
+            self.scene.publish_camera(self.stamp())
+
+    # -- events --------------------------------------------------------------------------------
+
+    def _flush_arm_events(self):
+        for face in self.arms.values():
+            face.flush_events()
+
+    def _flush_sim_events(self):
+        for event in self.sim.pop_events():
+            self._publish_event(event.kind, event.t, **event.data)
+
+    def _publish_event(self, kind, t, **data):
+        self._events_pub.publish(cv.event_message(kind, self.stamp(t), t=t, **data))
+
+    # -- scene commands ------------------------------------------------------------------------
+
+    def _on_target_pair(self, msg):
+        try:
+            self.sim.set_target_pair(msg.data)
+        except ValueError as exc:
+            self.get_logger().error(f'sim/target_pair: {exc}')
+            self._publish_event('target_pair', self.sim.time, pair=msg.data, error=str(exc))
+            return
+        self._pair = msg.data
+        self._publish_event('target_pair', self.sim.time, pair=self._pair)
+
+    def _on_reset(self, request, response):
+        sim = self.sim
+        self._flush_arm_events()
+        self._flush_sim_events()
+        # the clock goes on: the new scene starts one physics step after the old one's end
+        self._t0_ns = self.now_ns() + self._dt_ns
+        self._resets += 1
+        sim.reset(seed=self.config.seed + self._resets)
+        sim.set_target_pair(self._pair)
+        for every in (self._state, self._tf, self._viz, self._camera):
+            every.last = -1
+        self._anchor_wall, self._anchor_sim = time.monotonic(), sim.time
+        for face in self.arms.values():
+            face.publish_operating_state()
+        self._publish_event('reset', sim.time, resets=self._resets)
+        self._publish_event('target_pair', sim.time, pair=self._pair)
+        self.scene.publish_latched(self.stamp())
+        self._clock_pub.publish(cv.clock_message(self.stamp()))
+        response.success = True
+        response.message = f'scene reset ({self._resets}), target pair {self._pair}'
+        return response
+
+    def close(self):
+        """Release the simulation (PyBullet)."""
+        self.sim.close()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = Simulator()
+    except (ValueError, OSError) as exc:
+        rclpy.logging.get_logger('simulator').fatal(str(exc))
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    pedals = None
+    if node.config.footpedals:
+        pedals = FootPedals()
+        executor.add_node(pedals)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        if pedals is not None:
+            pedals.destroy_node()
+        node.destroy_node()
+        node.close()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
