@@ -62,7 +62,9 @@ class ExecutorConfig:
     Attributes
     ----------
     script : sim_bridge.expert.ExpertConfig
-        Motion parameters of the scripted subtasks i, iii, v (speeds, grasps, lifts).
+        Motion parameters of the scripted subtasks i, iii, v (speeds, grasps, lifts);
+        :func:`execute_throw` uses the scene's ``expert`` section (``config/scene.yaml``)
+        unless a config is given.
     phase_stopping : bool
         Slow the DMP clock while the measured needle lags the rollout.
     phase_stop_position : float
@@ -78,7 +80,7 @@ class ExecutorConfig:
 
     """
 
-    script: ExpertConfig = field(default_factory=lambda: ExpertConfig(min_move_time=0.8))
+    script: ExpertConfig = field(default_factory=ExpertConfig)
     phase_stopping: bool = True
     phase_stop_position: float = 1.0e6
     phase_stop_orientation: float = 100.0
@@ -573,7 +575,7 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     timeout : float
         Longest simulated time (s) of the throw.
     config : ExecutorConfig, optional
-        Executor settings.
+        Executor settings (default: scripted parts as the scene's expert).
     control_period : float
         Time (s) between controller steps (a multiple of the physics step).
     next_pair : str, optional
@@ -597,6 +599,8 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     sim.set_target_pair(pair_name)
     sim.pop_events()
     pair = sim.target_pair
+    if config is None:
+        config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
                              config=config, next_pair=nxt)

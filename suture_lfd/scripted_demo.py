@@ -11,7 +11,7 @@ expert's own subtask labels.
 """
 
 import numpy as np
-from sim_bridge.expert import ExpertConfig, ScriptedExpert
+from sim_bridge.expert import ScriptedExpert
 from suture_lfd.demonstration import Demonstration
 from suture_lfd.geometry import pose_from_transform
 
@@ -69,7 +69,7 @@ def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3
     seed : int
         Scene seed.
     config : sim_bridge.expert.ExpertConfig, optional
-        Expert settings (default: ``min_move_time`` 0.8 s).
+        Expert settings (default: the scene's ``expert`` section).
     pause : float
         Rest (s) at the start of subtasks ii .. v.
     sample_period : float
@@ -91,7 +91,7 @@ def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3
     sim.enable_and_home_all()
     sim.set_target_pair(pair_name)
     pair = sim.target_pair
-    config = ExpertConfig(min_move_time=0.8) if config is None else config
+    config = sim.config.scene.expert if config is None else config
     expert = PausingExpert(pair, sim.needle_geometry, config=config,
                            kinematics=sim.kinematics['PSM1'], pause=pause)
     rows = []

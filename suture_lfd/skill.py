@@ -25,6 +25,7 @@ Frames: ``world``; suture frames as in :mod:`suture_lfd.suturing_frames`. Poses 
 
 from dataclasses import asdict, dataclass, field
 import json
+from pathlib import Path
 import zipfile
 
 import numpy as np
@@ -214,8 +215,8 @@ def training_data(source):
 
     Parameters
     ----------
-    source : TrainingData or suture_lfd.segments.SegmentFile
-        Learning input.
+    source : TrainingData, suture_lfd.segments.SegmentFile, str or Path
+        Learning input (a path is read with ``SegmentFile.load``).
 
     Returns
     -------
@@ -224,11 +225,21 @@ def training_data(source):
     """
     if isinstance(source, TrainingData):
         return source
-    to_training = getattr(source, 'training_data', None)
-    if callable(to_training):
-        return to_training()
-    raise ValueError(f'cannot learn a skill from a {type(source).__name__}; give a segment '
-                     'file or TrainingData')
+    from suture_lfd.segments import SUBTASK_NAMES, SegmentFile
+
+    if isinstance(source, (str, Path)):
+        source = SegmentFile.load(source)
+    if not isinstance(source, SegmentFile):
+        raise ValueError(f'cannot learn a skill from a {type(source).__name__}; give a segment '
+                         'file or TrainingData')
+    needle = {}
+    for task in TASKS:
+        t, poses = source.needle(task)
+        needle[task] = (np.asarray(t, dtype=float), np.asarray(poses[:, :3], dtype=float),
+                        np.asarray(poses[:, 3:], dtype=float))
+    pair = PairGeometry(source.pair, source.entry, source.exit, source.normal)
+    timing = {name: source.times(name) for name in SUBTASK_NAMES}
+    return TrainingData(pair, needle, timing, source.source)
 
 
 def _params_for(params, task):
@@ -472,8 +483,9 @@ def learn_skill(segment_file, method='paper', params=None):
 
     Parameters
     ----------
-    segment_file : suture_lfd.segments.SegmentFile or TrainingData
-        The demonstration's segments (needle trajectories of ii and iv, pair, timing).
+    segment_file : suture_lfd.segments.SegmentFile, str, Path or TrainingData
+        The demonstration's segments (needle trajectories of ii and iv, pair, timing), or the
+        path of a segment file.
     method : str or Method
         Name in :data:`METHODS` (``'paper'`` by default).
     params : DmpParams or dict of str to DmpParams, optional

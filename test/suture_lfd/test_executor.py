@@ -14,7 +14,8 @@ from suture_lfd.geometry import compose_poses, pose_from_transform, quaternion_a
 from suture_lfd.metrics import endpoint_errors, orientation_trajectory_error, trajectory_error
 from suture_lfd.scripted_demo import record_scripted_demonstration
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.skill import PairGeometry, get_method
+from suture_lfd.segments import make_segment_file
+from suture_lfd.skill import PairGeometry, get_method, training_data
 
 
 @pytest.fixture(scope='module')
@@ -25,16 +26,29 @@ def synthetic():
 
 
 @pytest.fixture(scope='module')
-def demonstration(synthetic):
+def demonstration(synthetic, tmp_path_factory):
     demo, _, score = record_scripted_demonstration(synthetic, 'synth1', seed=0)
     assert score.score == 1.0, score.failure
-    data = training_data_from_demonstration(demo, segment_demonstration(demo), 'synth1 expert')
-    return demo, data
+    path = tmp_path_factory.mktemp('segments') / 'synth1.npz'
+    make_segment_file(demo, segment_demonstration(demo), source='synth1 expert').save(path)
+    return demo, training_data(path), path
 
 
 @pytest.fixture(scope='module')
 def skill(demonstration):
-    return learn_skill(demonstration[1], 'paper')
+    return learn_skill(demonstration[2], 'paper')
+
+
+def test_a_segment_file_and_its_demonstration_teach_the_same_skill(demonstration):
+    demo, data, path = demonstration
+    direct = training_data_from_demonstration(demo, segment_demonstration(demo))
+    pair = data.pair
+    for method in METHODS:
+        a, b = learn_skill(path, method), learn_skill(direct, method)
+        for task in ('ii', 'iv'):
+            _, Pa, Qa = a.rollout(task, pair)
+            _, Pb, Qb = b.rollout(task, pair)
+            assert np.abs(Pa - Pb).max() < 1e-9 and np.abs(Qa - Qb).max() < 1e-9
 
 
 @pytest.fixture(scope='module')
@@ -43,7 +57,7 @@ def regeneration(synthetic, skill):
 
 
 def test_the_skill_regenerates_its_demonstration_on_the_same_pair(regeneration, demonstration):
-    _, data = demonstration
+    data = demonstration[1]
     assert regeneration.score == 1.0, regeneration.failure
     assert all(regeneration.subtasks[k] for k in ('i', 'ii', 'iii', 'iv', 'v'))
     for task, bound_mm, bound_deg in (('ii', 0.5, 2.0), ('iv', 2.0, 5.0)):
@@ -138,8 +152,8 @@ def test_the_pair_frame_method_moves_rigidly_with_the_pair(demonstration):
         assert np.degrees(quaternion_angle(Q2, expected[:, 3:])).max() < 1e-6
 
 
-def test_the_paper_method_reproduces_the_demonstration_on_its_own_pair(demonstration):
-    _, data = demonstration
+def test_every_method_reproduces_the_demonstration_on_its_own_pair(demonstration):
+    data = demonstration[1]
     for name in METHODS:
         skill = learn_skill(data, name)
         _, P, _ = skill.rollout('ii', skill.pair)
