@@ -170,8 +170,9 @@ class Simulator(Node):
         self._viz = _Every(cfg.visualization_rate)
         self._camera = _Every(cfg.camera_rate)
         self._rtf = cfg.real_time_factor
-        period = cfg.tick if self._rtf == 0 else min(cfg.tick, 0.5 / (cfg.rate * self._rtf))
-        period = max(period, 0.001)
+        # a round every half state period (at most every tick); as fast as it goes: 1 ms
+        period = 0.001 if self._rtf == 0 else max(0.001, min(cfg.tick,
+                                                            0.5 / (cfg.rate * self._rtf)))
         # steps per round: four rounds' worth, so the loop catches up after a slow round but
         # never holds the executor (and the command callbacks) for long
         self._chunk = max(1, int(math.ceil(4 * period * max(self._rtf, 1.0) / self.sim.dt)))

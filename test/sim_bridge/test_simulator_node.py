@@ -19,7 +19,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState, Joy
+from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from sim_bridge import conversions as cv
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.kinematics import psm_kinematics
@@ -27,6 +27,7 @@ from sim_bridge.needle import invert_transform
 from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 TL = DurabilityPolicy.TRANSIENT_LOCAL
 VOL = DurabilityPolicy.VOLATILE
@@ -438,7 +439,21 @@ def test_a_grasp_through_the_crtk_topics_is_an_event_and_the_scene_resets(ros, l
                              lambda m: truth.__setitem__('needle', m), STREAM)
     node.create_subscription(PoseStamped, '/sim/PSM2/base_frame',
                              lambda m: truth.__setitem__('base', m), LATCHED)
+    tf, tf_static = [], []
+    node.create_subscription(TFMessage, '/tf', lambda m: tf.extend(m.transforms), STREAM)
+    node.create_subscription(TFMessage, '/tf_static', lambda m: tf_static.extend(m.transforms),
+                             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=TL))
     assert ros.wait_for(lambda: psm.connected() and len(truth) == 2, 40.0), sim.log()
+    # /tf: each arm's measured_cp under its reference frame, the needle under world; /tf_static
+    # places the arm bases (what sim/<ARM>/base_frame says) in world
+    assert ros.wait_for(lambda: tf and tf_static, 10.0)
+    frames = {(t.header.frame_id, t.child_frame_id) for t in tf}
+    assert {('PSM1_base', 'PSM1'), ('PSM2_base', 'PSM2'), ('ECM_base', 'ECM'),
+            ('world', 'needle')} <= frames
+    base = next(t.transform for t in tf_static if t.child_frame_id == 'PSM2_base')
+    assert [base.translation.x, base.translation.y, base.translation.z] == pytest.approx(
+        cv.matrix_from_pose(truth['base'].pose)[:3, 3].tolist())
     assert ros.wait_for(lambda: any(e['kind'] == 'target_pair' for _, e in events), 10.0)
     psm.enable_and_home()
 
@@ -511,7 +526,7 @@ def move_duration_in_core(start_q, goal_q, dt):
 def test_faster_than_real_time_under_a_namespace_with_remaps(ros, launch):
     sim = launch('simulator', '--ros-args', '-r', '__ns:=/bench', '-r',
                  'PSM1/measured_js:=/left/measured_js', '-p', 'real_time_factor:=2.0',
-                 '-p', 'clock_start:=1000.0')
+                 '-p', 'clock_start:=1000.0', '-p', 'camera_rate:=2.0')
     client = ros.node('sim_time_client',
                       parameter_overrides=[Parameter('use_sim_time', value=True)])
     clock, stats = [], []
@@ -535,10 +550,20 @@ def test_faster_than_real_time_under_a_namespace_with_remaps(ros, launch):
     assert ros.wait_for(lambda: len([w for w, _ in stats if w > t]) >= 3, 15.0)
     (w0, s0), (w1, s1) = [(w, s) for w, s in stats if w > t][-3::2]
     assert s1['real_time_factor'] == 2.0
+    # the ECM stereo camera, at camera_rate, stamped on the simulator clock
+    images, infos = [], []
+    client.create_subscription(Image, '/bench/ECM/left/image_raw', images.append, STREAM)
+    client.create_subscription(CameraInfo, '/bench/ECM/right/camera_info', infos.append, STREAM)
     advanced = s1['clock'] - s0['clock']
     ratio = (advanced + s1['skipped'] - s0['skipped']) / (w1 - w0)
     assert ratio == pytest.approx(2.0, rel=0.15)
     assert 1000.0 < cv.seconds_from_stamp(clock[-1][1]) < s1['clock'] + 1.0
+    assert ros.wait_for(lambda: images and infos, 30.0)
+    image, info = images[0], infos[0]
+    assert (image.encoding, image.header.frame_id) == ('rgb8', 'ECM_left_optical')
+    assert len(image.data) == image.height * image.step == image.height * image.width * 3
+    assert (info.width, info.height) == (image.width, image.height)
+    assert info.p[3] < 0 and stamp_s(image) > 1000.0  # right camera: P[0, 3] = -fx * baseline
     # a use_sim_time client's clock is the simulator's
     now = client.get_clock().now().nanoseconds * 1e-9
     assert 1000.0 < now < s1['clock'] + 5.0
