@@ -1,0 +1,158 @@
+"""
+Simulator speed: simulated seconds per wall second of whole expert throws, IK rate, stereo render.
+
+Ours: :class:`sim_bridge.simulation.Simulation` (PSM1, PSM2, ECM, needle, thread, phantom; no
+rendering) at its default physics step, driven by the scripted expert at 100 Hz through all five
+subtasks of a throw.
+
+Anchor measured in the same run: a SurRoL-style PyBullet scene -- three dynamic arm multibodies
+(the PSM/ECM modified-DH chains, as SurRoL's re-topologised serial URDFs) driven by
+``setJointMotorControlArray(POSITION_CONTROL)`` every step, a needle body and a pad, stepped
+with ``stepSimulation`` at 1/240 s. Stated anchors (sim_anchors.md): SurRoL's PyBullet scene
+runs at about 18-20x real time at 1/240 s steps; the AMBF Surgical Robotics Challenge at 1x.
+Target (issue): >= 100x real time at the default step.
+
+Run: ``.venv/bin/python bench/bench_sim.py``
+"""
+
+import argparse
+import time
+
+import numpy as np
+import pybullet
+from pybullet_utils import bullet_client
+from scipy.spatial.transform import Rotation
+from sim_bridge.expert import ScriptedExpert
+from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
+from sim_bridge.simulation import Simulation, load_simulation_config
+
+ANCHOR_SURROL_REALTIME = (18.0, 20.0)
+ANCHOR_AMBF_REALTIME = 1.0
+TARGET_REALTIME = 100.0
+
+
+def expert_throws(sim, pairs, control_period):
+    """Run one whole expert throw per pair; return (simulated s, wall s, scores)."""
+    sim_s = wall_s = 0.0
+    scores = []
+    for name in pairs:
+        sim.reset(seed=0)
+        sim.enable_and_home_all()
+        sim.set_target_pair(name)
+        expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
+                                kinematics=sim.kinematics['PSM2'])
+        t0, start = sim.time, time.perf_counter()
+        while not expert.done:
+            sim.run(control_period, expert, control_period)
+        wall_s += time.perf_counter() - start
+        sim_s += sim.time - t0
+        scores.append(sim.score().score)
+        sim.pop_events()
+    return sim_s, wall_s, scores
+
+
+def chain_body(client, chain, base_position):
+    """A dynamic PyBullet multibody of a modified-DH chain (0.1 kg links, capsule shapes)."""
+    frames = list(chain.joint_placements()) + [chain.tooltip_offset]
+    types = [pybullet.JOINT_REVOLUTE if r else pybullet.JOINT_PRISMATIC
+             for r in chain.is_revolute] + [pybullet.JOINT_FIXED]
+    n = len(frames)
+    shape = client.createCollisionShape(pybullet.GEOM_CAPSULE, radius=0.004, height=0.02)
+    return client.createMultiBody(
+        baseMass=0.0, basePosition=base_position,
+        linkMasses=[0.1] * n,
+        linkCollisionShapeIndices=[shape] * n,
+        linkVisualShapeIndices=[-1] * n,
+        linkPositions=[F[:3, 3].tolist() for F in frames],
+        linkOrientations=[Rotation.from_matrix(F[:3, :3]).as_quat().tolist() for F in frames],
+        linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n,
+        linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
+        linkParentIndices=list(range(n)),
+        linkJointTypes=types,
+        linkJointAxis=[[0.0, 0.0, 1.0]] * n), chain.n_joints
+
+
+def surrol_style_scene(seconds, rng):
+    """Step a SurRoL-like dynamic scene for ``seconds``; return its simulated s per wall s."""
+    client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+    client.setGravity(0.0, 0.0, -9.81)
+    dt = 1.0 / 240.0
+    client.setTimeStep(dt)
+    pad = client.createCollisionShape(pybullet.GEOM_BOX, halfExtents=[0.05, 0.05, 0.005])
+    client.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=pad)
+    needle = client.createCollisionShape(pybullet.GEOM_CAPSULE, radius=0.0005, height=0.02)
+    client.createMultiBody(baseMass=0.01, baseCollisionShapeIndex=needle,
+                           basePosition=[0.0, 0.0, 0.02])
+    psm, ecm = psm_kinematics(), ecm_kinematics()
+    arms = [chain_body(client, psm, [-0.12, 0.0, 0.3]), chain_body(client, psm, [0.12, 0.0, 0.3]),
+            chain_body(client, ecm, [0.0, -0.12, 0.4])]
+    chains = [psm, psm, ecm]
+    steps = int(round(seconds / dt))
+    start = time.perf_counter()
+    for k in range(steps):
+        for (body, n), chain in zip(arms, chains):
+            if k % 24 == 0:  # a new joint goal 10 times a second, as an RL action would give
+                goal = rng.uniform(0.5 * chain.lower, 0.5 * chain.upper)
+                goal[2] = 0.12
+                client.setJointMotorControlArray(body, list(range(n)), pybullet.POSITION_CONTROL,
+                                                 targetPositions=goal.tolist())
+        client.stepSimulation()
+    wall = time.perf_counter() - start
+    client.disconnect()
+    return seconds / wall
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--pairs', nargs='+', default=['synth1', 'synth3'])
+    parser.add_argument('--control-period', type=float, default=0.01)
+    parser.add_argument('--anchor-seconds', type=float, default=10.0)
+    parser.add_argument('--renders', type=int, default=5)
+    args = parser.parse_args()
+    config = load_simulation_config()
+    sim = Simulation(config)
+    sim_s, wall_s, scores = expert_throws(sim, args.pairs, args.control_period)
+    ours = sim_s / wall_s
+    anchor = surrol_style_scene(args.anchor_seconds, np.random.default_rng(0))
+
+    chain = sim.kinematics['PSM2']
+    rng = np.random.default_rng(1)
+    Q = rng.uniform(chain.lower, chain.upper, size=(2000, chain.n_joints))
+    T = chain.fk_batch(Q)
+    start = time.perf_counter()
+    for k in range(200):
+        chain.ik(T[k], q_ref=Q[k])
+    ik_scalar = 200 / (time.perf_counter() - start)
+    start = time.perf_counter()
+    chain.ik_batch(T, q_ref=Q)
+    ik_batch = len(T) / (time.perf_counter() - start)
+
+    sim.render()
+    times = []
+    for _ in range(args.renders):
+        start = time.perf_counter()
+        sim.render()
+        times.append(time.perf_counter() - start)
+    render_s = float(np.median(times))
+    sim.close()
+
+    cam = config.camera
+    print(f'physics step {config.world.physics_step * 1e3:.1f} ms, expert at '
+          f'{1.0 / args.control_period:.0f} Hz, pairs {", ".join(args.pairs)} (scores {scores})')
+    print(f'ours: {sim_s:.1f} simulated s in {wall_s:.1f} wall s = {ours:.2f}x real time')
+    print(f'SurRoL-style PyBullet scene measured in this run (1/240 s steps, 3 dynamic arms): '
+          f'{anchor:.1f}x real time')
+    print(f'stated anchors: SurRoL {ANCHOR_SURROL_REALTIME[0]:.0f}-'
+          f'{ANCHOR_SURROL_REALTIME[1]:.0f}x, AMBF challenge {ANCHOR_AMBF_REALTIME:.0f}x')
+    print(f'ratios: ours / SurRoL-style measured {ours / anchor:.3f}; ours / SurRoL stated '
+          f'{ours / ANCHOR_SURROL_REALTIME[0]:.3f}-{ours / ANCHOR_SURROL_REALTIME[1]:.3f}; '
+          f'ours / AMBF {ours / ANCHOR_AMBF_REALTIME:.2f}; target {TARGET_REALTIME:.0f}x: '
+          f'{"met" if ours >= TARGET_REALTIME else "NOT met"} '
+          f'({ours / TARGET_REALTIME:.3f} of the target)')
+    print(f'IK: scalar {ik_scalar:,.0f} solves/s, batch {ik_batch:,.0f} solves/s')
+    print(f'stereo render ({cam.width}x{cam.height}, RGB + depth, both eyes, CPU): '
+          f'{render_s * 1e3:.0f} ms')
+
+
+if __name__ == '__main__':
+    main()
