@@ -34,7 +34,6 @@ from suture_lfd import bags
 from suture_lfd.demonstration import Demonstration
 from suture_lfd.geometry import (
     pose_from_transform,
-    quaternion_from_matrix,
     transform_from_pose,
 )
 from suture_lfd.resampling import resample_quaternions
@@ -84,16 +83,17 @@ def _header(store, t, frame_id=''):
     return store.types['std_msgs/msg/Header'](stamp=_stamp(store, t), frame_id=frame_id)
 
 
-def _pose_stamped(store, T, frame_id, t):
-    T = np.asarray(T, dtype=float)
-    q = quaternion_from_matrix(T[:3, :3])
+def _pose_stamped(store, pose, frame_id, t):
+    """PoseStamped of a 7-vector pose ``(x, y, z, qx, qy, qz, qw)`` or a 4x4 matrix."""
+    pose = np.asarray(pose, dtype=float)
+    if pose.shape == (4, 4):
+        pose = pose_from_transform(pose)
+    x, y, z, qx, qy, qz, qw = (float(v) for v in pose)
     ty = store.types
-    pose = ty['geometry_msgs/msg/Pose'](
-        position=ty['geometry_msgs/msg/Point'](x=float(T[0, 3]), y=float(T[1, 3]),
-                                               z=float(T[2, 3])),
-        orientation=ty['geometry_msgs/msg/Quaternion'](x=float(q[0]), y=float(q[1]),
-                                                       z=float(q[2]), w=float(q[3])))
-    return ty[POSE](header=_header(store, t, frame_id), pose=pose)
+    msg = ty['geometry_msgs/msg/Pose'](
+        position=ty['geometry_msgs/msg/Point'](x=x, y=y, z=z),
+        orientation=ty['geometry_msgs/msg/Quaternion'](x=qx, y=qy, z=qz, w=qw))
+    return ty[POSE](header=_header(store, t, frame_id), pose=msg)
 
 
 def _joint_state(store, names, position, t):
@@ -191,17 +191,18 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
                                          t0))
     put(t0, '/sim/target_pair', store.types[STRING](data=demo.pair))
     put(t0, '/sim/events', _event(store, t0, 'target_pair', pair=demo.pair))
-    poses = {'PSM1': transform_from_pose(demo.psm1_pose),
-             'PSM2': transform_from_pose(demo.psm2_pose)}
+    poses = {'PSM1': demo.psm1_pose, 'PSM2': demo.psm2_pose}
+    if measured_frame == 'base':
+        poses = {arm: pose_from_transform(np.einsum(
+            'ij,njk->nik', np.linalg.inv(frames[arm]), transform_from_pose(poses[arm])))
+            for arm in PSMS}
     jaws = {'PSM1': demo.psm1_jaw, 'PSM2': demo.psm2_jaw}
     holds = {'PSM1': demo.psm1_holds, 'PSM2': demo.psm2_holds}
-    needle = transform_from_pose(demo.needle_pose)
-    inverse = {arm: np.linalg.inv(frames[arm]) for arm in PSMS}
+    needle = demo.needle_pose
     for k, tk in enumerate(t):
         for arm in PSMS:
-            T = poses[arm][k] if measured_frame == 'world' else inverse[arm] @ poses[arm][k]
             frame = 'world' if measured_frame == 'world' else f'{arm}_base'
-            put(tk, f'/{arm}/measured_cp', _pose_stamped(store, T, frame, tk))
+            put(tk, f'/{arm}/measured_cp', _pose_stamped(store, poses[arm][k], frame, tk))
             put(tk, f'/{arm}/jaw/measured_js', _joint_state(store, ['jaw'], [jaws[arm][k]], tk))
             if holds[arm][k] != (holds[arm][k - 1] if k else False):
                 kind = 'grasp' if holds[arm][k] else 'release'
@@ -249,15 +250,19 @@ def _unique(times, values, path, topic):
     return times, values
 
 
-def _world_pose(msg, arm, T_world_base, path):
-    frame = msg.header.frame_id
-    T = transform_from_pose(_pose_vector(msg))
-    if frame in ('world',):
-        return T
-    if frame in ('', f'{arm}_base'):
-        return T_world_base @ T
-    raise bags.BagError(f'{path}: /{arm}/measured_cp is in frame {frame!r}; expected '
-                        f'{arm}_base or world')
+def _world_poses(frames, poses, arm, T_world_base, path):
+    """World 7-vector poses of ``measured_cp`` samples given in ``frames`` (n,)."""
+    poses = np.asarray(poses, dtype=float)
+    unknown = sorted(set(frames) - {'world', '', f'{arm}_base'})
+    if unknown:
+        raise bags.BagError(f'{path}: /{arm}/measured_cp is in frame {unknown[0]!r}; expected '
+                            f'{arm}_base or world')
+    in_base = np.array([f != 'world' for f in frames])
+    if in_base.any():
+        T = np.einsum('ij,njk->nik', T_world_base, transform_from_pose(poses[in_base]))
+        poses = poses.copy()
+        poses[in_base] = pose_from_transform(T)
+    return poses
 
 
 def _events(reader):
@@ -352,9 +357,10 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
         series = {}
         for arm in PSMS:
             times, values = _series(reader, f'/{arm}/measured_cp',
-                                    lambda m, a=arm: pose_from_transform(
-                                        _world_pose(m, a, bases[a], path)))
-            series[f'{arm}_pose'] = _unique(times, values, path, f'/{arm}/measured_cp')
+                                    lambda m: (m.header.frame_id, _pose_vector(m)))
+            poses = _world_poses([v[0] for v in values], [v[1] for v in values], arm,
+                                 bases[arm], path) if values else values
+            series[f'{arm}_pose'] = _unique(times, list(poses), path, f'/{arm}/measured_cp')
 
             def jaw(m, a=arm):
                 if len(m.position) < 1:

@@ -119,12 +119,15 @@ class Demonstrator:
         Tool lag (m) behind the last command above which the subject waits.
     lag_tolerance_rad : float
         Same for the tool orientation (rad).
+    max_step : float
+        Longest advance (s) of the subject's clock between two observations: when the
+        observed time jumps (a simulator that skips ahead), the subject does not.
 
     """
 
     def __init__(self, subject, pair, needle_geometry, kinematics=None, rng=None,
                  next_pair=None, expert_config=None, lag_tolerance=DEFAULT_LAG_TOLERANCE,
-                 lag_tolerance_rad=DEFAULT_LAG_TOLERANCE_RAD):
+                 lag_tolerance_rad=DEFAULT_LAG_TOLERANCE_RAD, max_step=0.05):
         if isinstance(subject, Subject):
             profile, seed = subject.profile, subject.seed
         elif isinstance(subject, SkillProfile):
@@ -132,8 +135,9 @@ class Demonstrator:
         else:
             raise ValueError(f'subject must be a Subject or a SkillProfile, got '
                              f'{type(subject).__name__}')
-        if not (lag_tolerance > 0.0 and lag_tolerance_rad > 0.0):
-            raise ValueError('lag_tolerance and lag_tolerance_rad must be > 0')
+        if not (lag_tolerance > 0.0 and lag_tolerance_rad > 0.0 and max_step > 0.0):
+            raise ValueError('lag_tolerance, lag_tolerance_rad and max_step must be > 0')
+        self.max_step = float(max_step)
         self.profile = profile
         self.pair = pair
         self.rng = rng if rng is not None else np.random.default_rng(seed)
@@ -370,7 +374,7 @@ class Demonstrator:
         if self.plan_ is None:
             self.reset(obs)
         plan = self.plan_
-        dt = max(0.0, float(obs.t) - self._t_last)
+        dt = min(max(0.0, float(obs.t) - self._t_last), self.max_step)
         self._t_last = float(obs.t)
         self._advance(obs, dt)
         holders = set(obs.holders)

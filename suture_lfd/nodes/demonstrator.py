@@ -14,7 +14,8 @@ recorder's toggle, ``/footpedals/camera`` through its ``emulate`` topic) and wai
 ``sim/target_pair``; perform the throw; after ``settle_time`` release the coag pedal, press the
 record pedal again and wait until the recorder has closed its bag; publish the result on
 ``~/result`` (std_msgs/String JSON, latched: subject, pair, duration, score, bag) and exit (exit
-code 0 for a throw scored 1.0). Parameters: ``config/demonstrator.yaml``.
+code 0 for a throw scored 1.0; ``published`` counts the commands sent per topic).
+Parameters: ``config/demonstrator.yaml``.
 """
 
 from dataclasses import dataclass
@@ -106,6 +107,7 @@ class DemonstratorNode(Node):
         self._t_start = self._t_done = None
         self._dem = None
         self._last_command = -1e9
+        self._published = {}
         self._scene = load_scene_config()
         self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
                        for a in PSMS}
@@ -241,6 +243,10 @@ class DemonstratorNode(Node):
             T_world_needle=self._needle, holders=tuple(sorted(self._holders)),
             pair=self._pair(), T_world_base=dict(self._bases), q=q or None)
 
+    def _count(self, publisher):
+        topic = publisher.topic_name
+        self._published[topic] = self._published.get(topic, 0) + 1
+
     def _send(self, command):
         stamp = self.get_clock().now().to_msg()
         for arm in PSMS:
@@ -249,9 +255,11 @@ class DemonstratorNode(Node):
                 _, frame, _ = self._tools[arm]
                 T_cmd = T if frame == 'world' else np.linalg.solve(self._bases[arm], T)
                 self._servo[arm].publish(cv.pose_stamped(T_cmd, frame, stamp))
+                self._count(self._servo[arm])
             jaw = command.jaw.get(arm)
             if jaw is not None:
                 self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
+                self._count(self._jaw_pub[arm])
 
     def _finish(self, ok, why=''):
         score = self._score
@@ -259,7 +267,7 @@ class DemonstratorNode(Node):
         result = {'subject': self.subject.name, 'group': self.subject.group,
                   'pair': self.config.pair, 'completed': bool(ok), 'reason': why,
                   'score': value, 'score_detail': score if isinstance(score, dict) else None,
-                  'bag': self._bag,
+                  'bag': self._bag, 'published': dict(self._published),
                   'duration': (None if self._t_done is None or self._t_start is None
                                else self._t_done - self._t_start)}
         self._result.publish(String(data=json.dumps(result, sort_keys=True)))
