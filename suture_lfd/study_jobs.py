@@ -181,7 +181,7 @@ def demo_job(job):
     target = out / job['segments']
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(target.stem + '.part' + target.suffix)
-    _save_segments(demo, segmentation, tmp)
+    _save_segments(demo, segmentation, tmp, source=job['bag'], subject=job['subject'])
     os.replace(tmp, target)
     record['ok'] = True
     return record
@@ -200,14 +200,14 @@ def _through_bag(demo, bag, pair):
     return demonstration_from_bag(bag, pair=pair)
 
 
-def _save_segments(demo, segmentation, path):
+def _save_segments(demo, segmentation, path, source='', subject=''):
     """Save what the throws learn from: the segment file (or the demonstration without it)."""
     try:
         from suture_lfd.segments import make_segment_file
     except ImportError:  # no segment files in this version: keep the demonstration itself
         demo.save(path)
         return
-    make_segment_file(demo, segmentation).save(path)
+    make_segment_file(demo, segmentation, source=source, subject=subject).save(path)
 
 
 # ---------------------------------------------------------------------- throws
@@ -226,8 +226,24 @@ def _training(path):
             data[path] = training_data_from_demonstration(demo, segment_demonstration(demo),
                                                           source=path)
         else:
-            data[path] = training_data(SegmentFile.load(path))
+            data[path] = _training_from_segments(SegmentFile.load(path), training_data)
     return data[path]
+
+
+def _training_from_segments(segments, training_data):
+    """Return the skill's TrainingData of a segment file."""
+    from suture_lfd.skill import PairGeometry, TrainingData
+
+    try:
+        return training_data(segments)
+    except ValueError:  # a skill module that does not read segment files itself
+        needle = {}
+        for task in TASKS:
+            t, poses = segments.needle(task)
+            needle[task] = (np.asarray(t), np.asarray(poses)[:, :3], np.asarray(poses)[:, 3:])
+        pair = PairGeometry(segments.pair, segments.entry, segments.exit, segments.normal)
+        timing = {name: segments.times(name) for name in SUBTASKS}
+        return TrainingData(pair, needle, timing, segments.source)
 
 
 def _skill(path, method):

@@ -13,6 +13,7 @@ against its CSV.
 """
 
 import math
+import warnings
 
 import numpy as np
 
@@ -117,7 +118,8 @@ def generality(rows):
     group_mean['overall'] = _mean([r['score'] for r in rows])
     n['overall'] = len(rows)
     stack = np.array(list(matrix.values())) if matrix else np.zeros((0, len(pairs), len(pairs)))
-    with np.errstate(invalid='ignore'):
+    with np.errstate(invalid='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)  # all-NaN cells: pairs not run
         mean_matrix = (np.nanmean(stack, axis=0) if len(stack)
                        else np.full((len(pairs), len(pairs)), np.nan))
     return {'pairs': pairs, 'subjects': subjects, 'matrix': matrix, 'mean_matrix': mean_matrix,

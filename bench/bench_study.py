@@ -1,0 +1,69 @@
+"""
+Throughput of ``suture-lfd study``: throws per second with 1 and 2 workers, and the default
+study's extrapolated wall time.
+
+Anchor: the seed paper ran its throws in a real-time simulator, so one simulated second of a
+throw cost one wall second. Each run here is a small study (``--quick``, one subject, one
+phantom, the paper's method: 2 demonstrations and 4 throws, all simulated in full); the script
+prints throws per second, the real-time factor (simulated throw seconds per wall second, the
+anchor being 1.0), the speed-up of 2 workers over 1, and the wall time the default study
+(80 demonstrations + 640 throws per method) would take at the measured rate, against the issue's
+target of 10 minutes.
+
+Usage: ``python bench/bench_study.py [--workers 1 2] [--args ...]``
+"""
+
+import argparse
+import json
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+import time
+
+SMALL = ['--quick', '--subjects', '1', '--phantoms', 'synthetic', '--methods', 'paper']
+DEFAULT_JOBS_PER_METHOD = 80 + 640
+TARGET_S = 600.0
+
+
+def run(workers, extra):
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, '-m', 'suture_lfd.cli', 'study', '--out', tmp, *SMALL,
+               '--workers', str(workers), *extra]
+        t0 = time.perf_counter()
+        result = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if result.returncode != 0:
+            raise SystemExit(result.stderr[-2000:])
+        (path,) = Path(tmp).glob('results-*.jsonl')
+        records = [json.loads(line) for line in path.read_text().splitlines()]
+    simulated = sum(r.get('time_s') or 0.0 for r in records)
+    return {'workers': workers, 'jobs': len(records), 'wall_s': wall,
+            'rate': len(records) / wall, 'simulated_s': simulated,
+            'errors': sum(1 for r in records if r.get('error'))}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--workers', type=int, nargs='+', default=[1, 2])
+    parser.add_argument('--args', nargs=argparse.REMAINDER, default=[])
+    args = parser.parse_args()
+    results = [run(w, args.args) for w in args.workers]
+    print(f'{"workers":>7} {"jobs":>5} {"wall s":>8} {"throws/s":>9} {"real-time x":>11} '
+          f'{"default study":>14} {"vs 10 min":>9}')
+    for r in results:
+        rt = r['simulated_s'] / r['wall_s']
+        default = DEFAULT_JOBS_PER_METHOD / r['rate']
+        print(f'{r["workers"]:>7} {r["jobs"]:>5} {r["wall_s"]:>8.1f} {r["rate"]:>9.3f} '
+              f'{rt:>11.2f} {default / 60:>11.1f} min {default / TARGET_S:>8.1f}x'
+              + (f'  ({r["errors"]} jobs raised errors)' if r['errors'] else ''))
+    if len(results) > 1:
+        print(f'speed-up of {results[-1]["workers"]} workers over {results[0]["workers"]}: '
+              f'{results[-1]["rate"] / results[0]["rate"]:.2f}x')
+    print("real-time x: simulated throw seconds per wall second (anchor: the paper's "
+          'real-time simulator = 1.0); default study: 80 demonstrations + 640 throws of one '
+          'method at the measured rate')
+
+
+if __name__ == '__main__':
+    main()
