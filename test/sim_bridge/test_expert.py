@@ -123,6 +123,9 @@ def test_subtasks_run_in_order_and_tools_move_smoothly(scene, phantoms, bases, c
     for arm in ARMS:
         speed = np.linalg.norm(np.diff(data[arm][:, :3, 3], axis=0), axis=1) / dt
         assert speed.max() < 1.2 * max(cfg.tool_speed, cfg.drive_speed * 0.03)
+        # within the acceleration the dVRK joints can follow (no overshoot into the tissue)
+        accel = np.linalg.norm(np.diff(data[arm][:, :3, 3], 2, axis=0), axis=1) / dt ** 2
+        assert accel.max() < 1.2 * cfg.tool_acceleration, arm
         knots = plan.knots(arm)
         assert knots[0][0] == 0.0 and knots[-1][0] == pytest.approx(plan.duration)
 
