@@ -313,8 +313,8 @@ def test_a_client_runs_the_dvrk_arm_test_sequence(ros, launch):
         T = T0.copy()
         T[0, 3] += dx
         assert psm.move('move_cp', pose_msg(T)) == [True]
-        assert np.linalg.norm(cv.matrix_from_pose(psm.last('setpoint_cp').pose)[:3, 3]
-                              - T[:3, 3]) < 1e-4
+        assert ros.wait_for(lambda: np.linalg.norm(cv.matrix_from_pose(
+            psm.last('setpoint_cp').pose)[:3, 3] - T[:3, 3]) < 1e-4, 10.0)  # noqa: B023
         assert ros.wait_for(lambda: np.linalg.norm(cv.matrix_from_pose(
             psm.last('measured_cp').pose)[:3, 3] - T[:3, 3]) < 1e-4, 10.0)  # noqa: B023
 
@@ -581,3 +581,10 @@ def test_faster_than_real_time_under_a_namespace_with_remaps(ros, launch):
     assert idle - busy == pytest.approx(expected, abs=0.005)
     assert sim.stop() == 0
     assert 'Traceback' not in sim.log_path.read_text()
+
+
+def test_a_bad_parameter_stops_the_node_with_a_message_naming_it(launch):
+    sim = launch('simulator', '--ros-args', '-p', 'real_time_factor:=-1.0')
+    assert sim.popen.wait(30.0) == 2
+    log = sim.log_path.read_text()
+    assert 'real_time_factor must be >= 0' in log and 'Traceback' not in log
