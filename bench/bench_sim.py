@@ -31,14 +31,21 @@ ANCHOR_AMBF_REALTIME = 1.0
 TARGET_REALTIME = 100.0
 
 
-def expert_throws(sim, pairs, control_period):
+def expert_throws(config, pairs, control_period):
     """Run one whole expert throw per pair; return (simulated s, wall s, scores)."""
     sim_s = wall_s = 0.0
     scores = []
+    sims = {}
     for name in pairs:
+        phantom = 'scanned' if name.startswith('scan') else 'synthetic'
+        if phantom not in sims:
+            sims[phantom] = Simulation(config, phantom=phantom)
+        sim = sims[phantom]
         sim.reset(seed=0)
         sim.enable_and_home_all()
         sim.set_target_pair(name)
+        if phantom == 'scanned':
+            sim.attach_needle('PSM2')  # the needle start does not stay on the scanned pad
         expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
                                 kinematics=sim.kinematics['PSM2'])
         t0, start = sim.time, time.perf_counter()
@@ -48,6 +55,8 @@ def expert_throws(sim, pairs, control_period):
         sim_s += sim.time - t0
         scores.append(sim.score().score)
         sim.pop_events()
+    for sim in sims.values():
+        sim.close()
     return sim_s, wall_s, scores
 
 
@@ -110,8 +119,8 @@ def main():
     parser.add_argument('--renders', type=int, default=5)
     args = parser.parse_args()
     config = load_simulation_config()
+    sim_s, wall_s, scores = expert_throws(config, args.pairs, args.control_period)
     sim = Simulation(config)
-    sim_s, wall_s, scores = expert_throws(sim, args.pairs, args.control_period)
     ours = sim_s / wall_s
     anchor = surrol_style_scene(args.anchor_seconds, np.random.default_rng(0))
 
