@@ -16,6 +16,8 @@ at 1 kHz:
   the goal it shows (time since the client sent that goal). The state is sampled at 100 Hz, so the
   age is bounded below by how old the newest goal is at the sampling instant (0..1 ms at 1 kHz);
 - the state rate and inter-arrival jitter of ``measured_js`` against the 100 Hz anchor;
+- in-process, first: the cost of one physics step of the bare core and of the node's stepping
+  round (no subscribers), i.e. the node's overhead and the real-time factor one free core allows;
 - the simulator's CPU use (share of one core) and the real-time factor it achieved
   (``sim/stats``); then, with nobody listening, the factor it reaches at ``real_time_factor`` 0
   (as fast as it goes).
@@ -109,6 +111,33 @@ def pct(values, q):
     return float(np.percentile(values, q)) if len(values) else float('nan')
 
 
+def loop_capacity(steps=1000):
+    """
+    Seconds per physics step of the bare core and of the node's stepping round, same process.
+
+    The node (no subscribers) adds event flushing and publishing checks to
+    ``Simulation.step``; the ratio is the node's overhead, and ``dt / seconds`` the real-time
+    factor one free core could sustain.
+    """
+    from sim_bridge.nodes.simulator import Simulator
+
+    node = Simulator()
+    try:
+        node.sim.enable_and_home_all()
+        t = time.perf_counter()
+        for _ in range(steps):
+            node.sim.step()
+        bare = (time.perf_counter() - t) / steps
+        t = time.perf_counter()
+        for _ in range(steps):
+            node._step()
+        wrapped = (time.perf_counter() - t) / steps
+        return bare, wrapped, node.sim.dt
+    finally:
+        node.destroy_node()
+        node.close()
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='length of each phase (s)')
@@ -122,6 +151,7 @@ def main():
     from std_msgs.msg import Float64MultiArray, String
 
     rclpy.init()
+    capacity = loop_capacity()
     node = rclpy.create_node('bench_client')
     executor = MultiThreadedExecutor(num_threads=2)
     executor.add_node(node)
@@ -236,6 +266,10 @@ def main():
     gaps = np.diff(arrivals)
     wall_rate = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
     sim_rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    bare, wrapped, dt = capacity
+    print(f'stepping cost per {dt * 1e3:.0f} ms physics step: core {bare * 1e3:.3f} ms, node '
+          f'{wrapped * 1e3:.3f} ms (node / core = {wrapped / bare:.2f}); one free core sustains '
+          f'{dt / wrapped:.1f} x real time')
     print(f'anchor echo RTT (rclpy, 1 kHz): p50 {pct(rtt, 50) * 1e3:.2f} ms, '
           f'p99 {pct(rtt, 99) * 1e3:.2f} ms ({len(rtt)} samples)')
     print(f'servo_cp -> setpoint_cp age: p50 {pct(ages, 50) * 1e3:.2f} ms, '
