@@ -174,8 +174,10 @@ class Simulator(Node):
         period = 0.001 if self._rtf == 0 else max(0.001, min(cfg.tick,
                                                             0.5 / (cfg.rate * self._rtf)))
         # steps per round: four rounds' worth, so the loop catches up after a slow round but
-        # never holds the executor (and the command callbacks) for long
-        self._chunk = max(1, int(math.ceil(4 * period * max(self._rtf, 1.0) / self.sim.dt)))
+        # never holds the executor (and the command callbacks) for long; as fast as it goes:
+        # four state periods per round
+        paced = period * self._rtf if self._rtf > 0 else 1.0 / cfg.rate
+        self._chunk = max(1, int(math.ceil(4 * max(paced, period) / self.sim.dt)))
         self._max_behind = int(math.ceil(cfg.max_lag * max(self._rtf, 1.0) / self.sim.dt))
         self._anchor_wall = None  # set by the first stepping round
         self._anchor_sim = self.sim.time
