@@ -122,12 +122,20 @@ class Demonstrator:
     max_step : float
         Longest advance (s) of the subject's clock between two observations: when the
         observed time jumps (a simulator that skips ahead), the subject does not.
+    entry_clearance : float
+        Height (m, along the pair normal) above the entry marker from which the needle tip
+        comes down onto it at the end of subtask i.
+    entry_press : float
+        Depth (m) to which the tip is pressed into the tissue there, kept through the entry
+        pause and taken back along the insertion (a tip resting exactly on the surface, or an
+        arm that overshoots it, would prick the tissue and pull out again).
 
     """
 
     def __init__(self, subject, pair, needle_geometry, kinematics=None, rng=None,
                  next_pair=None, expert_config=None, lag_tolerance=DEFAULT_LAG_TOLERANCE,
-                 lag_tolerance_rad=DEFAULT_LAG_TOLERANCE_RAD, max_step=0.05):
+                 lag_tolerance_rad=DEFAULT_LAG_TOLERANCE_RAD, max_step=0.05,
+                 entry_clearance=0.0005, entry_press=0.0001):
         if isinstance(subject, Subject):
             profile, seed = subject.profile, subject.seed
         elif isinstance(subject, SkillProfile):
@@ -138,6 +146,12 @@ class Demonstrator:
         if not (lag_tolerance > 0.0 and lag_tolerance_rad > 0.0 and max_step > 0.0):
             raise ValueError('lag_tolerance, lag_tolerance_rad and max_step must be > 0')
         self.max_step = float(max_step)
+        if entry_clearance < 0.0:
+            raise ValueError(f'entry_clearance must be >= 0 m, got {entry_clearance}')
+        self.entry_clearance = float(entry_clearance)
+        if entry_press < 0.0:
+            raise ValueError(f'entry_press must be >= 0 m, got {entry_press}')
+        self.entry_press = float(entry_press)
         self.profile = profile
         self.pair = pair
         self.rng = rng if rng is not None else np.random.default_rng(seed)
@@ -234,11 +248,13 @@ class Demonstrator:
         self.plan_ = plan
         self._draw_noise()
         self.pauses = self._schedule(plan)
-        self._insertion = None
+        self._insertion = self._approach = None
         t_ii = {name: t for t, name in plan.labels}['ii']
         for seg in plan.segments['PSM2']:
             if isinstance(seg.path, ArcPath) and abs(seg.t0 - t_ii) < 1e-9:
                 self._insertion = seg
+            if isinstance(seg.path, ArcPath) and abs(seg.t1 - t_ii) < 1e-9:
+                self._approach = seg
         self._t_last = float(obs.t)
         self._tau = 0.0
         self._gate = 0
@@ -246,6 +262,7 @@ class Demonstrator:
         self._pause = 0
         self._pause_left = 0.0
         self._active = None
+        self._pressed = False
         self._grasps = {}
         self._last_cmd = {}
         self.waits = {'gate': 0.0, 'lag': 0.0, 'pause': 0.0}
@@ -282,6 +299,7 @@ class Demonstrator:
             self._pause_left -= dt
             self.waits['pause'] += dt
             if self._pause_left <= 0.0:
+                self._pressed = self._pressed or self._active.kind == 'entry'
                 self._active = None
             return
         if self._lagging(obs):
@@ -336,6 +354,15 @@ class Demonstrator:
             freqs, phases, amps = self._wander[arm]
             waves = np.sin(2.0 * math.pi * freqs[:, None] * tau + phases) * amps
             offset += p.wander * math.sin(math.pi * u) ** 2 * waves.sum(axis=0)
+        if seg is self._approach:   # come down to the entry from above, pressing the tip in
+            if self._pressed or (self._active is not None and self._active.kind == 'entry'):
+                height = -self.entry_press
+            else:
+                height = self.entry_clearance * minimum_jerk(u / 0.5) - (
+                    self.entry_clearance + self.entry_press) * minimum_jerk((u - 0.6) / 0.4)
+            offset += height * self.pair.normal
+        elif seg is self._insertion:
+            offset -= self.entry_press * (1.0 - minimum_jerk(u)) * self.pair.normal
         if seg is self._insertion and p.wrist_rotation < 1.0:
             path = seg.path
             reach = self.expert.needle.radius * path.angle
