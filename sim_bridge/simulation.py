@@ -55,6 +55,10 @@ PSMS = ('PSM1', 'PSM2')
 ARMS = ('PSM1', 'PSM2', 'ECM')
 # Height (m) above the tissue's top within which the tissue tracker follows the needle.
 _TRACK_MARGIN = 0.01
+# A dropped needle that slides further than this (m) or tips its plane's normal below this
+# cosine from world up is laid on the surface instead (see Simulation._settled_needle_start).
+_START_SLIDE = 0.003
+_START_UPRIGHT = 0.9
 EVENT_KINDS = ('grasp', 'release', 'drop', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
                'collision', 'score')
 
@@ -371,7 +375,37 @@ class Simulation:
         for _ in range(int(round(start.settle_time / self._dt))):
             world.step()
         world.set_needle_collisions(False)
-        return world.needle_pose()
+        settled = world.needle_pose()
+        moved = np.linalg.norm(settled[:2, 3] - T[:2, 3])
+        if moved <= _START_SLIDE and settled[2, 2] >= _START_UPRIGHT:
+            return settled
+        # A curved or sloping pad lets the dropped needle slide off (or tunnel through a
+        # coarse collision mesh): lay it on the surface where it was dropped instead.
+        placed = self._laid_on_support(T)
+        world.set_needle_pose(placed)
+        return placed
+
+    def _laid_on_support(self, T):
+        """Lay the flat needle pose ``T`` on the support, tilted to its local plane, touching."""
+        geometry = self.needle_geometry
+        wire = geometry.points_world(T, 24)
+        heights = self.world.support_height(wire[:, :2])
+        A = np.column_stack([wire[:, :2], np.ones(len(wire))])
+        (a, b, _), *_ = np.linalg.lstsq(A, heights, rcond=None)
+        normal = np.array([-a, -b, 1.0]) / np.sqrt(a * a + b * b + 1.0)
+        axis = np.cross([0.0, 0.0, 1.0], normal)
+        sin, cos = np.linalg.norm(axis), normal[2]
+        R = np.eye(3)
+        if sin > 1e-12:
+            k = axis / sin
+            K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+            R = np.eye(3) + sin * K + (1.0 - cos) * K @ K
+        laid = T.copy()
+        laid[:3, :3] = R @ T[:3, :3]
+        wire = geometry.points_world(laid, 24)
+        gap = wire[:, 2] - self.world.support_height(wire[:, :2])
+        laid[2, 3] += 0.5 * geometry.wire_diameter - gap.min()
+        return laid
 
     # ------------------------------------------------------------------ small helpers
     def _jaws(self):

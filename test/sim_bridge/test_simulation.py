@@ -273,6 +273,17 @@ def test_ground_truth_getters_agree_with_the_scene(sim):
 def test_the_scanned_phantom_and_a_user_mesh_can_be_chosen(config, tmp_path):
     scanned = Simulation(config, phantom='scanned')
     assert sorted(scanned.phantom.markers) == ['scan1', 'scan2', 'scan3', 'scan4']
+    # the needle starts on the curved pad where it was dropped, not slid off onto the table
+    start = config.loop.needle_start
+    for seed in range(4):
+        scanned.reset(seed=seed)
+        T = scanned.needle_pose()
+        assert np.linalg.norm(T[:2, 3] - start.position) < 2 * start.position_jitter + 0.003
+        wire = scanned.needle_geometry.points_world(T, 24)
+        gap = wire[:, 2] - scanned.world.support_height(wire[:, :2])
+        assert gap.min() == pytest.approx(0.5 * scanned.needle_geometry.wire_diameter,
+                                          abs=3e-4)
+        assert T[2, 2] > 0.8  # lying on its side, not upside down
     path = tmp_path / 'pad.stl'
     scanned.phantom.mesh.export(str(path))
     scanned.close()
