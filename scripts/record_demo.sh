@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Record one demonstration: simulator + recorder + a synthetic subject teleoperating one throw.
+#
+#   scripts/record_demo.sh [--subject S01] [--pair synth1] [--seed 0] [--cohort-seed 0]
+#                          [--out DIR] [--rtf FACTOR] [--no-simulator]
+#
+# The subject presses the recorder's toggle pedal (/footpedals/camera) before the throw and
+# again after it, so the bag holds exactly one demonstration. Prints the bag directory on
+# stdout and the subject's result (JSON) on stderr; exit code 0 when the throw scored 1.0.
+# --no-simulator uses a simulator already running on ROS_DOMAIN_ID.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+subject=S01 pair=synth1 seed=0 cohort_seed=0 out=demonstrations rtf=1.0 simulator=1
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --subject) subject=$2; shift 2 ;;
+    --pair) pair=$2; shift 2 ;;
+    --seed) seed=$2; shift 2 ;;
+    --cohort-seed) cohort_seed=$2; shift 2 ;;
+    --out) out=$2; shift 2 ;;
+    --rtf) rtf=$2; shift 2 ;;
+    --no-simulator) simulator=0; shift ;;
+    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
+    *) say "unknown option $1"; exit 2 ;;
+  esac
+done
+case "$pair" in scan*) phantom=scanned ;; *) phantom=synthetic ;; esac
+mkdir -p "$out"
+out=$(cd "$out" && pwd)
+if [ "$simulator" = 1 ]; then
+  start simulator --ros-args -p phantom:="$phantom" -p real_time_factor:="$rtf"
+fi
+start recorder --ros-args -p output_dir:="$out" -p use_sim_time:=true
+status=0
+"$venv/bin/demonstrator" --ros-args -p subject:="$subject" -p pair:="$pair" -p seed:="$seed" \
+  -p cohort_seed:="$cohort_seed" >"$LOG_DIR/demonstrator.log" 2>&1 || status=$?
+result=$(grep -o 'throw on .*' "$LOG_DIR/demonstrator.log" | tail -1 || true)
+[ -n "$result" ] && say "$result"
+bag=$(printf '%s\n' "$result" | sed -n 's/.*"bag": "\([^"]*\)".*/\1/p')
+if [ -z "$bag" ]; then
+  say "no bag recorded (demonstrator exit code $status); logs in $LOG_DIR"
+  exit $(( status ? status : 1 ))
+fi
+printf '%s\n' "$bag"
+exit "$status"

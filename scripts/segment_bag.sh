@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Segment a demonstration bag into the five subtasks and write the executor's segment file.
+#
+#   scripts/segment_bag.sh BAG [OUTPUT] [--pair PAIR] [--subject NAME]
+#
+# OUTPUT defaults to BAG.segments.npz beside the bag; it is printed on stdout.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+args=() positional=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --pair) args+=(-p pair:="$2"); shift 2 ;;
+    --subject) args+=(-p subject:="$2"); shift 2 ;;
+    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    *) positional+=("$1"); shift ;;
+  esac
+done
+[ ${#positional[@]} -ge 1 ] || { say "usage: $0 BAG [OUTPUT]"; exit 2; }
+bag=$(cd "$(dirname "${positional[0]}")" && pwd)/$(basename "${positional[0]}")
+output=${positional[1]:-$bag.segments.npz}
+"$venv/bin/segmenter" --ros-args -p bag:="$bag" -p output:="$output" "${args[@]}" >&2
+printf '%s\n' "$output"
