@@ -185,6 +185,7 @@ class Arm:
         self._tool_present = bool(config.tool_present)
         self._ratio = 1.0
         self._base_frame = np.eye(4)
+        self._ik_memo = None  # (goal and reference bytes, joints) of the last servo_cp IK
         self._reference_frame = f'{self.name}_base'
         self._setpoint_jf = np.zeros(k.n_joints)
         self._time = 0.0
@@ -429,7 +430,13 @@ class Arm:
             return
         try:
             T = self._pose_in_rcm(pose, 'servo_cp')
-            q = self.kinematics.ik(T, q_ref=self._arm.setpoint)
+            q_ref = self._arm.setpoint
+            key = (T.tobytes(), q_ref.tobytes())
+            if self._ik_memo is not None and self._ik_memo[0] == key:
+                q = self._ik_memo[1].copy()  # the same goal from the same setpoint: same answer
+            else:
+                q = self.kinematics.ik(T, q_ref=q_ref)
+                self._ik_memo = (key, q.copy())
         except UnreachableError as exc:
             self._message('error', f'{self.name}: servo_cp goal unreachable: {exc}',
                           throttle_key=('servo_cp', 'unreachable'))

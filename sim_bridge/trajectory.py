@@ -318,7 +318,10 @@ class JointMotion:
         """
         last = self._last_servo_time
         if last is not None and 0.0 < now - last <= stream_gap:
-            self._ramp = (self.target(now)[0], goal, now, now - last)
+            start = self.target(now)[0]
+            # gliding to where the setpoint already is would be a ramp that does not move
+            same = np.array_equal(start, goal)
+            self._ramp = None if same else (start, goal, now, now - last)
         elif last is not None and now == last and self._ramp is not None:
             start, _, t0, interval = self._ramp
             self._ramp = (start, goal, t0, interval)
@@ -383,6 +386,9 @@ class JointMotion:
 
         """
         target, velocity = self.target(now)
+        if (self.trajectory is None and velocity is None and self._ramp is None
+                and not self.qd.any() and np.array_equal(self.q, target)):
+            return False  # at rest on its setpoint: nothing moves (the common idle case)
         if exact:
             q = target
             qd = np.zeros_like(self.q) if velocity is None else np.array(velocity)
