@@ -51,6 +51,8 @@ _LOG = logging.getLogger(__name__)
 DEFAULT_LAG_TOLERANCE = 0.0005
 DEFAULT_LAG_TOLERANCE_RAD = 0.05
 _WANDER_SINES = 3
+_HOVER_TIME = 0.15   # s the tip hovers above the entry before it is pressed in
+_LOWER_TIME = 0.55   # s to press it in (slow: peak speed ~2 mm/s, below a motion's threshold)
 
 
 class DemonstrationError(RuntimeError):
@@ -123,12 +125,12 @@ class Demonstrator:
         Longest advance (s) of the subject's clock between two observations: when the
         observed time jumps (a simulator that skips ahead), the subject does not.
     entry_clearance : float
-        Height (m, along the pair normal) above the entry marker from which the needle tip
-        comes down onto it at the end of subtask i.
+        Height (m, along the pair normal) above the entry marker at which the needle tip
+        arrives at the end of subtask i; in the entry pause the subject lets the arm settle,
+        then slowly presses the tip into the tissue.
     entry_press : float
-        Depth (m) to which the tip is pressed into the tissue there, kept through the entry
-        pause and taken back along the insertion (a tip resting exactly on the surface, or an
-        arm that overshoots it, would prick the tissue and pull out again).
+        Depth (m) of that press, taken back along the insertion (a tip arriving exactly on the
+        surface, or an arm that overshoots it, would prick the tissue and pull out again).
 
     """
 
@@ -189,7 +191,10 @@ class Demonstrator:
         p, rng = self.profile, self.rng
         labels = {name: t for t, name in plan.labels}
         t_entry = labels['ii']
-        pauses = [Pause(t_entry, p.entry_pause * (0.75 + 0.5 * rng.random()), 'entry')]
+        entry = p.entry_pause * (0.75 + 0.5 * rng.random())
+        if self.entry_clearance + self.entry_press > 0.0:
+            entry += _HOVER_TIME + _LOWER_TIME
+        pauses = [Pause(t_entry, entry, 'entry')]
         for gate in plan.gates:   # the subject sees the jaw let go before moving on
             if gate.kind == 'release' and p.release_pause > 0.0:
                 pauses.append(Pause(gate.t, p.release_pause * (0.75 + 0.5 * rng.random()),
@@ -354,12 +359,16 @@ class Demonstrator:
             freqs, phases, amps = self._wander[arm]
             waves = np.sin(2.0 * math.pi * freqs[:, None] * tau + phases) * amps
             offset += p.wander * math.sin(math.pi * u) ** 2 * waves.sum(axis=0)
-        if seg is self._approach:   # come down to the entry from above, pressing the tip in
-            if self._pressed or (self._active is not None and self._active.kind == 'entry'):
+        if seg is self._approach:   # arrive above the entry, settle, press the tip in slowly
+            active = self._active
+            if self._pressed:
                 height = -self.entry_press
+            elif active is not None and active.kind == 'entry':
+                elapsed = active.duration - max(0.0, self._pause_left)
+                height = self.entry_clearance - (self.entry_clearance + self.entry_press) \
+                    * minimum_jerk((elapsed - _HOVER_TIME) / _LOWER_TIME)
             else:
-                height = self.entry_clearance * minimum_jerk(u / 0.5) - (
-                    self.entry_clearance + self.entry_press) * minimum_jerk((u - 0.6) / 0.4)
+                height = self.entry_clearance * minimum_jerk(u / 0.5)
             offset += height * self.pair.normal
         elif seg is self._insertion:
             offset -= self.entry_press * (1.0 - minimum_jerk(u)) * self.pair.normal
