@@ -66,7 +66,10 @@ class ExecutorConfig:
         :func:`execute_throw` uses the scene's ``expert`` section (``config/scene.yaml``)
         unless a config is given.
     phase_stopping : bool
-        Slow the DMP clock while the measured needle lags the rollout.
+        Slow the DMP clock while the measured needle lags the rollout (off by default: with
+        exact tracking in-process it changes nothing, and over DDS, where every measurement
+        lags the command by the transport latency, it stretches and jerks the insertion enough
+        to back the tip out of its puncture).
     phase_stop_position : float
         Gain on the squared position error, 1/m^2.
     phase_stop_orientation : float
@@ -74,6 +77,10 @@ class ExecutorConfig:
     start_lift : float
         Height (m, along the pair normal) above the DMP ii start from which the needle is
         lowered onto it.
+    final_approach_time : float
+        Shortest time (s) of lowering the needle from ``start_lift`` onto the DMP ii start
+        (the tip onto the entry marker): slow, so a lagging arm does not overshoot into the
+        tissue.
     resend_unchanged : bool
         Send a tool target every step even when it equals the last one sent (False: send
         None, so a resting arm is not asked to solve its inverse kinematics again).
@@ -81,10 +88,11 @@ class ExecutorConfig:
     """
 
     script: ExpertConfig = field(default_factory=ExpertConfig)
-    phase_stopping: bool = True
+    phase_stopping: bool = False
     phase_stop_position: float = 1.0e6
     phase_stop_orientation: float = 100.0
     start_lift: float = 0.005
+    final_approach_time: float = 1.0
     resend_unchanged: bool = False
 
 
@@ -181,6 +189,16 @@ def _carry_rollout(track, path, duration):
     track.t = seg.t1
     track.pose = path.B @ invert_transform(grasp)
     track.held = (path.B, grasp)
+
+
+def _carry_timed(track, path, duration):
+    """Append a minimum-jerk needle carry of at least ``duration`` seconds to a track."""
+    start = len(track.segments)
+    track.carry(path)
+    seg = track.segments[start]
+    if seg.t1 - seg.t0 < duration:
+        seg.t1 = seg.t0 + duration
+        track.t = seg.t1
 
 
 def _emerged_s(needle, N, pair):
@@ -347,7 +365,7 @@ class ThrowExecutor(ScriptedExpert):
         else:
             t2.grab(N0, G2)
             t2.carry(RigidPath(N0, S2_hi))
-        t2.carry(RigidPath(S2_hi, S2))
+        _carry_timed(t2, RigidPath(S2_hi, S2), self.executor_config.final_approach_time)
         t2.hold(c.settle_time)
 
         # ii (DMP): insertion; PSM1 gets ready.
@@ -407,9 +425,14 @@ class ThrowExecutor(ScriptedExpert):
 
     # ------------------------------------------------------------------ control
     def reset(self, obs):
-        """Plan the throw from ``obs`` and start its clock at ``obs.t``."""
+        """
+        Plan the throw from ``obs``; its clock starts at the next :meth:`step`.
+
+        Planning takes a while; where the scene runs on meanwhile (a simulator node), starting
+        the clock at the first command keeps the plan from starting part-way through.
+        """
         super().reset(obs)
-        self._last_t = float(obs.t)
+        self._t0 = None
         self._sent = {}
 
     def step(self, obs):
@@ -428,6 +451,8 @@ class ThrowExecutor(ScriptedExpert):
         """
         if self.plan_ is None:
             self.reset(obs)
+        if self._t0 is None:
+            self._t0 = self._last_t = float(obs.t)
         cfg = self.executor_config
         dt = float(obs.t) - self._last_t
         self._last_t = float(obs.t)

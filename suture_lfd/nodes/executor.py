@@ -1,0 +1,472 @@
+"""
+Executor node: learns a throw from a segment file and executes it on the simulator on command.
+
+At start-up the node learns the skill (:func:`suture_lfd.skill.learn_skill`, parameter
+``segments`` and ``method``, or loads a saved skill from ``skill``). A pair name on
+``~/execute`` (std_msgs/String) starts a throw on that pair: the node enables and homes PSM1
+and PSM2 if needed, selects the pair on ``sim/target_pair``, and runs the core
+:class:`suture_lfd.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
+scripted, ii and iv from the DMPs through the measured grasp, streamed as ``<ARM>/servo_cp``
+(in the ``measured_cp`` frame) and ``<ARM>/jaw/servo_jp``. It reads ``<ARM>/measured_cp``,
+``<ARM>/measured_js``, ``<ARM>/jaw/measured_js``, ``<ARM>/operating_state``,
+``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``, ``sim/markers/<pair>/entry|exit`` and
+``sim/events`` (grasps, score).
+
+It stops commanding and reports when an arm stops answering (no ``measured_cp`` for
+``stale_timeout`` seconds of simulation time, estimated from the wall time since the last one
+and the rate the simulation clock was advancing over the last second; ten times that once the
+commands are done and the throw settles), when an arm leaves ``ENABLED`` (a fault), on
+``~/stop`` (std_msgs/Empty), or after ``timeout`` s. A simulator that stalls for longer than
+``stale_timeout`` (a CPU starved of time) cannot be told from one that died, and stops the
+throw too. ``~/status`` (std_msgs/String JSON,
+latched) carries the state (``idle``, ``preparing``, ``running``, ``settling``, ``done``,
+``stopped``, ``failed``), the pair and the reason; ``~/result`` (latched) the outcome of each
+throw (pair, score and subtasks from ``sim/events``, duration); every score event of a throw is
+logged as ``sim/events: {json}``. A malformed command (unknown pair, a throw already running)
+is reported on ``~/status`` and in the log; the node keeps running. With the parameter ``pair``
+the node executes that throw at start-up and exits (code 0 for a throw scored 1.0), as a shell
+script wants. Parameters: ``config/executor.yaml``.
+"""
+
+from collections import deque
+from dataclasses import dataclass
+import json
+import math
+import sys
+import time
+
+from crtk_msgs.msg import OperatingState, StringStamped
+from geometry_msgs.msg import PoseStamped
+import numpy as np
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from sim_bridge import conversions as cv
+from sim_bridge.expert import Observation
+from sim_bridge.kinematics import psm_kinematics
+from sim_bridge.phantom import MarkerPair
+from sim_bridge.scene_config import load_scene_config
+from std_msgs.msg import Empty, String
+from suture_lfd.executor import ExecutorConfig, ThrowExecutor
+from suture_lfd.nodes import declare_config
+from suture_lfd.skill import ThrowSkill, learn_skill
+
+PSMS = ('PSM1', 'PSM2')
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE = QoSProfile(depth=10)
+
+
+@dataclass(frozen=True)
+class ExecutorNodeConfig:
+    """Parameters of the executor node (names as in ``config/executor.yaml``)."""
+
+    segments: str = ''
+    skill: str = ''
+    method: str = 'paper'
+    pair: str = ''
+    rate: float = 100.0
+    stale_timeout: float = 0.1
+    settle_time: float = 0.5
+    timeout: float = 120.0
+    prepare_timeout: float = 60.0
+    home: bool = True
+    phase_stopping: bool = False
+    exit_when_done: bool = False
+
+    def __post_init__(self):
+        if not self.segments and not self.skill:
+            raise ValueError('parameter segments is empty: pass the segment file to learn '
+                             'from, --ros-args -p segments:=PATH (or a saved skill, skill:=PATH)')
+        for name in ('rate', 'stale_timeout', 'timeout', 'prepare_timeout'):
+            if not getattr(self, name) > 0:
+                raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
+        if self.settle_time < 0:
+            raise ValueError(f'parameter settle_time must be >= 0, got {self.settle_time}')
+
+
+class ExecutorNode(Node):
+    """Execute learnt throws on the simulator's CRTK topics."""
+
+    def __init__(self):
+        super().__init__('executor')
+        cfg = self.config = declare_config(self, ExecutorNodeConfig, 'executor.yaml',
+                                           'executor')
+        if cfg.skill:
+            self.skill = ThrowSkill.load(cfg.skill)
+        else:
+            self.skill = learn_skill(cfg.segments, method=cfg.method)
+        self._scene = load_scene_config()
+        self._kinematics = psm_kinematics()
+        self.finished = False
+        self.exit_code = 0
+        self._tools, self._q, self._jaw, self._state = {}, {}, {}, {}
+        self._arrival = {}       # arm -> wall time (monotonic) of the last measured_cp
+        self._sim_rate = 1.0     # simulation seconds per wall second, from measured_cp stamps
+        self._rate_window = deque()
+        self._bases, self._markers = {}, {}
+        self._needle = None
+        self._holders = set()
+        self._score = None
+        self._pair = ''
+        self._pair_confirmed = False
+        self._stage = 'idle'
+        self._stage_wall = time.monotonic()
+        self._last_command = -1e9
+        self._executor = None
+        self._t_start = self._t_done = None
+        self._last_obs_t = None
+        self._last_tick = time.monotonic()
+        self._sent = 0
+        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
+                       for a in PSMS}
+        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', STATE)
+                         for a in PSMS}
+        self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
+                         for a in PSMS}
+        self._target = self.create_publisher(String, 'sim/target_pair', STATE)
+        self._status = self.create_publisher(String, '~/status', LATCHED)
+        self._result = self.create_publisher(String, '~/result', LATCHED)
+        for a in PSMS:
+            self.create_subscription(PoseStamped, f'{a}/measured_cp',
+                                     lambda m, a=a: self._on_cp(a, m), STATE)
+            self.create_subscription(JointState, f'{a}/measured_js',
+                                     lambda m, a=a: self._q.__setitem__(a, m), STATE)
+            self.create_subscription(JointState, f'{a}/jaw/measured_js',
+                                     lambda m, a=a: self._jaw.__setitem__(a, m), STATE)
+            self.create_subscription(OperatingState, f'{a}/operating_state',
+                                     lambda m, a=a: self._state.__setitem__(a, m), LATCHED)
+            self.create_subscription(PoseStamped, f'sim/{a}/base_frame',
+                                     lambda m, a=a: self._bases.__setitem__(
+                                         a, cv.matrix_from_pose(m.pose)), LATCHED)
+        self.create_subscription(PoseStamped, 'sim/needle/measured_cp', self._on_needle, STATE)
+        self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS)
+        self.create_subscription(String, '~/execute', self._on_execute, STATE)
+        self.create_subscription(Empty, '~/stop', self._on_stop, STATE)
+        self._marker_subs = []
+        # A steady (wall) clock: the watchdog must run when the simulation clock has stopped.
+        self.create_timer(1.0 / cfg.rate, self._on_timer,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._publish_status('idle', f'skill learnt ({self.skill.method.name}) on '
+                                     f'{self.skill.pair.name}; waiting for a pair on '
+                                     '~/execute')
+        if cfg.pair:
+            self._start(cfg.pair)
+
+    # --- inputs -----------------------------------------------------------------------------
+
+    def _on_cp(self, arm, msg):
+        now = time.monotonic()
+        stamp = cv.seconds_from_stamp(msg.header.stamp)
+        if arm == PSMS[0]:
+            # Simulation seconds per wall second over the last second of arrivals (bursts of
+            # queued messages would make a per-message estimate wild).
+            window = self._rate_window
+            window.append((now, stamp))
+            while now - window[0][0] > 1.0:
+                window.popleft()
+            wall, advance = now - window[0][0], stamp - window[0][1]
+            if wall > 0.2 and advance > 0.0:
+                self._sim_rate = min(max(advance / wall, 0.05), 100.0)
+        self._arrival[arm] = now
+        self._tools[arm] = (stamp, msg.header.frame_id, cv.matrix_from_pose(msg.pose))
+
+    def _on_needle(self, msg):
+        self._needle = cv.matrix_from_pose(msg.pose)
+
+    def _on_event(self, msg):
+        try:
+            _, data = cv.event_from_message(msg)
+        except ValueError as exc:
+            self.get_logger().warning(f'sim/events: {exc}')
+            return
+        kind, arm = data.get('kind'), data.get('arm')
+        if kind in ('grasp', 'release', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
+                    'drop') and self._stage in ('running', 'settling'):
+            at = '' if self._t_start is None else f' at t = {data.get("t", 0.0):.3f} s'
+            self.get_logger().info(f'scene event {kind}{" " + arm if arm else ""}{at}')
+        if kind == 'grasp' and arm in PSMS:
+            self._holders.add(arm)
+        elif kind == 'release' and arm in PSMS:
+            self._holders.discard(arm)
+        elif kind == 'reset':
+            self._holders.clear()
+        elif kind == 'target_pair' and data.get('pair') == self._pair \
+                and self._stage == 'preparing':
+            if data.get('error'):
+                self._fail(f'the simulator refused pair {self._pair!r}: {data["error"]}')
+            else:
+                self._pair_confirmed = True
+        elif kind == 'score' and self._stage in ('running', 'settling'):
+            self._score = data.get('score')
+            self.get_logger().info(f'sim/events: {json.dumps(data)}')
+
+    def _on_execute(self, msg):
+        pair = msg.data.strip()
+        if self._stage in ('preparing', 'running', 'settling'):
+            self._warn(f'execute {pair!r} ignored: a throw on {self._pair} is in progress '
+                       f'({self._stage})')
+            return
+        if not pair:
+            self._warn('execute ignored: empty pair name')
+            return
+        self._start(pair)
+
+    def _on_stop(self, _msg):
+        if self._stage in ('preparing', 'running', 'settling'):
+            self._halt('stopped', 'stop requested')
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _publish_status(self, state, reason='', **extra):
+        status = {'state': state, 'pair': self._pair, 'reason': reason, **extra}
+        self._status.publish(String(data=json.dumps(status, sort_keys=True)))
+
+    def _warn(self, text):
+        self.get_logger().warning(text)
+        self._publish_status(self._stage, text)
+
+    def _enter(self, stage, reason=''):
+        self._stage = stage
+        self._stage_wall = time.monotonic()
+        self._publish_status(stage, reason)
+
+    def _start(self, pair):
+        self._pair = pair
+        self._pair_confirmed = False
+        self._markers = {}
+        self._score = None
+        self._executor = None
+        self._t_start = self._t_done = None
+        for sub in self._marker_subs:
+            self.destroy_subscription(sub)
+        self._marker_subs = [
+            self.create_subscription(PoseStamped, f'sim/markers/{pair}/{which}',
+                                     lambda m, w=which: self._markers.__setitem__(
+                                         w, cv.matrix_from_pose(m.pose)), LATCHED)
+            for which in ('entry', 'exit')]
+        self._target.publish(String(data=pair))
+        self._last_target = time.monotonic()
+        self.get_logger().info(f'executing the {self.skill.method.name} skill learnt on '
+                               f'{self.skill.pair.name} on pair {pair}')
+        self._enter('preparing', f'throw on {pair} requested')
+
+    def _world_tool(self, arm):
+        _, frame, T = self._tools[arm]
+        return T if frame == 'world' else self._bases[arm] @ T
+
+    def _marker_pair(self):
+        entry, exit_ = self._markers['entry'], self._markers['exit']
+        n = entry[:3, 2] + exit_[:3, 2]
+        return MarkerPair(name=self._pair, entry=entry[:3, 3].copy(), exit=exit_[:3, 3].copy(),
+                          normal=n / np.linalg.norm(n), entry_normal=entry[:3, 2].copy(),
+                          exit_normal=exit_[:3, 2].copy())
+
+    def _ready(self):
+        return ('entry' in self._markers and 'exit' in self._markers
+                and self._needle is not None and all(
+                    a in self._tools and a in self._bases and a in self._jaw
+                    and a in self._state for a in PSMS))
+
+    def _state_command(self, arm, command):
+        msg = StringStamped()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.string = command
+        self._command[arm].publish(msg)
+
+    def _observation(self):
+        q = {a: np.asarray(self._q[a].position, dtype=float) for a in PSMS
+             if a in self._q and len(self._q[a].position) >= 6}
+        return Observation(
+            t=max(self._tools[a][0] for a in PSMS),
+            T_world_tool={a: self._world_tool(a) for a in PSMS},
+            jaw={a: float(self._jaw[a].position[0]) if len(self._jaw[a].position) else 0.0
+                 for a in PSMS},
+            T_world_needle=self._needle, holders=tuple(sorted(self._holders)),
+            pair=self._marker_pair(), T_world_base=dict(self._bases), q=q or None)
+
+    def _send(self, command, t):
+        stamp = cv.stamp_from_seconds(t)
+        for arm in PSMS:
+            T = command.T_world_tool.get(arm)
+            if T is not None:
+                _, frame, _ = self._tools[arm]
+                T_cmd = T if frame == 'world' else np.linalg.solve(self._bases[arm], T)
+                self._servo[arm].publish(cv.pose_stamped(T_cmd, frame, stamp))
+                self._sent += 1
+            jaw = command.jaw.get(arm)
+            if jaw is not None:
+                self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
+
+    def _silence(self):
+        """
+        Return the simulation seconds since the oldest last PSM ``measured_cp`` (estimated).
+
+        Wall time during which this node itself was busy (a tick that came late, e.g. while
+        planning) is not held against the simulator: messages that arrived meanwhile are still
+        queued, so the count restarts at the late tick.
+        """
+        now = time.monotonic()
+        late = now - self._last_tick > 5.0 / self.config.rate
+        self._last_tick = now
+        if late:
+            for a in PSMS:
+                self._arrival[a] = max(self._arrival.get(a, now), now - 1.0 / self.config.rate)
+        return max((now - self._arrival.get(a, -math.inf)) * self._sim_rate for a in PSMS)
+
+    def _fault(self):
+        for a in PSMS:
+            s = self._state.get(a)
+            if s is not None and s.state != 'ENABLED':
+                return f'{a} is {s.state}'
+        return None
+
+    def _result_record(self, state, reason):
+        score = self._score if isinstance(self._score, dict) else None
+        return {'pair': self._pair, 'state': state, 'reason': reason,
+                'method': self.skill.method.name, 'learnt_on': self.skill.pair.name,
+                'score': None if score is None else score.get('score'),
+                'subtasks': None if score is None else score.get('subtasks'),
+                'failure': None if score is None else score.get('failure'),
+                'duration': (None if self._t_start is None
+                             else (self._t_done or self._last_obs_t or self._t_start)
+                             - self._t_start),
+                'servo_cp_sent': self._sent}
+
+    def _halt(self, state, reason, **extra):
+        """Stop commanding, say why, publish the result."""
+        self._executor = None
+        log = self.get_logger().info if state == 'done' else self.get_logger().error
+        record = {**self._result_record(state, reason), **extra}
+        log(f'throw on {self._pair} {state}: {reason} {json.dumps(record, sort_keys=True)}')
+        self._result.publish(String(data=json.dumps(record, sort_keys=True)))
+        self._stage = state
+        self._stage_wall = time.monotonic()
+        self._publish_status(state, reason, **extra)
+        if self.config.exit_when_done or self.config.pair:
+            self.exit_code = 0 if state == 'done' and record['score'] == 1.0 else 1
+            self.finished = True
+
+    def _fail(self, reason):
+        self._halt('failed', reason)
+
+    # --- the sequence -----------------------------------------------------------------------
+
+    def _on_timer(self):  # noqa: C901 (one stage per branch)
+        cfg = self.config
+        stage = self._stage
+        if stage not in ('preparing', 'running', 'settling'):
+            return
+        if stage == 'preparing':
+            if not self._ready():
+                if self._waited() > cfg.prepare_timeout:
+                    missing = 'markers of the pair' if len(self._markers) < 2 else \
+                        'simulator topics'
+                    self._fail(f'unknown marker pair {self._pair!r} or simulator not running '
+                               f'({missing} not received in {cfg.prepare_timeout} s)')
+                return
+            states = [self._state[a] for a in PSMS]
+            if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
+                if not self._pair_confirmed:
+                    if self._waited() > cfg.prepare_timeout:
+                        self._fail(f'the simulator did not confirm pair {self._pair!r}')
+                    elif time.monotonic() - self._last_target > 1.0:
+                        # (again) every second: the first may have gone out before the
+                        # simulator's subscription was matched
+                        self._last_target = time.monotonic()
+                        self._target.publish(String(data=self._pair))
+                    return
+                try:
+                    obs = self._observation()
+                    self._executor = ThrowExecutor(
+                        self.skill, obs.pair, self._scene.needle, kinematics=self._kinematics,
+                        config=ExecutorConfig(script=self._scene.expert,
+                                              phase_stopping=cfg.phase_stopping))
+                    self._executor.reset(obs)
+                except ValueError as exc:
+                    self._fail(f'cannot plan the throw on {self._pair}: {exc}')
+                    return
+                self._t_start = self._last_obs_t = obs.t
+                self._subtask = None
+                self._sent = 0
+                self._enter('running', f'throw on {self._pair} started')
+                return
+            if not cfg.home or self._waited() > cfg.prepare_timeout:
+                self._fail('arms not enabled and homed')
+                return
+            if time.monotonic() - self._last_command > 2.0:   # (again) every 2 s
+                self._last_command = time.monotonic()
+                for a in PSMS:
+                    s = self._state[a]
+                    if s.state != 'ENABLED':
+                        self._state_command(a, 'enable')
+                    elif not s.is_homed and not s.is_busy:
+                        self._state_command(a, 'home')
+            return
+        silence = self._silence()
+        # While commanding, 100 ms of silence stops the throw; once the commands are done
+        # (settling) a stall of the simulator is only reported if it lasts ten times longer.
+        if silence > cfg.stale_timeout * (1.0 if stage == 'running' else 10.0):
+            last = min(self._tools[a][0] for a in PSMS)
+            self._halt('stopped', f'no measured_cp for {silence * 1e3:.0f} ms of simulation '
+                                  f'time (last at t = {last:.3f} s): the arms stopped answering',
+                       silence_s=silence, last_measured_t=last)
+            return
+        fault = self._fault()
+        if fault is not None:
+            self._halt('stopped', f'arm fault: {fault}')
+            return
+        obs = self._observation()
+        if obs.t == self._last_obs_t and stage == 'running':
+            return  # nothing new measured since the last command
+        self._last_obs_t = obs.t
+        if stage == 'running':
+            command = self._executor.step(obs)
+            self._send(command, obs.t)
+            if command.subtask != self._subtask:
+                self._subtask = command.subtask
+                self.get_logger().info(f'subtask {command.subtask} at t = '
+                                       f'{obs.t - self._t_start:.3f} s')
+            if self._executor.done:
+                self._t_done = obs.t
+                self._enter('settling')
+            elif obs.t - self._t_start > cfg.timeout:
+                self._t_done = obs.t
+                self._halt('failed', f'throw not done after {cfg.timeout} s '
+                                     f'(subtask {command.subtask})')
+            return
+        if obs.t - self._t_done >= cfg.settle_time:
+            self._halt('done', 'throw complete')
+
+    def _waited(self):
+        return time.monotonic() - self._stage_wall
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = ExecutorNode()
+    except (ValueError, OSError) as exc:
+        rclpy.logging.get_logger('executor').fatal(str(exc))
+        rclpy.try_shutdown()
+        return 2
+    code = 1
+    try:
+        while rclpy.ok() and not node.finished:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        code = node.exit_code
+    except (KeyboardInterrupt, ExternalShutdownException):
+        code = 0
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
