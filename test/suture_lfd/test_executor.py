@@ -90,6 +90,20 @@ def test_a_skill_learnt_on_synth1_completes_other_synthetic_pairs(synthetic, ski
     assert outcome.duration > 0.0 and outcome.events[-1]['t'] <= outcome.duration + 1.0
 
 
+@pytest.fixture(scope='module')
+def scanned():
+    sim = Simulation(phantom='scanned')
+    yield sim
+    sim.close()
+
+
+@pytest.mark.parametrize('pair', ['scan2', 'scan3'])
+def test_a_skill_learnt_on_synth1_completes_throws_on_the_scanned_phantom(scanned, skill, pair):
+    outcome = execute_throw(scanned, skill, pair)
+    assert outcome.score == 1.0, outcome.failure
+    assert set(outcome.executed) == {'ii', 'iv'} and outcome.duration > 0.0
+
+
 def test_a_saved_skill_loads_with_its_hyper_parameters_and_rollouts(skill, synthetic, tmp_path):
     path = tmp_path / 'skill.npz'
     skill.save(path)
