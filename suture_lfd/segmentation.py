@@ -412,7 +412,10 @@ def segment_demonstration(demo, config=None):
     i_start = approach[0] if approach else None
     i_end = approach[-1] if approach else None
     regrasp = [m for m in m1 if ii.end_time <= m.start_time < t_release]
-    extract = [m for m in m1 if t_release <= m.start_time and m.end_time <= t_handover + 1e-9]
+    # PSM1's extraction starts as PSM2 lets go: the onset a filtered speed puts on it may fall
+    # a little before the release, so a motion that is still running at the release counts
+    extract = [m for m in m1 if t_regrasp <= m.start_time and m.end_time > t_release
+               and m.end_time <= t_handover + 1e-9]
     if not extract:
         raise ValueError('no PSM1 motion between PSM2 releasing the needle and taking it back: '
                          'no extraction (subtask iv) found')
@@ -432,7 +435,7 @@ def segment_demonstration(demo, config=None):
              i_end.end_time if i_end else ii.start_time),
         make(1, ii.start_time, ii.end_time),
         make(2, regrasp[0].start_time if regrasp else t_regrasp, t_release),
-        make(3, extract[0].start_time, last_iv.end_time),
+        make(3, max(extract[0].start_time, t_release), last_iv.end_time),
         make(4, later[0].start_time, last_motion.end_time),
     )
     return Segmentation(subtasks, tuple(m1), tuple(m2))
