@@ -8,7 +8,8 @@ One :meth:`Simulation.step` is one fixed physics step (``world.physics_step``, 2
 2. the jaws are read and the needle is grasped or released (:mod:`sim_bridge.grasp`);
 3. the needle moves: held, it follows the leading tool exactly; free inside the tissue, it stays
    where it is (the tissue holds it); free outside, PyBullet moves it under gravity until it
-   rests on the pad or the table (a fall of ``drop_distance`` reports a ``drop``);
+   rests on the pad or the table (a fall of ``drop_distance`` reports a ``drop``, and so does
+   letting go of a needle in the tissue, ``in_tissue`` true);
 4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.tissue`) and the
    throw scorer takes every event (:mod:`sim_bridge.scoring`);
 5. every ``thread_period`` the thread follows the needle tail; every ``collision_period`` the
@@ -521,7 +522,11 @@ class Simulation:
         if self._needle_mode == 'held':
             # just released by every arm
             if self.tissue.in_tissue:
+                # the tissue holds it where it is, but no instrument does: a dropped needle
                 self._needle_mode = 'tissue'
+                self.scorer.on_drop(self.time)
+                self._emit('drop', fall=0.0, in_tissue=True)
+                self._report_score()
             else:
                 self._start_falling()
         if self._needle_mode != 'free':
