@@ -53,6 +53,15 @@ __all__ = ['METHODS', 'Method', 'ThrowSkill', 'TrainingData', 'learn_skill',
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 
+# Grasp search along the needle (arc parameter: 0 tail, 1 tip): arc parameters tried besides
+# the preferred one, the span kept between the two jaws (about 2.5 mm of wire), and the
+# highest parameter (the jaw keeps off the point).
+_GRASP_CANDIDATES = 9
+_JAW_GAP_S = 0.15
+_TIP_MARGIN_S = 0.97
+# Part of the insertion (fraction of its duration) over which the start press fades out.
+_PRESS_FADE = 0.25
+
 
 @dataclass(frozen=True)
 class ExecutorConfig:
@@ -77,6 +86,11 @@ class ExecutorConfig:
     start_lift : float
         Height (m, along the pair normal) above the DMP ii start from which the needle is
         lowered onto it.
+    start_press : float
+        Depth (m, against the pair normal) by which the start of the insertion is moved into
+        the tissue, fading linearly to 0 over its first quarter: the demonstrated start has
+        the tip only just in, so the rollout's small deviations from the demonstration (or a
+        curved surface) could pull it back out.
     final_approach_time : float
         Shortest time (s) of lowering the needle from ``start_lift`` onto the DMP ii start
         (the tip onto the entry marker): slow, so a lagging arm does not overshoot into the
@@ -92,6 +106,7 @@ class ExecutorConfig:
     phase_stop_position: float = 1.0e6
     phase_stop_orientation: float = 100.0
     start_lift: float = 0.005
+    start_press: float = 0.0003
     final_approach_time: float = 1.0
     resend_unchanged: bool = False
 
@@ -239,7 +254,8 @@ class ThrowExecutor(ScriptedExpert):
     ----------
     rollouts : dict of str to tuple
         After :meth:`reset`: ``'ii'``, ``'iv'`` -> ``(T, P, Q)`` planned needle trajectories
-        (times from the subtask start, s; ``world``).
+        (times from the subtask start, s; ``world``; ii with its start pressed
+        ``start_press`` into the tissue).
     targets : dict of str to tuple
         ``'ii'``, ``'iv'`` -> ``(start, goal)`` needle poses (7-vectors) on the target pair.
 
@@ -255,6 +271,54 @@ class ThrowExecutor(ScriptedExpert):
         self.skill = skill
         self.rollouts = {}
         self.targets = {}
+
+    # ------------------------------------------------------------------ grasp choice
+    def _choose_grasp_along(self, arm, s, span, phase, what):
+        """
+        Reachable grasp at arc parameter ``s`` or, failing that, at the nearest one in ``span``.
+
+        Parameters
+        ----------
+        arm : str
+            Arm.
+        s : float
+            Preferred arc parameter (0 tail, 1 tip).
+        span : tuple of float
+            ``(lo, hi)``: arc parameters the grasp may move to.
+        phase : dict
+            As :meth:`sim_bridge.expert.ScriptedExpert._choose_grasp`.
+        what : str
+            Phase name for error messages.
+
+        Returns
+        -------
+        grasp : ndarray, shape (4, 4)
+            ``T_tool_needle``.
+        roll : float
+            Roll joint (rad) at the end of the phase.
+        s : float
+            Arc parameter of the chosen grasp.
+
+        Raises
+        ------
+        ValueError
+            If no arc parameter of the span gives a reachable grasp (the message names the span).
+
+        """
+        lo, hi = float(span[0]), float(span[1])
+        others = np.linspace(lo, hi, _GRASP_CANDIDATES) if hi > lo else np.array([])
+        candidates = [float(s)] + sorted((float(x) for x in others
+                                          if abs(x - s) > 1e-6), key=lambda x: abs(x - s))
+        first = None
+        for x in candidates:
+            try:
+                G, roll = self._choose_grasp(arm, x, phase, what)
+            except ValueError as exc:
+                first = exc if first is None else first
+                continue
+            return G, roll, x
+        raise ValueError(f'{first}; no arc parameter in [{lo:.2f}, {hi:.2f}] is reachable '
+                         f'either') from first
 
     # ------------------------------------------------------------------ planning
     def plan(self, obs):
@@ -289,6 +353,12 @@ class ThrowExecutor(ScriptedExpert):
         # ii from the DMP: start/goal on this pair, rollout in world.
         start2, goal2 = skill.start_goal('ii', pair)
         T2, P2, Q2 = skill.rollout('ii', pair, start=start2, goal=goal2)
+        # The demonstrated insertion starts with the tip barely in the tissue; pressed a little
+        # deeper, the rollout's own small deviations from the demonstration cannot lift the tip
+        # back out through its puncture. The press fades out over the first part of the
+        # insertion, so the needle crosses the exit and ends it where the rollout does.
+        fade = np.clip(1.0 - np.linspace(0.0, 1.0, len(P2)) / _PRESS_FADE, 0.0, 1.0)[:, None]
+        P2 = P2 - self.executor_config.start_press * fade * normal
         R2 = _transforms(P2, Q2)
         S2 = R2[0]
         S2_hi = _translated(S2, self.executor_config.start_lift * normal)
@@ -336,13 +406,18 @@ class ThrowExecutor(ScriptedExpert):
                 'start': obs.T_world_tool['PSM2'], 'roll0': self._start_roll('PSM2', obs),
                 'grasp_at': N0, 'paths': [RigidPath(N0, N_up), RigidPath(N_up, S2_hi)]
                 + drive_paths, 'clear': clear2, 'bases': bases}, 'the pick-up and insertion')
-        G1, _ = self._choose_grasp('PSM1', s_1, {
+        # The extraction grasp closes on the part of the needle out of the exit, the hand-over
+        # grasp anywhere on the needle off PSM1's jaw: the preferred arc parameter first, then
+        # the others of that span (a rollout on another pair can put the preferred one out of
+        # the arm's reach).
+        lo_1 = s_g + _JAW_GAP_S if s_out is None else s_out + 0.25 * (1.0 - s_out)
+        G1, _, s_1 = self._choose_grasp_along('PSM1', s_1, (lo_1, _TIP_MARGIN_S), {
             'start': obs.T_world_tool['PSM1'], 'roll0': self._start_roll('PSM1', obs),
             'grasp_at': N_ins, 'paths': path4.pieces(4), 'clear': [N_ins], 'bases': bases},
             'the extraction')
         park2 = _translated(_backed_off(N_ins @ invert_transform(G2), c.retreat_distance),
                             c.retreat_distance * up)
-        Gh, _ = self._choose_grasp('PSM2', s_g, {
+        Gh, _, _ = self._choose_grasp_along('PSM2', s_g, (c.grasp_s_min, s_1 - _JAW_GAP_S), {
             'start': park2, 'roll0': roll2, 'grasp_at': N_lift,
             'paths': [RigidPath(N_lift, N_next)], 'clear': (), 'bases': bases}, 'the handover')
 
