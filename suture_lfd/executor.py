@@ -417,9 +417,19 @@ class ThrowExecutor(ScriptedExpert):
             'the extraction')
         park2 = _translated(_backed_off(N_ins @ invert_transform(G2), c.retreat_distance),
                             c.retreat_distance * up)
-        Gh, _, _ = self._choose_grasp_along('PSM2', s_g, (c.grasp_s_min, s_1 - _JAW_GAP_S), {
-            'start': park2, 'roll0': roll2, 'grasp_at': N_lift,
-            'paths': [RigidPath(N_lift, N_next)], 'clear': (), 'bases': bases}, 'the handover')
+        handover = {'start': park2, 'roll0': roll2, 'grasp_at': N_lift,
+                    'paths': [RigidPath(N_lift, N_next)], 'clear': (), 'bases': bases}
+        span_h = (c.grasp_s_min, s_1 - _JAW_GAP_S)
+        try:
+            Gh, _, _ = self._choose_grasp_along('PSM2', s_g, span_h, handover, 'the handover')
+        except ValueError:
+            # No grasp of the extracted needle also carries it to the next start (the
+            # extraction may end turned far from it): the hand-over completes and PSM2 lifts
+            # the needle straight up instead.
+            N_next = _translated(N_lift, c.next_lift * up)
+            Gh, _, _ = self._choose_grasp_along(
+                'PSM2', s_g, span_h, {**handover, 'paths': [RigidPath(N_lift, N_next)]},
+                'the handover')
 
         t1 = _Track('PSM1', obs.T_world_tool['PSM1'], obs.jaw['PSM1'], c)
         t2 = _Track('PSM2', obs.T_world_tool['PSM2'], obs.jaw['PSM2'], c)
