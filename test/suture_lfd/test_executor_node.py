@@ -9,9 +9,13 @@ import json
 import time
 
 from geometry_msgs.msg import PoseStamped
+import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from scipy.spatial.transform import Rotation
+from sim_bridge.conversions import matrix_from_pose
 from std_msgs.msg import Empty, String
+from suture_lfd.executor import execute_throw, learn_skill
 from suture_lfd.scripted_demo import record_scripted_demonstration
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.segments import make_segment_file
@@ -73,8 +77,15 @@ def start_nodes(launch, ros, segments, rtf=0.25):
     return sim, executor, watcher
 
 
-def test_the_executor_node_completes_a_throw_and_the_simulator_scores_it(launch, ros, segments):
+def test_the_executor_node_completes_a_throw_and_the_simulator_scores_it(launch, ros, segments,
+                                                                         simulation):
     sim, executor, watcher = start_nodes(launch, ros, segments)
+    geometry = simulation.needle_geometry
+    tips = []  # needle tip positions (world, m) the simulator node reports during the throw
+    watcher.node.create_subscription(
+        PoseStamped, 'sim/needle/measured_cp',
+        lambda m: tips.append(matrix_from_pose(m.pose)[:3, :3] @ geometry.tip
+                              + matrix_from_pose(m.pose)[:3, 3]), 1000)
     deadline = time.monotonic() + 60.0
     while watcher.state() == 'idle' and time.monotonic() < deadline:
         watcher.send('synth3')
@@ -88,6 +99,19 @@ def test_the_executor_node_completes_a_throw_and_the_simulator_scores_it(launch,
     assert watcher.scores and watcher.scores[-1]['score']['score'] == 1.0
     assert '"kind": "score"' in executor.log()
     assert executor.running() and sim.running()
+
+    # one core, two faces: the same throw in-process gives the same score, and its needle tip
+    # runs along the path the node graph produced (mean distance of every in-process tip
+    # position of tasks ii and iv to the ROS run's tip path)
+    outcome = execute_throw(simulation, learn_skill(segments), 'synth3', seed=0)
+    assert outcome.score == result['score'], outcome.failure
+    ros_path = np.array(tips)
+    for task in ('ii', 'iv'):
+        poses = outcome.executed[task][1]
+        R = Rotation.from_quat(poses[:, 3:]).as_matrix()
+        local = R @ geometry.tip + poses[:, :3]
+        gaps = np.min(np.linalg.norm(local[:, None, :] - ros_path[None, :, :], axis=2), axis=1)
+        assert gaps.mean() < 0.0005, (task, gaps.mean(), gaps.max())
 
 
 def test_the_executor_stops_and_says_so_when_the_simulator_dies(launch, ros, segments):
