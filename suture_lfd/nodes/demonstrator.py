@@ -26,8 +26,6 @@ import time
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
@@ -38,7 +36,7 @@ from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import String
 from suture_lfd.cohort import load_cohort
 from suture_lfd.demonstrator import Demonstrator
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, run_until_finished
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -294,6 +292,11 @@ class DemonstratorNode(Node):
         if stage == 'homing':
             states = [self._state[a] for a in PSMS]
             if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
+                pedal = self._pedals.get(cfg.record_pedal)
+                if (pedal is not None and cfg.recorder_status
+                        and pedal.get_subscription_count() == 0
+                        and self._waited() < cfg.startup_timeout):
+                    return  # a press nobody hears yet would be lost: wait for the recorder
                 self._press(cfg.record_pedal, 1)
                 self._press(cfg.record_pedal, 0)
                 self._enter('recording' if cfg.record_pedal and cfg.recorder_status
@@ -359,24 +362,7 @@ class DemonstratorNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = DemonstratorNode()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('demonstrator').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    code = 1
-    try:
-        while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.05)
-        code = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_until_finished(DemonstratorNode, 'demonstrator', args)
 
 
 if __name__ == '__main__':

@@ -38,9 +38,7 @@ import time
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped
 import numpy as np
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -51,7 +49,7 @@ from sim_bridge.phantom import MarkerPair
 from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.executor import ExecutorConfig, ThrowExecutor
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, run_until_finished
 from suture_lfd.skill import ThrowSkill, learn_skill
 
 PSMS = ('PSM1', 'PSM2')
@@ -448,24 +446,7 @@ class ExecutorNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = ExecutorNode()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('executor').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    code = 1
-    try:
-        while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.05)
-        code = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        code = 0
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_until_finished(ExecutorNode, 'executor', args, interrupted_code=0)
 
 
 if __name__ == '__main__':
