@@ -116,6 +116,7 @@ class DemonstratorNode(Node):
         self._target = self.create_publisher(String, 'sim/target_pair', STATE)
         self._result = self.create_publisher(String, '~/result', LATCHED)
         self._pedals = {}
+        self._pressed = 0.0
         for name in (cfg.record_pedal, cfg.operator_pedal):
             if name:
                 self._pedals[name] = self.create_publisher(Joy, name, STATE)
@@ -211,6 +212,7 @@ class DemonstratorNode(Node):
             for a in PSMS))
 
     def _press(self, topic, value):
+        self._pressed = time.monotonic()
         if topic in self._pedals:
             msg = Joy()
             msg.header.stamp = self.get_clock().now().to_msg()
@@ -317,6 +319,12 @@ class DemonstratorNode(Node):
                         self._state_command(a, 'home')
             return
         if stage == 'recording':
+            if not self._recording and time.monotonic() - self._pressed > 2.0 \
+                    and self._waited() < 9.0:
+                # the recorder reports no recording: the press went unheard (its subscription
+                # was not matched yet, so DDS dropped it rather than delaying it); press again
+                self._press(cfg.record_pedal, 1)
+                self._press(cfg.record_pedal, 0)
             if self._recording or self._waited() > 10.0:
                 if not self._recording:
                     self.get_logger().warning(f'{cfg.recorder_status} does not report a '
