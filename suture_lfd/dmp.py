@@ -201,11 +201,14 @@ class PoseDmp(Primitive):
             Unit quaternions (x, y, z, w).
 
         """
+        given = T is not None
         T, _ = self._time_grid(n_pts, T)
         p0, q0 = self._split(start, 'start')
         p1, q1 = self._split(goal, 'goal')
-        _, P = self.position.rollout(p0, p1, T=T)
-        _, Q = self.orientation.rollout(q0, q1, T=T)
+        # both parts share the demonstrated duration: hand them the grid checked here
+        grid = {'T': T} if given else {'n_pts': T.size}
+        _, P = self.position.rollout(p0, p1, **grid)
+        _, Q = self.orientation.rollout(q0, q1, **grid)
         return T, P, Q
 
     def reset(self, start=None, goal=None, duration=None):

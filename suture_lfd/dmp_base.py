@@ -15,7 +15,12 @@ import zipfile
 
 import numpy as np
 from sim_bridge.configfile import dataclass_from_mapping
-from suture_lfd.dmp_equations import canonical_phase
+from suture_lfd.dmp_equations import (
+    basis_activations,
+    canonical_phase,
+    uniform_activations,
+    uniform_features,
+)
 from suture_lfd.validation import check_positive, check_times
 
 FORMAT = 'suture_lfd.dmp'
@@ -133,7 +138,19 @@ class Primitive:
             raise ValueError(f'{name} must have one row per time in T ({T.size}), got {n_values}')
         duration = float(T[-1] - T[0])
         s = (T - T[0]) / duration
+        steps = np.diff(s)
+        if np.ptp(steps) <= 1e-9 * steps.mean():
+            # evenly spaced (a resampled demonstration): cached phase, spacing for the
+            # derivatives
+            x, _ = uniform_features(s.size, 2, self.params.alpha_x)
+            return 1.0 / (s.size - 1), x, duration
         return s, canonical_phase(s, self.params.alpha_x), duration
+
+    def _activations(self, s, x, centres, widths):
+        """Basis activations at the phases ``x`` (cached for an evenly spaced ``s``)."""
+        if isinstance(s, float):
+            return uniform_activations(x.size, centres.size, self.params.alpha_x)
+        return basis_activations(x, centres, widths)
 
     @property
     def is_fitted(self):

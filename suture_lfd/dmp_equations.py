@@ -169,6 +169,39 @@ def _uniform_features(n_pts, n_bfs, alpha_x):
     return x, features
 
 
+@lru_cache(maxsize=32)
+def _uniform_activations(n_pts, n_bfs, alpha_x):
+    x = canonical_phase(np.linspace(0.0, 1.0, n_pts), alpha_x)
+    centres = basis_centres(n_bfs, alpha_x)
+    psi = basis_activations(x, centres, basis_widths(centres, alpha_x))
+    psi.flags.writeable = False
+    return psi
+
+
+def uniform_activations(n_pts, n_bfs, alpha_x):
+    """
+    Return the activations ``psi_i`` on ``n_pts`` evenly spaced samples of ``s`` in [0, 1].
+
+    Cached: learning many demonstrations of the same length reuses the matrix.
+
+    Parameters
+    ----------
+    n_pts : int
+        Number of samples.
+    n_bfs : int
+        Number of basis functions.
+    alpha_x : float
+        Canonical gain.
+
+    Returns
+    -------
+    ndarray, shape (n_pts, n_bfs)
+        ``psi_i(x(s_k))`` (read-only).
+
+    """
+    return _uniform_activations(int(n_pts), int(n_bfs), float(alpha_x))
+
+
 def uniform_features(n_pts, n_bfs, alpha_x):
     """
     Return phase and forcing features on ``n_pts`` evenly spaced samples of ``s`` in [0, 1].
@@ -267,11 +300,44 @@ def lwr_weights(psi, x, targets, scale):
 
     """
     scale = np.asarray(scale, dtype=float)
-    numerator = psi.T @ (x[:, None] * targets)          # sum_k psi_ik x_k F_kd
-    denominator = psi.T @ (x * x)                       # sum_k psi_ik x_k^2
+    d = targets.shape[1]
+    stacked = np.empty((x.size, d + 1))
+    np.multiply(x[:, None], targets, out=stacked[:, :d])
+    np.multiply(x, x, out=stacked[:, d])
+    sums = psi.T @ stacked
+    numerator = sums[:, :d]                             # sum_k psi_ik x_k F_kd
+    denominator = sums[:, d]                            # sum_k psi_ik x_k^2
     ok = denominator > 1e-300
     weights = np.where(ok[:, None], numerator / np.where(ok, denominator, 1.0)[:, None], 0.0)
     return weights / scale
+
+
+def derivative(Y, s):
+    """
+    Return ``dY/ds`` by second-order finite differences, second order at the ends too.
+
+    ``numpy.gradient(Y, s, axis=0, edge_order=2)``, written out for an even spacing.
+
+    Parameters
+    ----------
+    Y : ndarray, shape (n, n_dims)
+        Samples (``n >= 3``).
+    s : float or ndarray, shape (n,)
+        Sample times, or their spacing when evenly spaced.
+
+    Returns
+    -------
+    ndarray, shape (n, n_dims)
+
+    """
+    if not isinstance(s, float):
+        return np.gradient(Y, s, axis=0, edge_order=2)
+    out = np.empty_like(Y)
+    np.subtract(Y[2:], Y[:-2], out=out[1:-1])
+    out[0] = 4.0 * Y[1] - 3.0 * Y[0] - Y[2]
+    out[-1] = 3.0 * Y[-1] - 4.0 * Y[-2] + Y[-3]
+    out *= 0.5 / s
+    return out
 
 
 def position_forcing_target(s, Y, goal, alpha_y, beta_y):
@@ -283,8 +349,8 @@ def position_forcing_target(s, Y, goal, alpha_y, beta_y):
 
     Parameters
     ----------
-    s : ndarray, shape (n,)
-        Normalised sample times in [0, 1].
+    s : float or ndarray, shape (n,)
+        Normalised sample times in [0, 1], or their spacing when evenly spaced.
     Y : ndarray, shape (n, n_dims)
         Demonstrated positions, m.
     goal : ndarray, shape (n_dims,)
@@ -298,8 +364,8 @@ def position_forcing_target(s, Y, goal, alpha_y, beta_y):
         ``F_d``, m per squared normalised time.
 
     """
-    Yd = np.gradient(Y, s, axis=0, edge_order=2)
-    Ydd = np.gradient(Yd, s, axis=0, edge_order=2)
+    Yd = derivative(Y, s)
+    Ydd = derivative(Yd, s)
     return Ydd - alpha_y * (beta_y * (goal - Y) - Yd)
 
 
@@ -312,8 +378,8 @@ def quaternion_forcing_target(s, Q, goal, alpha_z, beta_z):
 
     Parameters
     ----------
-    s : ndarray, shape (n,)
-        Normalised sample times in [0, 1].
+    s : float or ndarray, shape (n,)
+        Normalised sample times in [0, 1], or their spacing when evenly spaced.
     Q : ndarray, shape (n, 4)
         Sign-continuous unit quaternions (x, y, z, w).
     goal : ndarray, shape (4,)
@@ -330,9 +396,9 @@ def quaternion_forcing_target(s, Q, goal, alpha_z, beta_z):
 
     """
     U = 2.0 * quaternion_log(quaternion_product(Q, quaternion_conjugate(goal)))
-    Ud = np.gradient(U, s, axis=0, edge_order=2)
+    Ud = derivative(U, s)
     W = so3_left_jacobian_apply(U, Ud)
-    Wd = np.gradient(W, s, axis=0, edge_order=2)
+    Wd = derivative(W, s)
     return Wd + alpha_z * (beta_z * U + W), U
 
 
@@ -356,22 +422,27 @@ def nonlinear_rate(U, W):
         ``n``, components first.
 
     """
+    U = np.asarray(U, dtype=float)
+    W = np.asarray(W, dtype=float)
+    a2 = (U * U).sum(axis=0)
+    dot = (U * W).sum(axis=0)
+    a = np.sqrt(a2)
+    # (1 + cos a) / sin a = 1 / tan(a / 2): one transcendental call per sample
+    with np.errstate(divide='ignore', invalid='ignore'):
+        c = 1.0 / a2 - 0.5 / (a * np.tan(0.5 * a))
+    small = a < 1e-3
+    if small.any():
+        c = np.where(small, 1.0 / 12.0 + a2 / 720.0, c)
+    # n = c u x (u x w) - u x w / 2, with u x (u x w) = u (u . w) - w |u|^2
+    n = U * dot
+    n -= W * a2
+    n *= c
     ux, uy, uz = U
     wx, wy, wz = W
-    a2 = ux * ux + uy * uy + uz * uz
-    a = np.sqrt(a2)
-    small = a < 1e-3
-    safe = np.where(small, 1.0, a)
-    sin_a = np.sin(safe)
-    sin_a = np.where(np.abs(sin_a) < 1e-12, 1e-12, sin_a)
-    c = np.where(small, 1.0 / 12.0 + a2 / 720.0,
-                 1.0 / (safe * safe) - (1.0 + np.cos(safe)) / (2.0 * safe * sin_a))
-    rx = uy * wz - uz * wy
-    ry = uz * wx - ux * wz
-    rz = ux * wy - uy * wx
-    return np.stack((c * (uy * rz - uz * ry) - 0.5 * rx,
-                     c * (uz * rx - ux * rz) - 0.5 * ry,
-                     c * (ux * ry - uy * rx) - 0.5 * rz))
+    n[0] -= 0.5 * (uy * wz - uz * wy)
+    n[1] -= 0.5 * (uz * wx - ux * wz)
+    n[2] -= 0.5 * (ux * wy - uy * wx)
+    return n
 
 
 @lru_cache(maxsize=256)
@@ -453,3 +524,60 @@ def linear_recurrence(Phi, C, state0):
     zi = np.stack((tr * z1 - det * state0, -det * z1), axis=-1)
     out[..., 2:], _ = lfilter([1.0], [1.0, -tr, det], drive, axis=-1, zi=zi)
     return out
+
+
+def input_response(Phi, gain, N):
+    """
+    Return ``z_1 .. z_n`` of ``z_{k+1} = Phi z_k + gain n_k`` from ``z_0 = 0``.
+
+    The zero-state part of :func:`linear_recurrence` for an input that enters along one vector:
+    per component the transfer function ``(q I - Phi)^-1 gain``, two ``lfilter`` calls.
+
+    Parameters
+    ----------
+    Phi : ndarray, shape (2, 2)
+        Transition matrix.
+    gain : ndarray, shape (2,)
+        Input vector.
+    N : ndarray, shape (n_dims, n)
+        Inputs ``n_0 .. n_{n-1}``.
+
+    Returns
+    -------
+    ndarray, shape (2, n_dims, n)
+        ``z_1 .. z_n``.
+
+    """
+    b_u, b_w, a = input_filters(Phi, gain)
+    out = np.empty((2,) + N.shape)
+    out[0] = lfilter(b_u, a, N, axis=-1)
+    out[1] = lfilter(b_w, a, N, axis=-1)
+    return out
+
+
+def input_filters(Phi, gain):
+    """
+    Return the ``lfilter`` coefficients ``(b_u, b_w, a)`` of :func:`input_response`.
+
+    Parameters
+    ----------
+    Phi : ndarray, shape (2, 2)
+        Transition matrix.
+    gain : ndarray, shape (2,)
+        Input vector.
+
+    Returns
+    -------
+    b_u, b_w : list of float
+        Numerators for the first and second state component (output ``z_{k+1}`` for input
+        ``n_k``).
+    a : list of float
+        Common denominator ``[1, -tr(Phi), det(Phi)]``.
+
+    """
+    tr = Phi[0, 0] + Phi[1, 1]
+    det = Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]
+    g0, g1 = float(gain[0]), float(gain[1])
+    b_u = [g0, (Phi[0, 0] - tr) * g0 + Phi[0, 1] * g1]
+    b_w = [g1, Phi[1, 0] * g0 + (Phi[1, 1] - tr) * g1]
+    return b_u, b_w, [1.0, -tr, det]

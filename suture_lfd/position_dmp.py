@@ -10,7 +10,6 @@ import math
 import numpy as np
 from suture_lfd.dmp_base import Primitive, stored_array
 from suture_lfd.dmp_equations import (
-    basis_activations,
     basis_centres,
     basis_widths,
     forcing_term,
@@ -79,7 +78,7 @@ class PositionDmp(Primitive):
             LOG.info('position dimensions %s start and end at the same value; learnt unscaled',
                      np.flatnonzero(degenerate).tolist())
         targets = position_forcing_target(s, Y, goal, p.alpha_y, p.beta_y)
-        psi = basis_activations(x, self._centres, self._widths)
+        psi = self._activations(s, x, self._centres, self._widths)
         self.weights_ = lwr_weights(psi, x, targets, scale)
         self.start_, self.goal_, self.degenerate_ = start, goal, degenerate
         self.duration_ = duration

@@ -9,13 +9,15 @@ import logging
 import math
 
 import numpy as np
+from scipy.signal import lfilter
 from suture_lfd.dmp_base import Primitive, stored_array
 from suture_lfd.dmp_equations import (
-    basis_activations,
     basis_centres,
     basis_widths,
     forcing_term,
     guarded_scale,
+    input_filters,
+    input_response,
     linear_recurrence,
     lwr_weights,
     nonlinear_rate,
@@ -40,7 +42,9 @@ LOG = logging.getLogger(__name__)
 
 # The literal log is singular at a full turn; keep demonstrations clear of it.
 MAX_ROTATION = 2.0 * math.pi - 0.05
-_RELAX_TOLERANCE = 1e-9
+# A change dn of the rate moves u by at most about dn / beta_z (the static gain from n to u);
+# the result takes one more sweep past the last change, so the error left is far smaller.
+_RELAX_TOLERANCE = 1e-6
 _RELAX_ITERATIONS = 60
 
 
@@ -115,7 +119,7 @@ class QuaternionDmp(Primitive):
                 'movement)')
         scale, degenerate = guarded_scale(-U[0], np.ptp(U, axis=0), p.scale_guard,
                                           p.scale_guard_floor_rad)
-        psi = basis_activations(x, self._centres, self._widths)
+        psi = self._activations(s, x, self._centres, self._widths)
         self.weights_ = lwr_weights(psi, x, targets, scale)
         self.start_, self.goal_, self.degenerate_ = start, goal, degenerate
         self.duration_ = duration
@@ -219,15 +223,29 @@ class QuaternionDmp(Primitive):
             return Z[0].T, so3_left_jacobian_apply(Z[0].T, Z[1].T)
         # Solve the explicit recurrence by relaxation: the nonlinear rate is evaluated on the
         # previous sweep (superlinear convergence; one sweep for a rotation about a fixed axis).
-        gain = Gz[:, 0, None, None]
+        # The recurrence is linear in its input, so a sweep adds the response to the nonlinear
+        # rate (one lfilter for u; omega follows from the first row of the recurrence) to the
+        # fixed response to the forcing term.
+        gain = Gz[:, 0]
+        b_u, _, a = input_filters(Phi, gain)
+        Z_f = linear_recurrence(Phi, C_f, state0)
+        U_f, W_f = Z_f[0, :, :-1], Z_f[1, :, :-1]
+        U, W = U_f, W_f
         N = np.zeros((3, n - 1))
         for _ in range(_RELAX_ITERATIONS):
-            Z = linear_recurrence(Phi, C_f + gain * N, state0)
-            N_new = nonlinear_rate(Z[0, :, :-1], Z[1, :, :-1])
-            change = float(np.max(np.abs(N_new - N), initial=0.0))
-            N = N_new
-            if change <= _RELAX_TOLERANCE * (1.0 + float(np.max(np.abs(Z[1])))):
+            N_new = nonlinear_rate(U, W)
+            change = float(np.abs(N_new - N).max(initial=0.0))
+            if change <= _RELAX_TOLERANCE * (1.0 + float(np.abs(W).max())):
+                # one more sweep with the newest rate, without another rate evaluation
+                Z = Z_f.copy()
+                Z[:, :, 1:] += input_response(Phi, gain, N_new)
                 return Z[0].T, Z[1].T
+            N = N_new
+            r = lfilter(b_u, a, N, axis=-1)  # response of u at samples 1 .. n-1
+            U = U_f.copy()
+            U[:, 1:] += r[:, :-1]
+            W = W_f.copy()
+            W[:, 1:] += (r[:, 1:] - Phi[0, 0] * r[:, :-1] - gain[0] * N[:, 1:]) / Phi[0, 1]
         LOG.debug('quaternion rollout: relaxation did not settle; stepping sequentially')
         U, W = np.empty((3, n)), np.empty((3, n))
         U[:, 0], W[:, 0] = state0
