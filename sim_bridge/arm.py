@@ -186,6 +186,7 @@ class Arm:
         self._ratio = 1.0
         self._base_frame = np.eye(4)
         self._ik_memo = None  # (goal and reference bytes, joints) of the last servo_cp IK
+        self._fk_memo = {}  # 'measured' / 'setpoint' -> (joint bytes, tool-tip pose)
         self._reference_frame = f'{self.name}_base'
         self._setpoint_jf = np.zeros(k.n_joints)
         self._time = 0.0
@@ -773,12 +774,20 @@ class Arm:
     @property
     def local_measured_cp(self):
         """Tool tip in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
-        return self.kinematics.fk(self._arm.q)
+        return self._fk('measured', self._arm.q)
 
     @property
     def local_setpoint_cp(self):
         """Tool-tip setpoint in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
-        return self.kinematics.fk(self._arm.setpoint)
+        return self._fk('setpoint', self._arm.setpoint)
+
+    def _fk(self, which, q):
+        """Forward kinematics of ``q``, computed again only when ``q`` changed (a copy)."""
+        key = q.tobytes()
+        memo = self._fk_memo.get(which)
+        if memo is None or memo[0] != key:
+            memo = self._fk_memo[which] = (key, self.kinematics.fk(q))
+        return memo[1].copy()
 
     @property
     def measured_cp(self):

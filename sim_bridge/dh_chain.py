@@ -16,6 +16,7 @@ Units are SI (metres, radians); poses are 4x4 homogeneous matrices ``T_a_b``.
 """
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -139,6 +140,18 @@ def check_pose(T, name='T', tol=1e-6):
         determinant +1.
 
     """
+    if isinstance(T, np.ndarray) and T.shape == (4, 4):
+        # the common case, a well-formed pose: checked in plain floats, no re-orthonormalising
+        # needed when R^T R = I to 1e-12
+        rows = T.tolist()
+        (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = rows
+        flat = [v for row in rows for v in row]
+        if (bottom == [0.0, 0.0, 0.0, 1.0] and all(math.isfinite(v) for v in flat)
+                and max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
+                        abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
+                        abs(a * c + d * f + g * i), abs(b * c + e * f + h * i)) <= 1e-12
+                and a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0.0):
+            return np.array(rows, dtype=float)
     return check_poses(np.asarray(T, dtype=float)[None] if np.ndim(T) == 2 else T,
                        name=name, tol=tol, single=True)[0]
 

@@ -23,6 +23,7 @@ from sim_bridge.dh_chain import (
     rotation_x,
     rotation_z,
 )
+from sim_bridge.psm_ik_single import PsmSingleIk
 
 _TWO_PI = 2.0 * np.pi
 _STRUCTURE_TOL = 1e-9
@@ -95,6 +96,7 @@ class _RcmChain(SerialChain):
         self._shaft_offset = self._d0[2] + self._d0[3]
         self._ranges = self.upper - self.lower
         self._tooltip_inverse = np.linalg.inv(self.tooltip_offset)
+        self._single = None  # a one-pose solver in plain floats, where the chain has one
 
     def _shaft_solutions(self, P, q_ref):
         """
@@ -264,6 +266,15 @@ class _RcmChain(SerialChain):
         T = check_pose(T)
         if q_ref is not None:
             q_ref = self.check_q(q_ref, name='q_ref')
+        if self._single is not None:
+            q = self._single.solve(T, self.home if q_ref is None else q_ref)
+            if q is not None:
+                q = np.array(q)
+                Tq = self.fk(q)
+                if (np.linalg.norm(Tq[:3, 3] - T[:3, 3]) <= IK_TOLERANCE
+                        and rotation_angle(Tq[:3, :3], T[:3, :3]) <= IK_TOLERANCE):
+                    return q
+            # no clean solution on the fast path: the batch solver decides and words the error
         q, status, (pos_err, rot_err) = self._ik_core(T[None], q_ref, checked=True)
         q, status = q[0], int(status[0])
         if status == 0:
@@ -345,6 +356,7 @@ class PsmKinematics(_RcmChain):
         self.jaw_v_max = float(jaw.v_max)
         self.jaw_a_max = float(jaw.a_max)
         self.tool_type = tool_type
+        self._single = PsmSingleIk(self, _LIMIT_SLACK)
 
     def clip_jaw(self, angle):
         """

@@ -188,6 +188,28 @@ def test_scalar_ik_matches_batch_ik(psm, psm_classic, ecm):
             np.testing.assert_allclose(qb, q, atol=1e-6)
 
 
+def test_one_pose_ik_picks_the_batch_solution_for_any_reference(psm, psm_classic):
+    """The plain-float path for one pose chooses the same branch and wrap as the batch solver."""
+    rng = np.random.default_rng(11)
+    for chain in (psm, psm_classic):
+        Q = random_q(chain, rng, 2000)
+        T = chain.fk_batch(Q)
+        # references: far (random in the limits) and near (a streaming servo_cp step away)
+        refs = np.concatenate((random_q(chain, rng, 1000),
+                               Q[1000:] + rng.normal(0.0, 0.05, (1000, chain.n_joints))))
+        Q_batch, ok = chain.ik_batch(T, refs)
+        fast = 0
+        for t, ref, qb, good in zip(T, refs, Q_batch, ok):
+            q = chain._single.solve(t, ref)
+            if q is None:
+                continue  # the batch solver decides these
+            fast += 1
+            assert good
+            np.testing.assert_allclose(q, qb, atol=1e-9)
+            np.testing.assert_allclose(chain.ik(t, q_ref=ref), qb, atol=1e-9)
+        assert fast >= 1900
+
+
 def test_ik_wraps_roll_towards_the_reference(psm):
     q = np.array([0.1, 0.2, 0.1, 2.5, 0.3, 0.2])
     T = psm.fk(q)
