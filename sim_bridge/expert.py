@@ -411,7 +411,7 @@ def _dense(A, B, step=0.1, spacing=0.002):
     """Poses from A towards B (B excluded), about ``step`` rad and ``spacing`` m apart."""
     path = RigidPath(A, B)
     n = max(2, int(math.ceil(max(path.angle / step, path.distance / spacing))))
-    return [path(x) for x in np.linspace(0.0, 1.0, n, endpoint=False)]
+    return list(path.many(np.linspace(0.0, 1.0, n, endpoint=False)))
 
 
 class _Track:
@@ -543,6 +543,11 @@ class ScriptedExpert:
         chain = self.kinematics[arm]
         T_base_world = invert_transform(T_world_base[arm])
         Q, ok = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.asarray(tools)))
+        return self._joint_path_cost(chain, Q, ok, roll0)
+
+    @staticmethod
+    def _joint_path_cost(chain, Q, ok, roll0):
+        """:meth:`_path_cost` of a path already solved (joints ``Q``, ``ok`` where reachable)."""
         if not ok.all():
             return math.inf, None
         roll = np.unwrap(Q[:, 3])
@@ -598,10 +603,12 @@ class ScriptedExpert:
 
         """
         c = self.config
-        needles = [path(x) for path in phase['paths'] for x in np.linspace(0.0, 1.0, 12)]
+        needles = np.array([path(x) for path in phase['paths'] for x in np.linspace(0.0, 1.0, 12)])
         best, best_cost, best_roll = None, math.inf, None
         step = math.radians(c.roll_step_deg)
         rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
+        # every candidate's tool path, solved in one batch
+        candidates, paths, size = [], [], 0
         for flip in (False, True):
             for roll in rolls:
                 G = self.needle.grasp_transform(s, roll=roll, flip=flip)
@@ -611,13 +618,20 @@ class ScriptedExpert:
                 if phase['start'] is not None:
                     pre = _backed_off(grasp_pose, c.approach_distance)
                     tools += _dense(phase['start'], pre) + _dense(pre, grasp_pose)
-                tools += [N @ inv for N in needles]
-                cost, end_roll = self._path_cost(arm, phase['bases'], phase['roll0'], tools)
-                if phase['clear'] and math.isfinite(cost):
-                    low = self._jaw_clearance([N @ inv for N in phase['clear']])
-                    cost += 1000.0 * max(0.0, c.jaw_clearance - low)
-                if cost < best_cost - 1e-9:
-                    best, best_cost, best_roll = G, cost, end_roll
+                path = np.concatenate((np.asarray(tools).reshape(-1, 4, 4), needles @ inv))
+                candidates.append((G, inv, size, size + len(path)))
+                paths.append(path)
+                size += len(path)
+        chain = self.kinematics[arm]
+        T_base_world = invert_transform(phase['bases'][arm])
+        Q, ok = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.concatenate(paths)))
+        for G, inv, a, b in candidates:
+            cost, end_roll = self._joint_path_cost(chain, Q[a:b], ok[a:b], phase['roll0'])
+            if phase['clear'] and math.isfinite(cost):
+                low = self._jaw_clearance([N @ inv for N in phase['clear']])
+                cost += 1000.0 * max(0.0, c.jaw_clearance - low)
+            if cost < best_cost - 1e-9:
+                best, best_cost, best_roll = G, cost, end_roll
         if best is None:
             raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
                              f'{what} of pair {self.pair.name}; move the arm or the needle')

@@ -141,6 +141,37 @@ class PoseInterpolator:
         T[:3, 3] = self.A[:3, 3] + sigma * self._dp
         return T
 
+    def many(self, sigmas):
+        """
+        Poses at many path parameters in [0, 1) at once.
+
+        Parameters
+        ----------
+        sigmas : array_like, shape (n,)
+            Path parameters below 1.
+
+        Returns
+        -------
+        ndarray, shape (n, 4, 4)
+            The poses ``self(sigma)`` (to rounding).
+
+        """
+        sigmas = np.asarray(sigmas, dtype=float)
+        T = np.zeros((sigmas.size, 4, 4))
+        T[:, 3, 3] = 1.0
+        angle = float(np.linalg.norm(self._w))
+        if angle < 1e-12:
+            T[:, :3, :3] = self.A[:3, :3]
+        else:
+            k = self._w / angle
+            K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+            a = sigmas * angle
+            R = (np.eye(3) + np.sin(a)[:, None, None] * K
+                 + (1.0 - np.cos(a))[:, None, None] * (K @ K))
+            T[:, :3, :3] = self.A[:3, :3] @ R
+        T[:, :3, 3] = self.A[:3, 3] + sigmas[:, None] * self._dp
+        return T
+
 
 class RigidPath(PoseInterpolator):
     """Needle path: straight line and geodesic rotation between two needle poses."""
