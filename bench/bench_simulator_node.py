@@ -1,26 +1,50 @@
 """
 The simulator node under a dVRK client's load: latency, state rate and jitter, CPU, pace.
 
-Anchors:
+Anchors, measured in the same run with the same process layout and the same probe:
 
-- the dVRK publishes arm state at 100 Hz (from a 1.5 kHz control loop);
-- a plain rclpy echo between two processes on this machine, measured in the same run (the
-  reference figures are RTT p50 0.5 ms, p99 3 ms at 1 kHz, ros2_ecosystem.md §5); the issue's
-  target is p99 <= 3 ms end to end.
+- a plain rclpy echo between two processes: the probe process publishes PoseStamped at 1 kHz on
+  ``echo/in`` and an echo process republishes each on ``echo/out``; the round trip time (RTT) is
+  what two DDS hops between rclpy processes cost here (reference figures: RTT p50 0.5 ms, p99
+  3 ms at 1 kHz, ros2_ecosystem.md section 5);
+- the dVRK publishes arm state at 100 Hz (from a 1.5 kHz control loop); the issue's target is
+  ``servo_cp`` latency p99 <= 3 ms end to end.
 
-Measured, with the simulator at ``real_time_factor`` 1 and a client subscribed to the state of all
-three arms (what ``dvrk.psm``/``dvrk.ecm`` objects subscribe) while it streams ``servo_cp`` to PSM1
-at 1 kHz:
+Processes (each its own rclpy process on loopback, so that no measuring process is the bottleneck
+of another's measurement):
 
-- ``servo_cp -> setpoint_cp`` latency: for each ``setpoint_cp`` the client receives, the age of
-  the goal it shows (time since the client sent that goal). The state is sampled at 100 Hz, so the
-  age is bounded below by how old the newest goal is at the sampling instant (0..1 ms at 1 kHz);
-- the state rate and inter-arrival jitter of ``measured_js`` against the 100 Hz anchor;
-- in-process, first: the cost of one physics step of the bare core and of the node's stepping
-  round (no subscribers), i.e. the node's overhead and the real-time factor one free core allows;
-- the simulator's CPU use (share of one core) and the real-time factor it achieved
-  (``sim/stats``); then, with nobody listening, the factor it reaches at ``real_time_factor`` 0
-  (as fast as it goes).
+- the simulator (``real_time_factor`` 1, default configuration);
+- a *client* that subscribes to the state of all three arms, what ``dvrk.psm('PSM1')``,
+  ``dvrk.psm('PSM2')`` and ``dvrk.ecm('ECM')`` objects subscribe (dvrk_crtk.md section 5: 15
+  topics per PSM, 13 for the ECM, about 4300 messages/s), spun by a ``SingleThreadedExecutor``
+  as crtk-py does; it only counts what it receives (and the 100 Hz ``measured_js`` of PSM1);
+- a light *probe* that streams ``PSM1/servo_cp`` at 1 kHz (sleep pacing from its own thread, as
+  a teleoperation client does) and subscribes to ``PSM1/setpoint_cp``, ``PSM1/measured_cp`` and
+  ``PSM1/measured_js`` only.
+
+Latency metric. Each goal the probe sends carries a unique ``y`` coordinate. The dVRK applies a
+servo goal in its control loop and shows it in the state it publishes next (100 Hz); the
+simulator does the same with its physics step. For every ``setpoint_cp`` (``measured_cp``) the
+probe receives, it looks up the goal that message shows and records its *age*: receive time
+minus the time that goal was sent. Since goals change every 1 ms and the state every 10 ms, each
+goal is shown at most once, so the age is also the delay from sending a command to the first
+state message reflecting it. The age holds two DDS hops (command, state: one round trip, the
+anchor's RTT), the wait for the next physics step that applies the goal, and how old the newest
+goal already is when the state is sampled (0..1 ms at 1 kHz). ``measured_cp`` shows the goal once
+the arm has tracked it (immediately for these small, slow motions, which stay within the joint
+speed limits); messages that show no goal exactly (between goals) are not counted.
+
+Also measured:
+
+- in-process, first: the cost of one physics step of the bare core, of the node's stepping round
+  with no subscribers, and with every state topic subscribed (what publishing the state of
+  three arms costs), i.e. the node's overhead and the real-time factor one free core allows;
+- the rate and inter-arrival jitter ``|dt - 10 ms|`` of ``PSM1/measured_js`` in the probe and in
+  the client, and the share of the expected state messages the client received;
+- CPU use (share of one core) of the simulator, the client and the probe while streaming, and
+  the real-time factor the simulator achieved (``sim/stats``);
+- the factor reached at ``real_time_factor`` 0 (as fast as it goes) with no state subscribers,
+  and with the full client.
 
 Run: ``.venv/bin/python bench/bench_simulator_node.py [--seconds 10]``
 """
@@ -32,49 +56,302 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
+if '--role' not in sys.argv:  # helper processes inherit the run's private domain
+    os.environ['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
 
 import numpy as np  # noqa: E402
-import rclpy  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile  # noqa: E402
 
 ANCHOR_STATE_HZ = 100.0
 TARGET_P99_S = 3e-3
-ECHO = """
-import rclpy
-from geometry_msgs.msg import PoseStamped
-rclpy.init()
-node = rclpy.create_node('echo')
-pub = node.create_publisher(PoseStamped, 'echo/out', 100)
-node.create_subscription(PoseStamped, 'echo/in', pub.publish, 100)
-try:
-    rclpy.spin(node)
-except KeyboardInterrupt:
-    pass
-finally:
+STREAM_HZ = 1000.0
+ARMS = ('PSM1', 'PSM2', 'ECM')
+# what dvrk.psm / dvrk.ecm objects subscribe (dvrk_crtk.md section 5); jaw/* for PSMs only
+STATE_TOPICS = ('setpoint_js', 'setpoint_cp', 'measured_js', 'measured_cp', 'measured_cv',
+                'spatial/measured_cf', 'spatial/jacobian', 'body/measured_cf', 'body/jacobian',
+                'local/measured_cp', 'local/setpoint_cp', 'jaw/measured_js', 'jaw/setpoint_js')
+EVENT_TOPICS = ('operating_state', 'trajectory_j/ratio')
+
+
+def state_topics(arm):
+    return [t for t in STATE_TOPICS if arm != 'ECM' or not t.startswith('jaw/')]
+
+
+def message_types():
+    from crtk_msgs.msg import OperatingState
+    from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, Float64MultiArray
+    return {'setpoint_js': JointState, 'measured_js': JointState, 'jaw/measured_js': JointState,
+            'jaw/setpoint_js': JointState, 'setpoint_cp': PoseStamped,
+            'measured_cp': PoseStamped, 'local/measured_cp': PoseStamped,
+            'local/setpoint_cp': PoseStamped, 'measured_cv': TwistStamped,
+            'spatial/measured_cf': WrenchStamped, 'body/measured_cf': WrenchStamped,
+            'spatial/jacobian': Float64MultiArray, 'body/jacobian': Float64MultiArray,
+            'operating_state': OperatingState, 'trajectory_j/ratio': Float64}
+
+
+def qos_profiles():
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    state = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+    event = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return state, event
+
+
+# -- helper processes ---------------------------------------------------------------------------
+
+def spin_in_thread(node):
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    return executor, thread
+
+
+def finish(executor, thread, node):
+    import rclpy
+    executor.shutdown()
+    thread.join(2.0)
     node.destroy_node()
     rclpy.try_shutdown()
-"""
 
 
-def start(argv):
-    return subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+def wait_for(predicate, timeout, what='benchmark setup'):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f'{what} timed out')
+        time.sleep(0.005)
 
 
-def stop(proc):
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(10.0)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(5.0)
+def role_echo(_args):
+    """The anchor's far end: republish every PoseStamped of ``echo/in`` on ``echo/out``."""
+    from geometry_msgs.msg import PoseStamped
+    import rclpy
+    rclpy.init()
+    node = rclpy.create_node('bench_echo')
+    qos, _ = qos_profiles()
+    pub = node.create_publisher(PoseStamped, 'echo/out', qos)
+    node.create_subscription(PoseStamped, 'echo/in', pub.publish, qos)
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def stream(pub, make, rate, seconds):
+    """Publish ``make(k)`` at ``rate`` Hz (sleep pacing) for ``seconds``; return send log."""
+    period = 1.0 / rate
+    sent = []
+    t0 = time.monotonic()
+    k = 0
+    while time.monotonic() - t0 < seconds:
+        msg, key = make(k)
+        sent.append((key, time.monotonic()))
+        pub.publish(msg)
+        k += 1
+        time.sleep(max(0.0, t0 + k * period - time.monotonic()))
+    return sent
+
+
+def role_probe(args):
+    """
+    Stream PoseStamped goals at 1 kHz and log the replies (``--target echo`` or ``sim``).
+
+    Prints ``streaming`` when it starts and ``done`` when it has written its log (JSON) to
+    ``--out``.
+    """
+    from crtk_msgs.msg import StringStamped
+    from geometry_msgs.msg import PoseStamped
+    import rclpy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    rclpy.init()
+    node = rclpy.create_node('bench_probe')
+    state_qos, event_qos = qos_profiles()
+    lock = threading.Lock()
+    log = {'echo': [], 'setpoint_cp': [], 'measured_cp': [], 'measured_js': [],
+           'error': []}
+
+    def keep(name, item):
+        with lock:
+            log[name].append(item)
+
+    if args.target == 'echo':
+        out = node.create_publisher(PoseStamped, 'echo/in', state_qos)
+        node.create_subscription(PoseStamped, 'echo/out',
+                                 lambda m: keep('echo', (time.monotonic(), m.pose.position.x)),
+                                 state_qos)
+        executor, thread = spin_in_thread(node)
+        wait_for(lambda: out.get_subscription_count() > 0
+                 and node.count_publishers('echo/out') > 0, 30.0)
+        time.sleep(1.0)
+
+        def make(k):
+            msg = PoseStamped()
+            msg.pose.position.x = float(k)
+            msg.pose.orientation.w = 1.0
+            return msg, float(k)
+    else:
+        from crtk_msgs.msg import OperatingState
+        states = []
+        homes = []
+
+        def pose(topic, msg):
+            keep(topic, (time.monotonic(), msg.pose.position.y))
+            if topic == 'setpoint_cp':
+                homes[:] = [msg.pose]
+        for topic in ('setpoint_cp', 'measured_cp'):
+            node.create_subscription(PoseStamped, f'PSM1/{topic}',
+                                     lambda m, t=topic: pose(t, m), state_qos)
+        node.create_subscription(String, 'PSM1/error', lambda m: keep('error', m.data),
+                                 event_qos)
+        node.create_subscription(
+            JointState, 'PSM1/measured_js',
+            lambda m: keep('measured_js', (time.monotonic(),
+                                           m.header.stamp.sec + m.header.stamp.nanosec * 1e-9)),
+            state_qos)
+        node.create_subscription(OperatingState, 'PSM1/operating_state', states.append,
+                                 event_qos)
+        command = node.create_publisher(StringStamped, 'PSM1/state_command', 1)
+        out = node.create_publisher(PoseStamped, 'PSM1/servo_cp', 1)
+        executor, thread = spin_in_thread(node)
+        wait_for(lambda: out.get_subscription_count() > 0 and log['setpoint_cp'], 60.0)
+        for word, ready in (('enable', lambda s: s.state == 'ENABLED'),
+                            ('home', lambda s: s.is_homed and not s.is_busy)):
+            command.publish(StringStamped(string=word))
+            wait_for(lambda r=ready: states and r(states[-1]), 30.0, word)
+        time.sleep(0.5)
+        home = homes[-1]
+
+        def make(k):
+            # tiny side-to-side motion around home, home orientation; y identifies the goal
+            y = home.position.y + 0.005 * np.sin(2 * np.pi * k / 2000.0) + (k + 1) * 1e-9
+            msg = PoseStamped()
+            msg.pose.position.x, msg.pose.position.z = home.position.x, home.position.z
+            msg.pose.position.y = float(y)
+            msg.pose.orientation = home.orientation
+            return msg, float(y)
+
+    with lock:
+        for items in log.values():
+            items.clear()
+    print('streaming', flush=True)
+    t0 = time.monotonic()
+    sent = stream(out, make, STREAM_HZ, args.seconds)
+    t1 = time.monotonic()
+    time.sleep(0.3)
+    with lock:
+        result = {name: list(items) for name, items in log.items()}
+    result.update(sent=sent, window=[t0, t1])
+    finish(executor, thread, node)
+    Path(args.out).write_text(json.dumps(result))
+    print('done', flush=True)
+
+
+def role_client(args):
+    """
+    Subscribe to what a dVRK client of all three arms subscribes; log until a line on stdin.
+
+    ``--arms ''`` subscribes to ``sim/stats`` only. Writes its log (JSON) to ``--out``.
+    """
+    import rclpy
+    from std_msgs.msg import String
+    rclpy.init()
+    node = rclpy.create_node('bench_client')
+    state_qos, event_qos = qos_profiles()
+    types = message_types()
+    lock = threading.Lock()
+    counts = {}
+    log = {'measured_js': [], 'stats': [], 'received': []}
+
+    def count(name):
+        def callback(_msg):
+            with lock:
+                counts[name] = counts.get(name, 0) + 1
+        return callback
+
+    def measured_js(msg):
+        with lock:
+            counts['PSM1/measured_js'] = counts.get('PSM1/measured_js', 0) + 1
+            log['measured_js'].append((time.monotonic(), msg.header.stamp.sec
+                                       + msg.header.stamp.nanosec * 1e-9))
+
+    arms = [a for a in args.arms.split(',') if a]
+    for arm in arms:
+        for topic in state_topics(arm):
+            name = f'{arm}/{topic}'
+            callback = measured_js if name == 'PSM1/measured_js' else count(name)
+            node.create_subscription(types[topic], name, callback, state_qos)
+        for topic in EVENT_TOPICS:
+            node.create_subscription(types[topic], f'{arm}/{topic}', count(f'{arm}/{topic}'),
+                                     event_qos)
+
+    def stats(msg):
+        with lock:
+            log['stats'].append((time.monotonic(), json.loads(msg.data)))
+            # total state messages received so far, sampled once per second
+            log['received'].append((time.monotonic(), sum(counts.values())))
+    node.create_subscription(String, 'sim/stats', stats, state_qos)
+    executor, thread = spin_in_thread(node)
+    print('ready', flush=True)
+    sys.stdin.readline()
+    with lock:
+        result = dict(log, counts=dict(counts))
+    finish(executor, thread, node)
+    Path(args.out).write_text(json.dumps(result))
+
+
+# -- the orchestrating process --------------------------------------------------------------------
+
+class Proc:
+    """A helper process (this script with ``--role``) or the simulator, in its own session."""
+
+    def __init__(self, argv, stdin=False):
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                     stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+                                     text=True, start_new_session=True)
+        self.pid = self.proc.pid
+
+    @classmethod
+    def role(cls, role, *extra, stdin=False):
+        return cls([sys.executable, __file__, '--role', role, *extra], stdin=stdin)
+
+    def expect(self, word, timeout):
+        """Wait for a line ``word`` on the process's stdout (the helper protocol)."""
+        box = []
+        reader = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()),
+                                  daemon=True)
+        reader.start()
+        reader.join(timeout)
+        if not box or box[0].strip() != word:
+            raise RuntimeError(f'expected {word!r} from {self.proc.args[-3:]}, got {box}')
+
+    def tell(self, line):
+        self.proc.stdin.write(line + '\n')
+        self.proc.stdin.flush()
+
+    def wait(self, timeout):
+        self.proc.wait(timeout)
+
+    def stop(self):
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGINT)
+            try:
+                self.proc.wait(10.0)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(5.0)
 
 
 def cpu_seconds(pid):
@@ -83,45 +360,24 @@ def cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def wait_for(predicate, timeout):
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise TimeoutError('benchmark setup timed out')
-        time.sleep(0.01)
-
-
-def stream(pub, make, rate, seconds, sent):
-    """Publish ``make(k)`` at ``rate`` Hz (sleep pacing) for ``seconds``; log send times."""
-    period = 1.0 / rate
-    t0 = time.monotonic()
-    k = 0
-    while True:
-        now = time.monotonic()
-        if now - t0 > seconds:
-            return
-        msg, key = make(k)
-        sent[key] = time.monotonic()
-        pub.publish(msg)
-        k += 1
-        time.sleep(max(0.0, t0 + k * period - time.monotonic()))
-
-
 def pct(values, q):
     return float(np.percentile(values, q)) if len(values) else float('nan')
 
 
 def loop_capacity(steps=1000):
     """
-    Seconds per physics step of the bare core and of the node's stepping round, same process.
+    Seconds per physics step: bare core, node round without and with every state subscriber.
 
-    The node (no subscribers) adds event flushing and publishing checks to
-    ``Simulation.step``; the ratio is the node's overhead, and ``dt / seconds`` the real-time
+    The node adds event flushing, publishing checks and, with subscribers, building and publishing
+    the state of three arms every 1/rate s of simulation time. ``dt / seconds`` is the real-time
     factor one free core could sustain.
     """
+    import rclpy
     from sim_bridge.nodes.simulator import Simulator
 
+    rclpy.init()
     node = Simulator()
+    listener = rclpy.create_node('bench_capacity_listener')
     try:
         node.sim.enable_and_home_all()
         t = time.perf_counter()
@@ -132,159 +388,176 @@ def loop_capacity(steps=1000):
         for _ in range(steps):
             node._step()
         wrapped = (time.perf_counter() - t) / steps
-        return bare, wrapped, node.sim.dt
+        state_qos, _ = qos_profiles()
+        types = message_types()
+        for arm in ARMS:
+            for topic in state_topics(arm):
+                listener.create_subscription(types[topic], f'{arm}/{topic}', lambda m: None,
+                                             state_qos)
+        subscribed = sum(len(state_topics(arm)) for arm in ARMS)
+        wait_for(lambda: sum(face._state[t][0].get_subscription_count() > 0
+                             for face in node.arms.values() for t in state_topics(face.name))
+                 >= subscribed, 30.0, 'in-process subscription matching')
+        t = time.perf_counter()
+        for _ in range(steps):
+            node._step()
+        full = (time.perf_counter() - t) / steps
+        return bare, wrapped, full, node.sim.dt
     finally:
+        listener.destroy_node()
         node.destroy_node()
         node.close()
+        rclpy.shutdown()
+
+
+def read_json(path):
+    return json.loads(Path(path).read_text())
+
+
+def ages(sent, received):
+    """Age (s) of the goal each received message shows; messages showing no goal are skipped."""
+    if not sent or not received:
+        return np.array([])
+    keys = np.array([k for k, _ in sent])
+    times = np.array([t for _, t in sent])
+    order = np.argsort(keys)
+    keys, times = keys[order], times[order]
+    got_t = np.array([t for t, _ in received])
+    got_y = np.array([y for _, y in received])
+    i = np.clip(np.searchsorted(keys, got_y), 1, len(keys) - 1)
+    nearest = np.where(np.abs(keys[i - 1] - got_y) <= np.abs(keys[i] - got_y), i - 1, i)
+    exact = np.abs(keys[nearest] - got_y) < 1e-10  # the message shows exactly this goal
+    return got_t[exact] - times[nearest[exact]]
+
+
+def rate_and_jitter(samples, window):
+    """Wall rate (Hz), sim-stamp rate (Hz) and |dt - 10 ms| (s) of (arrival, stamp) samples."""
+    s = np.array([x for x in samples if window[0] <= x[0] <= window[1]])
+    if len(s) < 3:
+        return float('nan'), float('nan'), np.array([])
+    wall = (len(s) - 1) / (s[-1, 0] - s[0, 0])
+    sim = (len(s) - 1) / (s[-1, 1] - s[0, 1])
+    return wall, sim, np.abs(np.diff(s[:, 0]) - 1.0 / ANCHOR_STATE_HZ)
+
+
+def fast_phase(bin_dir, tmp, seconds, arms):
+    """Simulator at real_time_factor 0 with a client of ``arms``; return the factor reached."""
+    sim = Proc([str(bin_dir / 'simulator'), '--ros-args', '-p', 'real_time_factor:=0.0'])
+    out = str(Path(tmp) / f'fast_{arms or "none"}.json')
+    client = Proc.role('client', '--arms', arms, '--out', out, stdin=True)
+    try:
+        client.expect('ready', 60.0)
+        time.sleep(seconds + 3.0)
+        client.tell('stop')
+        client.wait(30.0)
+    finally:
+        client.stop()
+        sim.stop()
+    stats = [s for _, s in read_json(out)['stats']]
+    return float(np.mean([s['achieved'] for s in stats[2:]])) if len(stats) > 2 else float('nan')
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='length of each phase (s)')
+    parser.add_argument('--role', choices=('echo', 'probe', 'client'), help=argparse.SUPPRESS)
+    parser.add_argument('--target', choices=('echo', 'sim'), help=argparse.SUPPRESS)
+    parser.add_argument('--arms', default=','.join(ARMS), help=argparse.SUPPRESS)
+    parser.add_argument('--out', help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.role:
+        {'echo': role_echo, 'probe': role_probe, 'client': role_client}[args.role](args)
+        return
     bin_dir = Path(sys.executable).parent
+    tmp = tempfile.mkdtemp(prefix='bench_simulator_node_')
+    seconds = str(args.seconds)
 
-    from crtk_msgs.msg import StringStamped
-    from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
-    from sensor_msgs.msg import JointState
-    from sim_bridge import conversions as cv
-    from std_msgs.msg import Float64MultiArray, String
+    bare, wrapped, full, dt = loop_capacity()
 
-    rclpy.init()
-    capacity = loop_capacity()
-    node = rclpy.create_node('bench_client')
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    qos = QoSProfile(depth=100)
-    lock = threading.Lock()
-    log = {'setpoint_cp': [], 'measured_js': [], 'echo': [], 'stats': []}
+    # -- anchor: probe <-> plain rclpy echo, 1 kHz PoseStamped round trips --------------------
+    echo = Proc.role('echo')
+    probe = Proc.role('probe', '--target', 'echo', '--seconds', seconds,
+                      '--out', str(Path(tmp) / 'echo.json'))
+    try:
+        probe.expect('streaming', 60.0)
+        probe.expect('done', args.seconds + 30.0)
+    finally:
+        probe.stop()
+        echo.stop()
+    anchor = read_json(Path(tmp) / 'echo.json')
+    sent_at = dict(anchor['sent'])
+    rtt = np.array([t - sent_at[k] for t, k in anchor['echo'] if k in sent_at])
+    anchor_lost = 1.0 - len(rtt) / max(1, len(anchor['sent']))
 
-    def keep(name, value):
-        with lock:
-            log[name].append(value)
+    # -- the simulator at real time under a full dVRK client, probe streaming servo_cp ----------
+    sim = Proc([str(bin_dir / 'simulator')])
+    client = Proc.role('client', '--out', str(Path(tmp) / 'client.json'), stdin=True)
+    probe = Proc.role('probe', '--target', 'sim', '--seconds', seconds,
+                      '--out', str(Path(tmp) / 'probe.json'))
+    try:
+        client.expect('ready', 60.0)
+        probe.expect('streaming', 90.0)
+        pids = {'simulator': sim.pid, 'client': client.pid, 'probe': probe.pid}
+        cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
+        wall0 = time.monotonic()
+        probe.expect('done', args.seconds + 30.0)
+        # the probe has stopped streaming 0.3 s before 'done': CPU over its streaming window
+        wall = time.monotonic() - wall0
+        cpu = {k: (cpu_seconds(p) - cpu0[k]) / wall for k, p in pids.items()}
+        client.tell('stop')
+        client.wait(30.0)
+    finally:
+        probe.stop()
+        client.stop()
+        sim.stop()
+    live = read_json(Path(tmp) / 'probe.json')
+    seen = read_json(Path(tmp) / 'client.json')
+    window = live['window']
+    setpoint_age = ages(live['sent'], live['setpoint_cp'])
+    measured_age = ages(live['sent'], live['measured_cp'])
+    probe_rate, probe_sim_rate, probe_jitter = rate_and_jitter(live['measured_js'], window)
+    client_rate, _, client_jitter = rate_and_jitter(seen['measured_js'], window)
+    achieved = [s['achieved'] for t, s in seen['stats'] if window[0] + 1.0 <= t <= window[1]]
+    received = [(t, n) for t, n in seen['received'] if window[0] <= t <= window[1]]
+    expected_rate = ANCHOR_STATE_HZ * sum(len(state_topics(a)) for a in ARMS)
+    client_msg_rate = ((received[-1][1] - received[0][1]) / (received[-1][0] - received[0][0])
+                       if len(received) > 1 else float('nan'))
 
-    # -- anchor: a plain rclpy echo process, 1 kHz PoseStamped round trip --------------------
-    echo = start([sys.executable, '-c', ECHO])
-    echo_pub = node.create_publisher(PoseStamped, 'echo/in', qos)
-    node.create_subscription(PoseStamped, 'echo/out',
-                             lambda m: keep('echo', (time.monotonic(), m.pose.position.x)), qos)
-    wait_for(lambda: echo_pub.get_subscription_count() > 0
-             and node.count_publishers('echo/out') > 0, 30.0)
-    time.sleep(1.0)
-    echo_sent = {}
+    # -- the simulator as fast as it goes --------------------------------------------------------
+    flat_out = fast_phase(bin_dir, tmp, args.seconds / 2, '')
+    flat_out_client = fast_phase(bin_dir, tmp, args.seconds / 2, ','.join(ARMS))
 
-    def echo_msg(k):
-        msg = PoseStamped()
-        msg.pose.position.x = float(k)
-        msg.pose.orientation.w = 1.0
-        return msg, float(k)
-    stream(echo_pub, echo_msg, 1000.0, args.seconds / 2, echo_sent)
-    time.sleep(0.5)
-    stop(echo)
-    with lock:
-        rtt = [t - echo_sent[x] for t, x in log['echo'] if x in echo_sent]
-
-    # -- the simulator at real time under a full client --------------------------------------
-    sim = start([str(bin_dir / 'simulator')])
-    # what dvrk.psm / dvrk.ecm objects subscribe, for all three arms
-    types = {'measured_js': JointState, 'setpoint_js': JointState, 'measured_cp': PoseStamped,
-             'setpoint_cp': PoseStamped, 'local/measured_cp': PoseStamped,
-             'local/setpoint_cp': PoseStamped, 'measured_cv': TwistStamped,
-             'body/measured_cf': WrenchStamped, 'spatial/measured_cf': WrenchStamped,
-             'body/jacobian': Float64MultiArray, 'spatial/jacobian': Float64MultiArray,
-             'jaw/measured_js': JointState, 'jaw/setpoint_js': JointState}
-    special = {
-        ('PSM1', 'setpoint_cp'): lambda m: keep('setpoint_cp',
-                                                (time.monotonic(), m.pose.position.y)),
-        ('PSM1', 'measured_js'): lambda m: keep('measured_js', (
-            time.monotonic(), cv.seconds_from_stamp(m.header.stamp))),
-    }
-    for arm in ('PSM1', 'PSM2', 'ECM'):
-        for topic, msgtype in types.items():
-            if arm == 'ECM' and topic.startswith('jaw/'):
-                continue
-            node.create_subscription(msgtype, f'{arm}/{topic}',
-                                     special.get((arm, topic), lambda m: None), qos)
-    node.create_subscription(String, 'sim/stats', lambda m: keep('stats', json.loads(m.data)),
-                             qos)
-    state = node.create_publisher(StringStamped, 'PSM1/state_command', 10)
-    servo = node.create_publisher(PoseStamped, 'PSM1/servo_cp', 10)
-    wait_for(lambda: servo.get_subscription_count() > 0 and log['setpoint_cp'], 60.0)
-    for command in ('enable', 'home'):
-        state.publish(StringStamped(string=command))
-        time.sleep(1.0)
-    with lock:
-        T0 = log['setpoint_cp'][-1]
-    home_y = T0[1]
-
-    def goal(k):
-        # tiny side-to-side motion; y identifies the goal (unique per k)
-        y = home_y + 0.005 * np.sin(2 * np.pi * k / 2000.0) + k * 1e-9
-        msg = PoseStamped()
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = 0.0, float(y), -0.1135
-        msg.pose.orientation.x = msg.pose.orientation.y = 2 ** -0.5
-        return msg, float(y)
-
-    with lock:
-        for name in ('setpoint_cp', 'measured_js', 'stats'):
-            log[name].clear()
-    cpu0, wall0 = cpu_seconds(sim.pid), time.monotonic()
-    sent = {}
-    stream(servo, goal, 1000.0, args.seconds, sent)
-    cpu = (cpu_seconds(sim.pid) - cpu0) / (time.monotonic() - wall0)
-    time.sleep(0.3)
-    with lock:
-        received = list(log['setpoint_cp'])
-        arrivals = np.array([t for t, _ in log['measured_js']])
-        stamps = np.array([s for _, s in log['measured_js']])
-        live = [s['achieved'] for s in log['stats']]
-    stop(sim)
-
-    # -- the simulator as fast as it goes, nobody listening ----------------------------------
-    fast = start([str(bin_dir / 'simulator'), '--ros-args', '-p', 'real_time_factor:=0.0'])
-    with lock:
-        log['stats'].clear()
-    wait_for(lambda: len(log['stats']) >= 2, 60.0)
-    time.sleep(args.seconds / 2)
-    with lock:
-        flat_out = [s['achieved'] for s in log['stats'][1:]]
-    stop(fast)
-    executor.shutdown()
-    spinner.join(2.0)
-    node.destroy_node()
-    rclpy.shutdown()
-
-    sent_y = np.array(list(sent))
-    sent_t = np.array(list(sent.values()))
-    ages = []
-    for t, y in received:
-        i = int(np.argmin(np.abs(sent_y - y)))
-        if abs(sent_y[i] - y) < 1e-10:  # the setpoint shows exactly this goal
-            ages.append(t - sent_t[i])
-    gaps = np.diff(arrivals)
-    wall_rate = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
-    sim_rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
-    bare, wrapped, dt = capacity
-    print(f'stepping cost per {dt * 1e3:.0f} ms physics step: core {bare * 1e3:.3f} ms, node '
-          f'{wrapped * 1e3:.3f} ms (node / core = {wrapped / bare:.2f}); one free core sustains '
-          f'{dt / wrapped:.1f} x real time')
-    print(f'anchor echo RTT (rclpy, 1 kHz): p50 {pct(rtt, 50) * 1e3:.2f} ms, '
-          f'p99 {pct(rtt, 99) * 1e3:.2f} ms ({len(rtt)} samples)')
-    print(f'servo_cp -> setpoint_cp age: p50 {pct(ages, 50) * 1e3:.2f} ms, '
-          f'p99 {pct(ages, 99) * 1e3:.2f} ms ({len(ages)} samples); '
-          f'p50 / anchor p50 = {pct(ages, 50) / pct(rtt, 50):.1f}, '
-          f'p99 / target 3 ms = {pct(ages, 99) / TARGET_P99_S:.2f}')
-    print(f'measured_js rate: {wall_rate:.1f} Hz wall ({wall_rate / ANCHOR_STATE_HZ:.3f} x the '
-          f'dVRK 100 Hz), {sim_rate:.2f} Hz of sim time; inter-arrival jitter |dt - 10 ms| '
-          f'p50 {pct(abs(gaps - 0.01), 50) * 1e3:.2f} ms, '
-          f'p99 {pct(abs(gaps - 0.01), 99) * 1e3:.2f} ms')
-    print(f'simulator CPU with three arms at 100 Hz and a 1 kHz servo_cp stream: '
-          f'{cpu * 100:.0f} % of one core; real-time factor achieved '
-          f'{np.mean(live) if live else float("nan"):.3f} (asked 1.0)')
-    print(f'as fast as it goes (real_time_factor 0, no subscribers): '
-          f'{np.mean(flat_out) if flat_out else float("nan"):.2f} x real time')
+    if live['error']:
+        print(f'warning: the simulator rejected goals: {len(live["error"])} errors, first: '
+              f'{live["error"][0]}')
+    ms = 1e3
+    print(f'stepping cost per {dt * ms:.0f} ms physics step: core {bare * ms:.3f} ms, node '
+          f'{wrapped * ms:.3f} ms without subscribers (node / core = {wrapped / bare:.2f}), '
+          f'{full * ms:.3f} ms with every state topic of three arms subscribed; one free core '
+          f'sustains {dt / wrapped:.1f} x real time without, {dt / full:.1f} x with them')
+    print(f'anchor echo RTT (two rclpy processes, 1 kHz): p50 {pct(rtt, 50) * ms:.2f} ms, '
+          f'p99 {pct(rtt, 99) * ms:.2f} ms ({len(rtt)} samples, {anchor_lost:.1%} lost)')
+    for name, age in (('setpoint_cp', setpoint_age), ('measured_cp', measured_age)):
+        print(f'servo_cp -> {name} age: p50 {pct(age, 50) * ms:.2f} ms, '
+              f'p99 {pct(age, 99) * ms:.2f} ms, max {pct(age, 100) * ms:.2f} ms '
+              f'({len(age)} samples); p50 / anchor RTT p50 = '
+              f'{pct(age, 50) / pct(rtt, 50):.2f}, p99 / anchor RTT p99 = '
+              f'{pct(age, 99) / pct(rtt, 99):.2f}, p99 / target 3 ms = '
+              f'{pct(age, 99) / TARGET_P99_S:.2f}')
+    for who, rate, jitter in (('probe', probe_rate, probe_jitter),
+                              ('client', client_rate, client_jitter)):
+        print(f'PSM1/measured_js at the {who}: {rate:.1f} Hz wall ({rate / ANCHOR_STATE_HZ:.3f} x '
+              f'the dVRK 100 Hz); inter-arrival jitter |dt - 10 ms| '
+              f'p50 {pct(jitter, 50) * ms:.2f} ms, p99 {pct(jitter, 99) * ms:.2f} ms')
+    print(f'state stamps advance at {probe_sim_rate:.2f} Hz of simulator clock; the client '
+          f'received {client_msg_rate:.0f} state messages/s of {expected_rate:.0f} published '
+          f'({client_msg_rate / expected_rate:.3f})')
+    print(f'CPU (share of one core) while streaming: simulator {cpu["simulator"] * 100:.0f} %, '
+          f'client {cpu["client"] * 100:.0f} %, probe {cpu["probe"] * 100:.0f} %; '
+          f'real-time factor achieved {np.mean(achieved) if achieved else float("nan"):.3f} '
+          f'(asked 1.0)')
+    print(f'as fast as it goes (real_time_factor 0): {flat_out:.2f} x real time with no state '
+          f'subscribers, {flat_out_client:.2f} x with the full client')
     print(f'load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores')
 
 
