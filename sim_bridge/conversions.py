@@ -96,15 +96,41 @@ def vector_from_pose(pose):
     return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
 
 
+def quaternion_from_matrix(T):
+    """
+    Return ``(x, y, z, w)`` (floats) of the rotation of a 4x4 (or 3x3) matrix.
+
+    Shepperd's method, choosing the best-conditioned of the four formulas exactly as
+    ``scipy.spatial.transform.Rotation.from_matrix(R).as_quat()`` does for a rotation matrix (so
+    the sign is the same), in plain floats: this runs for every pose the simulator publishes.
+    """
+    (m00, m01, m02, *_), (m10, m11, m12, *_), (m20, m21, m22, *_) = np.asarray(T)[:3].tolist()
+    trace = m00 + m11 + m22
+    if trace >= m00 and trace >= m11 and trace >= m22:
+        q = (m21 - m12, m02 - m20, m10 - m01, 1.0 + trace)
+    elif m00 >= m11 and m00 >= m22:
+        q = (1.0 - trace + 2.0 * m00, m10 + m01, m20 + m02, m21 - m12)
+    elif m11 >= m22:
+        q = (m01 + m10, 1.0 - trace + 2.0 * m11, m21 + m12, m02 - m20)
+    else:
+        q = (m02 + m20, m12 + m21, 1.0 - trace + 2.0 * m22, m10 - m01)
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
+
+
 def pose_from_matrix(T):
     """Return the ``geometry_msgs/Pose`` of a 4x4 matrix."""
-    T = np.asarray(T, dtype=float)
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
     pose = Pose()
-    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
-    (pose.orientation.x, pose.orientation.y, pose.orientation.z,
-     pose.orientation.w) = (float(v) for v in q)
+    fill_pose(pose, T)
     return pose
+
+
+def fill_pose(pose, T):
+    """Write the position and orientation of a 4x4 matrix into a ``geometry_msgs/Pose``."""
+    T = np.asarray(T, dtype=float)
+    p, o = pose.position, pose.orientation
+    p.x, p.y, p.z = T[:3, 3].tolist()
+    o.x, o.y, o.z, o.w = quaternion_from_matrix(T)
 
 
 def pose_stamped(T, frame_id, stamp):
@@ -123,10 +149,9 @@ def transform_stamped(T, parent, child, stamp):
     msg.header.frame_id = parent
     msg.header.stamp = stamp
     msg.child_frame_id = child
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
     tr = msg.transform
-    tr.translation.x, tr.translation.y, tr.translation.z = (float(v) for v in T[:3, 3])
-    tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w = (float(v) for v in q)
+    tr.translation.x, tr.translation.y, tr.translation.z = T[:3, 3].tolist()
+    tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w = quaternion_from_matrix(T)
     return msg
 
 
@@ -136,7 +161,7 @@ def tf_message(transforms):
 
 
 def _floats(values):
-    return [float(v) for v in np.asarray(values, dtype=float).ravel()]
+    return np.asarray(values, dtype=float).ravel().tolist()
 
 
 def joint_state(names, stamp, position=(), velocity=(), effort=()):

@@ -31,6 +31,8 @@ infinite values, non-unit quaternions, wrong vector lengths, joint limits, reach
 and reports problems as ``error``/``warning`` events, which this face publishes.
 """
 
+from functools import cached_property
+
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
@@ -53,6 +55,68 @@ _ZERO6 = np.zeros(6)
 # Smallest step between two operating_state stamps: 1 us, so that clients comparing stamps as
 # float seconds (about 0.24 us resolution at today's epoch) still see them increase.
 _STAMP_STEP_NS = 1000
+
+
+class ArmSnapshot:
+    """
+    The state of an arm at one publication, each quantity computed once and only when asked.
+
+    Same values as the :class:`sim_bridge.arm.Arm` properties of the same names, but one forward
+    kinematics per joint vector and one Jacobian for all the topics of a state publication
+    (instead of one or more per topic).
+    """
+
+    def __init__(self, arm):
+        self.arm = arm
+        self.kinematics = arm.kinematics
+        self.reference_frame = arm.reference_frame
+
+    @cached_property
+    def measured_jp(self):
+        return self.arm.measured_jp
+
+    @cached_property
+    def setpoint_jp(self):
+        return self.arm.setpoint_jp
+
+    @cached_property
+    def base_frame(self):
+        return self.arm.base_frame
+
+    @cached_property
+    def local_measured_cp(self):
+        return self.kinematics.fk(self.measured_jp)
+
+    @cached_property
+    def local_setpoint_cp(self):
+        return self.kinematics.fk(self.setpoint_jp)
+
+    @cached_property
+    def measured_cp(self):
+        return self.base_frame @ self.local_measured_cp
+
+    @cached_property
+    def setpoint_cp(self):
+        return self.base_frame @ self.local_setpoint_cp
+
+    @cached_property
+    def jacobian_spatial(self):
+        return self.kinematics.jacobian(self.measured_jp)
+
+    @cached_property
+    def jacobian_body(self):
+        J, Rt = self.jacobian_spatial, self.local_measured_cp[:3, :3].T
+        return np.vstack([Rt @ J[:3], Rt @ J[3:]])
+
+    @cached_property
+    def measured_cv(self):
+        twist = self.jacobian_spatial @ self.arm.measured_jv
+        R = self.base_frame[:3, :3]
+        return np.concatenate([R @ twist[:3], R @ twist[3:]])
+
+    @cached_property
+    def local_measured_cv(self):
+        return self.jacobian_body @ self.arm.measured_jv
 
 
 class CrtkArm:
@@ -93,34 +157,34 @@ class CrtkArm:
         self._add_state('measured_js', JointState, self._measured_js)
         self._add_state('setpoint_js', JointState, self._setpoint_js)
         self._add_state('measured_cp', PoseStamped,
-                        lambda a, s: cv.pose_stamped(a.measured_cp, a.reference_frame, s))
+                        lambda s, t: cv.pose_stamped(s.measured_cp, s.reference_frame, t))
         self._add_state('setpoint_cp', PoseStamped,
-                        lambda a, s: cv.pose_stamped(a.setpoint_cp, a.reference_frame, s))
+                        lambda s, t: cv.pose_stamped(s.setpoint_cp, s.reference_frame, t))
         self._add_state('local/measured_cp', PoseStamped,
-                        lambda a, s: cv.pose_stamped(a.local_measured_cp, self.base_frame_id, s))
+                        lambda s, t: cv.pose_stamped(s.local_measured_cp, self.base_frame_id, t))
         self._add_state('local/setpoint_cp', PoseStamped,
-                        lambda a, s: cv.pose_stamped(a.local_setpoint_cp, self.base_frame_id, s))
+                        lambda s, t: cv.pose_stamped(s.local_setpoint_cp, self.base_frame_id, t))
         self._add_state('measured_cv', TwistStamped,
-                        lambda a, s: cv.twist_stamped(a.measured_cv, a.reference_frame, s))
+                        lambda s, t: cv.twist_stamped(s.measured_cv, s.reference_frame, t))
         self._add_state('local/measured_cv', TwistStamped,
-                        lambda a, s: cv.twist_stamped(a.local_measured_cv, self.name, s))
+                        lambda s, t: cv.twist_stamped(s.local_measured_cv, self.name, t))
         self._add_state('body/measured_cf', WrenchStamped,
-                        lambda a, s: cv.wrench_stamped(_ZERO6, self.name, s))
+                        lambda s, t: cv.wrench_stamped(_ZERO6, self.name, t))
         self._add_state('spatial/measured_cf', WrenchStamped,
-                        lambda a, s: cv.wrench_stamped(_ZERO6, a.reference_frame, s))
+                        lambda s, t: cv.wrench_stamped(_ZERO6, s.reference_frame, t))
         self._add_state('body/jacobian', Float64MultiArray,
-                        lambda a, s: cv.jacobian_array(a.jacobian_body))
+                        lambda s, t: cv.jacobian_array(s.jacobian_body))
         self._add_state('spatial/jacobian', Float64MultiArray,
-                        lambda a, s: cv.jacobian_array(a.jacobian_spatial))
+                        lambda s, t: cv.jacobian_array(s.jacobian_spatial))
         self._add_state('gravity_compensation/setpoint_js', JointState,
-                        lambda a, s: cv.joint_state(self._joint_names, s,
+                        lambda s, t: cv.joint_state(self._joint_names, t,
                                                     effort=np.zeros(len(self._joint_names))))
         if self._has_jaw:
             self._add_state('jaw/measured_js', JointState,
-                            lambda a, s: cv.joint_state(['jaw'], s, [a.jaw_measured_jp],
-                                                        [a.jaw_measured_jv], [0.0]))
+                            lambda s, t: cv.joint_state(['jaw'], t, [s.arm.jaw_measured_jp],
+                                                        [s.arm.jaw_measured_jv], [0.0]))
             self._add_state('jaw/setpoint_js', JointState,
-                            lambda a, s: cv.joint_state(['jaw'], s, [a.jaw_setpoint_jp],
+                            lambda s, t: cv.joint_state(['jaw'], t, [s.arm.jaw_setpoint_jp],
                                                         effort=[0.0]))
 
         pub = node.create_publisher
@@ -208,17 +272,20 @@ class CrtkArm:
 
     def publish_state(self, stamp):
         """Publish every state topic that has a subscriber, stamped ``stamp``."""
-        arm = self._get_arm()
+        state = None
         for pub, build in self._state.values():
             if pub.get_subscription_count():
-                pub.publish(build(arm, stamp))
+                state = state or ArmSnapshot(self._get_arm())
+                pub.publish(build(state, stamp))
 
-    def _measured_js(self, arm, stamp):
-        return cv.joint_state(self._joint_names, stamp, arm.measured_jp, arm.measured_jv,
+    def _measured_js(self, state, stamp):
+        arm = state.arm
+        return cv.joint_state(self._joint_names, stamp, state.measured_jp, arm.measured_jv,
                               arm.measured_jf)
 
-    def _setpoint_js(self, arm, stamp):
-        return cv.joint_state(self._joint_names, stamp, arm.setpoint_jp, effort=arm.setpoint_jf)
+    def _setpoint_js(self, state, stamp):
+        return cv.joint_state(self._joint_names, stamp, state.setpoint_jp,
+                              effort=state.arm.setpoint_jf)
 
     def _state_stamp(self):
         """Return the simulator clock now, bumped so operating_state stamps strictly increase."""

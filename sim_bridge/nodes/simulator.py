@@ -40,6 +40,7 @@ from crtk_msgs.msg import StringStamped
 import numpy as np
 import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -60,6 +61,11 @@ CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+# No QoS-event handlers on the node's ~150 endpoints: rclpy's executor visits each handler at
+# every wake-up (1 kHz with a streaming client), which cost more than the simulation itself; a
+# client with incompatible QoS or type is still warned by its own endpoints.
+_QUIET_PUBLISHER = PublisherEventCallbacks(use_default_callbacks=False)
+_QUIET_SUBSCRIPTION = SubscriptionEventCallbacks(use_default_callbacks=False)
 
 
 @dataclass(frozen=True)
@@ -206,6 +212,16 @@ class Simulator(Node):
         self.get_logger().info(
             f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
             f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
+
+    def create_publisher(self, *args, **kwargs):
+        """``Node.create_publisher`` without the default QoS-event handlers."""
+        kwargs.setdefault('event_callbacks', _QUIET_PUBLISHER)
+        return super().create_publisher(*args, **kwargs)
+
+    def create_subscription(self, *args, **kwargs):
+        """``Node.create_subscription`` without the default QoS-event handlers."""
+        kwargs.setdefault('event_callbacks', _QUIET_SUBSCRIPTION)
+        return super().create_subscription(*args, **kwargs)
 
     # -- time ----------------------------------------------------------------------------------
 

@@ -25,6 +25,19 @@ def test_poses_round_trip():
         np.testing.assert_allclose(cv.matrix_from_pose(msg.pose), T, atol=1e-12)
 
 
+def test_quaternions_of_published_poses_are_scipys_with_its_sign():
+    from scipy.spatial.transform import Rotation
+    rotations = list(Rotation.random(2000, random_state=3).as_matrix())
+    for axis in np.eye(3):  # half turns and near half turns: the sign is decided there
+        rotations += [Rotation.from_rotvec(axis * a).as_matrix()
+                      for a in (0.0, math.pi / 2, math.pi - 1e-9, math.pi)]
+    for R in rotations:
+        T = np.eye(4)
+        T[:3, :3] = R
+        assert cv.quaternion_from_matrix(T) == pytest.approx(Rotation.from_matrix(R).as_quat(),
+                                                              abs=1e-15)
+
+
 @pytest.mark.parametrize('q, message', [
     ((0.0, 0.0, 0.0, 0.0), 'not a unit quaternion (norm 0)'),
     ((0.0, 0.0, 0.0, 2.0), 'not a unit quaternion (norm 2)'),

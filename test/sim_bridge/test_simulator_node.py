@@ -411,6 +411,32 @@ def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
     assert ros.wait_for(lambda: len(psm.get('measured_js')) > n + 20, 10.0)
 
 
+def test_a_state_snapshot_gives_the_arm_properties():
+    from sim_bridge.kinematics import ecm_kinematics
+    from sim_bridge.nodes.crtk_arm import ArmSnapshot
+    names = ('measured_jp', 'setpoint_jp', 'local_measured_cp', 'local_setpoint_cp',
+             'measured_cp', 'setpoint_cp', 'jacobian_spatial', 'jacobian_body', 'measured_cv',
+             'local_measured_cv')
+    for arm in (Arm('PSM1', psm_kinematics(), ArmConfig()),
+                Arm('ECM', ecm_kinematics(), ArmConfig(initial_jp=(0.2, 0.1, 0.05, 0.0)))):
+        arm.state_command('enable')
+        arm.state_command('home')
+        for _ in range(400):
+            arm.step(0.005)
+        T = np.eye(4)
+        T[:3, 3] = (0.01, -0.02, 0.03)
+        arm.set_base_frame(T, 'ECM')
+        goal = arm.setpoint_jp
+        goal[:2] += (0.2, -0.1)
+        arm.move_jp(goal)
+        for _ in range(20):  # mid-move: the joints have speed
+            arm.step(0.005)
+        snapshot = ArmSnapshot(arm)
+        assert np.any(arm.measured_jv != 0) and snapshot.reference_frame == 'ECM'
+        for name in names:
+            np.testing.assert_array_equal(getattr(snapshot, name), getattr(arm, name), name)
+
+
 def reachable_grasp(chain, needle, T_world_base, T_world_needle, s=1.0 / 3.0):
     """World tool pose grasping the needle at arc parameter s, with the smallest wrist angles."""
     T_base_world = invert_transform(T_world_base)
