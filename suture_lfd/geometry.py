@@ -15,6 +15,8 @@ Conventions (one page, used by every ``suture_lfd`` module):
 - Conversions are named ``<target>_from_<source>``.
 """
 
+import math
+
 import numpy as np
 from suture_lfd.validation import check_array, check_quaternions
 
@@ -322,6 +324,8 @@ def quaternion_from_matrix(R):
 
     """
     R = np.asarray(R, dtype=float)
+    if R.shape == (3, 3):
+        return _quaternion_from_one_matrix(R.tolist())
     r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
     r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
@@ -338,6 +342,25 @@ def quaternion_from_matrix(R):
     q = np.take_along_axis(cand, k[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def _quaternion_from_one_matrix(rows):
+    """Return :func:`quaternion_from_matrix` of one matrix (nested lists), in plain floats."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
+    diag = (r00 - r11 - r22, -r00 + r11 - r22, -r00 - r11 + r22, r00 + r11 + r22)
+    k = diag.index(max(diag))  # the first largest, as numpy.argmax
+    if k == 0:
+        q = (1.0 + r00 - r11 - r22, r01 + r10, r02 + r20, r21 - r12)
+    elif k == 1:
+        q = (r01 + r10, 1.0 - r00 + r11 - r22, r12 + r21, r02 - r20)
+    elif k == 2:
+        q = (r02 + r20, r12 + r21, 1.0 - r00 - r11 + r22, r10 - r01)
+    else:
+        q = (r21 - r12, r02 - r20, r10 - r01, 1.0 + r00 + r11 + r22)
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[3] < 0.0:
+        n = -n
+    return np.array([q[0] / n, q[1] / n, q[2] / n, q[3] / n])
 
 
 def transform_from_pose(pose):
