@@ -205,6 +205,37 @@ def check_poses(T, name='T', tol=1e-6, single=False):
     return T
 
 
+def pose_mismatch(Ta, Tb):
+    """
+    Distance (m) and rotation angle (rad) between two poses, in plain floats.
+
+    Parameters
+    ----------
+    Ta, Tb : ndarray, shape (4, 4)
+        Poses.
+
+    Returns
+    -------
+    tuple of float
+        ``|t_a - t_b|`` and the angle of ``R_a^T R_b`` (as :func:`rotation_angle`).
+
+    """
+    (a0, a1, a2, ax), (a3, a4, a5, ay), (a6, a7, a8, az) = Ta[:3].tolist()
+    (b0, b1, b2, bx), (b3, b4, b5, by), (b6, b7, b8, bz) = Tb[:3].tolist()
+    # D = Ra^T Rb
+    d01 = a0 * b1 + a3 * b4 + a6 * b7
+    d10 = a1 * b0 + a4 * b3 + a7 * b6
+    d02 = a0 * b2 + a3 * b5 + a6 * b8
+    d20 = a2 * b0 + a5 * b3 + a8 * b6
+    d12 = a1 * b2 + a4 * b5 + a7 * b8
+    d21 = a2 * b1 + a5 * b4 + a8 * b7
+    trace = (a0 * b0 + a3 * b3 + a6 * b6) + (a1 * b1 + a4 * b4 + a7 * b7) + (
+        a2 * b2 + a5 * b5 + a8 * b8)
+    s = 0.5 * math.sqrt((d21 - d12) ** 2 + (d02 - d20) ** 2 + (d10 - d01) ** 2)
+    return (math.sqrt((ax - bx) ** 2 + (ay - by) ** 2 + (az - bz) ** 2),
+            math.atan2(s, 0.5 * (trace - 1.0)))
+
+
 def rotation_angle(Ra, Rb):
     """
     Angle of the rotation ``Ra^T Rb`` (rad), accurate for small and large angles.
@@ -281,6 +312,15 @@ def _link_constant(joint):
     return C
 
 
+def _compose(a, b, c, d, e, f, g, h, i, x, y, z, C):
+    """Return ``[R | t] @ C`` for ``R`` = rows (a b c; d e f; g h i), t = (x, y, z), C 3x4 rows."""
+    (p, q, r, u), (s, t, w, v), (k, m, n, o) = C
+    return (a * p + b * s + c * k, a * q + b * t + c * m, a * r + b * w + c * n,
+            d * p + e * s + f * k, d * q + e * t + f * m, d * r + e * w + f * n,
+            g * p + h * s + i * k, g * q + h * t + i * m, g * r + h * w + i * n,
+            a * u + b * v + c * o + x, d * u + e * v + f * o + y, g * u + h * v + i * o + z)
+
+
 class SerialChain:
     """
     A modified-DH serial chain with a fixed tool-tip offset.
@@ -335,6 +375,7 @@ class SerialChain:
         for arr in (self.lower, self.upper, self.v_max, self.a_max, self.is_revolute, self.home,
                     self.tooltip_offset, self._const):
             arr.flags.writeable = False
+        self._float_chain = self._float_tip = None  # plain-float copies for fk(), made once
 
     def __repr__(self):
         return f'{type(self).__name__}({self.name!r}, joints={list(self.joint_names)})'
@@ -483,7 +524,26 @@ class SerialChain:
             tooltip offset.
 
         """
-        return self.fk_batch(self.check_q(q)[None])[0]
+        q = self.check_q(q).tolist()
+        if self._float_chain is None:
+            self._float_chain = [
+                (bool(rev), float(t0), float(d0), tuple(map(tuple, C[:3].tolist())))
+                for rev, t0, d0, C in zip(self.is_revolute, self._theta0, self._d0, self._const)]
+            self._float_tip = tuple(map(tuple, self.tooltip_offset[:3].tolist()))
+        # plain floats: one pose costs a fraction of the batched NumPy path
+        a, b, c, d, e, f, g, h, i = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+        x = y = z = 0.0
+        for (rev, theta0, d0, C), qi in zip(self._float_chain, q):
+            a, b, c, d, e, f, g, h, i, x, y, z = _compose(a, b, c, d, e, f, g, h, i, x, y, z, C)
+            theta, dz = (theta0 + qi, d0) if rev else (theta0, d0 + qi)
+            co, si = math.cos(theta), math.sin(theta)
+            x, y, z = x + c * dz, y + f * dz, z + i * dz
+            a, b = a * co + b * si, b * co - a * si
+            d, e = d * co + e * si, e * co - d * si
+            g, h = g * co + h * si, h * co - g * si
+        a, b, c, d, e, f, g, h, i, x, y, z = _compose(a, b, c, d, e, f, g, h, i, x, y, z,
+                                                      self._float_tip)
+        return np.array([[a, b, c, x], [d, e, f, y], [g, h, i, z], [0.0, 0.0, 0.0, 1.0]])
 
     def fk_links(self, q):
         """

@@ -19,6 +19,7 @@ from sim_bridge.dh_chain import (
     SerialChain,
     check_pose,
     check_poses,
+    pose_mismatch,
     rotation_angle,
     rotation_x,
     rotation_z,
@@ -270,9 +271,7 @@ class _RcmChain(SerialChain):
             q = self._single.solve(T, self.home if q_ref is None else q_ref)
             if q is not None:
                 q = np.array(q)
-                Tq = self.fk(q)
-                if (np.linalg.norm(Tq[:3, 3] - T[:3, 3]) <= IK_TOLERANCE
-                        and rotation_angle(Tq[:3, :3], T[:3, :3]) <= IK_TOLERANCE):
+                if max(pose_mismatch(self.fk(q), T)) <= IK_TOLERANCE:
                     return q
             # no clean solution on the fast path: the batch solver decides and words the error
         q, status, (pos_err, rot_err) = self._ik_core(T[None], q_ref, checked=True)
