@@ -37,6 +37,7 @@ from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 import numpy as np
+from rclpy.callback_groups import CallbackGroup
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from sim_bridge import conversions as cv
@@ -51,10 +52,28 @@ EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
 COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 CRTK_VERSION = '1.1.0'
+# Streaming commands (up to 1 kHz from a teleoperation client): taken by the simulator right
+# before each stepping round (:meth:`CrtkArm.take_commands`) instead of waking the executor for
+# every message; like the dVRK, which applies servo goals in its control loop.
+POLLED_COMMANDS = ('servo_jp', 'servo_jr', 'servo_jf', 'servo_cp', 'jaw/servo_jp',
+                   'jaw/servo_jf')
 _ZERO6 = np.zeros(6)
 # Smallest step between two operating_state stamps: 1 us, so that clients comparing stamps as
 # float seconds (about 0.24 us resolution at today's epoch) still see them increase.
 _STAMP_STEP_NS = 1000
+
+
+class _Polled(CallbackGroup):
+    """Callback group no executor runs: its subscriptions are read by their owner."""
+
+    def can_execute(self, entity):
+        return False
+
+    def beginning_execution(self, entity):
+        return False
+
+    def ending_execution(self, entity):
+        pass
 
 
 class ArmSnapshot:
@@ -135,6 +154,9 @@ class CrtkArm:
         Returns the simulator clock now (int nanoseconds).
     on_command : callable, optional
         Called after every command the arm received (the node flushes events there).
+    poll_servo : bool, optional
+        Leave the :data:`POLLED_COMMANDS` subscriptions out of the executor; the owner calls
+        :meth:`take_commands` before it steps the arm (default: the executor runs them).
 
     Notes
     -----
@@ -142,8 +164,10 @@ class CrtkArm:
 
     """
 
-    def __init__(self, node, name, get_arm, now_ns, on_command=None):
+    def __init__(self, node, name, get_arm, now_ns, on_command=None, poll_servo=False):
         self.name = name
+        self._polled_group = _Polled() if poll_servo else None
+        self._polled = []
         self._node = node
         self._get_arm = get_arm
         self._now_ns = now_ns
@@ -252,7 +276,24 @@ class CrtkArm:
         def callback(msg):
             handler(self._get_arm(), msg)
             self._on_command()
-        self._node.create_subscription(msg_type, f'{self.name}/{topic}', callback, COMMAND_QOS)
+        if self._polled_group is not None and topic in POLLED_COMMANDS:
+            sub = self._node.create_subscription(msg_type, f'{self.name}/{topic}', callback,
+                                                 COMMAND_QOS, callback_group=self._polled_group)
+            self._polled.append(sub)
+        else:
+            def in_order(msg):
+                self.take_commands()  # streamed commands that arrived before this one go first
+                callback(msg)
+            self._node.create_subscription(msg_type, f'{self.name}/{topic}', in_order,
+                                           COMMAND_QOS)
+
+    def take_commands(self):
+        """Handle the streaming commands (servo_*) received since the last call, in topic order."""
+        for sub in self._polled:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is not None:  # depth 1: at most the newest one is waiting
+                sub.callback(taken[0])
 
     def _not_simulated(self, topic):
         if topic not in self._warned:

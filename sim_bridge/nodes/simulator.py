@@ -27,7 +27,11 @@ every stamp the node publishes is on that clock; state topics are published ever
 seconds of simulation time. Other nodes run with ``use_sim_time:=true``.
 
 Everything (stepping, publishing, command callbacks) runs in the node's one executor thread, so
-the simulation needs no lock. Parameters: ``config/simulator.yaml``.
+the simulation needs no lock. Streaming commands (``servo_*``, up to 1 kHz from a teleoperation
+client) do not wake the executor: each stepping round takes the newest of each before it steps,
+as the dVRK applies servo goals in its control loop; any other command first takes the servo
+commands that arrived before it, so commands keep their order. Parameters:
+``config/simulator.yaml``.
 """
 
 from dataclasses import dataclass, replace
@@ -61,9 +65,9 @@ CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
-# No QoS-event handlers on the node's ~150 endpoints: rclpy's executor visits each handler at
-# every wake-up (1 kHz with a streaming client), which cost more than the simulation itself; a
-# client with incompatible QoS or type is still warned by its own endpoints.
+# No QoS-event handlers on the ~160 endpoints of the simulator and pedal nodes: rclpy's executor
+# visits each handler at every wake-up (1 kHz with a streaming client), which cost more than the
+# simulation itself; a client with incompatible QoS or type is still warned by its own endpoints.
 _QUIET_PUBLISHER = PublisherEventCallbacks(use_default_callbacks=False)
 _QUIET_SUBSCRIPTION = SubscriptionEventCallbacks(use_default_callbacks=False)
 
@@ -91,7 +95,8 @@ class SimulatorConfig:
     clock_start : float
         Simulator clock (s) when the simulation starts; < 0: the wall clock at start-up.
     tick : float
-        Wall time (s) between stepping rounds (at most; shorter when rate x factor needs it).
+        Wall time (s) between stepping rounds (at most; shorter when rate x factor needs it);
+        ``servo_*`` commands wait for the next round.
     max_lag : float
         Wall time (s) the simulation may fall behind before it skips the backlog.
     tracking : str
@@ -112,7 +117,7 @@ class SimulatorConfig:
     visualization_rate: float = 10.0
     camera_rate: float = 0.0
     clock_start: float = -1.0
-    tick: float = 0.005
+    tick: float = 0.002
     max_lag: float = 0.25
     tracking: str = 'limited'
     tool_present: bool = True
@@ -153,7 +158,23 @@ class _Every:
         return False
 
 
-class Simulator(Node):
+class _QuietEndpoints:
+    """Node mix-in: publishers and subscriptions without the default QoS-event handlers."""
+
+    def create_publisher(self, *args, **kwargs):
+        kwargs.setdefault('event_callbacks', _QUIET_PUBLISHER)
+        return super().create_publisher(*args, **kwargs)
+
+    def create_subscription(self, *args, **kwargs):
+        kwargs.setdefault('event_callbacks', _QUIET_SUBSCRIPTION)
+        return super().create_subscription(*args, **kwargs)
+
+
+class _FootPedals(_QuietEndpoints, FootPedals):
+    """The console foot pedals, sharing the simulator's executor."""
+
+
+class Simulator(_QuietEndpoints, Node):
     """The simulated dVRK: CRTK arms, scene ground truth, events, time."""
 
     def __init__(self):
@@ -195,7 +216,7 @@ class Simulator(Node):
         self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
         self._stats_pub = self.create_publisher(String, 'sim/stats', COMMAND_QOS)
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
-                                   on_command=self._flush_arm_events)
+                                   on_command=self._flush_arm_events, poll_servo=True)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, COMMAND_QOS)
@@ -212,16 +233,6 @@ class Simulator(Node):
         self.get_logger().info(
             f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
             f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
-
-    def create_publisher(self, *args, **kwargs):
-        """``Node.create_publisher`` without the default QoS-event handlers."""
-        kwargs.setdefault('event_callbacks', _QUIET_PUBLISHER)
-        return super().create_publisher(*args, **kwargs)
-
-    def create_subscription(self, *args, **kwargs):
-        """``Node.create_subscription`` without the default QoS-event handlers."""
-        kwargs.setdefault('event_callbacks', _QUIET_SUBSCRIPTION)
-        return super().create_subscription(*args, **kwargs)
 
     # -- time ----------------------------------------------------------------------------------
 
@@ -263,6 +274,9 @@ class Simulator(Node):
             n = min(behind, self._chunk)
         else:
             n = self._chunk
+        if n:
+            for face in self.arms.values():
+                face.take_commands()
         for _ in range(n):
             self._step()
         if n:
@@ -363,7 +377,7 @@ def main(args=None):
     executor.add_node(node)
     pedals = None
     if node.config.footpedals:
-        pedals = FootPedals()
+        pedals = _FootPedals()
         executor.add_node(pedals)
     try:
         executor.spin()
