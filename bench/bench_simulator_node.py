@@ -22,17 +22,25 @@ of another's measurement):
   a teleoperation client does) and subscribes to ``PSM1/setpoint_cp``, ``PSM1/measured_cp`` and
   ``PSM1/measured_js`` only.
 
+The simulator phase runs twice: with the probe alone (what the node adds to the anchor's round
+trip) and with the probe and the full client (the issue's load; on a two-core machine the three
+processes then compete for the cores, and the client's ~4000 messages/s in one rclpy process are
+most of the load).
+
 Latency metric. Each goal the probe sends carries a unique ``y`` coordinate. The dVRK applies a
 servo goal in its control loop and shows it in the state it publishes next (100 Hz); the
-simulator does the same with its physics step. For every ``setpoint_cp`` (``measured_cp``) the
-probe receives, it looks up the goal that message shows and records its *age*: receive time
-minus the time that goal was sent. Since goals change every 1 ms and the state every 10 ms, each
-goal is shown at most once, so the age is also the delay from sending a command to the first
-state message reflecting it. The age holds two DDS hops (command, state: one round trip, the
-anchor's RTT), the wait for the next physics step that applies the goal, and how old the newest
-goal already is when the state is sampled (0..1 ms at 1 kHz). ``measured_cp`` shows the goal once
-the arm has tracked it (immediately for these small, slow motions, which stay within the joint
-speed limits); messages that show no goal exactly (between goals) are not counted.
+simulator does the same with its physics step. For every ``setpoint_cp`` the probe receives, it
+looks up the goal that message shows and records its *age*: receive time minus the time that goal
+was sent. Since goals change every 1 ms and the state every 10 ms, each goal is shown at most
+once, so the age is also the delay from sending a command to the first state message reflecting
+it. The age holds two DDS hops (command, state: one round trip, the anchor's RTT), the wait for
+the node to take the command and for the physics step that applies it, and how old the newest
+goal already is when the state is sampled (0..1 ms at 1 kHz). Only the first message showing a
+goal counts (after the stream ends the last goal stays shown). ``measured_cp`` is sampled at the
+same instant from the same physics step, but the simulated arm tracks its setpoint under the
+dVRK joint speed and acceleration limits (like the physical arm's PID), so it shows the goal up
+to a tracking error rather than exactly: the probe reports its distance to the goal shown in the
+``setpoint_cp`` of the same publication (same stamp) instead of an age.
 
 Also measured:
 
@@ -208,7 +216,8 @@ def role_probe(args):
         homes = []
 
         def pose(topic, msg):
-            keep(topic, (time.monotonic(), msg.pose.position.y))
+            p, stamp = msg.pose.position, msg.header.stamp
+            keep(topic, (time.monotonic(), p.y, stamp.sec + stamp.nanosec * 1e-9, p.x, p.z))
             if topic == 'setpoint_cp':
                 homes[:] = [msg.pose]
         for topic in ('setpoint_cp', 'measured_cp'):
@@ -415,19 +424,23 @@ def read_json(path):
 
 
 def ages(sent, received):
-    """Age (s) of the goal each received message shows; messages showing no goal are skipped."""
+    """
+    Age (s) of each goal when the first received message shows it (goals never shown skipped).
+    """
     if not sent or not received:
         return np.array([])
     keys = np.array([k for k, _ in sent])
     times = np.array([t for _, t in sent])
     order = np.argsort(keys)
     keys, times = keys[order], times[order]
-    got_t = np.array([t for t, _ in received])
-    got_y = np.array([y for _, y in received])
+    got_t = np.array([r[0] for r in received])
+    got_y = np.array([r[1] for r in received])
     i = np.clip(np.searchsorted(keys, got_y), 1, len(keys) - 1)
     nearest = np.where(np.abs(keys[i - 1] - got_y) <= np.abs(keys[i] - got_y), i - 1, i)
     exact = np.abs(keys[nearest] - got_y) < 1e-10  # the message shows exactly this goal
-    return got_t[exact] - times[nearest[exact]]
+    # the first message showing each goal (after the stream ends, the last goal stays shown)
+    goal, first = np.unique(nearest[exact], return_index=True)
+    return got_t[exact][first] - times[goal]
 
 
 def rate_and_jitter(samples, window):
@@ -457,6 +470,55 @@ def fast_phase(bin_dir, tmp, seconds, arms):
     return float(np.mean([s['achieved'] for s in stats[2:]])) if len(stats) > 2 else float('nan')
 
 
+def live_phase(bin_dir, tmp, seconds, arms):
+    """
+    Simulator at real time, the probe streaming servo_cp, a client of ``arms`` ('' = none).
+
+    Returns the measurements over the probe's streaming window.
+    """
+    name = arms.replace(',', '_') or 'none'
+    sim = Proc([str(bin_dir / 'simulator')])
+    client = Proc.role('client', '--arms', arms, '--out', str(Path(tmp) / f'client_{name}.json'),
+                       stdin=True)
+    probe = Proc.role('probe', '--target', 'sim', '--seconds', str(seconds),
+                      '--out', str(Path(tmp) / f'probe_{name}.json'))
+    try:
+        client.expect('ready', 60.0)
+        probe.expect('streaming', 90.0)
+        pids = {'simulator': sim.pid, 'client': client.pid, 'probe': probe.pid}
+        cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
+        wall0 = time.monotonic()
+        probe.expect('done', seconds + 30.0)
+        # the probe stops streaming 0.3 s before 'done': about its streaming window
+        wall = time.monotonic() - wall0
+        cpu = {k: (cpu_seconds(p) - cpu0[k]) / wall for k, p in pids.items()}
+        client.tell('stop')
+        client.wait(30.0)
+    finally:
+        probe.stop()
+        client.stop()
+        sim.stop()
+    live = read_json(Path(tmp) / f'probe_{name}.json')
+    seen = read_json(Path(tmp) / f'client_{name}.json')
+    window = live['window']
+    setpoints = {r[2]: np.array([r[3], r[1], r[4]]) for r in live['setpoint_cp']}
+    tracking = np.array([np.linalg.norm(np.array([r[3], r[1], r[4]]) - setpoints[r[2]])
+                         for r in live['measured_cp'] if r[2] in setpoints])
+    probe_rate, sim_rate, probe_jitter = rate_and_jitter(live['measured_js'], window)
+    client_rate, _, client_jitter = rate_and_jitter(seen['measured_js'], window)
+    achieved = [s['achieved'] for t, s in seen['stats'] if window[0] + 1.0 <= t <= window[1]]
+    received = [(t, n) for t, n in seen['received'] if window[0] <= t <= window[1]]
+    expected = ANCHOR_STATE_HZ * sum(len(state_topics(a)) for a in arms.split(',') if a)
+    msg_rate = ((received[-1][1] - received[0][1]) / (received[-1][0] - received[0][0])
+                if expected and len(received) > 1 else float('nan'))
+    return {'age': ages(live['sent'], live['setpoint_cp']),
+            'setpoint_messages': len(live['setpoint_cp']), 'tracking': tracking,
+            'errors': live['error'], 'probe_rate': probe_rate, 'probe_jitter': probe_jitter,
+            'client_rate': client_rate, 'client_jitter': client_jitter, 'sim_rate': sim_rate,
+            'achieved': float(np.mean(achieved)) if achieved else float('nan'),
+            'client_msg_rate': msg_rate, 'expected_rate': expected, 'cpu': cpu}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='length of each phase (s)')
@@ -472,6 +534,7 @@ def main():
     tmp = tempfile.mkdtemp(prefix='bench_simulator_node_')
     seconds = str(args.seconds)
 
+    load_before = os.getloadavg()[0]
     bare, wrapped, full, dt = loop_capacity()
 
     # -- anchor: probe <-> plain rclpy echo, 1 kHz PoseStamped round trips --------------------
@@ -489,47 +552,14 @@ def main():
     rtt = np.array([t - sent_at[k] for t, k in anchor['echo'] if k in sent_at])
     anchor_lost = 1.0 - len(rtt) / max(1, len(anchor['sent']))
 
-    # -- the simulator at real time under a full dVRK client, probe streaming servo_cp ----------
-    sim = Proc([str(bin_dir / 'simulator')])
-    client = Proc.role('client', '--out', str(Path(tmp) / 'client.json'), stdin=True)
-    probe = Proc.role('probe', '--target', 'sim', '--seconds', seconds,
-                      '--out', str(Path(tmp) / 'probe.json'))
-    try:
-        client.expect('ready', 60.0)
-        probe.expect('streaming', 90.0)
-        pids = {'simulator': sim.pid, 'client': client.pid, 'probe': probe.pid}
-        cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
-        wall0 = time.monotonic()
-        probe.expect('done', args.seconds + 30.0)
-        # the probe has stopped streaming 0.3 s before 'done': CPU over its streaming window
-        wall = time.monotonic() - wall0
-        cpu = {k: (cpu_seconds(p) - cpu0[k]) / wall for k, p in pids.items()}
-        client.tell('stop')
-        client.wait(30.0)
-    finally:
-        probe.stop()
-        client.stop()
-        sim.stop()
-    live = read_json(Path(tmp) / 'probe.json')
-    seen = read_json(Path(tmp) / 'client.json')
-    window = live['window']
-    setpoint_age = ages(live['sent'], live['setpoint_cp'])
-    measured_age = ages(live['sent'], live['measured_cp'])
-    probe_rate, probe_sim_rate, probe_jitter = rate_and_jitter(live['measured_js'], window)
-    client_rate, _, client_jitter = rate_and_jitter(seen['measured_js'], window)
-    achieved = [s['achieved'] for t, s in seen['stats'] if window[0] + 1.0 <= t <= window[1]]
-    received = [(t, n) for t, n in seen['received'] if window[0] <= t <= window[1]]
-    expected_rate = ANCHOR_STATE_HZ * sum(len(state_topics(a)) for a in ARMS)
-    client_msg_rate = ((received[-1][1] - received[0][1]) / (received[-1][0] - received[0][0])
-                       if len(received) > 1 else float('nan'))
+    # -- the simulator at real time, probe streaming servo_cp: alone, then with a full client --
+    alone = live_phase(bin_dir, tmp, args.seconds, '')
+    loaded = live_phase(bin_dir, tmp, args.seconds, ','.join(ARMS))
 
     # -- the simulator as fast as it goes --------------------------------------------------------
     flat_out = fast_phase(bin_dir, tmp, args.seconds / 2, '')
     flat_out_client = fast_phase(bin_dir, tmp, args.seconds / 2, ','.join(ARMS))
 
-    if live['error']:
-        print(f'warning: the simulator rejected goals: {len(live["error"])} errors, first: '
-              f'{live["error"][0]}')
     ms = 1e3
     print(f'stepping cost per {dt * ms:.0f} ms physics step: core {bare * ms:.3f} ms, node '
           f'{wrapped * ms:.3f} ms without subscribers (node / core = {wrapped / bare:.2f}), '
@@ -537,28 +567,43 @@ def main():
           f'sustains {dt / wrapped:.1f} x real time without, {dt / full:.1f} x with them')
     print(f'anchor echo RTT (two rclpy processes, 1 kHz): p50 {pct(rtt, 50) * ms:.2f} ms, '
           f'p99 {pct(rtt, 99) * ms:.2f} ms ({len(rtt)} samples, {anchor_lost:.1%} lost)')
-    for name, age in (('setpoint_cp', setpoint_age), ('measured_cp', measured_age)):
-        print(f'servo_cp -> {name} age: p50 {pct(age, 50) * ms:.2f} ms, '
+    for title, r in (('probe only (PSM1: servo_cp in, 3 state topics out)', alone),
+                     ('probe + a dVRK client of all three arms', loaded)):
+        print(f'-- simulator at real_time_factor 1, {title}:')
+        if r['errors']:
+            print(f'   warning: the simulator rejected goals: {len(r["errors"])} errors, first: '
+                  f'{r["errors"][0]}')
+        age = r['age']
+        print(f'   servo_cp -> setpoint_cp age: p50 {pct(age, 50) * ms:.2f} ms, '
               f'p99 {pct(age, 99) * ms:.2f} ms, max {pct(age, 100) * ms:.2f} ms '
-              f'({len(age)} samples); p50 / anchor RTT p50 = '
-              f'{pct(age, 50) / pct(rtt, 50):.2f}, p99 / anchor RTT p99 = '
-              f'{pct(age, 99) / pct(rtt, 99):.2f}, p99 / target 3 ms = '
-              f'{pct(age, 99) / TARGET_P99_S:.2f}')
-    for who, rate, jitter in (('probe', probe_rate, probe_jitter),
-                              ('client', client_rate, client_jitter)):
-        print(f'PSM1/measured_js at the {who}: {rate:.1f} Hz wall ({rate / ANCHOR_STATE_HZ:.3f} x '
-              f'the dVRK 100 Hz); inter-arrival jitter |dt - 10 ms| '
-              f'p50 {pct(jitter, 50) * ms:.2f} ms, p99 {pct(jitter, 99) * ms:.2f} ms')
-    print(f'state stamps advance at {probe_sim_rate:.2f} Hz of simulator clock; the client '
-          f'received {client_msg_rate:.0f} state messages/s of {expected_rate:.0f} published '
-          f'({client_msg_rate / expected_rate:.3f})')
-    print(f'CPU (share of one core) while streaming: simulator {cpu["simulator"] * 100:.0f} %, '
-          f'client {cpu["client"] * 100:.0f} %, probe {cpu["probe"] * 100:.0f} %; '
-          f'real-time factor achieved {np.mean(achieved) if achieved else float("nan"):.3f} '
-          f'(asked 1.0)')
+              f'({len(age)} samples of {r["setpoint_messages"]} messages); '
+              f'p50 / anchor RTT p50 = {pct(age, 50) / pct(rtt, 50):.2f}, '
+              f'p99 / anchor RTT p99 = {pct(age, 99) / pct(rtt, 99):.2f}, '
+              f'p99 / target 3 ms = {pct(age, 99) / TARGET_P99_S:.2f}')
+        tracking = r['tracking']
+        print(f'   measured_cp - setpoint_cp of the same publication (tracking error): '
+              f'p50 {pct(tracking, 50) * 1e6:.1f} um, p99 {pct(tracking, 99) * 1e6:.1f} um')
+        for who in ('probe', 'client'):
+            rate, jitter = r[f'{who}_rate'], r[f'{who}_jitter']
+            if len(jitter):
+                print(f'   PSM1/measured_js at the {who}: {rate:.1f} Hz wall '
+                      f'({rate / ANCHOR_STATE_HZ:.3f} x the dVRK 100 Hz); inter-arrival jitter '
+                      f'|dt - 10 ms| p50 {pct(jitter, 50) * ms:.2f} ms, '
+                      f'p99 {pct(jitter, 99) * ms:.2f} ms')
+        if np.isfinite(r['client_msg_rate']):
+            print(f'   the client received {r["client_msg_rate"]:.0f} state messages/s of '
+                  f'{r["expected_rate"]:.0f} published '
+                  f'({r["client_msg_rate"] / r["expected_rate"]:.3f})')
+        cpu = r['cpu']
+        print(f'   state stamps advance at {r["sim_rate"]:.2f} Hz of simulator clock; CPU (share '
+              f'of one core) while streaming: simulator {cpu["simulator"] * 100:.0f} %, client '
+              f'{cpu["client"] * 100:.0f} %, probe {cpu["probe"] * 100:.0f} %; real-time factor '
+              f'achieved {r["achieved"]:.3f} (asked 1.0)')
     print(f'as fast as it goes (real_time_factor 0): {flat_out:.2f} x real time with no state '
           f'subscribers, {flat_out_client:.2f} x with the full client')
-    print(f'load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores')
+    print(f'load average (1 min): {load_before:.1f} before the run, {os.getloadavg()[0]:.1f} '
+          f'after, on {os.cpu_count()} cores (the probe, client and simulator need about 1.5 '
+          f'cores: numbers from a busier machine are not comparable)')
 
 
 if __name__ == '__main__':
