@@ -321,6 +321,11 @@ def _compose(a, b, c, d, e, f, g, h, i, x, y, z, C):
             a * u + b * v + c * o + x, d * u + e * v + f * o + y, g * u + h * v + i * o + z)
 
 
+def _matrix(a, b, c, d, e, f, g, h, i, x, y, z):
+    """Return the 4x4 array of rotation rows (a b c; d e f; g h i) and translation (x, y, z)."""
+    return np.array([[a, b, c, x], [d, e, f, y], [g, h, i, z], [0.0, 0.0, 0.0, 1.0]])
+
+
 class SerialChain:
     """
     A modified-DH serial chain with a fixed tool-tip offset.
@@ -524,7 +529,32 @@ class SerialChain:
             tooltip offset.
 
         """
-        q = self.check_q(q).tolist()
+        return self._fk_floats(self.check_q(q).tolist())[0]
+
+    def fk_wrist_and_tip(self, q, link):
+        """
+        Frame of one DH link and the tool tip, for one joint vector.
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Joint values (rad / m).
+        link : int
+            Link index ``1..n`` (as in :meth:`fk_links`).
+
+        Returns
+        -------
+        T_link, T_tip : ndarray, shape (4, 4)
+            ``T_base_link`` and ``T_base_tip`` (metres).
+
+        """
+        if not 1 <= link <= self.n_joints:
+            raise ValueError(f'link must be in 1..{self.n_joints}, got {link}')
+        tip, frame = self._fk_floats(self.check_q(q).tolist(), link)
+        return frame, tip
+
+    def _fk_floats(self, q, link=None):
+        """Return (tip pose, link frame or None) of ``q`` (list of floats) in plain floats."""
         if self._float_chain is None:
             self._float_chain = [
                 (bool(rev), float(t0), float(d0), tuple(map(tuple, C[:3].tolist())))
@@ -533,7 +563,8 @@ class SerialChain:
         # plain floats: one pose costs a fraction of the batched NumPy path
         a, b, c, d, e, f, g, h, i = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
         x = y = z = 0.0
-        for (rev, theta0, d0, C), qi in zip(self._float_chain, q):
+        kept = None
+        for k, ((rev, theta0, d0, C), qi) in enumerate(zip(self._float_chain, q), start=1):
             a, b, c, d, e, f, g, h, i, x, y, z = _compose(a, b, c, d, e, f, g, h, i, x, y, z, C)
             theta, dz = (theta0 + qi, d0) if rev else (theta0, d0 + qi)
             co, si = math.cos(theta), math.sin(theta)
@@ -541,9 +572,10 @@ class SerialChain:
             a, b = a * co + b * si, b * co - a * si
             d, e = d * co + e * si, e * co - d * si
             g, h = g * co + h * si, h * co - g * si
-        a, b, c, d, e, f, g, h, i, x, y, z = _compose(a, b, c, d, e, f, g, h, i, x, y, z,
-                                                      self._float_tip)
-        return np.array([[a, b, c, x], [d, e, f, y], [g, h, i, z], [0.0, 0.0, 0.0, 1.0]])
+            if k == link:
+                kept = _matrix(a, b, c, d, e, f, g, h, i, x, y, z)
+        tip = _matrix(*_compose(a, b, c, d, e, f, g, h, i, x, y, z, self._float_tip))
+        return tip, kept
 
     def fk_links(self, q):
         """

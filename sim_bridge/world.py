@@ -591,8 +591,10 @@ class World:
         """
         chain = self.kinematics[name]
         shape = self.config.instrument
-        frames = self.T_world_base[name] @ chain.fk_links(q)
-        tip = frames[-1] @ chain.tooltip_offset
+        link4, tip = chain.fk_wrist_and_tip(q, 4)
+        T_world_base = self.T_world_base[name]
+        link4 = T_world_base @ link4
+        tip = T_world_base @ tip
         R = tip[:3, :3]
         hinge = tip[:3, 3]
         half = 0.5 * float(jaw)
@@ -601,8 +603,8 @@ class World:
         dir_a = R @ np.array([0.0, -s, c])
         dir_b = R @ np.array([0.0, s, c])
         L = shape.jaw_length
-        wrist = frames[4][:3, 3]
-        shaft_end = wrist - shape.shaft_radius * frames[4][:3, 2]
+        wrist = link4[:3, 3]
+        shaft_end = wrist - shape.shaft_radius * link4[:3, 2]
         return np.array([hinge + L * dir_a, hinge + L * dir_b, hinge + 0.5 * L * dir_a,
                          hinge + 0.5 * L * dir_b, hinge, wrist, shaft_end])
 
