@@ -69,7 +69,7 @@ import threading
 import time
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-if '--role' not in sys.argv:  # helper processes inherit the run's private domain
+if '--role' not in sys.argv:  # role processes inherit the run's private domain
     os.environ['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
 
 import numpy as np  # noqa: E402
@@ -112,7 +112,7 @@ def qos_profiles():
     return state, event
 
 
-# -- helper processes ---------------------------------------------------------------------------
+# -- role processes -----------------------------------------------------------------------------
 
 def spin_in_thread(node):
     from rclpy.executors import SingleThreadedExecutor
@@ -324,7 +324,7 @@ def role_client(args):
 # -- the orchestrating process --------------------------------------------------------------------
 
 class Proc:
-    """A helper process (this script with ``--role``) or the simulator, in its own session."""
+    """A role process (this script with ``--role``) or the simulator, in its own session."""
 
     def __init__(self, argv, stdin=False):
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
@@ -337,7 +337,7 @@ class Proc:
         return cls([sys.executable, __file__, '--role', role, *extra], stdin=stdin)
 
     def expect(self, word, timeout):
-        """Wait for a line ``word`` on the process's stdout (the helper protocol)."""
+        """Wait for a line ``word`` on the process's stdout (the role protocol)."""
         box = []
         reader = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()),
                                   daemon=True)
