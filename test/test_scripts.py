@@ -35,7 +35,9 @@ def test_stopping_the_simulator_script_stops_the_simulator(tmp_path, sig):
         child = int(re.search(r'pid (\d+)', line).group(1))
         log = tmp_path / 'simulator.log'
         deadline = time.monotonic() + 120
-        while 'simulating' not in log.read_text() and time.monotonic() < deadline:
+        # the script announces the child before the child has opened its log
+        while (not log.exists() or 'simulating' not in log.read_text()) \
+                and time.monotonic() < deadline:
             time.sleep(0.2)
         assert 'simulating' in log.read_text()
         environ = Path(f'/proc/{child}/environ').read_bytes().split(b'\0')

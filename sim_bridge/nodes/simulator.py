@@ -99,6 +99,9 @@ class SimulatorConfig:
         ``servo_*`` commands wait for the next round.
     max_lag : float
         Wall time (s) the simulation may fall behind before it skips the backlog.
+    clock_rate : float
+        ``/clock`` messages per second of wall time, at most (one per stepping round below
+        it): every node on ``use_sim_time`` handles each one.
     tracking : str
         ``'limited'`` (joints follow setpoints within the dVRK limits) or ``'exact'``.
     tool_present : bool
@@ -119,6 +122,7 @@ class SimulatorConfig:
     clock_start: float = -1.0
     tick: float = 0.002
     max_lag: float = 0.25
+    clock_rate: float = 200.0
     tracking: str = 'limited'
     tool_present: bool = True
     footpedals: bool = True
@@ -127,8 +131,10 @@ class SimulatorConfig:
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
             raise ValueError(f'parameter real_time_factor must be >= 0 (0: as fast as possible), '
                              f'got {self.real_time_factor}')
-        if not (math.isfinite(self.rate) and self.rate > 0):
-            raise ValueError(f'parameter rate must be > 0 Hz, got {self.rate}')
+        for name in ('rate', 'clock_rate'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f'parameter {name} must be > 0 Hz, got {value}')
         for name in ('tf_rate', 'visualization_rate', 'camera_rate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -211,6 +217,7 @@ class Simulator(_QuietEndpoints, Node):
         self.skipped = 0.0  # simulation seconds dropped because the loop fell behind
         self._stepped = 0
         self._stats_wall = time.monotonic()
+        self._clock_wall, self._clock_period = -math.inf, 1.0 / cfg.clock_rate - 1e-4
 
         self._clock_pub = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
         self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
@@ -279,8 +286,9 @@ class Simulator(_QuietEndpoints, Node):
                 face.take_commands()
         for _ in range(n):
             self._step()
-        if n:
+        if n and wall - self._clock_wall >= self._clock_period:
             self._clock_pub.publish(cv.clock_message(self.stamp()))
+            self._clock_wall = wall
         self._stepped += n
         if wall - self._stats_wall >= STATS_PERIOD:
             self._publish_stats(wall)
