@@ -7,9 +7,16 @@ from ``conftest``: a folder may hold its own conftest.py).
 """
 
 import os
+import signal
 
 from harness import NodeProcess, RosHarness, executable
 import pytest
+
+# A test run started in the background of a non-interactive shell inherits SIGINT ignored, and
+# so would every node and script it starts: they could not be stopped the way a user stops
+# them (Ctrl-C). Give the run, and through it its children, the default disposition back.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
