@@ -240,8 +240,10 @@ def test_a_client_runs_the_dvrk_arm_test_sequence(ros, launch):
     assert np.all(stamps > 0) and np.all(np.diff(stamps) > 0)
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     assert rate == pytest.approx(100.0, rel=0.02)
-    latest_clock = cv.seconds_from_stamp(clock[-1])
-    assert abs(stamp_s(psm.last('measured_js')) - latest_clock) < 0.1
+    # current: within 0.1 s of /clock. The client takes one message per topic in turn, so on a
+    # starved CPU its /clock queue (2x the state rate) falls behind; compare once it caught up.
+    assert ros.wait_for(lambda: abs(stamp_s(psm.last('measured_js'))
+                                    - cv.seconds_from_stamp(clock[-1])) < 0.1, 10.0)
 
     psm.enable_and_home()
     setpoint = np.array(psm.last('setpoint_js').position)
