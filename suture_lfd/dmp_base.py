@@ -19,7 +19,7 @@ from suture_lfd.dmp_equations import (
     basis_activations,
     canonical_phase,
     uniform_activations,
-    uniform_features,
+    uniform_phase,
 )
 from suture_lfd.validation import check_positive, check_times
 
@@ -142,8 +142,7 @@ class Primitive:
         if np.ptp(steps) <= 1e-9 * steps.mean():
             # evenly spaced (a resampled demonstration): cached phase, spacing for the
             # derivatives
-            x, _ = uniform_features(s.size, 2, self.params.alpha_x)
-            return 1.0 / (s.size - 1), x, duration
+            return 1.0 / (s.size - 1), uniform_phase(s.size, self.params.alpha_x), duration
         return s, canonical_phase(s, self.params.alpha_x), duration
 
     def _activations(self, s, x, centres, widths):

@@ -153,29 +153,57 @@ def normalised_features(x, centres, widths):
 
     """
     x = np.asarray(x, dtype=float)
-    psi = basis_activations(x, centres, widths)
+    return _normalised(basis_activations(x, centres, widths), x)
+
+
+def _normalised(psi, x):
+    """Return ``psi_i x / sum_j psi_j`` from activations ``psi`` (n, n_bfs) at phases ``x``."""
     total = psi.sum(axis=1, keepdims=True)
     return psi * (x[:, None] / np.where(total > 1e-300, total, 1e-300))
 
 
 @lru_cache(maxsize=32)
-def _uniform_features(n_pts, n_bfs, alpha_x):
-    """Return read-only (phase, features) for ``n_pts`` samples evenly spaced in [0, 1]."""
+def _uniform_phase(n_pts, alpha_x):
     x = canonical_phase(np.linspace(0.0, 1.0, n_pts), alpha_x)
-    centres = basis_centres(n_bfs, alpha_x)
-    features = normalised_features(x, centres, basis_widths(centres, alpha_x))
     x.flags.writeable = False
-    features.flags.writeable = False
-    return x, features
+    return x
 
 
 @lru_cache(maxsize=32)
 def _uniform_activations(n_pts, n_bfs, alpha_x):
-    x = canonical_phase(np.linspace(0.0, 1.0, n_pts), alpha_x)
     centres = basis_centres(n_bfs, alpha_x)
-    psi = basis_activations(x, centres, basis_widths(centres, alpha_x))
+    psi = basis_activations(_uniform_phase(n_pts, alpha_x), centres,
+                            basis_widths(centres, alpha_x))
     psi.flags.writeable = False
     return psi
+
+
+@lru_cache(maxsize=32)
+def _uniform_features(n_pts, n_bfs, alpha_x):
+    x = _uniform_phase(n_pts, alpha_x)
+    features = _normalised(_uniform_activations(n_pts, n_bfs, alpha_x), x)
+    features.flags.writeable = False
+    return x, features
+
+
+def uniform_phase(n_pts, alpha_x):
+    """
+    Return the phase ``x`` on ``n_pts`` evenly spaced samples of ``s`` in [0, 1] (cached).
+
+    Parameters
+    ----------
+    n_pts : int
+        Number of samples.
+    alpha_x : float
+        Canonical gain.
+
+    Returns
+    -------
+    ndarray, shape (n_pts,)
+        Phase (read-only).
+
+    """
+    return _uniform_phase(int(n_pts), float(alpha_x))
 
 
 def uniform_activations(n_pts, n_bfs, alpha_x):
