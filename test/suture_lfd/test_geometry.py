@@ -112,3 +112,14 @@ def test_quaternion_angle_ignores_the_sign():
     assert np.allclose(quaternion_angle(q, -q), 0.0)
     small = quaternion_product(quaternion_from_rotvec([1e-7, 0.0, 0.0]), q[0])
     assert np.isclose(quaternion_angle(q[0], small), 1e-7, rtol=1e-6)
+
+
+def test_one_matrix_gives_the_quaternion_of_the_batch():
+    """The plain-float path for one matrix agrees with the batch, including half turns."""
+    R = np.concatenate((Rotation.random(500, random_state=5).as_matrix(),
+                        np.array([np.eye(3), np.diag([1.0, -1.0, -1.0]),
+                                  np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])])))
+    batch = quaternion_from_matrix(R)
+    one = np.array([quaternion_from_matrix(r) for r in R])
+    np.testing.assert_array_equal(one, batch)
+    assert np.all(one[:, 3] >= 0.0)
