@@ -35,18 +35,24 @@ def wait_for(predicate, timeout=10.0, period=0.005):
 
 
 class RosHarness:
-    """One rclpy context on the private domain, spun by a background executor."""
+    """
+    One rclpy context on the private domain, spun by a background executor.
+
+    The executor is single-threaded: rclpy's multi-threaded executor takes a few hundred
+    messages a second at best on a busy machine, so a 200 Hz stream overflowed a test
+    subscriber's history and the test saw gaps that the node under test never made.
+    """
 
     def __init__(self):
         import rclpy
-        from rclpy.executors import MultiThreadedExecutor
+        from rclpy.executors import SingleThreadedExecutor
         import rclpy.signals
 
         self._rclpy = rclpy
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=DOMAIN_ID,
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-        self.executor = MultiThreadedExecutor(num_threads=2, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes = []
         self._thread = None
 
