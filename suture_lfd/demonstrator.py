@@ -475,12 +475,14 @@ def _pair_rng(subject, pair_name, seed, attempt):
 
 
 def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeout=60.0,
-                      attempts=3, next_pair=None, expert_config=None, require_success=True):
+                      attempts=3, next_pair=None, expert_config=None, require_success=True,
+                      command_rate=None):
     """
     Run a subject's throw on a pair in-process and sample it (with score and labels).
 
     The scene is reset with ``seed`` (+ the attempt number), the arms enabled and homed, the
-    pair made the target, and the demonstrator run with one command per sample.
+    pair made the target, and the demonstrator run with one command per sample (or per
+    ``command_rate`` period: the arms glide between streamed commands as a dVRK does).
 
     Parameters
     ----------
@@ -493,7 +495,7 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     seed : int
         Scene and subject randomness of the first attempt.
     sample_rate : float
-        Samples (and commands) per second; the physics step must divide its period.
+        Samples per second; the physics step must divide its period.
     timeout : float
         Longest simulated time (s) of a throw.
     attempts : int
@@ -505,6 +507,9 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     require_success : bool
         Raise :class:`DemonstrationError` when no attempt scores 1.0 (otherwise return the
         last attempt).
+    command_rate : float, optional
+        Commands per second (default ``sample_rate``); the sample period must divide the
+        command period.
 
     Returns
     -------
@@ -521,12 +526,20 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     if every < 1 or abs(every * sim.dt - period) > 1e-9:
         raise ValueError(f'sample period {period} s must be a multiple of the physics step '
                          f'{sim.dt} s')
+    command_rate = float(sample_rate if command_rate is None else command_rate)
+    if not command_rate > 0.0:
+        raise ValueError(f'command_rate must be > 0 Hz, got {command_rate}')
+    per_command = int(round(float(sample_rate) / command_rate))
+    if per_command < 1 or abs(per_command / float(sample_rate) - 1.0 / command_rate) > 1e-9:
+        raise ValueError(f'command period {1.0 / command_rate} s must be a multiple of the '
+                         f'sample period {period} s')
     config = sim.config.scene.expert if expert_config is None else expert_config
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     failures = []
     run = None
     for attempt in range(max(1, int(attempts))):
-        run = _one_throw(sim, subject, pair_name, seed, attempt, every, timeout, nxt, config)
+        run = _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout,
+                         nxt, config)
         if run.score.score >= 1.0:
             return run
         failures.append(f'attempt {attempt + 1}: score {run.score.score} '
@@ -538,7 +551,8 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     return run
 
 
-def _one_throw(sim, subject, pair_name, seed, attempt, every, timeout, next_pair, config):
+def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
+               config):
     scene_seed = int(seed) + 1000 * attempt
     sim.reset(seed=scene_seed)
     sim.enable_and_home_all()
@@ -552,9 +566,11 @@ def _one_throw(sim, subject, pair_name, seed, attempt, every, timeout, next_pair
             'h2': [], 'label': []}
     events = []
     t_end = sim.time + timeout
+    sample = 0
     while True:
         obs = sim.observation()
-        cmd = dem.step(obs)
+        cmd = dem.step(obs) if sample % per_command == 0 else None
+        sample += 1
         rows['t'].append(obs.t)
         rows['psm1'].append(pose_from_transform(obs.T_world_tool['PSM1']))
         rows['psm2'].append(pose_from_transform(obs.T_world_tool['PSM2']))
@@ -570,7 +586,8 @@ def _one_throw(sim, subject, pair_name, seed, attempt, every, timeout, next_pair
             raise DemonstrationError(f'demonstration on {pair_name} did not finish within '
                                      f'{timeout} s of simulated time (stuck in subtask '
                                      f'{dem.subtask})')
-        sim.apply(cmd)
+        if cmd is not None:
+            sim.apply(cmd)
         for _ in range(every):
             sim.step()
         events += sim.pop_events()

@@ -57,7 +57,11 @@ class JobSettings:
     timeout : float
         Longest simulated time (s) of one throw.
     sample_rate : float
-        Demonstration sampling and command rate (Hz).
+        Demonstration sampling rate (Hz).
+    command_rate : float
+        Rate (Hz) of a demonstrating subject's commands: 50 Hz like the executor's control
+        period; the arms glide between streamed commands, and the demonstration is still
+        sampled at ``sample_rate``.
     control_period : float
         Executor control period (s).
     physics_step : float
@@ -78,6 +82,7 @@ class JobSettings:
     demo_attempts: int = 3
     timeout: float = 60.0
     sample_rate: float = 100.0
+    command_rate: float = 50.0
     control_period: float = 0.02
     physics_step: float = 0.01
     thread_period: float = 0.05
@@ -179,7 +184,8 @@ def demo_job(job):
     subject = _subject(job['subject'])
     sim = _simulation(job['phantom'])
     run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
-                            sample_rate=s.sample_rate, timeout=s.timeout,
+                            sample_rate=s.sample_rate, command_rate=s.command_rate,
+                            timeout=s.timeout,
                             attempts=s.demo_attempts, next_pair=job.get('next_pair'),
                             require_success=False)
     record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),

@@ -84,3 +84,25 @@ def test_the_same_subject_and_seed_give_the_same_commands(simulation, cohort):
 def test_an_unknown_pair_is_named_in_the_error(simulation, cohort):
     with pytest.raises(ValueError, match='synth9'):
         run_demonstration(simulation, cohort[0], 'synth9')
+
+
+def test_commands_at_50_hz_give_the_same_throw_sampled_at_100_hz(experienced_run, simulation,
+                                                                   cohort):
+    subject = next(s for s in cohort if s.group == 'experienced')
+    run = run_demonstration(simulation, subject, 'synth1', seed=0, command_rate=50.0)
+    assert run.score.score == 1.0 and all(run.score.subtasks.values())
+    assert np.allclose(np.diff(run.demo.t), 0.01)
+    # the arms glide between the streamed commands: the same motion, the same subtasks
+    ref = experienced_run.demo
+    n = min(len(ref.t), len(run.demo.t))
+    gap = np.linalg.norm(run.demo.psm2_pose[:n, :3] - ref.psm2_pose[:n, :3], axis=1)
+    assert gap.max() < 2e-3, gap.max()
+    assert abs(run.demo.duration - ref.duration) < 0.5
+    found = [sub.name for sub in segment_demonstration(run.demo).subtasks]
+    assert found == NAMES
+
+
+@pytest.mark.parametrize('rate', [0.0, 30.0, 200.0])
+def test_a_command_rate_that_does_not_fit_the_samples_is_refused(simulation, cohort, rate):
+    with pytest.raises(ValueError, match='command'):
+        run_demonstration(simulation, cohort[0], 'synth1', command_rate=rate)
