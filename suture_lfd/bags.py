@@ -574,6 +574,144 @@ class BagReader:
         self.close()
 
 
+# --- lean CDR readers for the two message layouts a demonstration is made of ------------------
+# A demonstration bag holds thousands of PoseStamped and JointState messages; decoding each into a
+# message object costs ~40 us, while its few fields sit at offsets the CDR rules fix. These read
+# just those fields from little-endian CDR (XCDR1, the rosbag2 default) and return None for
+# anything else, so a caller falls back to BagReader.deserialize.
+
+_CDR_LE = b'\x00\x01'
+_STAMP = struct.Struct('<iII')          # sec, nanosec, frame_id length (with its NUL)
+_POSE = struct.Struct('<7d')
+_COUNT = struct.Struct('<I')
+_DOUBLE = struct.Struct('<d')
+
+
+def _cdr_header(raw):
+    """(stamp seconds, frame_id, offset after it from the CDR body start) or None."""
+    if len(raw) < 16 or raw[:2] != _CDR_LE:
+        return None
+    sec, nanosec, length = _STAMP.unpack_from(raw, 4)
+    end = 16 + length
+    if length < 1 or end > len(raw) or raw[end - 1] != 0:
+        return None
+    return sec + nanosec * 1e-9, raw[16:end - 1].decode('utf-8', 'replace'), end - 4
+
+
+def pose_stamped_fields(raw):
+    """
+    Read a geometry_msgs/PoseStamped from CDR bytes without building a message object.
+
+    Returns
+    -------
+    tuple or None
+        ``(stamp_s, frame_id, (x, y, z, qx, qy, qz, qw))``; None if the bytes are not a
+        little-endian CDR PoseStamped of the expected size.
+
+    """
+    head = _cdr_header(raw)
+    if head is None:
+        return None
+    stamp, frame, at = head
+    at = (at + 7) & ~7
+    if len(raw) - 4 - at not in (56, 57, 58, 59, 60, 61, 62, 63):   # 7 doubles (+ padding)
+        return None
+    return stamp, frame, _POSE.unpack_from(raw, 4 + at)
+
+
+def joint_state_first_position(raw):
+    """
+    Read the stamp and ``position[0]`` of a sensor_msgs/JointState from CDR bytes.
+
+    Returns
+    -------
+    tuple or None
+        ``(stamp_s, position_0)``; None if the bytes are not a little-endian CDR JointState
+        with at least one position.
+
+    """
+    head = _cdr_header(raw)
+    if head is None:
+        return None
+    stamp, _, at = head
+    n = len(raw) - 4
+    try:
+        at = (at + 3) & ~3
+        (names,) = _COUNT.unpack_from(raw, 4 + at)
+        at += 4
+        for _ in range(names):
+            at = (at + 3) & ~3
+            (length,) = _COUNT.unpack_from(raw, 4 + at)
+            at += 4 + length
+        at = (at + 3) & ~3
+        (count,) = _COUNT.unpack_from(raw, 4 + at)
+        at = (at + 4 + 7) & ~7
+        if count < 1 or at + 8 > n:
+            return None
+        return stamp, _DOUBLE.unpack_from(raw, 4 + at)[0]
+    except struct.error:
+        return None
+
+
+def _stamp_parts(t):
+    ns = int(round(float(t) * 1e9))
+    return ns // 10**9, ns % 10**9
+
+
+def _cdr_with_header(t, frame_id):
+    """Return the encapsulation and a std_msgs/Header of stamp ``t`` (s) as a bytearray."""
+    frame = frame_id.encode('utf-8') + b'\x00'
+    sec, nanosec = _stamp_parts(t)
+    return bytearray(_CDR_LE + b'\x00\x00' + _STAMP.pack(sec, nanosec, len(frame)) + frame)
+
+
+def _pad(buf, alignment):
+    """Pad ``buf`` so that its CDR body (after the 4-byte encapsulation) is aligned."""
+    buf += bytes(-(len(buf) - 4) % alignment)
+
+
+def pose_stamped_cdr(t, frame_id, pose):
+    """
+    Return the CDR bytes of a geometry_msgs/PoseStamped.
+
+    Little endian, padding zeroed as rosbags writes it.
+
+    Parameters
+    ----------
+    t : float
+        Header stamp (s), rounded to the nanosecond.
+    frame_id : str
+        Header frame.
+    pose : sequence of 7 float
+        ``(x, y, z, qx, qy, qz, qw)``.
+
+    """
+    buf = _cdr_with_header(t, frame_id)
+    _pad(buf, 8)
+    buf += _POSE.pack(*pose)
+    return bytes(buf)
+
+
+def joint_state_cdr(t, names, position):
+    """Return the CDR bytes of a sensor_msgs/JointState of ``name`` and ``position`` only."""
+    buf = _cdr_with_header(t, '')
+    _pad(buf, 4)
+    buf += _COUNT.pack(len(names))
+    for name in names:
+        _pad(buf, 4)
+        text = name.encode('utf-8') + b'\x00'
+        buf += _COUNT.pack(len(text)) + text
+    _pad(buf, 4)
+    buf += _COUNT.pack(len(position))
+    if len(position):
+        _pad(buf, 8)
+        buf += struct.pack(f'<{len(position)}d', *position)
+    for _ in range(2):                      # velocity, effort: empty
+        _pad(buf, 4)
+        buf += _COUNT.pack(0)
+    return bytes(buf)
+
+
 def open_bag(path, *, required=(), typestore=None):
     """
     Open a rosbag2 bag for reading.

@@ -176,7 +176,7 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
     pairs.update(other_pairs or {})
     t = demo.t
     t0 = float(t[0])
-    messages = []   # (t, topic, msg)
+    messages = []   # (t, topic, message object or CDR bytes)
 
     def put(time, topic, msg):
         messages.append((float(time), topic, msg))
@@ -199,15 +199,21 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
     jaws = {'PSM1': demo.psm1_jaw, 'PSM2': demo.psm2_jaw}
     holds = {'PSM1': demo.psm1_holds, 'PSM2': demo.psm2_holds}
     needle = demo.needle_pose
-    for k, tk in enumerate(t):
+    # the per-sample messages go straight to CDR bytes (bags.pose_stamped_cdr, the same bytes
+    # as serialising a message object, several times faster)
+    frames_of = {arm: 'world' if measured_frame == 'world' else f'{arm}_base' for arm in PSMS}
+    rows = {arm: poses[arm].tolist() for arm in PSMS}
+    jaw_rows = {arm: np.asarray(jaws[arm], dtype=float).tolist() for arm in PSMS}
+    needle_rows = np.asarray(needle, dtype=float).tolist()
+    for k, tk in enumerate(t.tolist()):
         for arm in PSMS:
-            frame = 'world' if measured_frame == 'world' else f'{arm}_base'
-            put(tk, f'/{arm}/measured_cp', _pose_stamped(store, poses[arm][k], frame, tk))
-            put(tk, f'/{arm}/jaw/measured_js', _joint_state(store, ['jaw'], [jaws[arm][k]], tk))
+            put(tk, f'/{arm}/measured_cp', bags.pose_stamped_cdr(tk, frames_of[arm], rows[arm][k]))
+            put(tk, f'/{arm}/jaw/measured_js', bags.joint_state_cdr(tk, ('jaw',),
+                                                                    (jaw_rows[arm][k],)))
             if holds[arm][k] != (holds[arm][k - 1] if k else False):
                 kind = 'grasp' if holds[arm][k] else 'release'
                 put(tk, '/sim/events', _event(store, tk, kind, arm=arm))
-        put(tk, '/sim/needle/measured_cp', _pose_stamped(store, needle[k], 'world', tk))
+        put(tk, '/sim/needle/measured_cp', bags.pose_stamped_cdr(tk, 'world', needle_rows[k]))
     messages.sort(key=lambda m: m[0])   # stable: keeps the order within one instant
     qos = {topic: [_LATCHED] for topic in messages_topics(messages)
            if topic.startswith('/sim/markers/') or topic.endswith('/base_frame')}
@@ -217,7 +223,8 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
             msgtype = DEMO_TOPICS.get(topic, POSE)
             if not writer.has_topic(topic):
                 writer.add_topic(topic, msgtype, qos=qos.get(topic, [_STATE_QOS]))
-            writer.write(topic, int(round(time * 1e9)), store.serialize_cdr(msg, msgtype))
+            raw = msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype)
+            writer.write(topic, int(round(time * 1e9)), raw)
         writer.set_custom_data('suture_lfd.demonstration', demo.pair)
         return dict(writer.counts)
 
@@ -229,16 +236,39 @@ def messages_topics(messages):
 
 # --- reading ---------------------------------------------------------------------------------
 
-def _series(reader, topic, decode):
-    """Return (stamps (n,), values list) of a topic, by header stamp, sorted."""
+def _series(reader, messages, decode, fast=None):
+    """
+    Return (stamps (n,), values list) of one topic's messages, by header stamp, sorted.
+
+    ``fast(raw) -> (stamp, value) or None`` reads a message's bytes directly; a message it
+    cannot read is decoded into a message object and given to ``decode``.
+    """
     times, values = [], []
-    for message in reader.messages([topic]):
-        msg = reader.deserialize(message)
-        stamp = _seconds(msg.header.stamp) if hasattr(msg, 'header') else message.t_ns * 1e-9
-        times.append(stamp)
-        values.append(decode(msg))
+    for message in messages:
+        got = fast(message.rawdata) if fast is not None else None
+        if got is None:
+            msg = reader.deserialize(message)
+            stamp = _seconds(msg.header.stamp) if hasattr(msg, 'header') else message.t_ns * 1e-9
+            got = stamp, decode(msg)
+        times.append(got[0])
+        values.append(got[1])
     order = np.argsort(np.asarray(times), kind='stable')
     return np.asarray(times)[order], [values[i] for i in order]
+
+
+def _fast_pose(raw):
+    got = bags.pose_stamped_fields(raw)
+    return None if got is None else (got[0], (got[1], np.array(got[2])))
+
+
+def _fast_pose_matrix(raw):
+    got = bags.pose_stamped_fields(raw)
+    return None if got is None else (got[0], transform_from_pose(np.array(got[2])))
+
+
+def _fast_pose_vector(raw):
+    got = bags.pose_stamped_fields(raw)
+    return None if got is None else (got[0], np.array(got[2]))
 
 
 def _unique(times, values, path, topic):
@@ -345,19 +375,29 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
                            if t.startswith('/sim/markers/')})
             raise bags.BagError(f'{path}: bag has no messages on {", ".join(missing)} (marker '
                                 f'pair {name!r}; pairs in the bag: {have})')
+        # one pass over the bag, then each topic from its own list
+        wanted = [topic_in, topic_out, '/sim/needle/measured_cp']
+        for arm in PSMS:
+            wanted += [f'/sim/{arm}/base_frame', f'/{arm}/measured_cp', f'/{arm}/jaw/measured_js']
+        by_topic = {topic: [] for topic in wanted}
+        for message in reader.messages(wanted):
+            by_topic[message.topic].append(message)
+
+        def matrix(m):
+            return transform_from_pose(_pose_vector(m))
         markers = {}
         for topic in (topic_in, topic_out):
-            _, values = _series(reader, topic, lambda m: transform_from_pose(_pose_vector(m)))
+            _, values = _series(reader, by_topic[topic], matrix, _fast_pose_matrix)
             markers[topic] = values[-1]
         bases = {}
         for arm in PSMS:
-            _, values = _series(reader, f'/sim/{arm}/base_frame',
-                                lambda m: transform_from_pose(_pose_vector(m)))
+            _, values = _series(reader, by_topic[f'/sim/{arm}/base_frame'], matrix,
+                                _fast_pose_matrix)
             bases[arm] = values[-1]
         series = {}
         for arm in PSMS:
-            times, values = _series(reader, f'/{arm}/measured_cp',
-                                    lambda m: (m.header.frame_id, _pose_vector(m)))
+            times, values = _series(reader, by_topic[f'/{arm}/measured_cp'],
+                                    lambda m: (m.header.frame_id, _pose_vector(m)), _fast_pose)
             poses = _world_poses([v[0] for v in values], [v[1] for v in values], arm,
                                  bases[arm], path) if values else values
             series[f'{arm}_pose'] = _unique(times, list(poses), path, f'/{arm}/measured_cp')
@@ -367,9 +407,11 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
                     raise bags.BagError(f'{path}: a /{a}/jaw/measured_js message has no '
                                         'position')
                 return float(m.position[0])
-            times, values = _series(reader, f'/{arm}/jaw/measured_js', jaw)
+            times, values = _series(reader, by_topic[f'/{arm}/jaw/measured_js'], jaw,
+                                    bags.joint_state_first_position)
             series[f'{arm}_jaw'] = _unique(times, values, path, f'/{arm}/jaw/measured_js')
-        times, values = _series(reader, '/sim/needle/measured_cp', _pose_vector)
+        times, values = _series(reader, by_topic['/sim/needle/measured_cp'], _pose_vector,
+                                _fast_pose_vector)
         series['needle'] = _unique(times, values, path, '/sim/needle/measured_cp')
     start = max(s[0][0] for s in series.values())
     stop = min(s[0][-1] for s in series.values())

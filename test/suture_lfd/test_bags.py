@@ -313,3 +313,56 @@ def test_bag_commands_inspect_and_recover(tmp_path, store):
     with Reader(out) as reader:
         recovered = reader.message_count
     assert 0 < recovered < bags.bag_summary(tmp_path / 'demo').message_count
+
+
+@pytest.mark.parametrize('frame', ['', 'w', 'world', 'PSM1_base', 'abcdefg', 'abcdefgh'])
+def test_lean_pose_stamped_cdr_is_what_ros_serialises_and_reads_back(store, frame):
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    rng = np.random.default_rng(len(frame))
+    for t in (0.0, 1.23456789, 1_750_000_000.005, 12.999999999):
+        pose = rng.normal(size=7)
+        raw = bags.pose_stamped_cdr(t, frame, pose)
+        msg = deserialize_message(raw, PoseStamped)
+        assert msg.header.frame_id == frame
+        assert msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 == pytest.approx(t, abs=1e-9)
+        p, q = msg.pose.position, msg.pose.orientation
+        assert [p.x, p.y, p.z, q.x, q.y, q.z, q.w] == pose.tolist()
+        stamp, got_frame, got = bags.pose_stamped_fields(raw)
+        assert got_frame == frame and list(got) == pose.tolist()
+        assert stamp == msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        assert raw == bytes(store.serialize_cdr(store.deserialize_cdr(raw, POSE), POSE))
+        # ROS's own bytes (its padding is not zeroed) read the same
+        assert bags.pose_stamped_fields(serialize_message(msg)) == (stamp, got_frame, got)
+
+
+@pytest.mark.parametrize('names', [['jaw'], ['a', 'bc', 'def'], []])
+def test_lean_joint_state_cdr_is_what_ros_serialises_and_reads_back(store, names):
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import JointState
+
+    position = np.arange(len(names)) * 0.5 + 0.25
+    raw = bags.joint_state_cdr(3.14159, names, position)
+    msg = deserialize_message(raw, JointState)
+    assert list(msg.name) == names and list(msg.position) == position.tolist()
+    assert list(msg.velocity) == [] and list(msg.effort) == []
+    assert raw == bytes(store.serialize_cdr(store.deserialize_cdr(raw, JOINT_STATE), JOINT_STATE))
+    got = bags.joint_state_first_position(raw)
+    assert got == (None if not names else (pytest.approx(3.14159, abs=1e-9), position[0]))
+    assert bags.joint_state_first_position(serialize_message(msg)) == got
+
+
+def test_lean_readers_leave_what_they_cannot_read_to_the_full_decoder():
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+
+    pose = bags.pose_stamped_cdr(1.0, 'world', [0.0] * 7)
+    big_endian = b'\x00\x00' + pose[2:]
+    assert bags.pose_stamped_fields(big_endian) is None
+    assert bags.pose_stamped_fields(pose[:-8]) is None            # truncated
+    assert bags.pose_stamped_fields(b'') is None
+    velocity_only = JointState(name=['jaw'], velocity=[1.0])
+    assert bags.joint_state_first_position(serialize_message(velocity_only)) is None
+    assert bags.joint_state_first_position(serialize_message(PoseStamped())) is None
