@@ -70,7 +70,8 @@ class JobSettings:
         crossings between steps, so throws score alike: 15 executions of three skills on five
         pairs gave the same scores, entry and exit errors within 0.01 mm and throw times
         within 0.04 s at 5 ms and at 10 ms. Not 20 ms: there one seed in six of a throw that
-        scores 1.0 at 10 ms dragged the needle into the pad while picking it up.
+        scores 1.0 at 10 ms put the needle tip into the pad 33 mm from the entry marker while
+        carrying it there.
     demo_physics_step : float
         Simulation step (s) of the demonstrations: their samples at ``sample_rate`` need a step
         that divides the sample period.
