@@ -607,26 +607,37 @@ class ScriptedExpert:
         best, best_cost, best_roll = None, math.inf, None
         step = math.radians(c.roll_step_deg)
         rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
-        # every candidate's tool path, solved in one batch
-        candidates, paths, size = [], [], 0
-        for flip in (False, True):
-            for roll in rolls:
-                G = self.needle.grasp_transform(s, roll=roll, flip=flip)
-                inv = invert_transform(G)
-                grasp_pose = phase['grasp_at'] @ inv
-                tools = []
-                if phase['start'] is not None:
-                    pre = _backed_off(grasp_pose, c.approach_distance)
-                    tools += _dense(phase['start'], pre) + _dense(pre, grasp_pose)
-                path = np.concatenate((np.asarray(tools).reshape(-1, 4, 4), needles @ inv))
-                candidates.append((G, inv, size, size + len(path)))
-                paths.append(path)
-                size += len(path)
+        # Every candidate's carrying path first, in one batch: a candidate with one unreachable
+        # pose there costs inf whatever its approach. Then the approaches of the others, in one
+        # batch. The IK of a pose does not depend on the other poses of a batch, so this is
+        # the cost of solving every whole path at once.
         chain = self.kinematics[arm]
         T_base_world = invert_transform(phase['bases'][arm])
-        Q, ok = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.concatenate(paths)))
-        for G, inv, a, b in candidates:
-            cost, end_roll = self._joint_path_cost(chain, Q[a:b], ok[a:b], phase['roll0'])
+        grasps = [(flip, roll, self.needle.grasp_transform(s, roll=roll, flip=flip))
+                  for flip in (False, True) for roll in rolls]
+        invs = [invert_transform(G) for _, _, G in grasps]
+        carried = (needles[None] @ np.asarray(invs)[:, None]).reshape(-1, 4, 4)
+        Qc, okc = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, carried))
+        n_c = len(needles)
+        alive = [k for k in range(len(grasps)) if okc[k * n_c:(k + 1) * n_c].all()]
+        approach = {}
+        if phase['start'] is not None and alive:
+            tools, spans, size = [], {}, 0
+            for k in alive:
+                grasp_pose = phase['grasp_at'] @ invs[k]
+                pre = _backed_off(grasp_pose, c.approach_distance)
+                path = _dense(phase['start'], pre) + _dense(pre, grasp_pose)
+                spans[k] = (size, size + len(path))
+                tools += path
+                size += len(path)
+            Qa, oka = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.asarray(tools)))
+            approach = {k: (Qa[a:b], oka[a:b]) for k, (a, b) in spans.items()}
+        for k in alive:
+            G, inv = grasps[k][2], invs[k]
+            Q, ok = Qc[k * n_c:(k + 1) * n_c], okc[k * n_c:(k + 1) * n_c]
+            if k in approach:
+                Q, ok = np.concatenate((approach[k][0], Q)), np.concatenate((approach[k][1], ok))
+            cost, end_roll = self._joint_path_cost(chain, Q, ok, phase['roll0'])
             if phase['clear'] and math.isfinite(cost):
                 low = self._jaw_clearance([N @ inv for N in phase['clear']])
                 cost += 1000.0 * max(0.0, c.jaw_clearance - low)
