@@ -13,6 +13,11 @@ paper's tables beside ours, PNG figures, ``throws.csv`` / ``demos.csv`` and the 
 Long runs print progress; the per-job results are appended to ``results-<hash>.jsonl`` in the
 output folder as they finish, so running the same command again after an interruption only
 does the jobs that are missing. ``--workers N`` runs jobs in N processes.
+
+``--via-ros`` executes every throw through real node processes instead of in-process: per
+throw a ``simulator`` node (the job's phantom and seed) and an ``executor`` node with the skill
+the study learnt, on a private ROS domain per worker (:mod:`suture_lfd.study_ros`); the
+demonstrations stay in-process. Its results are stored under another configuration hash.
 """
 
 import dataclasses
@@ -27,7 +32,7 @@ import time
 import zlib
 
 import numpy as np
-from suture_lfd.study_jobs import JobSettings, init_worker, run_job
+from suture_lfd.study_jobs import JobSettings, close_worker, init_worker, run_job
 from suture_lfd.study_runner import Progress, run_stages
 from suture_lfd.study_store import ResultStore, config_hash
 
@@ -43,7 +48,8 @@ def add_arguments(parser):
                         help='cohort and study seed (same seed, same report; default 0)')
     parser.add_argument('--out', default='study', help='report folder (default ./study)')
     parser.add_argument('--workers', type=int, default=None,
-                        help='parallel worker processes (default: the number of CPUs)')
+                        help='parallel worker processes (default: the number of CPUs; half '
+                             'of them with --via-ros)')
     parser.add_argument('--quick', action='store_true',
                         help=f'small study: {QUICK_SUBJECTS} subjects (one per group), '
                              f'{QUICK_PAIRS} pairs per phantom')
@@ -57,7 +63,9 @@ def add_arguments(parser):
                         help='comma-separated phantoms (default: every phantom of the design)')
     parser.add_argument('--cohort', default=None, help='cohort file (default config/cohort.yaml)')
     parser.add_argument('--via-ros', action='store_true',
-                        help='execute the throws through the ROS node graph (not available yet)')
+                        help='execute every throw through the ROS node graph: a simulator and '
+                             'an executor node process per throw, a private ROS domain per '
+                             'worker (demonstrations stay in-process; ~10x slower per throw)')
     parser.add_argument('--plan', action='store_true',
                         help='write the configuration (subjects, seeds, jobs) and stop')
     parser.add_argument('--report-only', action='store_true',
@@ -160,6 +168,17 @@ def build_config(args):
              for name in ('scene.yaml', 'world.yaml', 'dmp.yaml', 'kinematics.yaml')
              if config_path(name).exists()}
     files['cohort'] = _file_digest(cohort_path)
+    extra = {}
+    if getattr(args, 'via_ros', False):
+        # throws through the nodes: other results, so another hash (in-process runs keep theirs)
+        from suture_lfd.study_ros import RosSettings
+
+        nodes = {k: v for k, v in dataclasses.asdict(RosSettings()).items()
+                 if k in ('real_time_factor', 'rate', 'stale_timeout')}
+        extra['via_ros'] = {'nodes': nodes,
+                            'files': {name: _file_digest(config_path(name))
+                                      for name in ('simulator.yaml', 'executor.yaml')
+                                      if config_path(name).exists()}}
     return {
         'format': STUDY_FORMAT,
         'seed': int(args.seed),
@@ -174,6 +193,7 @@ def build_config(args):
                      if k not in ('out', 'cohort_path')},
         'files': files,
         'code': _code_digest(),
+        **extra,
     }
 
 
@@ -275,13 +295,14 @@ def run_study(args, stream=None):
     """
     stream = stream if stream is not None else sys.stderr
     t0 = time.monotonic()
-    if args.via_ros:
-        print('suture-lfd study: --via-ros is not available yet: the study executes its throws '
-              'in-process on the same core the ROS nodes wrap; run without --via-ros',
-              file=sys.stderr)
-        return 2
+    ros = None
     try:
         config = build_config(args)
+        if args.via_ros and not (args.plan or args.report_only):
+            from suture_lfd.study_ros import check_executables, study_settings
+
+            check_executables()
+            ros = study_settings()
     except (ValueError, OSError) as exc:
         print(f'suture-lfd study: error: {exc}', file=sys.stderr)
         return 2
@@ -299,7 +320,12 @@ def run_study(args, stream=None):
     if args.plan:
         (out / 'jobs.json').write_text(json.dumps(demos + throws, indent=1) + '\n')
         return 0
-    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    if args.workers is not None:
+        workers = args.workers
+    elif args.via_ros:  # a throw keeps two node processes busy
+        workers = max(1, (os.cpu_count() or 1) // 2)
+    else:
+        workers = os.cpu_count() or 1
     if workers < 1:
         print(f'suture-lfd study: error: --workers must be >= 1, got {workers}', file=sys.stderr)
         return 2
@@ -317,13 +343,15 @@ def run_study(args, stream=None):
                                   initializer=init_worker, initargs=(settings,))
                 ran += run_stages([_attach_demos(throws, store)], run_job, store,
                                   workers=workers, progress=progress, initializer=init_worker,
-                                  initargs=(settings,))
+                                  initargs=(settings, ros))
             except KeyboardInterrupt:
                 ran = progress.done - progress.resumed
                 print(f'study interrupted: {progress.done}/{total} jobs stored in '
                       f'{store.path.name}; run the same command again to resume', file=stream,
                       flush=True)
                 status = 130
+            finally:
+                close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
         wall = time.monotonic() - t0
         records = _ordered_records(store, demos + throws)
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())

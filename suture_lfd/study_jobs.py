@@ -19,6 +19,11 @@ result record stored by :mod:`suture_lfd.study_store`. Paths in jobs and records
 to the study's output folder. Each worker process keeps one simulation per phantom and
 reuses it (``reset(seed)`` per throw).
 
+With ``--via-ros`` (:func:`init_worker` given :class:`suture_lfd.study_ros.RosSettings`) a
+throw's skill is executed by the simulator and executor node processes instead
+(:class:`suture_lfd.study_ros.RosThrows`); the record has the same fields, filled from what the
+nodes report. Demonstrations always run in-process.
+
 Units of the records: times s (simulated), position errors mm, orientation errors deg.
 """
 
@@ -98,15 +103,40 @@ class JobSettings:
 _STATE = {}
 
 
-def init_worker(settings):
-    """Set the job settings of this process (worker initializer)."""
+def init_worker(settings, ros=None):
+    """
+    Set the job settings of this process (worker initializer).
+
+    ``ros`` (:class:`suture_lfd.study_ros.RosSettings`, optional): execute the throws through
+    the node processes.
+    """
     logging.getLogger('suture_lfd').setLevel(logging.WARNING)
     logging.getLogger('sim_bridge').setLevel(logging.WARNING)
+    previous = _STATE.get('ros')
+    if previous is not None:
+        previous.close()
     _STATE.clear()
     _STATE['settings'] = settings
     _STATE['sims'] = {}
     _STATE['data'] = {}
     _STATE['skills'] = {}
+    _STATE['ros'] = None
+    if ros is not None:
+        import multiprocessing
+
+        from suture_lfd.study_ros import RosThrows
+
+        _STATE['ros'] = RosThrows(ros, settings.out, settings.timeout)
+        if multiprocessing.parent_process() is not None:  # a worker: stop its nodes on SIGTERM
+            _STATE['ros'].install_sigterm()
+
+
+def close_worker():
+    """Release what :func:`init_worker` set up in this process (node processes, ROS domain)."""
+    ros = _STATE.get('ros')
+    if ros is not None:
+        ros.close()
+        _STATE['ros'] = None
 
 
 def _settings():
@@ -116,7 +146,7 @@ def _settings():
 
 
 def _simulation(phantom, step=None):
-    """The worker's simulation of a phantom at ``step`` (default: the throws' physics step)."""
+    """Return the worker's simulation of a phantom at ``step`` (default: the throws' step)."""
     s = _settings()
     step = s.physics_step if step is None else float(step)
     sims = _STATE['sims']
@@ -360,9 +390,15 @@ def throw_job(job):
 
     path = str(out / job['segments'])
     skill = _skill(path, job['method'])
-    sim = _simulation(job['test_phantom'])
-    outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'], timeout=s.timeout,
-                            control_period=s.control_period)
+    ros = _STATE.get('ros')
+    if ros is None:
+        sim = _simulation(job['test_phantom'])
+        outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
+                                timeout=s.timeout, control_period=s.control_period)
+        markers = sim.phantom.markers
+    else:
+        outcome = ros.execute(job, skill)
+        markers = ros.markers(job['test_phantom'])
     record.update(score=float(outcome.score), failure=outcome.failure,
                   time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
                   exit_error_mm=float(outcome.exit_error_mm),
@@ -371,7 +407,7 @@ def throw_job(job):
         record['trajectories'] = None
         return record
     data = _training(path)
-    pair = sim.phantom.markers[job['test_pair']]
+    pair = markers[job['test_pair']]
     curves = {}
     for task in TASKS:
         n_pts = skill.dmps[task].params.n_pts if hasattr(skill.dmps[task], 'params') else None

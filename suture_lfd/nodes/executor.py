@@ -12,26 +12,47 @@ scripted, ii and iv from the DMPs through the measured grasp, streamed as ``<ARM
 ``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``, ``sim/markers/<pair>/entry|exit`` and
 ``sim/events`` (grasps, score).
 
-It stops commanding and reports when an arm stops answering (no ``measured_cp`` for
-``stale_timeout`` seconds of simulation time, estimated from the wall time since the last one
-and the rate the simulation clock was advancing over the last second; ten times that once the
-commands are done and the throw settles), when an arm leaves ``ENABLED`` (a fault), on
-``~/stop`` (std_msgs/Empty), or after ``timeout`` s. A simulator that stalls for longer than
-``stale_timeout`` (a CPU starved of time) cannot be told from one that died, and stops the
-throw too. ``~/status`` (std_msgs/String JSON,
-latched) carries the state (``idle``, ``preparing``, ``running``, ``settling``, ``done``,
-``stopped``, ``failed``), the pair and the reason; ``~/result`` (latched) the outcome of each
-throw (pair, score and subtasks from ``sim/events``, duration); every score event of a throw is
-logged as ``sim/events: {json}``. A malformed command (unknown pair, a throw already running)
-is reported on ``~/status`` and in the log; the node keeps running. With the parameter ``pair``
-the node executes that throw at start-up and exits (code 0 for a throw scored 1.0), as a shell
-script wants. Parameters: ``config/executor.yaml``.
+It stops commanding and reports when an arm stops answering, when an arm leaves ``ENABLED``
+(a fault), on ``~/stop`` (std_msgs/Empty), or after ``timeout`` s. The watchdog tells a dead
+arm from a slow machine by the simulator's own clock (``/clock``, read whether or not the node
+runs with ``use_sim_time``):
+
+- an arm is silent when ``/clock`` advanced by more than ``stale_timeout`` simulation seconds
+  since its last ``measured_cp`` was handled (ten times that once the commands are done and the
+  throw settles): the simulation runs but the arm does not answer. A machine too busy to run
+  the simulator or this node for a while stops both the clock and the arms, so it never counts;
+- the simulator is dead when neither ``/clock`` nor any ``measured_cp`` has arrived for
+  ``clock_timeout`` seconds of wall time (not counting ticks this node itself came late to);
+  keep it well above the longest stall the machine may impose on a live simulator.
+
+Without any ``/clock`` message the silence is estimated from the wall time since the last
+``measured_cp`` and the rate the simulation clock was advancing over the last second, and a
+stall longer than ``stale_timeout`` cannot be told from a dead simulator.
+
+``~/status`` (std_msgs/String JSON, latched) carries the state (``idle``, ``preparing``,
+``running``, ``settling``, ``done``, ``stopped``, ``failed``), the pair and the reason;
+``~/result`` (latched) the outcome of each throw (pair, score, subtasks, entry and exit errors
+from ``sim/events``, duration, ``time_s``: the score's throw time counted from the start of the
+throw instead of the pair's selection); every score event of a throw is logged as
+``sim/events: {json}``. With the parameter ``result_file`` the node also writes each outcome
+there as one JSON object (replaced atomically at the end of every throw): the ``~/result``
+record plus ``score_detail`` (the simulator's whole score) and ``executed``: for ``ii`` and
+``iv`` the measured needle poses (``world``, ``t`` s from the start of the subtask, ``poses``
+rows ``x, y, z, qx, qy, qz, qw``) while the plan was in that subtask; so a process without ROS
+(``suture-lfd study --via-ros``) reads the outcome. A throw that cannot be planned (no reachable
+grasp carries the needle along the rollouts) fails with ``planning_error`` in its outcome. A
+malformed command (unknown pair, a throw already running) is reported on ``~/status`` and in the
+log; the node keeps running. With the parameter ``pair`` the node executes that throw at
+start-up and exits (code 0 for a throw scored 1.0), as a shell script wants. Parameters:
+``config/executor.yaml``.
 """
 
 from collections import deque
 from dataclasses import dataclass
 import json
 import math
+import os
+from pathlib import Path
 import sys
 import time
 
@@ -41,6 +62,7 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from sim_bridge import conversions as cv
 from sim_bridge.expert import Observation
@@ -49,6 +71,7 @@ from sim_bridge.phantom import MarkerPair
 from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.executor import ExecutorConfig, ThrowExecutor
+from suture_lfd.geometry import pose_from_transform
 from suture_lfd.nodes import declare_config, run_until_finished
 from suture_lfd.skill import ThrowSkill, learn_skill
 
@@ -58,6 +81,8 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE = QoSProfile(depth=10)
+# Only the newest /clock matters (a backlog drained after a stall must not outrun measured_cp).
+CLOCK = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 @dataclass(frozen=True)
@@ -70,18 +95,20 @@ class ExecutorNodeConfig:
     pair: str = ''
     rate: float = 100.0
     stale_timeout: float = 0.1
+    clock_timeout: float = 1.0
     settle_time: float = 0.5
     timeout: float = 120.0
     prepare_timeout: float = 60.0
     home: bool = True
     phase_stopping: bool = False
     exit_when_done: bool = False
+    result_file: str = ''
 
     def __post_init__(self):
         if not self.segments and not self.skill:
             raise ValueError('parameter segments is empty: pass the segment file to learn '
                              'from, --ros-args -p segments:=PATH (or a saved skill, skill:=PATH)')
-        for name in ('rate', 'stale_timeout', 'timeout', 'prepare_timeout'):
+        for name in ('rate', 'stale_timeout', 'clock_timeout', 'timeout', 'prepare_timeout'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.settle_time < 0:
@@ -107,6 +134,12 @@ class ExecutorNode(Node):
         self._arrival = {}       # arm -> wall time (monotonic) of the last measured_cp
         self._sim_rate = 1.0     # simulation seconds per wall second, from measured_cp stamps
         self._rate_window = deque()
+        self._clock_t = None     # newest /clock (s of simulator clock)
+        self._clock_wall = None  # wall time (monotonic) /clock last advanced
+        self._clock_handled = -math.inf  # wall time (monotonic) a /clock was last handled
+        self._heard = {}         # arm -> /clock (s) when its last measured_cp was handled
+        self._pair_stamp = None  # simulator clock (s) when the simulator selected the pair
+        self._executed = {}      # 'ii' / 'iv' -> [(t, needle pose 7-vector)] measured
         self._bases, self._markers = {}, {}
         self._needle = None
         self._holders = set()
@@ -143,6 +176,7 @@ class ExecutorNode(Node):
                                      lambda m, a=a: self._bases.__setitem__(
                                          a, cv.matrix_from_pose(m.pose)), LATCHED)
         self.create_subscription(PoseStamped, 'sim/needle/measured_cp', self._on_needle, STATE)
+        self.create_subscription(ClockMsg, '/clock', self._on_clock, CLOCK)
         self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS)
         self.create_subscription(String, '~/execute', self._on_execute, STATE)
         self.create_subscription(Empty, '~/stop', self._on_stop, STATE)
@@ -172,14 +206,30 @@ class ExecutorNode(Node):
             if wall > 0.2 and advance > 0.0:
                 self._sim_rate = min(max(advance / wall, 0.05), 100.0)
         self._arrival[arm] = now
+        self._heard[arm] = stamp if self._clock_t is None else max(stamp, self._clock_t)
         self._tools[arm] = (stamp, msg.header.frame_id, cv.matrix_from_pose(msg.pose))
+
+    def _on_clock(self, msg):
+        t = cv.seconds_from_stamp(msg.clock)
+        now = time.monotonic()
+        if self._clock_t is not None and t > self._clock_t \
+                and now - self._clock_handled > 5.0 / self.config.rate:
+            # The first /clock after a while without one: this node (or the simulator) was
+            # held up, and the measured_cp that came meanwhile are still queued behind it. The
+            # jump is no sign of silent arms.
+            for a in self._heard:
+                self._heard[a] += t - self._clock_t
+        self._clock_handled = now
+        if self._clock_t is None or t > self._clock_t:
+            self._clock_t = t
+            self._clock_wall = now
 
     def _on_needle(self, msg):
         self._needle = cv.matrix_from_pose(msg.pose)
 
     def _on_event(self, msg):
         try:
-            _, data = cv.event_from_message(msg)
+            stamp, data = cv.event_from_message(msg)
         except ValueError as exc:
             self.get_logger().warning(f'sim/events: {exc}')
             return
@@ -195,10 +245,12 @@ class ExecutorNode(Node):
         elif kind == 'reset':
             self._holders.clear()
         elif kind == 'target_pair' and data.get('pair') == self._pair \
-                and self._stage == 'preparing':
+                and self._stage in ('preparing', 'running', 'settling'):
             if data.get('error'):
-                self._fail(f'the simulator refused pair {self._pair!r}: {data["error"]}')
+                if self._stage == 'preparing':
+                    self._fail(f'the simulator refused pair {self._pair!r}: {data["error"]}')
             else:
+                self._pair_stamp = stamp  # the score's time counts from here
                 self._pair_confirmed = True
         elif kind == 'score' and self._stage in ('running', 'settling'):
             self._score = data.get('score')
@@ -239,6 +291,7 @@ class ExecutorNode(Node):
         self._pair_confirmed = False
         self._markers = {}
         self._score = None
+        self._pair_stamp = None
         self._executor = None
         self._t_start = self._t_done = None
         for sub in self._marker_subs:
@@ -303,11 +356,15 @@ class ExecutorNode(Node):
 
     def _silence(self):
         """
-        Return the simulation seconds since the oldest last PSM ``measured_cp`` (estimated).
+        Return the silence of the arms: ``(simulation s, wall s or None)``.
 
-        Wall time during which this node itself was busy (a tick that came late, e.g. while
-        planning) is not held against the simulator: messages that arrived meanwhile are still
-        queued, so the count restarts at the late tick.
+        The first is the simulation time ``/clock`` advanced since the oldest last PSM
+        ``measured_cp`` was handled (without ``/clock``: estimated from the wall time and the
+        simulation rate); the second the wall time since anything came from the simulator
+        (``/clock`` or a ``measured_cp``; None without ``/clock``). Wall time during which this
+        node itself was busy (a tick that came late, e.g. while planning) is not held against
+        the simulator: messages that arrived meanwhile are still queued, so the wall counts
+        restart at the late tick.
         """
         now = time.monotonic()
         late = now - self._last_tick > 5.0 / self.config.rate
@@ -315,7 +372,14 @@ class ExecutorNode(Node):
         if late:
             for a in PSMS:
                 self._arrival[a] = max(self._arrival.get(a, now), now - 1.0 / self.config.rate)
-        return max((now - self._arrival.get(a, -math.inf)) * self._sim_rate for a in PSMS)
+            if self._clock_wall is not None:
+                self._clock_wall = max(self._clock_wall, now - 1.0 / self.config.rate)
+        if self._clock_t is None:
+            return max((now - self._arrival.get(a, -math.inf)) * self._sim_rate
+                       for a in PSMS), None
+        silence = max(self._clock_t - self._heard.get(a, -math.inf) for a in PSMS)
+        heard = max([self._clock_wall] + [self._arrival.get(a, -math.inf) for a in PSMS])
+        return max(silence, 0.0), now - heard
 
     def _fault(self):
         for a in PSMS:
@@ -326,15 +390,37 @@ class ExecutorNode(Node):
 
     def _result_record(self, state, reason):
         score = self._score if isinstance(self._score, dict) else None
+        duration = (None if self._t_start is None
+                    else (self._t_done or self._last_obs_t or self._t_start) - self._t_start)
+        time_s = duration
+        if score is not None and score.get('score') == 1.0 and score.get('time_s') is not None \
+                and self._pair_stamp is not None and self._t_start is not None:
+            # the scorer counts from the pair's selection, before the arms were homed
+            time_s = score['time_s'] - (self._t_start - self._pair_stamp)
         return {'pair': self._pair, 'state': state, 'reason': reason,
                 'method': self.skill.method.name, 'learnt_on': self.skill.pair.name,
                 'score': None if score is None else score.get('score'),
                 'subtasks': None if score is None else score.get('subtasks'),
                 'failure': None if score is None else score.get('failure'),
-                'duration': (None if self._t_start is None
-                             else (self._t_done or self._last_obs_t or self._t_start)
-                             - self._t_start),
-                'servo_cp_sent': self._sent}
+                'entry_error_mm': None if score is None else score.get('entry_error_mm'),
+                'exit_error_mm': None if score is None else score.get('exit_error_mm'),
+                'duration': duration, 'time_s': time_s, 'servo_cp_sent': self._sent}
+
+    def _write_result(self, record):
+        """Write the outcome to ``result_file`` (whole or not at all)."""
+        path = Path(self.config.result_file)
+        executed = {task: {'t': [t - rows[0][0] for t, _ in rows],
+                           'poses': [pose.tolist() for _, pose in rows]}
+                    for task, rows in self._executed.items()}
+        data = {**record, 'score_detail': self._score if isinstance(self._score, dict) else None,
+                'executed': executed}
+        tmp = path.with_name(path.name + '.part')
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(data, sort_keys=True))
+            os.replace(tmp, path)
+        except OSError as exc:
+            self.get_logger().error(f'cannot write result_file {path}: {exc}')
 
     def _halt(self, state, reason, **extra):
         """Stop commanding, say why, publish the result."""
@@ -343,6 +429,8 @@ class ExecutorNode(Node):
         record = {**self._result_record(state, reason), **extra}
         log(f'throw on {self._pair} {state}: {reason} {json.dumps(record, sort_keys=True)}')
         self._result.publish(String(data=json.dumps(record, sort_keys=True)))
+        if self.config.result_file:
+            self._write_result(record)
         self._stage = state
         self._stage_wall = time.monotonic()
         self._publish_status(state, reason, **extra)
@@ -387,11 +475,13 @@ class ExecutorNode(Node):
                                               phase_stopping=cfg.phase_stopping))
                     self._executor.reset(obs)
                 except ValueError as exc:
-                    self._fail(f'cannot plan the throw on {self._pair}: {exc}')
+                    self._halt('failed', f'cannot plan the throw on {self._pair}: {exc}',
+                               planning_error=str(exc))
                     return
                 self._t_start = self._last_obs_t = obs.t
                 self._subtask = None
                 self._sent = 0
+                self._executed = {}
                 self._enter('running', f'throw on {self._pair} started')
                 return
             if not cfg.home or self._waited() > cfg.prepare_timeout:
@@ -406,14 +496,22 @@ class ExecutorNode(Node):
                     elif not s.is_homed and not s.is_busy:
                         self._state_command(a, 'home')
             return
-        silence = self._silence()
+        silence, quiet = self._silence()
         # While commanding, 100 ms of silence stops the throw; once the commands are done
-        # (settling) a stall of the simulator is only reported if it lasts ten times longer.
+        # (settling) a silent arm is only reported if it lasts ten times longer.
         if silence > cfg.stale_timeout * (1.0 if stage == 'running' else 10.0):
             last = min(self._tools[a][0] for a in PSMS)
             self._halt('stopped', f'no measured_cp for {silence * 1e3:.0f} ms of simulation '
                                   f'time (last at t = {last:.3f} s): the arms stopped answering',
                        silence_s=silence, last_measured_t=last)
+            return
+        if quiet is not None and quiet > cfg.clock_timeout:
+            last = min(self._tools[a][0] for a in PSMS)
+            self._halt('stopped', f'no /clock and no measured_cp for {quiet:.2f} s of wall time '
+                                  f'(last measured_cp at t = {last:.3f} s, {silence * 1e3:.0f} '
+                                  'ms of simulation time before the clock stopped): the '
+                                  'simulator stopped', silence_s=silence, wall_silence_s=quiet,
+                       last_measured_t=last)
             return
         fault = self._fault()
         if fault is not None:
@@ -426,6 +524,9 @@ class ExecutorNode(Node):
         if stage == 'running':
             command = self._executor.step(obs)
             self._send(command, obs.t)
+            if command.subtask in ('ii', 'iv'):
+                self._executed.setdefault(command.subtask, []).append(
+                    (obs.t, pose_from_transform(obs.T_world_needle)))
             if command.subtask != self._subtask:
                 self._subtask = command.subtask
                 self.get_logger().info(f'subtask {command.subtask} at t = '

@@ -173,5 +173,3 @@ def test_bad_options_are_named(tmp_path):
     assert result.returncode == 2 and "unknown method 'nonsense'" in result.stderr
     result = study(tmp_path, '--phantoms', 'jelly', '--plan')
     assert result.returncode == 2 and "unknown phantom 'jelly'" in result.stderr
-    result = study(tmp_path, '--via-ros')
-    assert result.returncode == 2 and '--via-ros is not available yet' in result.stderr
