@@ -15,6 +15,8 @@ Units: joint positions in rad or m, velocities per second, accelerations per sec
 arrays have shape (n,) for n joints.
 """
 
+import math
+
 import numpy as np
 
 
@@ -273,10 +275,38 @@ class JointMotion:
         self.upper = np.asarray(upper, dtype=float)
         self.v_max = np.asarray(v_max, dtype=float)
         self.a_max = np.asarray(a_max, dtype=float)
+        self._v_list, self._a_list = self.v_max.tolist(), self.a_max.tolist()
+        self._lower_list, self._upper_list = self.lower.tolist(), self.upper.tolist()
         self.trajectory = None
         self._t0 = 0.0
         self._ramp = None  # (start, goal, start time, interval)
         self._last_servo_time = None
+
+    def _track(self, target, velocity, dt):
+        """
+        :func:`track_step`, then the position limits (a joint held at a limit stops), per joint.
+
+        The same operations as the array version, joint by joint in plain floats: a few joints
+        are cheaper that way than through a dozen NumPy calls.
+        """
+        tv = [0.0] * len(self.q) if velocity is None else np.asarray(velocity, float).tolist()
+        q_out, qd_out = [], []
+        for q, qd, g, v, a, w, lo, hi in zip(self.q.tolist(), self.qd.tolist(), target.tolist(),
+                                              self._v_list, self._a_list, tv, self._lower_list,
+                                              self._upper_list):
+            e = g - q - w * dt
+            mag = abs(e)
+            step = min(math.sqrt(2.0 * a * mag), mag / dt)
+            v_des = min(max(w + (step if e > 0.0 else -step if e < 0.0 else 0.0 * step), -v), v)
+            dv = a * dt
+            qd_new = qd + min(max(v_des - qd, -dv), dv)
+            q_new = q + qd_new * dt
+            if abs(g - q_new) < 1e-12 and abs(qd_new) <= dv:
+                q_new = g
+            clipped = min(max(q_new, lo), hi)
+            q_out.append(clipped)
+            qd_out.append(qd_new if clipped == q_new else 0.0)
+        return np.array(q_out), np.array(qd_out)
 
     def target(self, now):
         """
@@ -392,10 +422,10 @@ class JointMotion:
         if exact:
             q = target
             qd = np.zeros_like(self.q) if velocity is None else np.array(velocity)
+            self.q = np.clip(q, self.lower, self.upper)
+            self.qd = np.where(self.q == q, qd, 0.0)
         else:
-            q, qd = track_step(self.q, self.qd, target, self.v_max, self.a_max, dt, velocity)
-        self.q = np.clip(q, self.lower, self.upper)
-        self.qd = np.where(self.q == q, qd, 0.0)
+            self.q, self.qd = self._track(target, velocity, dt)
         if self._ramp is not None and now > self._ramp[2] + self._ramp[3] * (1.0 + 1e-9):
             self._ramp = None
         if self.trajectory is None:

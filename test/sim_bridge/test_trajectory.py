@@ -168,3 +168,26 @@ def test_hold_stops_at_the_measured_position():
     motion.hold()
     assert motion.trajectory is None and motion.qd[0] == 0.0
     assert motion.setpoint[0] == motion.q[0]
+
+
+def test_a_motion_tracks_joint_by_joint_exactly_as_track_step_and_the_limits_say():
+    # JointMotion tracks in plain floats; the array functions are the definition
+    rng = np.random.default_rng(7)
+    lower, upper = np.array([-1.0, -0.5, 0.0, -2.0]), np.array([1.0, 0.5, 0.24, 2.0])
+    v_max, a_max = np.array([1.0, 0.7, 0.2, 3.0]), np.array([2.0, 1.5, 0.5, 6.0])
+    motion = JointMotion(np.zeros(4), lower, upper, v_max, a_max)
+    hits = 0
+    for k in range(3000):
+        dt = (0.002, 0.01, 0.02)[k % 3]
+        motion.q = rng.uniform(lower - 0.01, upper + 0.01)
+        motion.qd = rng.normal(scale=0.5, size=4) * (k % 5 != 0)
+        target = np.where(rng.random(4) < 0.2, motion.q + rng.normal(scale=1e-13, size=4),
+                          rng.uniform(lower - 0.2, upper + 0.2))
+        velocity = None if k % 2 else rng.normal(scale=0.3, size=4)
+        q, qd = track_step(motion.q, motion.qd, target, v_max, a_max, dt, velocity)
+        q_ref = np.clip(q, lower, upper)
+        qd_ref = np.where(q_ref == q, qd, 0.0)
+        got_q, got_qd = motion._track(target, velocity, dt)
+        assert got_q.tobytes() == q_ref.tobytes() and got_qd.tobytes() == qd_ref.tobytes(), k
+        hits += int(np.any(q_ref != q)) + int(np.any(q == target))
+    assert hits > 100   # the limits and the exact arrival were exercised
