@@ -413,8 +413,11 @@ def segment_demonstration(demo, config=None):
     i_end = approach[-1] if approach else None
     regrasp = [m for m in m1 if ii.end_time <= m.start_time < t_release]
     # PSM1's extraction starts as PSM2 lets go: the onset a filtered speed puts on it may fall
-    # a little before the release, so a motion that is still running at the release counts
-    extract = [m for m in m1 if t_regrasp <= m.start_time and m.end_time > t_release
+    # before the release, even before PSM1's own grasp, and a subject who barely stops on the
+    # needle makes one motion of the last approach and the extraction; so a PSM1 motion after
+    # the insertion that is still running at the release counts (subtask iv starts at the
+    # release at the earliest)
+    extract = [m for m in m1 if ii.end_time <= m.start_time and m.end_time > t_release
                and m.end_time <= t_handover + 1e-9]
     if not extract:
         raise ValueError('no PSM1 motion between PSM2 releasing the needle and taking it back: '

@@ -106,3 +106,33 @@ def test_commands_at_50_hz_give_the_same_throw_sampled_at_100_hz(experienced_run
 def test_a_command_rate_that_does_not_fit_the_samples_is_refused(simulation, cohort, rate):
     with pytest.raises(ValueError, match='command'):
         run_demonstration(simulation, cohort[0], 'synth1', command_rate=rate)
+
+
+def test_an_extraction_that_starts_before_psm1_closes_on_the_needle_is_found(cohort):
+    # Found by the default study: S05's demonstration on synth3 (10 ms physics, commands at
+    # 50 Hz) starts PSM1's extraction 30 ms before its grasp closes; the segmenter used to find
+    # no extraction there
+    from dataclasses import replace
+
+    from sim_bridge.simulation import Simulation, load_simulation_config
+
+    config = load_simulation_config()
+    config = replace(config, world=replace(config.world, physics_step=0.01),
+                     loop=replace(config.loop, thread_period=0.5))
+    sim = Simulation(config, phantom='synthetic', rng=np.random.default_rng(0))
+    try:
+        subject = next(s for s in cohort if s.name == 'S05')
+        run = run_demonstration(sim, subject, 'synth3', seed=1650980909, command_rate=50.0,
+                                next_pair='synth4', require_success=False)
+    finally:
+        sim.close()
+    assert run.score.score == 1.0
+    demo, labels = run.demo, run.labels
+    t_grasp = demo.t[np.argmax(demo.psm1_holds)]
+    seg = segment_demonstration(demo)
+    assert [sub.name for sub in seg.subtasks] == NAMES
+    motion = next(m for m in seg.psm1_motions if m.end_time > seg['iv'].start_time)
+    assert motion.start_time < t_grasp   # the case: the onset before the grasp
+    labelled = demo.t[labels == 'iv']
+    overlap = min(seg['iv'].end_time, labelled[-1]) - max(seg['iv'].start_time, labelled[0])
+    assert overlap > 0.9 * seg['iv'].duration
