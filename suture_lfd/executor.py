@@ -585,8 +585,9 @@ class ThrowOutcome:
         Time (s) from the start of the throw to the completed hand-over (or to the end of the
         run if it did not complete).
     failure : str
-        Failure reasons (empty when the throw is complete); ``'unreachable: ...'`` when no
-        reachable grasp carries the needle along the rollouts (nothing was executed).
+        Failure reasons (empty when the throw is complete); ``'unreachable: ...'`` when the
+        throw cannot be planned: no reachable grasp carries the needle along the rollouts, or
+        a rollout diverges (nothing was executed).
     entry_error_mm, exit_error_mm : float
         Tip crossing distances from the markers (NaN when missing).
     executed : dict of str to tuple

@@ -203,11 +203,25 @@ class QuaternionDmp(Primitive):
         """
         T, tau = self._time_grid(n_pts, T)
         start, goal = self._endpoints(start, goal)
-        U, W = self._integrate(start, goal, T.size)
+        with np.errstate(over='ignore', invalid='ignore'):
+            U, W = self._integrate(start, goal, T.size)
+        if not (np.isfinite(U).all() and np.isfinite(W).all()):
+            raise ValueError(self._divergence(start, goal))
         Q = quaternion_product(quaternion_exp(0.5 * U), goal)
         if return_velocity:
             return T, Q, W / tau
         return T, Q
+
+    def _divergence(self, start, goal):
+        """Say why a rollout from ``start`` to ``goal`` diverged (the forcing scale)."""
+        demo = self.scale(self.start_, self.goal_)
+        new = self.scale(start, goal)
+        ratio = np.abs(new) / np.maximum(np.abs(demo), 1e-12)
+        k = int(np.argmax(ratio))
+        return (f'the orientation DMP diverges from this start to this goal: the goal-relative '
+                f'rotation {np.round(np.degrees(new), 1).tolist()} deg scales a forcing term '
+                f'learnt on {np.round(np.degrees(demo), 2).tolist()} deg, {ratio[k]:.0f} times '
+                f'in component {"xyz"[k]} (the D_o scaling of the demonstrated turn)')
 
     def _integrate(self, start, goal, n):
         """Return (u, omega), each (n, 3): goal-relative rotation vector and angular velocity."""

@@ -1,9 +1,10 @@
 """
-Executor regressions found by the study: throws of segment files recorded by a quick study run.
+Executor regressions found by the study: throws of segment files the study saved.
 
-The segment files in ``data/`` are an experienced subject's demonstrations (S01) on synth1,
-synth2 and scan1, as the study saved them; the throws run on simulations stepped as the study
-steps them (5 ms physics, 20 ms control).
+The segment files in ``data/`` are demonstrations as the study saved them: an experienced
+subject's (S01) on synth1, synth2 and scan1 from a quick run, and a naive subject's (S06) on
+synth1 from the default study. The throws run on simulations stepped as the study steps them
+(5 ms physics, 20 ms control).
 """
 
 from dataclasses import replace
@@ -102,3 +103,20 @@ def test_a_grasp_nowhere_within_reach_names_the_span(synthetic):
              'paths': [RigidPath(far, far)], 'clear': (), 'bases': obs.T_world_base}
     with pytest.raises(ValueError, match=r'arc parameter 0\.90.*\[0\.50, 0\.97\]'):
         executor._choose_grasp_along('PSM1', 0.9, (0.5, 0.97), phase, 'the extraction')
+
+
+def test_an_orientation_rollout_that_diverges_says_so_instead_of_planning_on_nan(scanned):
+    # S06 synth1 -> scan1 (default study): the demonstrated extraction turns by 0.03 deg about
+    # z, the one on scan1 by 41.5 deg; the D_o scaling multiplies the learnt forcing term 1290
+    # times and the rollout overflowed, so the plan met NaN poses ("T contains NaN")
+    skill = _skill('S06_synth1')
+    dmp = skill.dmps['iv'].orientation
+    start = np.array([-0.36983854, 0.63347623, -0.66702423, 0.13040703])
+    goal = np.array([-0.68707955, -0.25864581, -0.64107913, -0.22369977])
+    with pytest.raises(ValueError, match=r'diverges .* 1290 times in component z'):
+        dmp.rollout(start / np.linalg.norm(start), goal / np.linalg.norm(goal))
+    _, Q = dmp.rollout(dmp.start_, dmp.goal_)   # its own demonstration regenerates
+    assert np.isfinite(Q).all()
+    outcome = execute_throw(scanned, skill, 'scan1', seed=1944527824, control_period=0.02)
+    assert outcome.score == 0.0 and 'NaN' not in outcome.failure, outcome.failure
+    assert outcome.failure.startswith('unreachable: the orientation DMP diverges')
