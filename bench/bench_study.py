@@ -11,7 +11,10 @@ own records), the speed-up of 2 workers over 1, and the wall time the default st
 (80 demonstrations + 640 throws per method) would take at those per-job times, against the
 issue's target of 10 minutes.
 
-Usage: ``python bench/bench_study.py [--workers 1 2] [--args ...]``
+With ``--full`` it also runs the default design for one method (80 demonstrations and 640
+throws) and reports its wall time: the issue's target is that run in 10 minutes.
+
+Usage: ``python bench/bench_study.py [--workers 1 2] [--full] [--args ...]``
 """
 
 import argparse
@@ -23,13 +26,14 @@ import tempfile
 import time
 
 SMALL = ['--quick', '--subjects', '1', '--methods', 'paper']
+FULL = ['--methods', 'paper']
 DEFAULT_DEMOS, DEFAULT_THROWS = 80, 640
 TARGET_S = 600.0
 
 
-def run(workers, extra):
+def run(workers, extra, design=SMALL):
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, '-m', 'suture_lfd.cli', 'study', '--out', tmp, *SMALL,
+        cmd = [sys.executable, '-m', 'suture_lfd.cli', 'study', '--out', tmp, *design,
                '--workers', str(workers), *extra]
         t0 = time.perf_counter()
         result = subprocess.run(cmd, capture_output=True, text=True)
@@ -53,6 +57,9 @@ def run(workers, extra):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--workers', type=int, nargs='+', default=[1, 2])
+    parser.add_argument('--full', action='store_true',
+                        help='also run the default design for one method (about 9 min on two '
+                             'cores) with the last --workers count and report its wall time')
     parser.add_argument('--args', nargs=argparse.REMAINDER, default=[])
     args = parser.parse_args()
     results = [run(w, args.args) for w in args.workers]
@@ -73,6 +80,15 @@ def main():
         print(f'speed-up of {results[-1]["workers"]} workers over {results[0]["workers"]}: '
               f'{speedup:.2f}x; default study at that speed-up: {serial / speedup / 60:.1f} min '
               f'({serial / speedup / TARGET_S:.1f}x the target)')
+        print('  (a small study is dominated by start-up: worker processes, first scenes and '
+              'skills; --full measures the default design)')
+    if args.full:
+        full = run(args.workers[-1], args.args, design=FULL)
+        print(f'default design, one method, {full["workers"]} worker(s): {full["jobs"]} jobs in '
+              f'{full["wall_s"]:.0f} s = {full["wall_s"] / 60:.1f} min '
+              f'({full["wall_s"] / TARGET_S:.2f}x the 10 min target), {full["rate"]:.2f} jobs/s, '
+              f'demo {full["demo_s"]:.2f} s, throw {full["throw_s"]:.2f} s per job'
+              + (f', {full["errors"]} jobs raised errors' if full['errors'] else ''))
     print("real-time x: simulated throw seconds per wall second (anchor: the paper's "
           'real-time simulator = 1.0); demo s / throw s: mean wall time of one job (the '
           "study's records)")
