@@ -385,19 +385,28 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
 
         def matrix(m):
             return transform_from_pose(_pose_vector(m))
+
+        def lean(topic, msgtype, reader_of_bytes):
+            # the byte readers know one layout each: other types take the full decoder
+            info = reader.topics.get(topic)
+            return reader_of_bytes if info is not None and info.msgtype == msgtype else None
         markers = {}
         for topic in (topic_in, topic_out):
-            _, values = _series(reader, by_topic[topic], matrix, _fast_pose_matrix)
+            _, values = _series(reader, by_topic[topic], matrix,
+                                lean(topic, POSE, _fast_pose_matrix))
             markers[topic] = values[-1]
         bases = {}
         for arm in PSMS:
-            _, values = _series(reader, by_topic[f'/sim/{arm}/base_frame'], matrix,
-                                _fast_pose_matrix)
+            topic = f'/sim/{arm}/base_frame'
+            _, values = _series(reader, by_topic[topic], matrix,
+                                lean(topic, POSE, _fast_pose_matrix))
             bases[arm] = values[-1]
         series = {}
         for arm in PSMS:
-            times, values = _series(reader, by_topic[f'/{arm}/measured_cp'],
-                                    lambda m: (m.header.frame_id, _pose_vector(m)), _fast_pose)
+            topic = f'/{arm}/measured_cp'
+            times, values = _series(reader, by_topic[topic],
+                                    lambda m: (m.header.frame_id, _pose_vector(m)),
+                                    lean(topic, POSE, _fast_pose))
             poses = _world_poses([v[0] for v in values], [v[1] for v in values], arm,
                                  bases[arm], path) if values else values
             series[f'{arm}_pose'] = _unique(times, list(poses), path, f'/{arm}/measured_cp')
@@ -407,11 +416,13 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
                     raise bags.BagError(f'{path}: a /{a}/jaw/measured_js message has no '
                                         'position')
                 return float(m.position[0])
-            times, values = _series(reader, by_topic[f'/{arm}/jaw/measured_js'], jaw,
-                                    bags.joint_state_first_position)
+            topic = f'/{arm}/jaw/measured_js'
+            times, values = _series(reader, by_topic[topic], jaw,
+                                    lean(topic, JOINTS, bags.joint_state_first_position))
             series[f'{arm}_jaw'] = _unique(times, values, path, f'/{arm}/jaw/measured_js')
-        times, values = _series(reader, by_topic['/sim/needle/measured_cp'], _pose_vector,
-                                _fast_pose_vector)
+        topic = '/sim/needle/measured_cp'
+        times, values = _series(reader, by_topic[topic], _pose_vector,
+                                lean(topic, POSE, _fast_pose_vector))
         series['needle'] = _unique(times, values, path, '/sim/needle/measured_cp')
     start = max(s[0][0] for s in series.values())
     stop = min(s[0][-1] for s in series.values())
