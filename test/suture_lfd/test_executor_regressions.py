@@ -105,18 +105,29 @@ def test_a_grasp_nowhere_within_reach_names_the_span(synthetic):
         executor._choose_grasp_along('PSM1', 0.9, (0.5, 0.97), phase, 'the extraction')
 
 
-def test_an_orientation_rollout_that_diverges_says_so_instead_of_planning_on_nan(scanned):
+def test_a_demonstrated_turn_of_a_hundredth_of_a_degree_is_not_scaled_up(scanned):
     # S06 synth1 -> scan1 (default study): the demonstrated extraction turns by 0.03 deg about
-    # z, the one on scan1 by 41.5 deg; the D_o scaling multiplies the learnt forcing term 1290
-    # times and the rollout overflowed, so the plan met NaN poses ("T contains NaN")
-    skill = _skill('S06_synth1')
-    dmp = skill.dmps['iv'].orientation
+    # z, the one on scan1 by 41.5 deg. With the guard's floor at 0.01 rad the D_o scaling
+    # multiplied the learnt forcing term 1290 times, the rollout overflowed and the plan met NaN
+    # poses ("T contains NaN"); the floor of 0.02 rad learns that component unscaled.
+    from suture_lfd.dmp import load_dmp_params
+
     start = np.array([-0.36983854, 0.63347623, -0.66702423, 0.13040703])
     goal = np.array([-0.68707955, -0.25864581, -0.64107913, -0.22369977])
+    start, goal = start / np.linalg.norm(start), goal / np.linalg.norm(goal)
+    old = {task: replace(load_dmp_params(task=task), scale_guard_floor_rad=0.01)
+           for task in ('ii', 'iv')}
+    diverging = learn_skill(DATA / 'study_S06_synth1.npz', 'paper', params=old)
     with pytest.raises(ValueError, match=r'diverges .* 1290 times in component z'):
-        dmp.rollout(start / np.linalg.norm(start), goal / np.linalg.norm(goal))
-    _, Q = dmp.rollout(dmp.start_, dmp.goal_)   # its own demonstration regenerates
+        diverging.dmps['iv'].orientation.rollout(start, goal)
+    outcome = execute_throw(scanned, diverging, 'scan1', seed=1944527824, control_period=0.02)
+    assert outcome.score == 0.0
+    assert outcome.failure.startswith('unreachable: the orientation DMP diverges')
+
+    skill = _skill('S06_synth1')
+    dmp = skill.dmps['iv'].orientation
+    assert dmp.degenerate_.tolist() == [False, False, True]
+    _, Q = dmp.rollout(start, goal)
     assert np.isfinite(Q).all()
     outcome = execute_throw(scanned, skill, 'scan1', seed=1944527824, control_period=0.02)
-    assert outcome.score == 0.0 and 'NaN' not in outcome.failure, outcome.failure
-    assert outcome.failure.startswith('unreachable: the orientation DMP diverges')
+    assert 'diverges' not in outcome.failure and 'NaN' not in outcome.failure, outcome.failure
