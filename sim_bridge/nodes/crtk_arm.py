@@ -54,7 +54,9 @@ COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 CRTK_VERSION = '1.1.0'
 # Streaming commands (up to 1 kHz from a teleoperation client): taken by the simulator right
 # before each stepping round (:meth:`CrtkArm.take_commands`) instead of waking the executor for
-# every message; like the dVRK, which applies servo goals in its control loop.
+# every message; like the dVRK, which applies servo goals in its control loop. Any other command
+# first takes those published before it and handles those published after it (by the senders'
+# source timestamps) after itself, so a client's sequence holds across topics.
 POLLED_COMMANDS = ('servo_jp', 'servo_jr', 'servo_jf', 'servo_cp', 'jaw/servo_jp',
                    'jaw/servo_jf')
 _ZERO6 = np.zeros(6)
@@ -281,19 +283,35 @@ class CrtkArm:
                                                  COMMAND_QOS, callback_group=self._polled_group)
             self._polled.append(sub)
         else:
-            def in_order(msg):
-                self.take_commands()  # streamed commands that arrived before this one go first
+            def in_order(msg, info):
+                # streamed commands sent before this one go first, those sent after it (already
+                # waiting too) after it: by the senders' publication stamps
+                later = self.take_commands(before_ns=info.get('source_timestamp'))
                 callback(msg)
+                for sub, newer in later:
+                    sub.callback(newer)
             self._node.create_subscription(msg_type, f'{self.name}/{topic}', in_order,
                                            COMMAND_QOS)
 
-    def take_commands(self):
-        """Handle the streaming commands (servo_*) received since the last call, in topic order."""
+    def take_commands(self, before_ns=None):
+        """
+        Handle the streaming commands (servo_*) received since the last call, in topic order.
+
+        With ``before_ns`` only those published before it (source timestamp, ns) are handled;
+        the others are returned as ``(subscription, message)`` for the caller to handle.
+        """
+        later = []
         for sub in self._polled:
             with sub.handle:
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            if taken is not None:  # depth 1: at most the newest one is waiting
+            if taken is None:  # depth 1: at most the newest one is waiting
+                continue
+            sent = taken[1].get('source_timestamp') if before_ns is not None else None
+            if sent is not None and sent > before_ns:
+                later.append((sub, taken[0]))
+            else:
                 sub.callback(taken[0])
+        return later
 
     def _not_simulated(self, topic):
         if topic not in self._warned:

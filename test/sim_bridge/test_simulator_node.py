@@ -339,6 +339,39 @@ def test_a_client_runs_the_dvrk_arm_test_sequence(ros, launch):
     assert sim.running()
 
 
+def test_commands_take_effect_in_the_order_they_were_sent(ros, launch):
+    # The node takes servo_* goals at each stepping round (as the dVRK applies them in its
+    # control loop) and every other command first takes the servo goals that came before it,
+    # so a client's sequence holds: the command sent last wins.
+    sim = launch('simulator')
+    psm = ArmClient(ros, 'PSM1')
+    assert ros.wait_for(psm.connected, 40.0), sim.log()
+    psm.enable_and_home()
+    base = np.array([0.0, 0.0, 0.12, 0.0, 0.0, 0.0])
+    psm.move('move_jp', joints(base))
+    a, b, c = (base + [d0, d1, 0.0, 0.0, 0.0, 0.0]
+               for d0, d1 in ((0.05, 0.0), (-0.05, 0.0), (-0.05, 0.03)))
+
+    def settles_at(q):
+        return ros.wait_for(lambda: np.allclose(psm.last('setpoint_js').position, q, atol=1e-9)
+                            and np.allclose(psm.last('measured_js').position, q, atol=1e-4),
+                            15.0)
+
+    # servo goals, then a move: the move runs to its goal
+    for _ in range(5):
+        psm.send('servo_jp', joints(a))
+    assert psm.move('move_jp', joints(b))[-1] is True
+    assert settles_at(b), (psm.last('setpoint_js').position, sim.log())
+    # a move, then a servo goal: the servo goal stops the move and holds
+    start = time.monotonic()
+    psm.send('move_jp', joints(a))
+    psm.send('servo_jp', joints(c))
+    assert settles_at(c), (psm.last('setpoint_js').position, sim.log())
+    time.sleep(0.5)
+    assert np.allclose(psm.last('measured_js').position, c, atol=1e-4)
+    assert not any(m.is_busy for m in psm.get('operating_state', start)[-1:])
+
+
 def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
     sim = launch('simulator')
     psm = ArmClient(ros, 'PSM2')
