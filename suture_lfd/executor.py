@@ -351,8 +351,8 @@ class ThrowExecutor(ScriptedExpert):
         bases = obs.T_world_base
 
         # ii from the DMP: start/goal on this pair, rollout in world.
-        start2, goal2 = skill.start_goal('ii', pair)
-        T2, P2, Q2 = skill.rollout('ii', pair, start=start2, goal=goal2)
+        start2, goal2 = skill.start_goal('ii', pair, needle=g)
+        T2, P2, Q2 = skill.rollout('ii', pair, start=start2, goal=goal2, needle=g)
         # The demonstrated insertion starts with the tip barely in the tissue; pressed a little
         # deeper, the rollout's own small deviations from the demonstration cannot lift the tip
         # back out through its puncture. The press fades out over the first part of the
@@ -363,8 +363,9 @@ class ThrowExecutor(ScriptedExpert):
         S2 = R2[0]
         S2_hi = _translated(S2, self.executor_config.start_lift * normal)
         N_ins = R2[-1]
-        start4, goal4 = skill.start_goal('iv', pair)
-        T4, P4, Q4 = skill.rollout('iv', pair, start=pose_from_transform(N_ins), goal=goal4)
+        start4, goal4 = skill.start_goal('iv', pair, needle=g)
+        T4, P4, Q4 = skill.rollout('iv', pair, start=pose_from_transform(N_ins), goal=goal4,
+                                   needle=g)
         R4 = _transforms(P4, Q4)
         N_lift = R4[-1]
         self.rollouts = {'ii': (T2, P2, Q2), 'iv': (T4, P4, Q4)}
@@ -372,7 +373,8 @@ class ThrowExecutor(ScriptedExpert):
         path2, path4 = SampledPath(R2), SampledPath(R4)
         if self.next_pair is not None:
             nxt = PairGeometry.of(self.next_pair)
-            S_next = _transforms(*np.split(skill.start_goal('ii', nxt)[0][None], [3], axis=1))[0]
+            start_next = skill.start_goal('ii', nxt, needle=g)[0]
+            S_next = _transforms(start_next[None, :3], start_next[None, 3:])[0]
             N_next = _translated(S_next, (self.executor_config.start_lift + c.next_lift)
                                  * np.asarray(self.next_pair.normal))
         else:

@@ -9,15 +9,26 @@ the new pair is a :class:`Method`, registered by name in :data:`METHODS`:
 
 ``paper`` (the seed paper, Sec. II-III)
     Position DMP + quaternion DMP with LWR, hyper-parameters of Table I (``config/dmp.yaml``),
-    learnt on the needle trajectory in ``world`` coordinates. The needle start and goal of a
-    subtask on the new pair are the demonstrated ones carried rigidly from the demonstrated
-    pair's suture frame to the new pair's (:func:`suture_lfd.suturing_frames.throw_start_goal`).
+    learnt on the needle trajectory in ``world`` coordinates. The paper finds "the desired
+    start and goal states" of a new pair from the ground truth of the needle and of the entry
+    and exit points: here the needle pose that has the tip at the new **entry** marker on the
+    needle's circle through the new markers (:class:`sim_bridge.throw_geometry.ThrowArc`) is the
+    insertion's start, the one with the tip at the new **exit** marker its goal, each with the
+    subject's own demonstrated offset from the corresponding pose on the demonstrated pair; the
+    extraction starts where the insertion ended and its goal is carried with the pair's suture
+    frame (anchors ``'insertion_arc'``). Carried rigidly with the pair's midpoint instead
+    (anchors ``'midpoint'``), an insertion learnt on the synthetic phantom's 8 mm pairs starts
+    and ends 2 mm off the markers of the scanned phantom's 12 mm pairs, and the other way
+    round.
 ``pair_frame`` (an improvement)
-    The same DMPs learnt in the demonstrated pair's suture frame, so the per-axis scaling
-    ``(g - y0)`` acts along the pair's own axes (across, along the wound, normal) whatever the
-    pair's heading; the start is placed relative to the new pair's **entry** marker and the
-    goal relative to its **exit** marker, so the goal follows the pair's own geometry (its
-    entry-exit distance) instead of the demonstrated pair's midpoint.
+    The same DMPs learnt in a frame of the demonstrated pair: per subtask the needle pose on
+    the pair's needle circle with the tip at the marker the subtask starts from (frame
+    ``'arc'``), start and goal placed as ``paper`` places them. The per-axis scaling
+    ``(g - y0)`` then acts along axes that turn with the pair and with the needle's circle
+    through it: on markers further apart the needle circle sits lower and the tip meets the
+    surface at another angle, which in ``world`` coordinates rotates the whole motion and
+    rescales the forcing term of every axis differently (the extraction then sweeps the
+    needle sideways through its punctures).
 
 Frames: ``world``; suture frames as in :mod:`suture_lfd.suturing_frames`. Poses are 7-vectors
 ``(x, y, z, qx, qy, qz, qw)`` or 4x4 ``T_world_needle``; metres, radians, seconds.
@@ -30,6 +41,7 @@ import zipfile
 
 import numpy as np
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping
+from sim_bridge.throw_geometry import ThrowArc
 from suture_lfd.dmp import DmpParams, PoseDmp, PositionDmp, QuaternionDmp, load_dmp_params
 from suture_lfd.geometry import pose_from_transform, transform_from_pose
 from suture_lfd.resampling import resample_poses
@@ -42,6 +54,11 @@ from suture_lfd.suturing_frames import (
 from suture_lfd.validation import check_array
 
 TASKS = ('ii', 'iv')
+ANCHORS = ('arc', 'insertion_arc', 'midpoint', 'markers')
+# Which marker each end of a learnt subtask is anchored to with anchors 'arc': the insertion
+# runs from the tip at the entry to the tip out of the exit; the extraction pulls the needle
+# on from there, the same turn whatever the distance between the markers.
+_ARC_ANCHORS = {'ii': ('entry', 'exit'), 'iv': ('exit', 'exit')}
 SKILL_FORMAT = 'suture_lfd.skill'
 SKILL_FORMAT_VERSION = 1
 
@@ -55,12 +72,26 @@ class Method:
     ----------
     name : str
         Registry name.
-    frame : {'world', 'suture'}
-        Coordinates the DMPs are learnt and rolled out in.
-    anchors : {'midpoint', 'markers'}
-        ``'midpoint'``: start and goal carried rigidly with the pair's suture frame (origin at
-        the midpoint); ``'markers'``: the start carried with a frame at the entry marker, the
-        goal with a frame at the exit marker (both with the suture frame's axes).
+    frame : {'world', 'suture', 'arc'}
+        Coordinates the DMPs are learnt and rolled out in: ``'arc'`` is, per subtask, the
+        needle pose on the pair's needle circle with the tip at the marker the subtask starts
+        from (:meth:`PairGeometry.arc_anchor`; entry for ii, exit for iv), so a pair whose
+        markers are further apart turns the needle on its own circle, not the demonstrated
+        motion's world axes.
+    anchors : {'arc', 'insertion_arc', 'midpoint', 'markers'}
+        ``'arc'``: the insertion's start carried with the needle pose that has the tip at the
+        entry marker on the needle's circle through the pair, its goal and both ends of the
+        extraction with the pose that has the tip at the exit marker
+        (:meth:`PairGeometry.arc_anchor`); ``'insertion_arc'``: the insertion as ``'arc'``,
+        the extraction as ``'midpoint'`` (its goal, out of the tissue, keeps the demonstrated
+        direction from the needle's circle in ``world`` axes, which a ``world`` DMP needs to
+        keep the demonstrated shape: its ``(g - y0)`` scaling is per axis); ``'midpoint'``:
+        start and goal carried rigidly with the pair's suture frame (origin at the midpoint);
+        ``'markers'``: the start carried with a frame at the entry marker, the goal with a frame at the exit marker (both with the
+        suture frame's axes). ``'midpoint'`` and ``'markers'`` keep the demonstrated needle
+        rotation from start to goal, so on a pair whose markers are further apart (or closer)
+        than the demonstrated ones the tip misses them (``'midpoint'``) or the needle is
+        dragged sideways through the tissue (``'markers'``).
     description : str
         One line for reports.
 
@@ -72,21 +103,21 @@ class Method:
     description: str = ''
 
     def __post_init__(self):
-        if self.frame not in ('world', 'suture'):
-            raise ValueError(f"method {self.name}: frame must be 'world' or 'suture', "
+        if self.frame not in ('world', 'suture', 'arc'):
+            raise ValueError(f"method {self.name}: frame must be 'world', 'suture' or 'arc', "
                              f'got {self.frame!r}')
-        if self.anchors not in ('midpoint', 'markers'):
-            raise ValueError(f"method {self.name}: anchors must be 'midpoint' or 'markers', "
+        if self.anchors not in ANCHORS:
+            raise ValueError(f'method {self.name}: anchors must be one of {ANCHORS}, '
                              f'got {self.anchors!r}')
 
 
 METHODS = {
-    'paper': Method('paper', 'world', 'midpoint',
-                    'seed paper: needle DMPs in world coordinates, start/goal carried with the '
-                    'suture frame'),
-    'pair_frame': Method('pair_frame', 'suture', 'markers',
-                         'needle DMPs in the pair frame, start at the entry and goal at the '
-                         'exit marker of the new pair'),
+    'paper': Method('paper', 'world', 'insertion_arc',
+                    'seed paper: needle DMPs in world coordinates, start/goal with the tip at '
+                    'the entry/exit marker of the new pair'),
+    'pair_frame': Method('pair_frame', 'arc', 'arc',
+                         'needle DMPs in the frame of the needle circle through the pair, '
+                         'start/goal with the tip at the entry/exit marker of the new pair'),
 }
 
 
@@ -149,6 +180,31 @@ class PairGeometry:
         if which != 'midpoint':
             T[:3, 3] = getattr(self, which)
         return T
+
+    def arc_anchor(self, which, needle):
+        """
+        Needle pose ``T_world_needle`` (4, 4) with the tip at the ``'entry'`` or ``'exit'`` marker.
+
+        The needle lies on its circle through both markers, in the plane of the markers and
+        the surface normal, centre above the surface, turning tip first from entry to exit
+        (:class:`sim_bridge.throw_geometry.ThrowArc`): the pose an ideal throw passes through.
+
+        Parameters
+        ----------
+        which : {'entry', 'exit'}
+            Marker.
+        needle : sim_bridge.needle.NeedleGeometry
+            Needle (radius, arc).
+
+        Raises
+        ------
+        ValueError
+            If the markers are not closer than the needle's diameter.
+
+        """
+        arc = ThrowArc(self, needle)
+        alpha = {'entry': arc.alpha_entry, 'exit': arc.alpha_exit}[which]
+        return arc.T_world_needle(alpha)
 
 
 @dataclass(frozen=True, eq=False)
@@ -255,11 +311,21 @@ def _params_for(params, task):
                      f'got {type(params).__name__}')
 
 
-def _to_frame(method, pair, P, Q):
-    """World needle positions/quaternions -> the method's DMP coordinates."""
+def _dmp_frame(method, pair, task, needle=None):
+    """``T_world_dmp`` (4, 4) of a task's DMP coordinates on a pair, or None for ``world``."""
     if method.frame == 'world':
+        return None
+    if method.frame == 'suture':
+        return pair.frame
+    return pair.arc_anchor(_ARC_ANCHORS[task][0], default_needle() if needle is None else needle)
+
+
+def _to_frame(method, pair, P, Q, task='ii', needle=None):
+    """World needle positions/quaternions -> the method's DMP coordinates."""
+    T = _dmp_frame(method, pair, task, needle)
+    if T is None:
         return P, Q
-    poses = poses_in_frame(pair.frame, np.hstack((P, Q)))
+    poses = poses_in_frame(T, np.hstack((P, Q)))
     return poses[:, :3], poses[:, 3:]
 
 
@@ -298,9 +364,12 @@ class ThrowSkill:
         """Demonstrated duration (s) of a learnt subtask."""
         return float(self.dmps[task].duration_)
 
-    def demonstrated(self, task):
+    def demonstrated(self, task, needle=None):
         """
         Return the demonstrated needle start and goal of a task in ``world``.
+
+        ``needle`` (NeedleGeometry, optional): the needle, for frame ``'arc'`` (default the
+        scene's).
 
         Returns
         -------
@@ -309,12 +378,12 @@ class ThrowSkill:
         """
         dmp = self.dmps[task]
         start, goal = dmp.start_, dmp.goal_
-        if self.method.frame == 'suture':
-            T = self.pair.frame
+        T = _dmp_frame(self.method, self.pair, task, needle)
+        if T is not None:
             start, goal = poses_from_frame(T, start), poses_from_frame(T, goal)
         return start, goal
 
-    def start_goal(self, task, pair):
+    def start_goal(self, task, pair, needle=None):
         """
         Return the needle start and goal (``world``, 7-vectors) of a task on another pair.
 
@@ -324,6 +393,8 @@ class ThrowSkill:
             Subtask.
         pair : MarkerPair or PairGeometry
             Target pair.
+        needle : sim_bridge.needle.NeedleGeometry, optional
+            Needle of the throw (anchors ``'arc'``); default the scene's (``config/scene.yaml``).
 
         Returns
         -------
@@ -331,14 +402,21 @@ class ThrowSkill:
 
         """
         pair = PairGeometry.of(pair)
-        start, goal = self.demonstrated(task)
-        if self.method.anchors == 'midpoint':
+        start, goal = self.demonstrated(task, needle=needle)
+        if self.method.anchors == 'arc' or (self.method.anchors == 'insertion_arc'
+                                            and task == 'ii'):
+            needle = default_needle() if needle is None else needle
+            ends = _ARC_ANCHORS[task]
+            return tuple(transfer_pose(pose, self.pair.arc_anchor(end, needle),
+                                       pair.arc_anchor(end, needle))
+                         for pose, end in zip((start, goal), ends))
+        if self.method.anchors in ('midpoint', 'insertion_arc'):
             return (transfer_pose(start, self.pair.frame, pair.frame),
                     transfer_pose(goal, self.pair.frame, pair.frame))
         return (transfer_pose(start, self.pair.anchor('entry'), pair.anchor('entry')),
                 transfer_pose(goal, self.pair.anchor('exit'), pair.anchor('exit')))
 
-    def rollout(self, task, pair, start=None, goal=None, n_pts=None):
+    def rollout(self, task, pair, start=None, goal=None, n_pts=None, needle=None):
         """
         Regenerate a task's needle trajectory on a pair (``world``).
 
@@ -355,6 +433,8 @@ class ThrowSkill:
             Needle goal (world); default :meth:`start_goal`'s goal.
         n_pts : int, optional
             Samples over the demonstrated duration (Table I's ``N_pts`` by default).
+        needle : sim_bridge.needle.NeedleGeometry, optional
+            Needle of the throw, as :meth:`start_goal`.
 
         Returns
         -------
@@ -367,18 +447,18 @@ class ThrowSkill:
 
         """
         pair = PairGeometry.of(pair)
-        s0, g0 = self.start_goal(task, pair)
+        s0, g0 = self.start_goal(task, pair, needle=needle)
         start = s0 if start is None else _pose7(start, 'start')
         goal = g0 if goal is None else _pose7(goal, 'goal')
         if np.dot(start[3:], s0[3:]) < 0.0:
             start = np.concatenate((start[:3], -start[3:]))
         if np.dot(goal[3:], g0[3:]) < 0.0:
             goal = np.concatenate((goal[:3], -goal[3:]))
-        if self.method.frame == 'suture':
-            T_frame = pair.frame
+        T_frame = _dmp_frame(self.method, pair, task, needle)
+        if T_frame is not None:
             start, goal = poses_in_frame(T_frame, start), poses_in_frame(T_frame, goal)
         T, P, Q = self.dmps[task].rollout(start, goal, n_pts=n_pts)
-        if self.method.frame == 'suture':
+        if T_frame is not None:
             poses = poses_from_frame(T_frame, np.hstack((P, Q)))
             P, Q = poses[:, :3], poses[:, 3:]
         return T, P, Q
@@ -468,6 +548,18 @@ class ThrowSkill:
         return cls(method, pair, dmps, timing, meta.get('source', ''))
 
 
+_NEEDLE = []
+
+
+def default_needle():
+    """Return the scene's needle geometry (``config/scene.yaml``), read once."""
+    if not _NEEDLE:
+        from sim_bridge.scene_config import load_scene_config
+
+        _NEEDLE.append(load_scene_config().needle)
+    return _NEEDLE[0]
+
+
 def _pose7(pose, name):
     pose = np.asarray(pose, dtype=float)
     if pose.shape == (4, 4):
@@ -477,7 +569,7 @@ def _pose7(pose, name):
     return pose
 
 
-def learn_skill(segment_file, method='paper', params=None):
+def learn_skill(segment_file, method='paper', params=None, needle=None):
     """
     Learn the DMPs of subtasks ii and iv from one segmented demonstration.
 
@@ -490,6 +582,8 @@ def learn_skill(segment_file, method='paper', params=None):
         Name in :data:`METHODS` (``'paper'`` by default).
     params : DmpParams or dict of str to DmpParams, optional
         Hyper-parameters (one for both tasks, or per task); default: ``config/dmp.yaml``.
+    needle : sim_bridge.needle.NeedleGeometry, optional
+        Needle of the demonstrations (frame ``'arc'``); default the scene's.
 
     Returns
     -------
@@ -503,6 +597,6 @@ def learn_skill(segment_file, method='paper', params=None):
         task_params = _params_for(params, task)
         T, P, Q = data.needle[task]
         T, P, Q = resample_poses(T, P, Q, n_pts=task_params.n_pts)
-        P, Q = _to_frame(method, data.pair, P, Q)
+        P, Q = _to_frame(method, data.pair, P, Q, task, needle)
         dmps[task] = PoseDmp(task_params).fit(T - T[0], P, Q)
     return ThrowSkill(method, data.pair, dmps, data.timing, data.source)
