@@ -87,11 +87,12 @@ class Method:
         direction from the needle's circle in ``world`` axes, which a ``world`` DMP needs to
         keep the demonstrated shape: its ``(g - y0)`` scaling is per axis); ``'midpoint'``:
         start and goal carried rigidly with the pair's suture frame (origin at the midpoint);
-        ``'markers'``: the start carried with a frame at the entry marker, the goal with a frame at the exit marker (both with the
-        suture frame's axes). ``'midpoint'`` and ``'markers'`` keep the demonstrated needle
-        rotation from start to goal, so on a pair whose markers are further apart (or closer)
-        than the demonstrated ones the tip misses them (``'midpoint'``) or the needle is
-        dragged sideways through the tissue (``'markers'``).
+        ``'markers'``: the start carried with a frame at the entry marker, the goal with a
+        frame at the exit marker (both with the suture frame's axes). ``'midpoint'`` and
+        ``'markers'`` keep the demonstrated needle rotation from start to goal, so on a pair
+        whose markers are further apart (or closer) than the demonstrated ones the tip misses
+        them (``'midpoint'``) or the needle is dragged sideways through the tissue
+        (``'markers'``).
     description : str
         One line for reports.
 
