@@ -118,6 +118,13 @@ def quaternion_from_matrix(T):
     return q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
 
 
+def pose_vector(T):
+    """Return ``(x, y, z, qx, qy, qz, qw)`` (floats) of a 4x4 matrix."""
+    T = np.asarray(T, dtype=float)
+    x, y, z = T[:3, 3].tolist()
+    return (x, y, z, *quaternion_from_matrix(T))
+
+
 def pose_from_matrix(T):
     """Return the ``geometry_msgs/Pose`` of a 4x4 matrix."""
     pose = Pose()
@@ -409,3 +416,4 @@ def sphere_list_marker(points, ns, marker_id, frame_id, stamp, rgba, diameter):
     msg.color = _color(rgba)
     msg.points = _points(points)
     return msg
+

@@ -56,6 +56,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
+from sim_bridge import cdr
 from sim_bridge.paths import share_dir
 import yaml
 
@@ -653,26 +654,13 @@ def joint_state_first_position(raw):
         return None
 
 
-def _stamp_parts(t):
-    ns = int(round(float(t) * 1e9))
-    return ns // 10**9, ns % 10**9
-
-
-def _cdr_with_header(t, frame_id):
-    """Return the encapsulation and a std_msgs/Header of stamp ``t`` (s) as a bytearray."""
-    frame = frame_id.encode('utf-8') + b'\x00'
-    sec, nanosec = _stamp_parts(t)
-    return bytearray(_CDR_LE + b'\x00\x00' + _STAMP.pack(sec, nanosec, len(frame)) + frame)
-
-
-def _pad(buf, alignment):
-    """Pad ``buf`` so that its CDR body (after the 4-byte encapsulation) is aligned."""
-    buf += bytes(-(len(buf) - 4) % alignment)
+def _nanoseconds(t):
+    return int(round(float(t) * 1e9))
 
 
 def pose_stamped_cdr(t, frame_id, pose):
     """
-    Return the CDR bytes of a geometry_msgs/PoseStamped.
+    Return the CDR bytes of a geometry_msgs/PoseStamped (:func:`sim_bridge.cdr.pose_stamped`).
 
     Little endian, padding zeroed as rosbags writes it.
 
@@ -686,30 +674,12 @@ def pose_stamped_cdr(t, frame_id, pose):
         ``(x, y, z, qx, qy, qz, qw)``.
 
     """
-    buf = _cdr_with_header(t, frame_id)
-    _pad(buf, 8)
-    buf += _POSE.pack(*pose)
-    return bytes(buf)
+    return cdr.pose_stamped(_nanoseconds(t), frame_id, pose)
 
 
 def joint_state_cdr(t, names, position):
     """Return the CDR bytes of a sensor_msgs/JointState of ``name`` and ``position`` only."""
-    buf = _cdr_with_header(t, '')
-    _pad(buf, 4)
-    buf += _COUNT.pack(len(names))
-    for name in names:
-        _pad(buf, 4)
-        text = name.encode('utf-8') + b'\x00'
-        buf += _COUNT.pack(len(text)) + text
-    _pad(buf, 4)
-    buf += _COUNT.pack(len(position))
-    if len(position):
-        _pad(buf, 8)
-        buf += struct.pack(f'<{len(position)}d', *position)
-    for _ in range(2):                      # velocity, effort: empty
-        _pad(buf, 4)
-        buf += _COUNT.pack(0)
-    return bytes(buf)
+    return cdr.joint_state(_nanoseconds(t), tuple(names), position)
 
 
 def open_bag(path, *, required=(), typestore=None):

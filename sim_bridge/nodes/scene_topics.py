@@ -20,6 +20,7 @@ The node calls these publishers from its one executor thread; they skip topics n
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
+from sim_bridge import cdr
 from sim_bridge import conversions as cv
 from sim_bridge.simulation import ARMS, PSMS
 from tf2_msgs.msg import TFMessage
@@ -89,10 +90,11 @@ class SceneTopics:
                                             stamp)]
         self._tf_static.publish(cv.tf_message(transforms))
 
-    def publish_state(self, stamp):
-        """Publish the needle pose (state rate)."""
+    def publish_state(self, ns):
+        """Publish the needle pose (state rate), stamped ``ns`` (int nanoseconds)."""
         if self._needle.get_subscription_count():
-            self._needle.publish(cv.pose_stamped(self._sim.needle_pose(), WORLD, stamp))
+            pose = cv.pose_vector(self._sim.needle_pose())
+            self._needle.publish(cdr.pose_stamped(ns, WORLD, pose))
 
     def publish_tf(self, stamp):
         """Publish the moving frames: each arm's ``measured_cp`` and the needle."""

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from sim_bridge import cdr
 from sim_bridge import conversions as cv
 
 
@@ -77,3 +78,62 @@ def test_events_carry_json_and_sim_time():
     msg.string = 'not json'
     with pytest.raises(ValueError, match='not a JSON object'):
         cv.event_from_message(msg)
+
+
+# --- CDR bytes the simulator publishes ---------------------------------------------------------
+# rclpy reads them back as the message the builder above makes; rosbags (an independent CDR
+# implementation, padding zeroed) writes the same bytes for that message.
+
+def _rosbags_bytes(raw, msgtype):
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    return bytes(store.serialize_cdr(store.deserialize_cdr(raw, msgtype), msgtype))
+
+
+@pytest.mark.parametrize('frame', ['', 'w', 'PSM1_base', 'abcdefg', 'abcdefgh', 'é'])
+def test_stamped_pose_twist_and_wrench_bytes_are_the_messages(frame):
+    from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+    from rclpy.serialization import deserialize_message
+    rng = np.random.default_rng(len(frame))
+    for ns in (0, 1, 1_795_417_849_107_387_903, 12_999_999_999):
+        stamp = cv.stamp_from_nanoseconds(ns)
+        T = random_pose(rng)
+        raw = cdr.pose_stamped(ns, frame, cv.pose_vector(T))
+        assert deserialize_message(raw, PoseStamped) == cv.pose_stamped(T, frame, stamp)
+        assert _rosbags_bytes(raw, 'geometry_msgs/msg/PoseStamped') == raw
+        vector = rng.normal(size=7)
+        raw = cdr.pose_stamped(ns, frame, vector)
+        p, q = (msg := deserialize_message(raw, PoseStamped)).pose.position, msg.pose.orientation
+        assert [p.x, p.y, p.z, q.x, q.y, q.z, q.w] == vector.tolist()
+        v = rng.normal(size=6)
+        raw = cdr.vector6_stamped(ns, frame, v)
+        assert deserialize_message(raw, TwistStamped) == cv.twist_stamped(v, frame, stamp)
+        assert deserialize_message(raw, WrenchStamped) == cv.wrench_stamped(v, frame, stamp)
+        assert _rosbags_bytes(raw, 'geometry_msgs/msg/TwistStamped') == raw
+
+
+@pytest.mark.parametrize('names', [(), ('jaw',), ('a', 'bc', 'def', 'ghij', 'klmno'),
+                                   ('outer_yaw', 'outer_pitch', 'outer_insertion', 'outer_roll',
+                                    'outer_wrist_pitch', 'outer_wrist_yaw')])
+def test_joint_state_bytes_are_the_message(names):
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+    rng = np.random.default_rng(len(names))
+    n = len(names)
+    for fields in ((rng.normal(size=n), rng.normal(size=n), rng.normal(size=n)),
+                   (rng.normal(size=n), (), rng.normal(size=n)),
+                   ((), (), np.zeros(n)), ((), (), ())):
+        raw = cdr.joint_state(123_456_789_012, names, *fields)
+        expected = cv.joint_state(names, cv.stamp_from_nanoseconds(123_456_789_012), *fields)
+        assert deserialize_message(raw, JointState) == expected
+        assert _rosbags_bytes(raw, 'sensor_msgs/msg/JointState') == raw
+
+
+@pytest.mark.parametrize('shape', [(6, 4), (6, 6), (6, 7)])
+def test_jacobian_bytes_are_the_message(shape):
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64MultiArray
+    J = np.random.default_rng(shape[1]).normal(size=shape)
+    raw = cdr.jacobian_array(J)
+    assert deserialize_message(raw, Float64MultiArray) == cv.jacobian_array(J)
+    assert _rosbags_bytes(raw, 'std_msgs/msg/Float64MultiArray') == raw

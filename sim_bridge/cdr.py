@@ -1,0 +1,124 @@
+"""
+CDR bytes of the message layouts the simulator publishes and the bag writers store.
+
+The simulator publishes ~40 state messages per 10 ms; building a message object and having rclpy
+convert it costs ~10-40 us each, while the bytes of these layouts follow from the CDR rules
+(little-endian XCDR1, as Fast DDS and rosbag2 use it: a 4-byte encapsulation header, then each
+primitive aligned to its size relative to the body after that header, padding zeroed). An rclpy
+publisher sends such bytes as they are (``Publisher.publish(bytes)``); a rosbag2 writer stores
+them. Field meanings and array layouts are those of :mod:`sim_bridge.conversions`, whose message
+builders make the same messages (the tests read these bytes back with rclpy and write them again
+with rosbags). No ROS imports: bag writing runs without ROS.
+"""
+
+import functools
+import struct
+
+import numpy as np
+
+_CDR_LE = b'\x00\x01\x00\x00'
+_HEADER = struct.Struct('<iII')          # stamp sec, nanosec, frame_id length (with its NUL)
+_U32 = struct.Struct('<I')
+_POSE7 = struct.Struct('<7d')
+_VECTOR6 = struct.Struct('<6d')
+_NS = 1_000_000_000
+
+
+@functools.lru_cache(maxsize=256)
+def _frame_tail(frame_id, alignment):
+    """Return the frame_id string of a Header, then the padding to ``alignment``, as bytes."""
+    frame = frame_id.encode('utf-8') + b'\x00'
+    used = 12 + len(frame)               # body bytes after stamp + length + string
+    return frame + bytes(-used % alignment)
+
+
+def _cdr_header(ns, frame_id, alignment):
+    """Return the encapsulation and a Header of stamp ``ns`` (int), padded to ``alignment``."""
+    tail = _frame_tail(frame_id, alignment)
+    return _CDR_LE + _HEADER.pack(ns // _NS, ns % _NS, len(frame_id.encode('utf-8')) + 1) + tail
+
+
+def pose_stamped(ns, frame_id, pose):
+    """
+    Return the CDR bytes of a ``geometry_msgs/PoseStamped``.
+
+    Parameters
+    ----------
+    ns : int
+        Header stamp (integer nanoseconds, >= 0).
+    frame_id : str
+    pose : sequence of 7 float
+        ``(x, y, z, qx, qy, qz, qw)``, written as given
+        (:func:`sim_bridge.conversions.pose_vector` of a matrix).
+
+    """
+    return _cdr_header(ns, frame_id, 8) + _POSE7.pack(*pose)
+
+
+def vector6_stamped(ns, frame_id, v):
+    """
+    Return the CDR bytes of a ``geometry_msgs/TwistStamped`` or ``WrenchStamped``.
+
+    Both are a Header and two Vector3 (``[linear, angular]`` or ``[force, torque]``), the same
+    bytes; ``v`` is the ``(6,)`` array.
+    """
+    return _cdr_header(ns, frame_id, 8) + _VECTOR6.pack(*np.asarray(v, dtype=float).tolist())
+
+
+@functools.lru_cache(maxsize=64)
+def string_sequence(names):
+    """Return the CDR bytes of a ``string[]`` (tuple of str), from a 4-byte aligned offset."""
+    out = bytearray(_U32.pack(len(names)))
+    for name in names:
+        out += bytes(-len(out) % 4)
+        text = name.encode('utf-8') + b'\x00'
+        out += _U32.pack(len(text)) + text
+    return bytes(out)
+
+
+def _append_doubles(out, values):
+    """Append a ``float64[]`` to ``out`` (a CDR body without its 4-byte header)."""
+    out += bytes(-len(out) % 4)
+    out += _U32.pack(len(values))
+    if len(values):
+        out += bytes(-len(out) % 8)
+        out += struct.pack(f'<{len(values)}d', *values)
+
+
+def joint_state(ns, names, position=(), velocity=(), effort=()):
+    """
+    Return the CDR bytes of a ``sensor_msgs/JointState`` (frame_id empty, as the dVRK's).
+
+    Parameters
+    ----------
+    ns : int
+        Header stamp (integer nanoseconds, >= 0).
+    names : tuple of str
+    position, velocity, effort : sequence of float
+
+    """
+    body = bytearray(_cdr_header(ns, '', 4)[4:])
+    body += string_sequence(tuple(names))
+    for values in (position, velocity, effort):
+        _append_doubles(body, np.asarray(values, dtype=float).ravel().tolist())
+    return _CDR_LE + bytes(body)
+
+
+def jacobian_array(J):
+    """
+    Return the CDR bytes of a ``(6, n)`` Jacobian as a ``std_msgs/Float64MultiArray``.
+
+    The layout of :func:`sim_bridge.conversions.jacobian_array` (cisst-ros's).
+    """
+    J = np.asarray(J, dtype=float)
+    rows, cols = J.shape
+    body = bytearray(_U32.pack(2))
+    for label, size, stride in (('rows', rows, rows * cols), ('cols', cols, cols)):
+        body += bytes(-len(body) % 4)
+        text = label.encode('utf-8') + b'\x00'
+        body += _U32.pack(len(text)) + text
+        body += bytes(-len(body) % 4)
+        body += _U32.pack(size) + _U32.pack(stride)
+    body += _U32.pack(0)                 # data_offset
+    _append_doubles(body, J.ravel().tolist())
+    return _CDR_LE + bytes(body)
