@@ -60,6 +60,9 @@ _TRACK_MARGIN = 0.01
 # cosine from world up is laid on the surface instead (see Simulation._settled_needle_start).
 _START_SLIDE = 0.003
 _START_UPRIGHT = 0.9
+# A resting needle's centre line may sit this much (m) closer to the tissue than its wire radius
+# before it is raised onto the surface (physics settles it within a few micrometres of it).
+_REST_TOLERANCE = 1e-4
 EVENT_KINDS = ('grasp', 'release', 'drop', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
                'collision', 'score')
 
@@ -379,12 +382,29 @@ class Simulation:
         settled = world.needle_pose()
         moved = np.linalg.norm(settled[:2, 3] - T[:2, 3])
         if moved <= _START_SLIDE and settled[2, 2] >= _START_UPRIGHT:
-            return settled
+            return self._resting_on_tissue(settled)
         # A curved or sloping pad lets the dropped needle slide off (or tunnel through a
         # coarse collision mesh): lay it on the surface where it was dropped instead.
-        placed = self._laid_on_support(T)
-        world.set_needle_pose(placed)
-        return placed
+        return self._resting_on_tissue(self._laid_on_support(T))
+
+    def _resting_on_tissue(self, T):
+        """
+        Return the resting pose ``T``, raised so that the wire lies on the tissue, not in it.
+
+        The collision mesh and the support height are coarser than the tissue surface the
+        tracker follows; on the scanned pad a needle laid on them could start with its tip
+        0.15 mm inside the tissue, and lifting it then counted as an exit and a puncture
+        (trauma on every throw that started so).
+        """
+        gap = 0.5 * self.needle_geometry.wire_diameter
+        for _ in range(3):  # the phantom is upright: its z is close to world z
+            deepest = self.tissue.wire_depth(T)
+            if deepest <= _REST_TOLERANCE - gap:
+                break
+            T = T.copy()
+            T[2, 3] += deepest + gap
+        self.world.set_needle_pose(T)
+        return T
 
     def _laid_on_support(self, T):
         """Lay the flat needle pose ``T`` on the support, tilted to its local plane, touching."""

@@ -436,6 +436,18 @@ class TissueTracker:
         """Whether the tip was inside the tissue at the last update."""
         return self._prev_in
 
+    def wire_depth(self, T_world_needle):
+        """
+        Return how deep (m) the needle's centre line dips below the tissue's top surface.
+
+        The deepest of the arc points the tracker follows, as :meth:`update` sees them;
+        negative when the whole needle is above the surface (by that much).
+        """
+        T = np.asarray(T_world_needle, dtype=float)
+        pts = self._arc @ (self._R_pw @ T[:3, :3]).T + (self._R_pw @ T[:3, 3] + self._t_pw)
+        depth, _ = self._surface.depth(pts)
+        return float(depth.max())
+
     @property
     def in_tissue(self):
         """Whether the needle is in the tissue (a point inside or a puncture occupied)."""
