@@ -455,13 +455,26 @@ class Simulation:
         """Simulation time (s): whole physics steps since :meth:`reset`."""
         return self._steps * self._dt
 
-    def step(self):
-        """Advance the scene by one physics step (see the module docstring for the order)."""
+    def step(self, after_arms=None):
+        """
+        Advance the scene by one physics step (see the module docstring for the order).
+
+        Parameters
+        ----------
+        after_arms : callable, optional
+            Called with no argument once the arms have moved, before the rest of the scene (grasp,
+            needle, tissue, thread, contacts), which never moves an arm: the simulator node
+            publishes the arms' state there, so that a command's effect is not held up by the
+            scene's work. :attr:`time` is already the step's end.
+
+        """
         dt = self._dt
         self._steps += 1
         t = self._steps * dt
         for arm in self._arm_list:
             arm.step(dt)
+        if after_arms is not None:
+            after_arms()
         for ev in self.grasp.update(self._jaws(), self._tool_pose, self._T_needle):
             self._on_grasp_event(t, ev)
         self._move_needle()

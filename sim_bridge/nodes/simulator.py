@@ -222,6 +222,7 @@ class Simulator(_QuietEndpoints, Node):
         start = time.time() if cfg.clock_start < 0 else cfg.clock_start
         self._t0_ns = max(int(round(start * 1e9)), 1)
         self._state = _Every(cfg.rate)
+        self._state_ns = None  # stamp of the state published in this step, if any
         self._tf = _Every(cfg.tf_rate)
         self._viz = _Every(cfg.visualization_rate)
         self._camera = _Every(cfg.camera_rate)
@@ -371,21 +372,26 @@ class Simulator(_QuietEndpoints, Node):
 
     def _step(self):
         sim = self.sim
-        sim.step()
+        self._state_ns = None
+        sim.step(after_arms=self._publish_arm_state)
         self._flush_arm_events()
         self._flush_sim_events()
         t = sim.time
-        if self._state.due(t):
-            ns = self.now_ns()
-            for face in self.arms.values():
-                face.publish_state(ns)
-            self.scene.publish_state(ns)
+        if self._state_ns is not None:
+            self.scene.publish_state(self._state_ns)
         if self._tf.due(t):
             self.scene.publish_tf(self.stamp())
         if self._viz.due(t):
             self.scene.publish_visualization(self.stamp())
         if self._camera.due(t):
             self.scene.publish_camera(self.stamp())
+
+    def _publish_arm_state(self):
+        """Publish the arms' state when it is due: called as soon as the arms have moved."""
+        if self._state.due(self.sim.time):
+            self._state_ns = ns = self.now_ns()
+            for face in self.arms.values():
+                face.publish_state(ns)
 
     # -- events --------------------------------------------------------------------------------
 
