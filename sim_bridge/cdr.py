@@ -26,16 +26,16 @@ _NS = 1_000_000_000
 
 @functools.lru_cache(maxsize=256)
 def _frame_tail(frame_id, alignment):
-    """Return the frame_id string of a Header, then the padding to ``alignment``, as bytes."""
+    """Return the frame_id's CDR string length (with NUL) and bytes padded to ``alignment``."""
     frame = frame_id.encode('utf-8') + b'\x00'
     used = 12 + len(frame)               # body bytes after stamp + length + string
-    return frame + bytes(-used % alignment)
+    return len(frame), frame + bytes(-used % alignment)
 
 
 def _cdr_header(ns, frame_id, alignment):
     """Return the encapsulation and a Header of stamp ``ns`` (int), padded to ``alignment``."""
-    tail = _frame_tail(frame_id, alignment)
-    return _CDR_LE + _HEADER.pack(ns // _NS, ns % _NS, len(frame_id.encode('utf-8')) + 1) + tail
+    length, tail = _frame_tail(frame_id, alignment)
+    return _CDR_LE + _HEADER.pack(ns // _NS, ns % _NS, length) + tail
 
 
 def pose_stamped(ns, frame_id, pose):
