@@ -142,6 +142,11 @@ class ArmState(NamedTuple):
         """ENABLED, homed and not busy (the CRTK "ready")."""
         return self.state == 'ENABLED' and self.is_homed and not self.is_busy
 
+    @property
+    def operational(self):
+        """ENABLED and homed (a move of its own may be under way)."""
+        return self.state == 'ENABLED' and self.is_homed
+
 
 @dataclass
 class TeleopInputs:
@@ -336,7 +341,9 @@ class Teleoperation:
         if self.state == DISABLED:
             return out
         arms_ready = self._arm_commands(inp, out)
-        if self.state != SETTING_ARMS and not (arms_ready and self._ready_inputs(inp)):
+        operational = all(st is not None and st.operational
+                          for st in (inp.mtm_state, inp.psm_state))
+        if self.state != SETTING_ARMS and not (operational and self._ready_inputs(inp)):
             if self.state == FOLLOWING:
                 out.append(Command('hold', 'psm'))
             self._enter(inp.t, SETTING_ARMS)
