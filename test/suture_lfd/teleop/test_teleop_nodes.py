@@ -81,5 +81,5 @@ def test_a_scripted_hand_motion_moves_psm1_a_fifth_of_it_in_the_camera_view(tele
     for g in (0.2, 0.9):
         op.grippers['MTMR'] = g
         stream(op, 0.8)
-        assert wait_for(lambda: abs(watch.jaw['PSM1'] - jaw_map.jaw_from_gripper(g)) < 0.02,
+        assert wait_for(lambda g=g: abs(watch.jaw['PSM1'] - jaw_map.jaw_from_gripper(g)) < 0.02,
                         timeout=5), (g, watch.jaw['PSM1'])
