@@ -126,7 +126,8 @@ class MtmsNode(Node):
         options = {}
         if cfg.device != 'browser':
             options = {'linear_speed': cfg.linear_speed, 'angular_speed': cfg.angular_speed,
-                           'deadband': cfg.deadband, 'gripper_speed': cfg.gripper_speed}
+                           'deadband': cfg.deadband, 'gripper_speed': cfg.gripper_speed,
+                       'gripper_start': cfg.gripper_start}
             if cfg.device == 'gamepad':
                 options['index'] = cfg.device_index
             else:
