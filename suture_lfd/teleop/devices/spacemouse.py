@@ -162,7 +162,8 @@ class SpaceMouseDevice(InputDevice):
             close, open_ = state.button(0), state.button(1)
             clutch = clutch or (close and open_)
             if close != open_:
-                g = self.grippers[mtm] + (self.gripper_speed if open_ else -self.gripper_speed) * dt
+                rate = self.gripper_speed if open_ else -self.gripper_speed
+                g = self.grippers[mtm] + rate * dt
                 self.grippers[mtm] = min(self.gripper_max, max(0.0, g))
             arms[mtm] = ArmReading(twist=state.twist(self.linear_speed, self.angular_speed,
                                                      self.deadband),
