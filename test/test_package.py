@@ -197,6 +197,17 @@ def test_main_job_command_starts():
     assert 'study' in result.stdout
 
 
+def test_wrapper_passes_cli_subcommands_through(tmp_path):
+    result = subprocess.run([str(REPO / 'suture-lfd'), 'bag', 'info', str(tmp_path / 'none')],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0
+    assert 'unknown command' not in result.stderr
+    assert 'no such bag' in result.stderr, result.stderr
+    result = subprocess.run([str(REPO / 'suture-lfd'), 'no-such-command'],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and 'no-such-command' in result.stderr
+
+
 # --- setup: bad input gets a clear message ---------------------------------------------------
 
 def _shim_path(tmp_path, drop=(), extra=None):

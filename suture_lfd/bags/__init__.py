@@ -21,8 +21,14 @@ stops cleanly at the first truncated or corrupt record, and writes a new, valid 
 (default: ``PATH-recovered`` next to it) holding every message of the complete chunks.
 ``suture-lfd bag info PATH`` prints the topics, types, counts and duration of a bag.
 
-Errors about a bag (missing ``metadata.yaml``, truncated or corrupt file, missing topics) raise
-:class:`BagError`, a ``ValueError`` whose message names the file and says what to do.
+Integrity: the MCAP files carry CRC-32s of every chunk, of the data section and of the summary
+(:mod:`suture_lfd.mcap_check`). Opening a bag checks them all, and that ``metadata.yaml`` agrees
+with the MCAP summary, so a flipped byte is refused before any message is read; ``bag recover``
+keeps the chunks whose CRC holds and says which it dropped.
+
+Errors about a bag (missing ``metadata.yaml``, truncated or corrupt file, a message that does not
+decode, missing topics) raise :class:`BagError`, a ``ValueError`` whose one-line message names the
+file, the topic and the byte offset or time stamp where known, and says what to do.
 """
 
 from dataclasses import dataclass
@@ -37,11 +43,6 @@ import sys
 import time
 from typing import NamedTuple
 
-from mcap.exceptions import EndOfFile, McapError
-from mcap.records import Channel as McapChannel
-from mcap.records import Message as McapMessage
-from mcap.records import Schema as McapSchema
-from mcap.stream_reader import StreamReader
 from rosbags.interfaces import (
     Qos,
     QosDurability,
@@ -58,6 +59,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.base import Nodetype
 from sim_bridge import cdr
 from sim_bridge.paths import share_dir
+from suture_lfd.mcap_check import CrcMcapWriter, McapDamageError, check_mcap, salvage_messages
 import yaml
 
 LOG = logging.getLogger(__name__)
@@ -281,6 +283,8 @@ class BagWriter:
         self.counts = {}
         self._connections = {}
         self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS,
+                                        StoragePlugin.MCAP: CrcMcapWriter}
         try:
             self._writer.open()
         except (OSError, WriterError) as exc:
@@ -450,6 +454,33 @@ class BagSummary:
         return max(0, self.end_ns - self.start_ns) * 1e-9
 
 
+def _checked_storage(path, file):
+    """Check an MCAP storage file's frame and CRCs; return its :class:`McapFacts`."""
+    if file.suffix != '.mcap':
+        return None
+    try:
+        return check_mcap(file.read_bytes())
+    except OSError as exc:
+        raise BagError(f'{file}: cannot read the bag ({exc})') from None
+    except McapDamageError as exc:
+        raise BagError(f'{file}: damaged bag: {exc}; run `suture-lfd bag recover {path}` to keep '
+                       'what checks out') from None
+
+
+def _agree_with_metadata(path, summary, facts):
+    """Refuse a ``metadata.yaml`` whose topics, counts or times differ from the MCAP summary."""
+    if len(facts) != 1 or facts[0] is None or not facts[0].counts:
+        return
+    mcap = facts[0]
+    said = {t: s.count for t, s in summary.topics.items() if s.count}
+    if said != mcap.counts or summary.message_count != mcap.message_count or (
+            mcap.message_count and (summary.start_ns, summary.end_ns)
+            != (mcap.start_ns, mcap.end_ns)):
+        raise BagError(f'{path / METADATA}: disagrees with the MCAP summary of the bag (topics, '
+                       'counts or times); the metadata file is damaged, run `suture-lfd bag '
+                       f'recover {path}` to rebuild it')
+
+
 def _check_bag_dir(path):
     path = Path(path)
     if not path.exists():
@@ -485,6 +516,7 @@ class BagReader:
     def __init__(self, path, *, typestore=None):
         self.path, self.files = _check_bag_dir(path)
         self.typestore = typestore if typestore is not None else make_typestore()
+        facts = [_checked_storage(self.path, file) for file in self.files]
         self._reader = Reader(self.path)
         try:
             self._reader.open()
@@ -508,6 +540,7 @@ class BagReader:
             message_count=count,
             start_ns=int(self._reader.start_time) if count else 0,
             end_ns=int(self._reader.end_time) - 1 if count else 0, topics=topics)
+        _agree_with_metadata(self.path, self.summary, facts)
 
     def _files_text(self):
         return ', '.join(str(f) for f in self.files) or str(self.path)
@@ -543,8 +576,8 @@ class BagReader:
             for connection, t_ns, rawdata in self._reader.messages(
                     connections=connections, start=start_ns, stop=stop_ns):
                 yield BagMessage(connection.topic, connection.msgtype, t_ns, rawdata)
-        except (ReaderError, struct.error, ValueError, KeyError) as exc:
-            raise BagError(f'{self._files_text()}: corrupt bag data ({exc})') from exc
+        except Exception as exc:  # noqa: BLE001 -- whatever the damage, one line names the bag
+            raise BagError(f'{self._files_text()}: corrupt bag data ({exc!r})') from None
 
     __iter__ = messages
 
@@ -560,9 +593,10 @@ class BagReader:
         """
         try:
             return self.typestore.deserialize_cdr(message.rawdata, message.msgtype)
-        except (TypesysError, KeyError, ValueError, struct.error, IndexError) as exc:
-            raise BagError(f'{self._files_text()}: a {message.msgtype} message on '
-                           f'{message.topic} does not decode ({exc})') from exc
+        except Exception as exc:  # noqa: BLE001 -- whatever the damage, one line names the bag
+            raise BagError(f'{self._files_text()}: the {message.msgtype} message on '
+                           f'{message.topic} stamped {message.t_ns} ns does not decode '
+                           f'({exc!r})') from None
 
     def close(self):
         """Close the bag's files."""
@@ -684,22 +718,6 @@ def format_summary(summary):
 
 # --- recovery ------------------------------------------------------------------------------------
 
-class _WholeReads:
-    """File wrapper whose reads return all requested bytes or none (end of data)."""
-
-    def __init__(self, file):
-        self.file = file
-        self.truncated_at = None
-
-    def read(self, size=-1):
-        pos = self.file.tell()
-        data = self.file.read(size)
-        if size is not None and size >= 0 and len(data) < size:
-            self.truncated_at = pos
-            return b''
-        return data
-
-
 def _storage_files(path):
     path = Path(path)
     if not path.exists():
@@ -713,33 +731,30 @@ def _storage_files(path):
 
 
 def _copy_records(file, writer, stats):
-    """Copy the messages of ``file``'s complete records into ``writer``; update ``stats``."""
-    schemas, channels = {}, {}
-    with open(file, 'rb') as raw:
-        stream = _WholeReads(raw)
+    """Copy the messages of ``file``'s chunks that check out into ``writer``; update ``stats``."""
+    try:
+        salvage, messages = salvage_messages(file.read_bytes())
+    except (OSError, McapDamageError) as exc:
+        stats['stops'].append(f'{file}: {exc}')
+        return
+    stats['dropped'] += [f'{file}: dropped {what}' for what in salvage.dropped]
+    if salvage.stop:
+        stats['stops'].append(f'{file}: {salvage.stop}')
+    for cid, t_ns, rawdata in messages:
+        channel = salvage.channels.get(cid)
+        schema = salvage.schemas.get(channel[1]) if channel else None
+        if schema is None:
+            stats['orphans'] += 1
+            continue
+        topic = channel[0]
         try:
-            for record in StreamReader(stream, record_size_limit=1 << 30).records:
-                if isinstance(record, McapSchema):
-                    schemas[record.id] = record
-                elif isinstance(record, McapChannel):
-                    channels[record.id] = record
-                elif isinstance(record, McapMessage):
-                    channel = channels.get(record.channel_id)
-                    schema = schemas.get(channel.schema_id) if channel else None
-                    if schema is None:
-                        stats['orphans'] += 1
-                        continue
-                    if not writer.has_topic(channel.topic):
-                        qos = parse_qos(channel.metadata.get('offered_qos_profiles', ''))
-                        writer.add_topic(channel.topic, schema.name, qos=qos,
-                                         msgdef=schema.data.decode())
-                    writer.write(channel.topic, record.log_time, record.data)
-            stats['complete'].append(str(file))
-        except EndOfFile:
-            at = stream.truncated_at if stream.truncated_at is not None else raw.tell()
-            stats['stops'].append(f'{file}: truncated at byte {at}')
-        except (McapError, struct.error, ValueError, UnicodeDecodeError) as exc:
-            stats['stops'].append(f'{file}: corrupt record before byte {raw.tell()} ({exc})')
+            if not writer.has_topic(topic):
+                qos = parse_qos(channel[2].get('offered_qos_profiles', ''))
+                writer.add_topic(topic, schema[0], qos=qos, msgdef=schema[2].decode())
+        except (BagError, ValueError, TypeError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            stats['dropped'].append(f'{file}: dropped the messages on {topic} ({exc})')
+            continue
+        writer.write(topic, t_ns, rawdata)
 
 
 def recover_bag(path, out=None):
@@ -747,8 +762,9 @@ def recover_bag(path, out=None):
     Rebuild a valid bag from an unfinished one (writer killed, file truncated).
 
     Reads the MCAP records of ``path`` in order with the ``mcap`` stream reader and copies
-    every message of every complete chunk, with its topic, type, definition and offered QoS,
-    into a new bag; stops at the first truncated or corrupt record. The source is left as it
+    every message of every complete chunk whose CRC holds, with its topic, type, definition and
+    offered QoS, into a new bag; drops (and logs) a chunk that fails its CRC and goes on, and
+    stops where a record is truncated or its length is damaged. The source is left as it
     is. Command line: ``suture-lfd bag recover PATH [--out OUT]``.
 
     Parameters
@@ -776,7 +792,7 @@ def recover_bag(path, out=None):
         out = base.with_name(base.name + '-recovered')
     out = Path(out)
     writer = BagWriter(out, chunk_bytes=_MCAP_CHUNK_LIMIT, chunk_seconds=math.inf)
-    stats = {'orphans': 0, 'complete': [], 'stops': []}
+    stats = {'orphans': 0, 'dropped': [], 'stops': []}
     try:
         for file in files:
             _copy_records(file, writer, stats)
@@ -793,6 +809,8 @@ def recover_bag(path, out=None):
         raise
     for stop in stats['stops']:
         LOG.info('recover: %s; kept the records before it', stop)
+    for dropped in stats['dropped']:
+        LOG.warning('recover: %s', dropped)
     if stats['orphans']:
         LOG.warning('recover: %d messages without a channel record were skipped',
                     stats['orphans'])
