@@ -44,8 +44,8 @@ from rclpy.callback_groups import CallbackGroup
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from sim_bridge import cdr
-from sim_bridge import conversions as cv
 from sim_bridge.kinematics import UnreachableError
+from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 

@@ -54,14 +54,14 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sim_bridge import conversions as cv
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from suture_lfd.nodes import declare_config
 
 EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)

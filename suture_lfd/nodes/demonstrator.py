@@ -6,7 +6,7 @@ Drives the ``simulator`` node the way an MTM teleoperation does: reads ``<ARM>/m
 and the simulator's ground truth (``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``,
 ``sim/markers/<pair>/entry|exit``, ``sim/events``), and streams ``<ARM>/servo_cp`` (in the
 ``measured_cp`` frame) and ``<ARM>/jaw/servo_jp`` at ``rate`` from the core
-:class:`suture_lfd.demonstrator.Demonstrator` of the configured subject.
+:class:`suture_lfd.demos.demonstrator.Demonstrator` of the configured subject.
 
 Sequence: wait for the topics; enable and home the arms if needed; press the record pedal (the
 recorder's toggle, ``/footpedals/camera`` through its ``emulate`` topic) and wait until
@@ -29,14 +29,15 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge import conversions as cv
-from sim_bridge.expert import Observation
-from sim_bridge.phantom import MarkerPair
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.control import Observation
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from sim_bridge.scene.phantom import MarkerPair
+from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import String
-from suture_lfd.cohort import load_cohort
-from suture_lfd.demonstrator import Demonstrator
-from suture_lfd.nodes import declare_config, run_until_finished
+from suture_lfd.demos.cohort import load_cohort
+from suture_lfd.demos.demonstrator import Demonstrator
+from suture_lfd.nodes import run_until_finished
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

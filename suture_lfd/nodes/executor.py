@@ -5,7 +5,7 @@ At start-up the node learns the skill (:func:`suture_lfd.skill.learn_skill`, par
 ``segments`` and ``method``, or loads a saved skill from ``skill``). A pair name on
 ``~/execute`` (std_msgs/String) starts a throw on that pair: the node enables and homes PSM1
 and PSM2 if needed, selects the pair on ``sim/target_pair``, and runs the core
-:class:`suture_lfd.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
+:class:`suture_lfd.skill.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
 scripted, ii and iv from the DMPs through the measured grasp, streamed as ``<ARM>/servo_cp``
 (in the ``measured_cp`` frame) and ``<ARM>/jaw/servo_jp``. It reads ``<ARM>/measured_cp``,
 ``<ARM>/measured_js``, ``<ARM>/jaw/measured_js``, ``<ARM>/operating_state``,
@@ -64,16 +64,17 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from sim_bridge import conversions as cv
-from sim_bridge.expert import Observation
+from sim_bridge.control import Observation
+from sim_bridge.geometry import pose_from_transform
 from sim_bridge.kinematics import psm_kinematics
-from sim_bridge.phantom import MarkerPair
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from sim_bridge.scene.phantom import MarkerPair
+from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
-from suture_lfd.executor import ExecutorConfig, ThrowExecutor
-from suture_lfd.geometry import pose_from_transform
-from suture_lfd.nodes import declare_config, run_until_finished
+from suture_lfd.nodes import run_until_finished
 from suture_lfd.skill import ThrowSkill, learn_skill
+from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
