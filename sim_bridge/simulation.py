@@ -153,7 +153,10 @@ class SimulationConfig:
     psm_tool : str or None
         PSM instrument for :func:`sim_bridge.kinematics.psm_kinematics` (None: its default).
     arm : ArmConfig
-        Arm options (tracking); ``initial_jaw`` is taken from ``loop``.
+        Arm options (tracking, power-up time); ``initial_jaw`` is taken from ``loop``.
+    psm_rest_jp, ecm_rest_jp : tuple of float or None
+        Where the PSMs / the ECM stand when a scene starts, before ``home`` (rad / m); None:
+        at the homing goal (batch runs), so that ``home`` takes one step.
 
     """
 
@@ -165,6 +168,8 @@ class SimulationConfig:
     scene: SceneConfig = field(default_factory=SceneConfig)
     psm_tool: str | None = None
     arm: ArmConfig = field(default_factory=ArmConfig)
+    psm_rest_jp: tuple[float, ...] | None = None
+    ecm_rest_jp: tuple[float, ...] | None = None
 
 
 def load_simulation_config(world_path=None, scene_path=None):
@@ -317,7 +322,7 @@ class Simulation:
     # ------------------------------------------------------------------ reset
     def reset(self, seed=None):
         """
-        Start the scene again: arms at home (DISABLED), jaws at ``initial_jaw``, needle on the pad.
+        Start the scene again: arms DISABLED at rest, jaws at ``initial_jaw``, needle on the pad.
 
         Parameters
         ----------
@@ -333,9 +338,11 @@ class Simulation:
         arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
         self.arms.clear()
         for name in ARMS:
-            self.arms[name] = Arm(name, self.kinematics[name],
-                                  arm_config if name in PSMS else replace(arm_config,
-                                                                          initial_jaw=0.0))
+            config = arm_config if name in PSMS else replace(arm_config, initial_jaw=0.0)
+            rest = cfg.psm_rest_jp if name in PSMS else cfg.ecm_rest_jp
+            if rest is not None:
+                config = replace(config, initial_jp=tuple(rest))
+            self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
         self._tool_cache = {}
         self._steps = 0
@@ -525,11 +532,15 @@ class Simulation:
         """
         for arm in self._arm_list:
             arm.state_command('enable')
-            arm.state_command('home')
+            if arm.operating_state.state == 'ENABLED':
+                arm.state_command('home')
         for _ in range(int(round(timeout / self._dt))):
             states = [arm.operating_state for arm in self._arm_list]
             if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
                 return
+            for arm, s in zip(self._arm_list, states):
+                if s.state == 'ENABLED' and not s.is_homed and not s.is_busy:
+                    arm.state_command('home')  # powered up after a power-up time
             self.step()
         raise RuntimeError(f'arms not homed after {timeout} s: '
                            + ', '.join(f'{a.name} {a.operating_state}' for a in self._arm_list))

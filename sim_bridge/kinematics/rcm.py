@@ -5,7 +5,9 @@ The PSM inverse kinematics keeps the RCM by construction: the tool tip lies on t
 axis, so the wrist-pitch point, the tip and the RCM span the plane of the wrist-yaw axis and the
 shaft; that plane gives the wrist-pitch point, the shaft through the RCM gives yaw, pitch and
 insertion, and the tool-tip orientation gives roll, wrist pitch and wrist yaw. The ECM (four
-joints) solves yaw, pitch and insertion from the tip position and roll from the orientation.
+joints) solves yaw, pitch and insertion from the tip position and roll from the orientation;
+:meth:`EcmKinematics.ik_position` does so for any orientation (the roll about the shaft closest
+to it), which is how the ECM follows Cartesian goals.
 Every branch is enumerated and the one inside the joint limits closest to a reference
 configuration wins; revolute joints are wrapped by 2*pi towards the reference.
 
@@ -443,6 +445,60 @@ class EcmKinematics(_RcmChain):
             raise ValueError(f'{name}: an ECM chain has 4 joints, got {self.n_joints}')
         self._check_rcm_structure()
         self.endoscope_type = endoscope_type
+        t = self.tooltip_offset[:3, 3]
+        if abs(t[0]) > _STRUCTURE_TOL or abs(t[1]) > _STRUCTURE_TOL:
+            raise ValueError(f'{name}: the camera tip must lie on the shaft axis (tooltip offset '
+                             f'translation along z only), got {t.tolist()}')
+        self._tip_along_shaft = float(t[2])  # roll-frame origin -> camera tip, along the shaft
+
+    def ik_position(self, T, q_ref=None):
+        """
+        Put the camera tip at the position of ``T``, rolled about the shaft towards its rotation.
+
+        The tip position fixes yaw, pitch and insertion (the camera looks along the line from
+        the RCM to the tip); roll is the rotation about the shaft that brings the tip frame
+        closest to ``T``'s orientation (least-squares over the rotation matrix,
+        ``atan2(M10 - M01, M00 + M11)`` with ``M`` the goal in the roll-less frame). A pose
+        :meth:`ik` reaches gets the same joints.
+
+        Parameters
+        ----------
+        T : array_like, shape (4, 4)
+            Camera-tip goal ``T_base_tip`` in the RCM frame ``<ARM>_base`` (metres).
+        q_ref : array_like, shape (4,), optional
+            Reference configuration (rad / m): the closest branch wins and roll is wrapped by
+            2*pi towards it. Default: :attr:`home`.
+
+        Returns
+        -------
+        q : ndarray, shape (4,)
+            Joint values (rad / m); outside the limits when ``inside`` is false.
+        inside : bool
+            Whether ``q`` is inside the joint limits, i.e. the position is in the workspace.
+
+        Raises
+        ------
+        UnreachableError
+            The position is the RCM itself (no shaft direction).
+        ValueError
+            ``T`` or ``q_ref`` is malformed.
+
+        """
+        T = check_pose(T)
+        q_ref = self.home if q_ref is None else self.check_q(q_ref, name='q_ref')
+        p = T[:3, 3]
+        r = float(np.linalg.norm(p))
+        if r < 1e-9:
+            raise UnreachableError(f'{self.name}: a camera tip at the remote centre of motion '
+                                   'has no shaft direction')
+        P = p * ((r - self._tip_along_shaft) / r)
+        q123, R3, _ = self._shaft_solutions(P[None, None, :], q_ref[None])
+        M = np.swapaxes(R3, -1, -2) @ (T[:3, :3] @ self._tooltip_inverse[:3, :3])
+        c, s = M[..., 0, 0] + M[..., 1, 1], M[..., 1, 0] - M[..., 0, 1]
+        t4 = np.where(np.hypot(c, s) > 1e-9, np.arctan2(s, c), self._theta0[3] + q_ref[3])
+        q = np.concatenate([q123, (t4 - self._theta0[3])[..., None]], axis=-1).reshape(1, 4, 4)
+        q, inside, _ = self._select(q, q_ref[None], np.ones((1, 4), dtype=bool))
+        return q[0], bool(inside[0])
 
     def _mismatch_reason(self):
         return (' (the ECM has 4 joints: the camera axis must point along the line from the RCM '

@@ -106,6 +106,7 @@ class DemonstratorNode(Node):
         self._t_start = self._t_done = None
         self._dem = None
         self._last_command = -1e9
+        self._commanded_on = None  # arm states when enable/home were last sent
         self._published = {}
         self._scene = load_scene_config()
         self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
@@ -310,8 +311,11 @@ class DemonstratorNode(Node):
             if not cfg.home or self._waited() > cfg.startup_timeout:
                 self._finish(False, 'arms not enabled and homed')
                 return
-            if time.monotonic() - self._last_command > 2.0:   # (again) every 2 s
-                self._last_command = time.monotonic()
+            # at once when an arm's state changes (a dVRK arm powers up for a while, then
+            # homes in a motion of seconds), and again every 2 s
+            seen = [(s.state, s.is_homed, s.is_busy) for s in states]
+            if seen != self._commanded_on or time.monotonic() - self._last_command > 2.0:
+                self._last_command, self._commanded_on = time.monotonic(), seen
                 for a in PSMS:
                     s = self._state[a]
                     if s.state != 'ENABLED':

@@ -393,6 +393,8 @@ class RosThrows:
                 [executable('simulator'), '--ros-args', '-p', f'phantom:={job["test_phantom"]}',
                  '-p', f'seed:={int(job["seed"])}', '-p', f'target_pair:={job["test_pair"]}',
                  '-p', f'real_time_factor:={s.real_time_factor:g}', '-p', 'footpedals:=false',
+                 # a batch run: arms start at home and power up at once, as in-process
+                 '-p', 'power_up_time:=0.0', '-p', 'start_at_home:=true',
                  '-p', 'tf_rate:=0.0', '-p', 'visualization_rate:=0.0', '-p',
                  'camera_rate:=0.0'], logs / f'{name}.simulator.log', env))
             executor = self._start(NodeProcess(
