@@ -27,14 +27,13 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
 
-STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _STOP = object()
 
 
@@ -175,13 +174,13 @@ class Recorder(Node):
         self._latched = {}         # absolute topic -> subscribed TRANSIENT_LOCAL
         self._last = {}            # carry-over topic -> last CDR bytes
         self._ros_clock = self.get_clock()
-        self._status_pub = self.create_publisher(String, '~/status', STATUS_QOS)
+        self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         if self.config.toggle_pedal:
             # VOLATILE: a press latched before this node started must not toggle it.
             self.create_subscription(Joy, self.config.toggle_pedal, self._on_pedal,
-                                     QoSProfile(depth=10))
+                                     qos.STREAM)
         self._wanted = []
         for name in self._listed_topics():
             topic = self.resolve_topic_name(name)
@@ -223,7 +222,7 @@ class Recorder(Node):
                                     for e in endpoints))
         best_effort = self.config.matches('best_effort', topic) or any(
             e.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for e in endpoints)
-        qos = QoSProfile(
+        profile = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=self.config.depth,
             reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
                          else ReliabilityPolicy.RELIABLE),
@@ -233,7 +232,8 @@ class Recorder(Node):
         self._types[topic] = msgtype
         self._latched[topic] = latched
         self._topic_subs[topic] = self.create_subscription(
-            cls, topic, lambda raw, t=topic, c=carry: self._on_message(t, c, raw), qos, raw=True)
+            cls, topic, lambda raw, t=topic, c=carry: self._on_message(t, c, raw), profile,
+            raw=True)
 
     def _discover(self):
         for topic, types in self.get_topic_names_and_types():
