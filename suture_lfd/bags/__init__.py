@@ -59,6 +59,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.base import Nodetype
 from sim_bridge import cdr
 from sim_bridge.paths import share_dir
+from suture_lfd.errors import BagError
 from suture_lfd.mcap_check import CrcMcapWriter, McapDamageError, check_mcap, salvage_messages
 import yaml
 
@@ -70,10 +71,6 @@ CHUNK_BYTES = 256 * 1024
 CHUNK_SECONDS = 0.5
 _MCAP_CHUNK_LIMIT = 2**20  # rosbags closes a chunk itself past 1 MiB
 _NO_DURATION = QosTime(0, 0)
-
-
-class BagError(ValueError):
-    """A bag is missing, unreadable, truncated, corrupt or lacks what the caller needs."""
 
 
 # --- message types -------------------------------------------------------------------------------

@@ -40,10 +40,10 @@ import math
 
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
-from sim_bridge.geometry import pose_from_transform
-from sim_bridge.scene.needle import invert_transform
+from sim_bridge.geometry import invert_transform, pose_from_transform
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
+from suture_lfd.errors import DemonstrationError
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
 
@@ -54,10 +54,6 @@ DEFAULT_LAG_TOLERANCE_RAD = 0.05
 _WANDER_SINES = 3
 _HOVER_TIME = 0.15   # s the tip hovers above the entry before it is pressed in
 _LOWER_TIME = 0.55   # s to press it in (slow: peak speed ~2 mm/s, below a motion's threshold)
-
-
-class DemonstrationError(RuntimeError):
-    """A demonstration could not be completed (timeout, or every attempt failed)."""
 
 
 @dataclass(frozen=True)

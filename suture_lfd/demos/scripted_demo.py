@@ -43,13 +43,14 @@ class PausingExpert(ScriptedExpert):
         """Command for ``obs``; the plan clock stops for ``pause`` at each subtask start."""
         if self.plan_ is None:
             self.reset(obs)
-        tau = obs.t - self._t0 - self._offset
+        clock = self.follower
+        tau = clock.tau(obs.t)
         if self._rest_end is None and self._rests and tau >= self._rests[0]:
             self._rest_end = obs.t + self.pause
-            self._offset += tau - self._rests.pop(0)
+            clock.offset += tau - self._rests.pop(0)
         if self._rest_end is not None:
             if obs.t < self._rest_end:
-                self._offset = obs.t - self._t0 - self._plan_time
+                clock.offset = obs.t - clock.t0 - clock.plan_time
             else:
                 self._rest_end = None
         return super().step(obs)

@@ -54,7 +54,7 @@ class JawOverride:
 
     def step(self, obs):
         cmd = self.expert.step(obs)
-        if self.t_fired is None and self.when(self.expert._plan_time):
+        if self.t_fired is None and self.when(self.expert.plan_time):
             self.t_fired = obs.t
         if self.t_fired is None:
             return cmd
