@@ -27,7 +27,7 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from sim_bridge import conversions as cv
+from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray
 
 VOLATILE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
