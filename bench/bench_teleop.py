@@ -99,7 +99,7 @@ def main():
     from crtk_msgs.msg import OperatingState  # noqa: F401 (the interfaces are built)
     from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import Joy
-    from sim_bridge import conversions as cv
+    from sim_bridge.ros import conversions as cv
     from std_msgs.msg import Float64, String
     log_dir = tempfile.mkdtemp(prefix='bench-teleop-')
     procs = [start('simulator', '--ros-args', '-p', 'footpedals:=false', log_dir=log_dir),
