@@ -772,6 +772,29 @@ def bag_summary(path):
         return reader.summary
 
 
+def bag_custom_data(path):
+    """
+    Return the ``custom_data`` strings of a bag's ``metadata.yaml`` (recorder counts, ...).
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory.
+
+    Returns
+    -------
+    dict[str, str]
+        Key to value; empty when the bag has none.
+
+    """
+    path, _ = _check_bag_dir(path)
+    info = yaml.safe_load((path / METADATA).read_text())['rosbag2_bagfile_information']
+    custom = info.get('custom_data') or {}
+    if not isinstance(custom, dict):
+        raise BagError(f'{path / METADATA}: custom_data is not a mapping')
+    return {str(k): str(v) for k, v in custom.items()}
+
+
 def _seconds_text(t_ns):
     return f'{t_ns // 10**9}.{t_ns % 10**9:09d}'
 
