@@ -287,7 +287,7 @@ class CrtkArm:
         self._frame_warned = {}   # (topic, frame_id) -> monotonic time of its last warning
 
     def _cartesian(self, topic, apply):
-        """Handler of a Cartesian command: warn about its frame_id, apply its pose."""
+        """Return the handler of a Cartesian command: warn about its frame_id, apply its pose."""
         def handler(arm, msg):
             frame = msg.header.frame_id
             if frame and frame != arm.reference_frame:
