@@ -11,7 +11,7 @@ import textwrap
 from harness import DOMAIN_ID, REPO, wait_for
 import pytest
 
-ROS_FACES = ('nodes', 'conversions.py')
+ROS_FACES = ('nodes', 'ros')
 
 
 def core_modules():

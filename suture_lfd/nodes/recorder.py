@@ -12,9 +12,9 @@ MCAP chunk every ``chunk_seconds``, so a recorder killed mid-recording leaves a 
 ``suture-lfd bag recover`` restores. ``~/status`` (std_msgs/String, JSON, latched) reports
 per topic the messages received while recording, carried over into the bag, written, and
 ``missed``: published but never received, counted from the gaps in the publishers' sequence
-numbers (:class:`suture_lfd.losses.PublicationGaps`). ``lost`` is what was missed plus what was
-received but not written, so ``lost: 0`` means the bag holds every message published while it
-was recorded; the bag's ``metadata.yaml`` keeps the per-topic counts (custom data
+numbers (:class:`suture_lfd.bags.losses.PublicationGaps`). ``lost`` is what was missed plus
+what was received but not written, so ``lost: 0`` means the bag holds every message published
+while it was recorded; the bag's ``metadata.yaml`` keeps the per-topic counts (custom data
 ``suture_lfd.counts``) and the total (``suture_lfd.lost``).
 """
 
@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import datetime
 import fnmatch
 import functools
-import importlib
 import json
 from pathlib import Path
 import queue
@@ -34,11 +33,12 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.ros.conversions import message_class
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
-from suture_lfd.losses import PublicationGaps
-from suture_lfd.nodes import declare_config
+from suture_lfd.bags.losses import PublicationGaps
 
 STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -91,15 +91,6 @@ class RecorderConfig:
     def matches(self, name, topic):
         """Whether the absolute ``topic`` matches a glob of the list parameter ``name``."""
         return any(fnmatch.fnmatchcase(topic, glob) for glob in getattr(self, name))
-
-
-def message_class(msgtype):
-    """Return the rclpy message class of ``'pkg/msg/Name'``."""
-    pkg, _, name = msgtype.partition('/msg/')
-    try:
-        return getattr(importlib.import_module(f'{pkg}.msg'), name)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f'message type {msgtype!r} is not installed ({exc})') from exc
 
 
 def offered_qos(endpoints, fallback):
