@@ -85,7 +85,11 @@ class SimulatorConfig:
     Attributes
     ----------
     phantom : str
-        ``'synthetic'``, ``'scanned'`` or an STL/OBJ/PLY mesh path.
+        ``'synthetic'``, ``'scanned'`` (phantoms of the scene), an STL/OBJ/PLY mesh path
+        (metres, z up; markers laid on its top surface) or a phantom file (``.yaml``: mesh,
+        scale, pose, wound line or markers).
+    scene : str
+        Scene file replacing the installed ``scene.yaml`` (``''``: the installed one).
     seed : int
         Seed of the scene (needle start pose).
     target_pair : str
@@ -117,6 +121,7 @@ class SimulatorConfig:
     """
 
     phantom: str = 'synthetic'
+    scene: str = ''
     seed: int = 0
     target_pair: str = ''
     real_time_factor: float = 1.0
@@ -209,7 +214,7 @@ class Simulator(_QuietEndpoints, Node):
     def __init__(self):
         super().__init__('simulator')
         self.config = cfg = declare_config(self, SimulatorConfig, 'simulator.yaml', 'simulator')
-        sim_config = load_simulation_config()
+        sim_config = load_simulation_config(scene_path=cfg.scene or None)
         sim_config = replace(
             sim_config,
             arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present),
@@ -267,9 +272,13 @@ class Simulator(_QuietEndpoints, Node):
         self._stop = threading.Event()
         self._stepper = None
         self.failure = None  # the exception that stopped the stepping thread, if any
+        if self.sim.phantom.placement:
+            self.get_logger().info(f'phantom {self.sim.phantom.name}: '
+                                   f'{self.sim.phantom.placement}')
         self.get_logger().info(
-            f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
-            f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
+            f'simulating {cfg.phantom} phantom, pairs {", ".join(self.sim.phantom.markers)}, '
+            f'pair {self._pair}, real-time factor {self._rtf or "max"}, state at '
+            f'{cfg.rate:g} Hz')
 
     # -- time ----------------------------------------------------------------------------------
 
