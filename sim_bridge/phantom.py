@@ -614,7 +614,7 @@ def _place_wound(config, mesh, path):
     coarse = rasterize_mesh(mesh, max(config.resolution, config.wound_search.spacing))
     coarse = coarse.closed(config.wound_closing)
     mm = 1e3
-    if config.markers:
+    if config.markers and not w.line:
         entries = np.array([m.entry for m in config.markers.values()], dtype=float)
         exits = np.array([m.exit for m in config.markers.values()], dtype=float)
         across = (entries - exits).mean(axis=0) * w.entry_side
@@ -631,9 +631,16 @@ def _place_wound(config, mesh, path):
         centre = line.point(0.5 * line.length)
         T = wound_frame(centre, np.subtract(w.line[-1], w.line[0]), coarse.height(centre))
         points = tuple(tuple(p) for p in apply_xy(T, w.line))
-        note = (f'{w.n_pairs} marker pairs along the given wound line, centred at '
-                f'({centre[0] * mm:.1f}, {centre[1] * mm:.1f}) mm of {path.name}')
-        return replace(config, wound=replace(w, line=points)), T, note
+        markers = config.markers
+        if markers:  # given with the line: placed in the line's frame
+            markers = {name: MarkerConfig(tuple(apply_xy(T, m.entry)[0]),
+                                          tuple(apply_xy(T, m.exit)[0]))
+                       for name, m in markers.items()}
+        n = len(markers) if markers else w.n_pairs
+        how = 'as given' if markers else 'along the given wound line'
+        note = (f'{n} marker pairs {how}, wound centred at ({centre[0] * mm:.1f}, '
+                f'{centre[1] * mm:.1f}) mm of {path.name}')
+        return replace(config, wound=replace(w, line=points), markers=markers), T, note
     search = config.wound_search
     clearance = w.half_width + config.marker_radius + search.margin
     found = find_wound_line(coarse, clearance, search)
