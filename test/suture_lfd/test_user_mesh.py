@@ -5,14 +5,18 @@ import logging
 import numpy as np
 import pytest
 from sim_bridge.configfile import ConfigError
-from sim_bridge.heightfield import grid_mesh
-from sim_bridge.phantom import PhantomConfig, WoundConfig, build_phantom
-from sim_bridge.scene_config import load_phantom_file, load_scene_config, phantom_from_argument
+from sim_bridge.scene.heightfield import grid_mesh
+from sim_bridge.scene.phantom import PhantomConfig, WoundConfig, build_phantom
+from sim_bridge.scene.scene_config import (
+    load_phantom_file,
+    load_scene_config,
+    phantom_from_argument,
+)
 from sim_bridge.simulation import Simulation
-from suture_lfd.executor import execute_throw, learn_skill
-from suture_lfd.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.scripted_demo import record_scripted_demonstration
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import make_segment_file
+from suture_lfd.segmentation.segments import make_segment_file
+from suture_lfd.skill.executor import execute_throw, learn_skill
 import trimesh
 
 SIZE, BASE, TOP = 0.154, 0.005, 0.0135  # a scanned suture pad: 154 x 154 x 13.5 mm
@@ -55,7 +59,7 @@ def in_file(phantom, points):
 def test_markers_of_a_user_mesh_lie_on_its_raised_top_surface(pad_obj, caplog):
     scene = load_scene_config()
     name, config = phantom_from_argument(scene, pad_obj)
-    with caplog.at_level(logging.INFO, logger='sim_bridge.phantom'):
+    with caplog.at_level(logging.INFO, logger='sim_bridge.scene.phantom'):
         phantom = build_phantom(config, name=name)
     assert list(phantom.markers) == ['mesh1', 'mesh2', 'mesh3', 'mesh4']
     assert 'longest flat-enough line' in phantom.placement
