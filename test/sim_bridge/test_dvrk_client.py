@@ -19,9 +19,13 @@ ARMS = ('PSM1', 'PSM2', 'ECM')
 
 
 @pytest.fixture
-def simulator(launch):
-    """The simulator node with its default configuration (no camera, as by default)."""
-    return launch('simulator')
+def simulator(ros, launch):
+    """The simulator node with its default configuration, up (as a user waits for it)."""
+    sim = launch('simulator')
+    probe = ros.node('simulator_probe')
+    assert ros.wait_for(lambda: all(probe.count_publishers(f'/{arm}/operating_state')
+                                    for arm in ARMS), 60.0), sim.log()
+    return sim
 
 
 def client_arm(ros, name):
