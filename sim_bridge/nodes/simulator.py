@@ -15,6 +15,9 @@ camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
 - ``sim/stats`` (std_msgs/String, JSON, every second of wall time): the requested
   ``real_time_factor``, the factor ``achieved`` over the last second, simulation seconds
   ``skipped`` so far because the loop fell behind, ``sim_time`` and ``clock``;
+- ``sim/process`` (std_msgs/String, JSON, latched): the node's pid, host and process start
+  time (:func:`sim_bridge.ros.peer.announcement`), so a client on this machine can tell a
+  starved simulator from a dead one;
 - ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED, needle on the pad; the
   needle start is seeded with ``seed + number of resets``).
 
@@ -59,6 +62,7 @@ from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.peer import announcement
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -70,6 +74,8 @@ CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # No QoS-event handlers on the ~160 endpoints of the simulator and pedal nodes: rclpy's executor
 # visits each handler at every wake-up (1 kHz with a streaming client), which cost more than the
 # simulation itself; a client with incompatible QoS or type is still warned by its own endpoints.
@@ -278,6 +284,10 @@ class Simulator(_QuietEndpoints, Node):
         self._clock_pub = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
         self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
         self._stats_pub = self.create_publisher(String, 'sim/stats', COMMAND_QOS)
+        # who runs the simulation, so that a client on this machine tells a starved simulator
+        # (silent, but its process exists) from a dead one (sim_bridge.ros.peer)
+        self._process_pub = self.create_publisher(String, 'sim/process', LATCHED_QOS)
+        self._process_pub.publish(String(data=announcement()))
         # held by the stepping thread for a round and by every callback that touches the scene
         self.lock = threading.RLock()
         self._waiting = 0  # callbacks waiting for the lock: the stepping thread lets them in
