@@ -48,9 +48,7 @@ import traceback
 
 from crtk_msgs.msg import StringStamped
 import numpy as np
-import rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -58,6 +56,7 @@ from sim_bridge import conversions as cv
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
+from sim_bridge.ros.entry import run_node
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -267,6 +266,8 @@ class Simulator(_QuietEndpoints, Node):
         self._stop = threading.Event()
         self._stepper = None
         self.failure = None  # the exception that stopped the stepping thread, if any
+        # the console foot pedals, spun on the simulator's executor
+        self.companions = [_FootPedals()] if cfg.footpedals else []
         self.get_logger().info(
             f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
             f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
@@ -448,39 +449,24 @@ class Simulator(_QuietEndpoints, Node):
         response.message = f'scene reset ({self._resets}), target pair {self._pair}'
         return response
 
+    @property
+    def exit_code(self):
+        """Return the process exit code: 1 when the stepping thread failed, else 0."""
+        return 1 if self.failure is not None else 0
+
+    def shutdown(self):
+        """Stop the stepping thread, then release the simulation (PyBullet)."""
+        self.stop()
+        self.close()
+
     def close(self):
         """Release the simulation (PyBullet)."""
         self.sim.close()
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Simulator()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('simulator').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    pedals = None
-    if node.config.footpedals:
-        pedals = _FootPedals()
-        executor.add_node(pedals)
-    node.start()
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.stop()
-        executor.shutdown()
-        if pedals is not None:
-            pedals.destroy_node()
-        node.destroy_node()
-        node.close()
-        rclpy.try_shutdown()
-    return 1 if node.failure is not None else 0
+    return run_node(Simulator, 'simulator', args, doc=__doc__, config_file='simulator.yaml',
+                    example='simulator --ros-args -p phantom:=scanned -p real_time_factor:=2.0')
 
 
 if __name__ == '__main__':

@@ -32,11 +32,12 @@ from sensor_msgs.msg import JointState, Joy
 from sim_bridge import conversions as cv
 from sim_bridge.expert import Observation
 from sim_bridge.phantom import MarkerPair
+from sim_bridge.ros.entry import run_node
 from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import String
 from suture_lfd.cohort import load_cohort
 from suture_lfd.demonstrator import Demonstrator
-from suture_lfd.nodes import declare_config, run_until_finished
+from suture_lfd.nodes import declare_config
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -261,22 +262,32 @@ class DemonstratorNode(Node):
                 self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
                 self._count(self._jaw_pub[arm])
 
-    def _finish(self, ok, why=''):
+    def _finish(self, ok, why='', outcome=None):
         score = self._score
         value = score.get('score') if isinstance(score, dict) else score
+        outcome = outcome or ('completed' if ok else 'failed')
         result = {'subject': self.subject.name, 'group': self.subject.group,
-                  'pair': self.config.pair, 'completed': bool(ok), 'reason': why,
+                  'pair': self.config.pair, 'completed': bool(ok), 'outcome': outcome,
+                  'reason': why,
                   'score': value, 'score_detail': score if isinstance(score, dict) else None,
                   'bag': self._bag, 'published': dict(self._published),
                   'duration': (None if self._t_done is None or self._t_start is None
                                else self._t_done - self._t_start)}
-        self._result.publish(String(data=json.dumps(result, sort_keys=True)))
+        line = json.dumps(result, sort_keys=True)
+        self._result.publish(String(data=line))
+        print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
         self.exit_code = 0 if ok and value == 1.0 else 1
         log = self.get_logger().info if self.exit_code == 0 else self.get_logger().error
-        log(f'throw on {self.config.pair} by {self.subject.name}: {json.dumps(result)}')
+        log(f'throw on {self.config.pair} by {self.subject.name} {outcome}'
+            f'{": " + why if why else ""} (score {value})')
         self._enter('finished')
         if self.config.exit_when_done:
             self.finished = True
+
+    def on_interrupt(self, signal_name):
+        """Stop commanding (the arms hold their setpoints) and report the throw interrupted."""
+        if self._stage != 'finished':
+            self._finish(False, f'stopped by {signal_name}', outcome='interrupted')
 
     # --- the sequence -----------------------------------------------------------------------
 
@@ -370,7 +381,9 @@ class DemonstratorNode(Node):
 
 
 def main(args=None):
-    return run_until_finished(DemonstratorNode, 'demonstrator', args)
+    return run_node(DemonstratorNode, 'demonstrator', args, doc=__doc__,
+                    config_file='demonstrator.yaml',
+                    example='demonstrator --ros-args -p subject:=S03 -p pair:=synth2 -p seed:=1')
 
 
 if __name__ == '__main__':

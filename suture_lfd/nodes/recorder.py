@@ -23,11 +23,10 @@ import queue
 import sys
 import threading
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.ros.entry import run_node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
@@ -362,22 +361,8 @@ class Recorder(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Recorder()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('recorder').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(Recorder, 'recorder', args, doc=__doc__, config_file='recorder.yaml',
+                    example='recorder --ros-args -p output_dir:=demonstrations -p prefix:=demo')
 
 
 if __name__ == '__main__':

@@ -15,9 +15,9 @@ import json
 from pathlib import Path
 import sys
 
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sim_bridge.ros.entry import run_node
 from std_msgs.msg import String
 from suture_lfd.demo_bag import demonstration_from_bag
 from suture_lfd.nodes import declare_config
@@ -110,19 +110,8 @@ class Segmenter(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Segmenter()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('segmenter').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        code = node.run()
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(Segmenter, 'segmenter', args, doc=__doc__, config_file='segmenter.yaml',
+                    example='segmenter --ros-args -p bag:=demonstrations/demo_20260101-120000_0')
 
 
 if __name__ == '__main__':
