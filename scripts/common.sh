@@ -15,6 +15,9 @@ children=()
 
 say() { printf '%s: %s\n' "$(basename "$0")" "$*" >&2; }
 
+# The script's help: its leading comment block, without the comment marks.
+usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
+
 start() {
   local name=$1
   shift

@@ -20,7 +20,7 @@ while [ $# -gt 0 ]; do
     --out) out=$2; shift 2 ;;
     --rtf) rtf=$2; shift 2 ;;
     --no-simulator) simulator=0; shift ;;
-    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done

@@ -13,7 +13,7 @@ while [ $# -gt 0 ]; do
     --phantom) phantom=$2; shift 2 ;;
     --rtf) rtf=$2; shift 2 ;;
     --ros-args) break ;;
-    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done

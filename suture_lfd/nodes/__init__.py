@@ -4,16 +4,14 @@ ROS 2 faces of the learning-from-demonstration pipeline (the only modules here t
 Shared by the nodes: :func:`declare_config` declares a node's parameters with their defaults
 from ``config/<node>.yaml`` (shape ``<node_name>: ros__parameters: {...}``), so that
 ``--ros-args -p name:=value`` and parameter files override them, and returns the node's frozen
-configuration dataclass, checked by ``sim_bridge.configfile``; :func:`run_until_finished` is
-the ``main`` of a node that ends by itself.
+configuration dataclass, checked by ``sim_bridge.configfile``. Every node's ``main`` is
+:func:`sim_bridge.ros.entry.run_node`.
 """
 
 from dataclasses import MISSING, fields
 import typing
 
 from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.parameter import Parameter
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
 from sim_bridge.paths import config_path
@@ -109,44 +107,3 @@ def declare_config(node, cls, config_file, default_name):
             values[name] = list(value)
     return dataclass_from_mapping(cls, values, source=f'{path} (with --ros-args overrides)')
 
-
-def run_until_finished(make_node, name, args=None, interrupted_code=1):
-    """
-    Run a node that ends by itself: spin it until ``node.finished``, return ``node.exit_code``.
-
-    Parameters
-    ----------
-    make_node : callable
-        Builds the node (after ``rclpy.init``); a ValueError or OSError it raises (a bad
-        parameter or file) is logged as fatal and gives exit code 2.
-    name : str
-        Logger name for that message.
-    args : list of str, optional
-        Command-line arguments for ``rclpy.init``.
-    interrupted_code : int
-        Exit code after Ctrl-C or an external shutdown.
-
-    Returns
-    -------
-    int
-        Process exit code.
-
-    """
-    rclpy.init(args=args)
-    try:
-        node = make_node()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger(name).fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    code = 1
-    try:
-        while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.05)
-        code = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        code = interrupted_code
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
