@@ -15,7 +15,7 @@ import sys
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
-from sim_bridge.ros.entry import run_node
+from sim_bridge.nodes import executables
 
 EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -59,9 +59,7 @@ class FootPedals(Node):
 
 
 def main(args=None):
-    return run_node(FootPedals, 'footpedals', args, doc=__doc__,
-                    example='footpedals   # then press: ros2 topic pub --once '
-                            '/footpedals/camera/emulate sensor_msgs/msg/Joy "{buttons: [1]}"')
+    return executables.footpedals(args)
 
 
 if __name__ == '__main__':

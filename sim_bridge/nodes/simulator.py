@@ -53,10 +53,10 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge import conversions as cv
+from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
-from sim_bridge.ros.entry import run_node
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -465,8 +465,7 @@ class Simulator(_QuietEndpoints, Node):
 
 
 def main(args=None):
-    return run_node(Simulator, 'simulator', args, doc=__doc__, config_file='simulator.yaml',
-                    example='simulator --ros-args -p phantom:=scanned -p real_time_factor:=2.0')
+    return executables.simulator(args)
 
 
 if __name__ == '__main__':

@@ -31,7 +31,10 @@ executor: threads of its own), ``companions`` (further nodes spun on the same ex
 ``finished``/``exit_code``, ``on_interrupt(signal_name)``, ``shutdown()``.
 """
 
+import ast
 from contextlib import contextmanager
+import importlib
+import importlib.util
 import re
 import signal
 import sys
@@ -272,8 +275,8 @@ def run_node(make_node, name, args=None, *, doc='', config_file=None, example=No
         Executable name (also the node's section in its configuration file).
     args : list of str, optional
         Command-line arguments without the program name (default: ``sys.argv[1:]``).
-    doc : str
-        The node module's docstring (summary of ``--help``).
+    doc : str or callable
+        The node module's docstring (summary of ``--help``), or a function returning it.
     config_file : str or None
         The node's file in ``config/``; None: the node has no parameters.
     example : str, optional
@@ -291,7 +294,8 @@ def run_node(make_node, name, args=None, *, doc='', config_file=None, example=No
     argv = list(sys.argv[1:] if args is None else args)
     user, ros_args = split_arguments(argv)
     if any(a in HELP_FLAGS for a in user):
-        sys.stdout.write(help_text(name, doc, config_file, example or name))
+        sys.stdout.write(help_text(name, doc() if callable(doc) else doc, config_file,
+                                   example or name))
         return 0
     if user:
         _error(name, f'unknown argument {user[0]!r}; parameters are set with '
@@ -366,3 +370,64 @@ def _close(node, nodes, executor, context):
     for each in reversed(nodes):
         each.destroy_node()
     rclpy.try_shutdown(context=context)
+
+
+def module_docstring(module):
+    """
+    Return a module's docstring without importing it (read from its source).
+
+    Parameters
+    ----------
+    module : str
+        Dotted module name.
+
+    Returns
+    -------
+    str
+        The docstring ('' if it has none).
+
+    """
+    spec = importlib.util.find_spec(module)
+    if spec is None or not spec.origin:
+        return ''
+    with open(spec.origin, encoding='utf-8') as source:
+        return ast.get_docstring(ast.parse(source.read())) or ''
+
+
+class Executable:
+    """
+    The console-script ``main`` of a node whose module is imported only when the node runs.
+
+    ``--help`` is answered from the module's source and ``config/<name>.yaml`` without importing
+    the module (the executor's imports take seconds on a busy machine); otherwise the node class
+    is imported after the signal handlers are in place, so a stop during start-up is clean too.
+
+    Parameters
+    ----------
+    name : str
+        Executable name.
+    target : str
+        ``'package.module:NodeClass'``; the class (or factory) :func:`run_node` builds.
+    config_file : str, optional
+        The node's file in ``config/``.
+    example : str, optional
+        One example command line for ``--help``.
+
+    """
+
+    def __init__(self, name, target, *, config_file=None, example=None):
+        self.name = name
+        self.target = target
+        self.config_file = config_file
+        self.example = example
+
+    def make_node(self):
+        """Import the node's module and build the node."""
+        module, _, attribute = self.target.partition(':')
+        return getattr(importlib.import_module(module), attribute)()
+
+    def __call__(self, args=None):
+        module = self.target.partition(':')[0]
+        return run_node(self.make_node, self.name, args,
+                        doc=lambda: module_docstring(module), config_file=self.config_file,
+                        example=self.example)

@@ -32,12 +32,11 @@ from sensor_msgs.msg import JointState, Joy
 from sim_bridge import conversions as cv
 from sim_bridge.expert import Observation
 from sim_bridge.phantom import MarkerPair
-from sim_bridge.ros.entry import run_node
 from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import String
 from suture_lfd.cohort import load_cohort
 from suture_lfd.demonstrator import Demonstrator
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, executables
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -381,9 +380,7 @@ class DemonstratorNode(Node):
 
 
 def main(args=None):
-    return run_node(DemonstratorNode, 'demonstrator', args, doc=__doc__,
-                    config_file='demonstrator.yaml',
-                    example='demonstrator --ros-args -p subject:=S03 -p pair:=synth2 -p seed:=1')
+    return executables.demonstrator(args)
 
 
 if __name__ == '__main__':

@@ -68,12 +68,11 @@ from sim_bridge import conversions as cv
 from sim_bridge.expert import Observation
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.phantom import MarkerPair
-from sim_bridge.ros.entry import run_node
 from sim_bridge.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.executor import ExecutorConfig, ThrowExecutor
 from suture_lfd.geometry import pose_from_transform
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, executables
 from suture_lfd.skill import ThrowSkill, learn_skill
 
 PSMS = ('PSM1', 'PSM2')
@@ -560,9 +559,7 @@ def _throw_time(seconds):
 
 
 def main(args=None):
-    return run_node(ExecutorNode, 'executor', args, doc=__doc__, config_file='executor.yaml',
-                    example='executor --ros-args -p segments:=demo.segments.npz -p pair:=synth3 '
-                            '-p result_file:=result.json')
+    return executables.executor(args)
 
 
 if __name__ == '__main__':

@@ -20,10 +20,9 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sim_bridge.ros.entry import run_node
 from std_msgs.msg import String
 from suture_lfd import bags
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, executables
 from suture_lfd.nodes.recorder import message_class
 
 DONE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -182,8 +181,7 @@ class Player(Node):
 
 
 def main(args=None):
-    return run_node(Player, 'player', args, doc=__doc__, config_file='player.yaml',
-                    example='player --ros-args -p bag:=demonstrations/demo_1 -p rate:=2.0')
+    return executables.player(args)
 
 
 if __name__ == '__main__':

@@ -26,11 +26,10 @@ import threading
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
-from sim_bridge.ros.entry import run_node
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, executables
 
 STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -361,8 +360,7 @@ class Recorder(Node):
 
 
 def main(args=None):
-    return run_node(Recorder, 'recorder', args, doc=__doc__, config_file='recorder.yaml',
-                    example='recorder --ros-args -p output_dir:=demonstrations -p prefix:=demo')
+    return executables.recorder(args)
 
 
 if __name__ == '__main__':

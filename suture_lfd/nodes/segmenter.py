@@ -17,10 +17,9 @@ import sys
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sim_bridge.ros.entry import run_node
 from std_msgs.msg import String
 from suture_lfd.demo_bag import demonstration_from_bag
-from suture_lfd.nodes import declare_config
+from suture_lfd.nodes import declare_config, executables
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.segments import make_segment_file
 
@@ -110,8 +109,7 @@ class Segmenter(Node):
 
 
 def main(args=None):
-    return run_node(Segmenter, 'segmenter', args, doc=__doc__, config_file='segmenter.yaml',
-                    example='segmenter --ros-args -p bag:=demonstrations/demo_20260101-120000_0')
+    return executables.segmenter(args)
 
 
 if __name__ == '__main__':
