@@ -17,6 +17,8 @@ NODES = {
     'player': 'suture_lfd.nodes.executables:player',
     'segmenter': 'suture_lfd.nodes.executables:segmenter',
     'executor': 'suture_lfd.nodes.executables:executor',
+    'teleop': 'suture_lfd.nodes.executables:teleop',
+    'mtms': 'suture_lfd.nodes.executables:mtms',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',

@@ -24,3 +24,9 @@ executor = Executable(
     'executor', 'suture_lfd.nodes.executor:ExecutorNode', config_file='executor.yaml',
     example='executor --ros-args -p segments:=demo.segments.npz -p pair:=synth3 '
             '-p result_file:=result.json')
+teleop = Executable(
+    'teleop', 'suture_lfd.nodes.teleop:TeleopNode', config_file='teleop.yaml',
+    example='teleop --ros-args -r __node:=MTMR_PSM1 -p mtm:=MTMR -p psm:=PSM1')
+mtms = Executable(
+    'mtms', 'suture_lfd.nodes.mtms:MtmsNode', config_file='mtms.yaml',
+    example='mtms --ros-args -p device:=browser')
