@@ -454,7 +454,11 @@ class Simulator(_QuietEndpoints, Node):
         """Return the process exit code: 1 when the stepping thread failed, else 0."""
         return 1 if self.failure is not None else 0
 
-    def shutdown(self):
+    def on_start(self):
+        """Start stepping once the node spins (the entry point calls it)."""
+        self.start()
+
+    def on_exit(self):
         """Stop the stepping thread, then release the simulation (PyBullet)."""
         self.stop()
         self.close()

@@ -22,13 +22,13 @@ The one ``main`` of every node executable: help, argument checks, signals, exit 
    their last setpoint, as a dVRK arm does when its servo stream stops) and write the result it
    has with outcome ``interrupted``; the exit code is 128 + the signal number (130 for SIGINT,
    143 for SIGTERM), never 0;
-7. calls the node's ``shutdown()`` (close files, stop threads), destroys the nodes and shuts
+7. calls the node's ``on_exit()`` (close files, stop threads), destroys the nodes and shuts
    rclpy down, in that order, so nothing publishes on a context that is gone.
 
-Optional parts of a node, all looked up by name: ``start()`` (called once the node is on its
-executor: threads of its own), ``companions`` (further nodes spun on the same executor),
+Optional parts of a node, all looked up by name: ``on_start()`` (called once the node is on
+its executor: threads of its own), ``companions`` (further nodes spun on the same executor),
 ``run()`` (a job done in the main thread instead of spinning; returns the exit code),
-``finished``/``exit_code``, ``on_interrupt(signal_name)``, ``shutdown()``.
+``finished``/``exit_code``, ``on_interrupt(signal_name)``, ``on_exit()``.
 """
 
 import ast
@@ -338,7 +338,7 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
         executor = SingleThreadedExecutor(context=context)
         for each in nodes:
             executor.add_node(each)
-        _call(node, 'start')
+        _call(node, 'on_start')
         with state.deferred():
             try:
                 while context.ok() and not getattr(node, 'finished', False):
@@ -364,7 +364,7 @@ def _close(node, nodes, executor, context):
     import rclpy
 
     if node is not None:
-        _call(node, 'shutdown')
+        _call(node, 'on_exit')
     if executor is not None:
         executor.shutdown(timeout_sec=1.0)
     for each in reversed(nodes):

@@ -173,7 +173,7 @@ class Player(Node):
         """Return True once the bag is played and the node should exit (``exit_when_done``)."""
         return self._done.is_set() and self.config.exit_when_done
 
-    def shutdown(self):
+    def on_exit(self):
         """Stop playing and close the bag."""
         self._stop.set()
         self._thread.join(2.0)

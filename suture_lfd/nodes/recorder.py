@@ -350,7 +350,7 @@ class Recorder(Node):
         status = {'recording': session is not None, **(counts or {})}
         self._status_pub.publish(String(data=json.dumps(status)))
 
-    def shutdown(self):
+    def on_exit(self):
         """Close the bag if one is open (on exit)."""
         if self._session is not None:
             try:
