@@ -35,10 +35,11 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge import conversions as cv
+from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Float64, String
-from suture_lfd.geometry import matrix_from_quaternion
-from suture_lfd.nodes import declare_config, executables
+from suture_lfd.nodes import executables
 from suture_lfd.teleop.devices import PEDALS, open_device
 from suture_lfd.teleop.virtual_mtm import VirtualMtm
 
@@ -124,7 +125,8 @@ class MtmsNode(Node):
         options = {}
         if cfg.device != 'browser':
             options = {'linear_speed': cfg.linear_speed, 'angular_speed': cfg.angular_speed,
-                           'deadband': cfg.deadband, 'gripper_speed': cfg.gripper_speed}
+                           'deadband': cfg.deadband, 'gripper_speed': cfg.gripper_speed,
+                       'gripper_start': cfg.gripper_start}
             if cfg.device == 'gamepad':
                 options['index'] = cfg.device_index
             else:

@@ -20,10 +20,11 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
+from sim_bridge.ros.conversions import message_class
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd import bags
-from suture_lfd.nodes import declare_config, executables
-from suture_lfd.nodes.recorder import message_class
+from suture_lfd.nodes import executables
 
 DONE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)

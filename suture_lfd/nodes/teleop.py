@@ -26,10 +26,11 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge import conversions as cv
+from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Header, String
-from suture_lfd.geometry import matrix_from_quaternion, quaternion_from_matrix
-from suture_lfd.nodes import declare_config, executables
+from suture_lfd.nodes import executables
 from suture_lfd.teleop.frames import FrameTree
 from suture_lfd.teleop.teleoperation import (
     FOLLOWING,

@@ -19,7 +19,7 @@ Poses are 4x4 matrices ``T_F_x``; velocities ``(v, w)`` in m/s and rad/s, in fra
 import math
 
 import numpy as np
-from suture_lfd.geometry import matrix_from_quaternion, quaternion_from_matrix, quaternion_slerp
+from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix, quaternion_slerp
 
 STATES = ('DISABLED', 'ENABLED')
 

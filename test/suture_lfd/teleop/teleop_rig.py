@@ -15,7 +15,7 @@ from harness import wait_for
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge import conversions as cv
+from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Float64, String
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
