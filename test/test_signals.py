@@ -68,8 +68,10 @@ class Traffic:
                                       lambda m: self.recorder.append(json.loads(m.data)),
                                       LATCHED)
 
-    def commands_after(self, count, timeout=WORK_TIMEOUT):
-        return wait_for(lambda: len(self.servo) >= count, timeout, period=0.05)
+    def commands_after(self, count, proc, timeout=WORK_TIMEOUT):
+        """Wait until ``count`` servo commands arrived (False if ``proc`` exits first)."""
+        wait_for(lambda: len(self.servo) >= count or not proc.running(), timeout, period=0.05)
+        return len(self.servo) >= count and proc.running()
 
     def holding(self, seconds=1.0):
         """Return True when no servo command arrives and no setpoint moves for ``seconds``."""
@@ -108,7 +110,7 @@ def test_every_node_stopped_mid_work_holds_reports_and_exits_with_the_signal(
     result = tmp_path / 'result.json'
     executor = launch('executor', '--ros-args', '-p', f'segments:={SEGMENTS}', '-p',
                       'pair:=synth1', '-p', f'result_file:={result}', '-p', 'clock_timeout:=5.0')
-    assert traffic.commands_after(20), executor.log()
+    assert traffic.commands_after(20, executor), executor.log()
     assert interrupt(executor, sig) == code, executor.log()
     record = json.loads(result.read_text())
     assert record['outcome'] == 'interrupted' and record['state'] == 'interrupted'
@@ -121,7 +123,7 @@ def test_every_node_stopped_mid_work_holds_reports_and_exits_with_the_signal(
     recorder = launch('recorder', '--ros-args', '-p', f'output_dir:={tmp_path / "bags"}')
     demonstrator = launch('demonstrator', '--ros-args', '-p', 'pair:=synth2')
     sent = len(traffic.servo)
-    assert traffic.commands_after(sent + 20), demonstrator.log()
+    assert traffic.commands_after(sent + 20, demonstrator), demonstrator.log()
     assert interrupt(demonstrator, sig) == code, demonstrator.log()
     lines = result_lines(demonstrator.log())
     assert [r['outcome'] for r in lines] == ['interrupted'] and lines[0]['completed'] is False
