@@ -11,17 +11,23 @@ import math
 import threading
 import time
 
+from crtk_msgs.srv import QueryInverseKinematics
 from harness import wait_for
 import numpy as np
 import pytest
+from sim_bridge.ros import conversions as cv
 
 ARMS = ('PSM1', 'PSM2', 'ECM')
 
 
 @pytest.fixture
-def simulator(launch):
-    """The simulator node with its default configuration (no camera, as by default)."""
-    return launch('simulator')
+def simulator(ros, launch):
+    """The simulator node with its default configuration, up (as a user waits for it)."""
+    sim = launch('simulator')
+    probe = ros.node('simulator_probe')
+    assert ros.wait_for(lambda: all(probe.count_publishers(f'/{arm}/operating_state')
+                                    for arm in ARMS), 60.0), sim.log()
+    return sim
 
 
 def client_arm(ros, name):
@@ -124,6 +130,17 @@ def test_the_ecm_follows_servo_cp_and_move_cp_goals_by_their_position(ros, simul
     # the goals the client compares right after sending (dvrk_arm_test warns beyond 2 mm):
     # only the latency of a sample or two apart
     assert np.median(lagged) < 2e-3, np.median(lagged)
+
+    # the inverse_kinematics service answers for the ECM as it moves: by the position
+    ik = ecm.node.create_client(QueryInverseKinematics, 'ECM/inverse_kinematics')
+    assert ik.wait_for_service(10.0)
+    goal = T0.copy()
+    goal[:2, 3] += [0.02, -0.01]
+    answer = ik.call_async(QueryInverseKinematics.Request(cp=cv.pose_from_matrix(goal)))
+    assert ros.wait_for(answer.done, 10.0) and answer.result().result, answer.result()
+    q = answer.result().jp
+    r = math.sqrt(sum(v * v for v in goal[:3, 3]))
+    assert q[2] == pytest.approx(r - 0.3829 + 0.3822, abs=1e-6)  # insertion to the tip
 
     # move_cp 5 cm either side in x, and back: each reaches its goal
     for dx in (-0.05, 0.05, 0.0):

@@ -447,6 +447,34 @@ def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
     assert ros.wait_for(lambda: len(psm.get('measured_js')) > n + 20, 10.0)
 
 
+def test_a_cartesian_goal_in_another_frame_is_warned_about_once_and_read_in_the_base(
+        ros, launch):
+    sim = launch('simulator')
+    psm = ArmClient(ros, 'PSM2')
+    assert ros.wait_for(psm.connected, 40.0), sim.log()
+    psm.enable_and_home()
+    T = cv.matrix_from_pose(psm.last('measured_cp').pose)
+    T[2, 3] -= 0.005
+    t = time.monotonic()
+    for frame in ('', 'PSM2_base'):   # the arm's own frame or none: no warning
+        msg = pose_msg(T)
+        msg.header.frame_id = frame
+        psm.send('servo_cp', msg)
+    msg = pose_msg(T)
+    msg.header.frame_id = 'world'
+    for _ in range(50):                # a stream of them: one warning, throttled
+        psm.send('servo_cp', msg)
+        time.sleep(0.002)
+    assert ros.wait_for(lambda: any('world' in m.data for m in psm.get('warning', t)), 10.0)
+    # executed as a goal in PSM2_base, as before
+    assert ros.wait_for(lambda: np.allclose(
+        cv.matrix_from_pose(psm.last('setpoint_cp').pose)[:3, 3], T[:3, 3], atol=1e-6), 10.0)
+    time.sleep(0.5)
+    warnings = [m.data for m in psm.get('warning', t)]
+    assert len(warnings) == 1, warnings
+    assert "servo_cp stamped in frame 'world' is read in 'PSM2_base'" in warnings[0]
+
+
 def test_a_state_snapshot_gives_the_arm_properties():
     from sim_bridge.kinematics import ecm_kinematics
     from sim_bridge.nodes.crtk_arm import ArmSnapshot

@@ -11,8 +11,8 @@ from mcap.stream_reader import StreamReader
 import numpy as np
 import pytest
 from suture_lfd import bags
+from suture_lfd.bags.mcap_check import check_mcap, salvage_messages
 from suture_lfd.demos.demo_bag import write_demonstration_bag
-from suture_lfd.mcap_check import check_mcap, salvage_messages
 from suture_lfd.nodes.segmenter import SegmenterConfig, segment_bag
 
 
