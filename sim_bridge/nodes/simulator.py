@@ -18,8 +18,13 @@ camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
 - ``sim/process`` (std_msgs/String, JSON, latched): the node's pid, host and process start
   time (:func:`sim_bridge.ros.peer.announcement`), so a client on this machine can tell a
   starved simulator from a dead one;
-- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED, needle on the pad; the
-  needle start is seeded with ``seed + number of resets``).
+- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED at rest, needle on the pad;
+  the needle start is seeded with ``seed + number of resets``).
+
+Arms keep the dVRK's operating-state timings by default: ``enable`` powers up for
+``power_up_time`` before ENABLED, and ``home`` moves an arm from its rest pose (``psm_rest_jp``,
+``ecm_rest_jp``: retracted) to the homing goal in seconds, busy meanwhile; ``power_up_time: 0``
+and ``start_at_home: true`` make both take one step.
 
 Time: the node owns it. Every ``tick`` the simulation is stepped (fixed physics step) up to
 ``real_time_factor`` times the wall time elapsed (0: as fast as it goes); when it falls more than
@@ -91,7 +96,11 @@ class SimulatorConfig:
     Attributes
     ----------
     phantom : str
-        ``'synthetic'``, ``'scanned'`` or an STL/OBJ/PLY mesh path.
+        ``'synthetic'``, ``'scanned'`` (phantoms of the scene), an STL/OBJ/PLY mesh path
+        (metres, z up; markers laid on its top surface) or a phantom file (``.yaml``: mesh,
+        scale, pose, wound line or markers).
+    scene : str
+        Scene file replacing the installed ``scene.yaml`` (``''``: the installed one).
     seed : int
         Seed of the scene (needle start pose).
     target_pair : str
@@ -134,6 +143,7 @@ class SimulatorConfig:
     """
 
     phantom: str = 'synthetic'
+    scene: str = ''
     seed: int = 0
     target_pair: str = ''
     real_time_factor: float = 1.0
@@ -238,7 +248,7 @@ class Simulator(_QuietEndpoints, Node):
     def __init__(self):
         super().__init__('simulator')
         self.config = cfg = declare_config(self, SimulatorConfig, 'simulator.yaml', 'simulator')
-        sim_config = load_simulation_config()
+        sim_config = load_simulation_config(scene_path=cfg.scene or None)
         rest = {} if cfg.start_at_home else {
             'psm_rest_jp': tuple(float(v) for v in cfg.psm_rest_jp),
             'ecm_rest_jp': tuple(float(v) for v in cfg.ecm_rest_jp)}
@@ -307,9 +317,13 @@ class Simulator(_QuietEndpoints, Node):
         self._stop = threading.Event()
         self._stepper = None
         self.failure = None  # the exception that stopped the stepping thread, if any
+        if self.sim.phantom.placement:
+            self.get_logger().info(f'phantom {self.sim.phantom.name}: '
+                                   f'{self.sim.phantom.placement}')
         self.get_logger().info(
-            f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
-            f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
+            f'simulating {cfg.phantom} phantom, pairs {", ".join(self.sim.phantom.markers)}, '
+            f'pair {self._pair}, real-time factor {self._rtf or "max"}, state at '
+            f'{cfg.rate:g} Hz')
 
     # -- time ----------------------------------------------------------------------------------
 
