@@ -18,8 +18,13 @@ camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
 - ``sim/process`` (std_msgs/String, JSON, latched): the node's pid, host and process start
   time (:func:`sim_bridge.ros.peer.announcement`), so a client on this machine can tell a
   starved simulator from a dead one;
-- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED, needle on the pad; the
-  needle start is seeded with ``seed + number of resets``).
+- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED at rest, needle on the pad;
+  the needle start is seeded with ``seed + number of resets``).
+
+Arms keep the dVRK's operating-state timings by default: ``enable`` powers up for
+``power_up_time`` before ENABLED, and ``home`` moves an arm from its rest pose (``psm_rest_jp``,
+``ecm_rest_jp``: retracted) to the homing goal in seconds, busy meanwhile; ``power_up_time: 0``
+and ``start_at_home: true`` make both take one step.
 
 Time: the node owns it. Every ``tick`` the simulation is stepped (fixed physics step) up to
 ``real_time_factor`` times the wall time elapsed (0: as fast as it goes); when it falls more than
