@@ -242,11 +242,11 @@ class Simulation:
     client : pybullet_utils.bullet_client.BulletClient, optional
         PyBullet client to use (reset and owned by the simulation while it runs); default: a
         new DIRECT client, disconnected by :meth:`close`.
-    phantom : str or Path or sim_bridge.phantom.PhantomConfig
+    phantom : str or Path or sim_bridge.scene.phantom.PhantomConfig
         ``'synthetic'``, ``'scanned'`` (phantoms of the scene), the path of an STL/OBJ/PLY mesh
         (metres, z up; markers laid on its top surface along its longest flat-enough line), a
         phantom file (``.yaml``: mesh, scale, pose, wound line or markers; see
-        :func:`sim_bridge.scene_config.load_phantom_file`) or a phantom configuration.
+        :func:`sim_bridge.scene.scene_config.load_phantom_file`) or a phantom configuration.
     gui : bool
         Open a PyBullet GUI window instead of a DIRECT client (ignored with ``client``).
 

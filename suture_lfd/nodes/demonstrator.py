@@ -45,6 +45,11 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE = QoSProfile(depth=10)
+# The servo streams: the arm takes only the newest goal, but a recorder takes every one, and a
+# publisher's history is all a reader that stalls for a moment can catch up from; 1000 goals
+# cover a second at 1 kHz (depth 10 lost 16 % of a demonstration's goals on a busy machine).
+COMMAND_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
 
 
 @dataclass(frozen=True)
@@ -109,9 +114,9 @@ class DemonstratorNode(Node):
         self._commanded_on = None  # arm states when enable/home were last sent
         self._published = {}
         self._scene = load_scene_config()
-        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
+        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', COMMAND_STREAM)
                        for a in PSMS}
-        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', STATE)
+        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', COMMAND_STREAM)
                          for a in PSMS}
         self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
                          for a in PSMS}
