@@ -96,8 +96,10 @@ class SimClient:
         self._last_state_command = -float('inf')
         self._commanded_on = None  # arm states when enable/home were last sent
         pub = node.create_publisher
-        self._servo = {a: pub(PoseStamped, f'{a}/servo_cp', qos.STREAM) for a in self.arms}
-        self._jaw_pub = {a: pub(JointState, f'{a}/jaw/servo_jp', qos.STREAM) for a in self.arms}
+        self._servo = {a: pub(PoseStamped, f'{a}/servo_cp', qos.SERVO_STREAM)
+                       for a in self.arms}
+        self._jaw_pub = {a: pub(JointState, f'{a}/jaw/servo_jp', qos.SERVO_STREAM)
+                         for a in self.arms}
         self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STREAM)
                          for a in self.arms}
         self._target = pub(String, 'sim/target_pair', qos.STREAM)
