@@ -44,6 +44,7 @@ from sim_bridge.geometry import invert_transform, pose_from_transform
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
+from suture_lfd.planning.episode import start_episode
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
 
@@ -551,11 +552,8 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
 def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
                config):
     scene_seed = int(seed) + 1000 * attempt
-    sim.reset(seed=scene_seed)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair_name)
+    pair = start_episode(sim, pair_name, scene_seed)
     sim.pop_events()
-    pair = sim.target_pair
     dem = Demonstrator(subject, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM2'],
                        rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
                        expert_config=config)

@@ -215,20 +215,7 @@ class ScriptedExpert:
         return 0.0 if self.follower is None else self.follower.plan_time
 
     def step(self, obs):
-        """
-        Command for the observation.
-
-        Parameters
-        ----------
-        obs : sim_bridge.control.Observation
-            Current state.
-
-        Returns
-        -------
-        sim_bridge.control.Command
-            Targets at ``obs.t``.
-
-        """
+        """Return the command for ``obs`` (planned at the first call; see PlanFollower.step)."""
         if self.plan_ is None:
             self.reset(obs)
         return self.follower.step(obs)

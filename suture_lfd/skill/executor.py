@@ -26,6 +26,7 @@ import math
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
 from sim_bridge.geometry import matrix_from_quaternion, pose_from_transform
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.grasps import GraspPlanner
 from suture_lfd.planning.plan import PlanFollower
 from suture_lfd.planning.throw import Carry, Follow, Hold, ThrowPaths, drive_grasp_s, plan_throw
@@ -553,11 +554,8 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     if pair_name not in sim.phantom.markers:
         raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                          f'{sorted(sim.phantom.markers)}')
-    sim.reset(seed)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair_name)
+    pair = start_episode(sim, pair_name, seed)
     sim.pop_events()
-    pair = sim.target_pair
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
@@ -575,11 +573,7 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
                             entry_error_mm=math.nan, exit_error_mm=math.nan, executed={},
                             rollouts=dict(executor.rollouts), targets=dict(executor.targets),
                             subtask_times={}, events=[], score_detail=None)
-    chunk = 0.5
-    while not executor.done and sim.time - t_start < timeout:
-        sim.run(min(chunk, timeout - (sim.time - t_start)), recorder, control_period)
-    if executor.done:
-        sim.run(0.2, recorder, control_period)
+    run_episode(sim, executor, control_period, stepper=recorder, timeout=timeout, reset=False)
     result = sim.score()
     events = [_event_dict(ev) for ev in sim.pop_events()]
     complete = not result.failures
