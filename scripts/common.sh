@@ -46,7 +46,8 @@ check_children() {
     kill -0 "$pid" 2>/dev/null && continue
     status=0
     wait "$pid" 2>/dev/null || status=$?
-    say "${names[$i]} exited (code $status): $(last_error "$LOG_DIR/${names[$i]}.log")"
+    say "${names[$i]:-process $pid} exited (code $status):" \
+      "$(last_error "$LOG_DIR/${names[$i]:-}.log")"
     exit $(( status ? status : 1 ))
   done
 }
