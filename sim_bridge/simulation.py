@@ -33,8 +33,7 @@ from dataclasses import dataclass, field, replace
 import logging
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
+from sim_bridge import bullet
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.control import Observation
@@ -269,8 +268,7 @@ class Simulation:
         cfg = self.config
         self._own_client = client is None
         if client is None:
-            client = bullet_client.BulletClient(
-                connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+            client = bullet.connect(gui=gui)
         self.client = client
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.needle_geometry = cfg.scene.needle
