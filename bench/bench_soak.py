@@ -7,7 +7,8 @@ Processes (each its own rclpy process on loopback):
   script: SIGINT, as a user's Ctrl-C or a launch file does, then SIGKILL only after 30 s;
 - a *streamer* that enables and homes PSM1 and PSM2 (again after every restart of the
   simulator) and streams ``PSM1/servo_cp`` and ``PSM2/servo_cp`` at 1 kHz each, a 1 mm circle
-  around the arms' home poses, without pause, also while the simulator restarts;
+  around the arms' home poses (around their measured pose until they are homed: goals an arm
+  that is not ready answers with a throttled warning), also while the simulator restarts;
 - a *client* subscribed to the full state of the three arms (what ``dvrk.psm('PSM1')``,
   ``dvrk.psm('PSM2')`` and ``dvrk.ecm('ECM')`` subscribe, about 4300 messages/s; the client role
   of ``bench_simulator_node.py``).
@@ -65,7 +66,7 @@ def role_stream(_args):
     node = rclpy.create_node('bench_streamer')
     state_qos, event_qos = node_bench.qos_profiles()
     lock = threading.Lock()
-    states, homes = {}, {}
+    states, homes, latest = {}, {}, {}
     command = {a: node.create_publisher(StringStamped, f'{a}/state_command', 10) for a in PSMS}
     servo = {a: node.create_publisher(PoseStamped, f'{a}/servo_cp', QoSProfile(depth=10))
              for a in PSMS}
@@ -76,6 +77,7 @@ def role_stream(_args):
 
     def on_cp(arm, msg):
         with lock:
+            latest[arm] = msg
             if arm not in homes and arm in states and states[arm].is_homed \
                     and not states[arm].is_busy:
                 homes[arm] = msg
@@ -105,8 +107,8 @@ def role_stream(_args):
     sent, k, t0 = 0, 0, time.monotonic()
     period = 1.0 / STREAM_HZ
     while not stop.is_set():
-        with lock:
-            poses = dict(homes)
+        with lock:   # around the home pose once homed; until then where the arm is
+            poses = {a: homes.get(a) or latest[a] for a in latest}
         angle = 2.0 * math.pi * 0.5 * k * period
         for a, home in poses.items():
             msg = PoseStamped()
