@@ -301,15 +301,16 @@ def run_node(make_node, name, args=None, *, doc='', config_file=None, example=No
         _error(name, f'unknown argument {user[0]!r}; parameters are set with '
                      f'--ros-args -p NAME:=VALUE (see {name} --help)')
         return 2
+    # The handlers stay until the process exits: a late signal only sets a flag.
     state = _SignalState()
-    previous = {s: signal.signal(s, state.handle) for s in SIGNALS}
     try:
+        for each in SIGNALS:
+            signal.signal(each, state.handle)
         return _run(make_node, name, [sys.argv[0], *argv], ros_args, state, spin_period)
     except Interrupted as stop:
         return 128 + stop.signum
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        state.raise_at_once = False
 
 
 def _run(make_node, name, argv, ros_args, state, spin_period):

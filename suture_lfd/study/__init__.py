@@ -362,6 +362,7 @@ def run_study(args, stream=None):
                                   workers=workers, progress=progress, initializer=init_worker,
                                   initargs=(settings, ros))
             except KeyboardInterrupt:
+                progress.finish()
                 ran = progress.done - progress.resumed
                 print(f'study interrupted: {progress.done}/{total} jobs stored in '
                       f'{store.path.name}; run the same command again to resume', file=stream,
