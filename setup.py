@@ -16,6 +16,7 @@ NODES = {
     'player': 'suture_lfd.nodes.player:main',
     'segmenter': 'suture_lfd.nodes.segmenter:main',
     'executor': 'suture_lfd.nodes.executor:main',
+    'viewer': 'suture_lfd.nodes.viewer:main',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',
