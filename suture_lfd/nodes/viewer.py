@@ -19,7 +19,9 @@ reachable from the network unless asked) and open the URL it prints. The page dr
 
 It sends what changed to the page ``frame_rate`` times a second, and publishes
 ``viewer/stats`` (std_msgs/String, JSON, every ``stats_period`` s): ``frame_rate`` (frames sent
-per second), ``tf_rate`` (``/tf`` messages per second), ``clients`` (browsers connected).
+per second), ``tf_rate`` (``/tf`` messages per second), ``clients`` (browsers connected) and
+``cameras`` (each browser's view: ``position``, ``wxyz`` in the OpenCV convention, vertical
+``fov`` in rad, ``width`` and ``height`` in px).
 
 Contract with the virtual MTMs (browser input back-end)
 --------------------------------------------------------
@@ -43,7 +45,6 @@ All three are RELIABLE, VOLATILE, depth 10, stamped with the node's clock. Param
 import argparse
 from dataclasses import dataclass
 import json
-import math
 import sys
 import time
 
@@ -76,10 +77,6 @@ EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 IMAGE_QOS = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
-# The page's first view (world, m, rad): front right, above the pad, clear of the ECM's shaft.
-CAMERA_POSITION = (0.09, -0.10, 0.10)
-CAMERA_LOOK_AT = (0.0, 0.0, 0.0)
-CAMERA_FOV = math.radians(45.0)
 
 
 @dataclass(frozen=True)
@@ -139,11 +136,7 @@ class Viewer(Node):
         phantom = load_phantom(self.config.phantom)
         points, diameter = needle_arc()
         self.page = ViewerPage(points, diameter, host=host, port=port)
-        scene = self.page.scene
-        scene.set_phantom(phantom.mesh.vertices, phantom.mesh.faces, phantom.T_world_phantom,
-                          phantom.rgba)
-        scene.set_marker_radius(phantom.marker_radius)
-        self.page.set_camera(position=CAMERA_POSITION, look_at=CAMERA_LOOK_AT, fov=CAMERA_FOV)
+        self.page.show_phantom(phantom)
         self._input = {}
         for mtm in self.config.mtms:
             self._input[mtm] = (
@@ -227,7 +220,8 @@ class Viewer(Node):
         tf_rate = (self._tf_count - n0) / max(now - t0, 1e-9)
         self._tf_mark = (now, self._tf_count)
         stats = {'frame_rate': round(self.clock.rate(), 2), 'tf_rate': round(tf_rate, 2),
-                 'clients': self.page.connected_clients(), 'frames': self.clock.frames}
+                 'clients': self.page.connected_clients(), 'frames': self.clock.frames,
+                 'cameras': self.page.client_cameras()}
         self._stats.publish(String(data=json.dumps(stats)))
 
     # --- browser input -------------------------------------------------------------------------

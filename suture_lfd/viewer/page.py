@@ -22,6 +22,11 @@ LOG = logging.getLogger(__name__)
 DEFAULT_HOST = '127.0.0.1'
 DEFAULT_PORT = 8080
 EVENT_LINES = 12  # events shown in the side panel, newest first
+NEAR = 0.002  # m, the page camera's near plane (the scene is a few cm across)
+# The page's first view (world, m, rad): front right, above the pad, clear of the ECM's shaft.
+CAMERA_POSITION = (0.09, -0.10, 0.10)
+CAMERA_LOOK_AT = (0.0, 0.0, 0.0)
+CAMERA_FOV = np.radians(45.0)
 
 
 def page_url(host, port):
@@ -81,10 +86,11 @@ class ViewerPage:
         self.host = host
         self.port = self.server.get_port()
         self.url = page_url(host, self.port)
-        self.server.gui.configure_theme(control_layout='fixed', control_width='medium',
+        self.server.gui.configure_theme(control_width='medium',
                                         show_logo=False, show_share_button=False,
                                         titlebar_content=None)
         self.scene = SceneView(self.server.scene, needle_points, needle_diameter)
+        self.set_camera()
         self.server.scene.add_grid('/grid', width=0.4, height=0.4, cell_size=0.02,
                                    section_size=0.1, position=(0.0, 0.0, -0.0005))
         self._events = []
@@ -95,13 +101,20 @@ class ViewerPage:
         self.status = self.server.gui.add_markdown('')
         self.panels = []
 
-    def set_camera(self, position, look_at, fov=np.radians(50.0)):
+    def show_phantom(self, phantom):
+        """Draw a :class:`sim_bridge.phantom.Phantom` (mesh, colour, marker size)."""
+        self.scene.set_phantom(phantom.mesh.vertices, phantom.mesh.faces,
+                               phantom.T_world_phantom, phantom.rgba)
+        self.scene.set_marker_radius(phantom.marker_radius)
+
+    def set_camera(self, position=CAMERA_POSITION, look_at=CAMERA_LOOK_AT, fov=CAMERA_FOV):
         """Camera of every page opened from now on (and of the open ones): world, m, rad."""
         camera = self.server.initial_camera
         camera.position = tuple(map(float, position))
         camera.look_at = tuple(map(float, look_at))
         camera.up = (0.0, 0.0, 1.0)
         camera.fov = float(fov)
+        camera.near = NEAR
         for client in self.server.get_clients().values():
             client.camera.position = tuple(map(float, position))
             client.camera.look_at = tuple(map(float, look_at))
@@ -142,6 +155,29 @@ class ViewerPage:
     def connected_clients(self):
         """Number of browsers connected."""
         return len(self.server.get_clients())
+
+    def client_cameras(self):
+        """
+        The camera of each connected browser (what it reported last).
+
+        Returns
+        -------
+        list of dict
+            ``position`` (m, world), ``wxyz`` (OpenCV convention: +z forward, +y down),
+            ``fov`` (vertical, rad), ``width``, ``height`` (px of the 3-D view).
+
+        """
+        cameras = []
+        for client in self.server.get_clients().values():
+            camera = client.camera
+            try:
+                cameras.append({'position': [float(v) for v in camera.position],
+                                'wxyz': [float(v) for v in camera.wxyz],
+                                'fov': float(camera.fov), 'width': int(camera.image_width),
+                                'height': int(camera.image_height)})
+            except AssertionError:  # no camera message from this browser yet
+                continue
+        return cameras
 
     def close(self):
         """Stop the server."""

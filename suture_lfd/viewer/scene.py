@@ -125,6 +125,7 @@ class SceneView:
         self._pending_lines = {}
         self._pending_spheres = {}
         self._handles = {}
+        self._sent = {}
         scene.set_up_direction('+z')
         self.needle = scene.add_line_segments(
             '/needle', segments_from_strip(needle_points), NEEDLE_COLOR,
@@ -214,10 +215,18 @@ class SceneView:
         self.frames_rendered += 1
         return True
 
-    @staticmethod
-    def _set_pose(handle, T):
-        handle.position = tuple(T[:3, 3].tolist())
-        handle.wxyz = wxyz_from_matrix(T)
+    def _set_pose(self, handle, T):
+        """Pose a node (only what changed is sent)."""
+        last = self._sent.get(id(handle))
+        if last is not None and np.array_equal(last, T):
+            return
+        self._sent[id(handle)] = T.copy()
+        position = tuple(T[:3, 3].tolist())
+        if tuple(handle.position) != position:
+            handle.position = position
+        wxyz = wxyz_from_matrix(T)
+        if not np.array_equal(handle.wxyz, wxyz):
+            handle.wxyz = wxyz
         if not handle.visible:
             handle.visible = True
 
@@ -261,7 +270,9 @@ class SceneView:
             return
         outside = rcm - axis / length * SHAFT_OUTSIDE
         shaft = self._handles[arm + '/shaft']
-        shaft.points = np.array([[outside, tip]], dtype=np.float32)
+        points = np.array([[outside, tip]], dtype=np.float32)
+        if not np.array_equal(shaft.points, points):
+            shaft.points = points
         if not shaft.visible:
             shaft.visible = True
 
@@ -273,9 +284,10 @@ class SceneView:
             if self._frustum is not None:
                 self._frustum.remove()
             aspect = 4.0 / 3.0 if image is None else image.shape[1] / image.shape[0]
+            self._sent.pop(id(self._frustum), None)
             self._frustum = self.scene.add_camera_frustum(
-                '/arms/ECM/camera', fov=np.radians(60.0), aspect=aspect, scale=0.03,
-                color=ARM_COLORS['ECM'], image=image, format='jpeg')
+                '/arms/ECM/camera', fov=np.radians(60.0), aspect=aspect, scale=0.02,
+                color=ARM_COLORS['ECM'], thickness=0.0006, image=image, format='jpeg')
         self._set_pose(self._frustum, T)
 
     def _draw_lines(self, key, points, color, width):

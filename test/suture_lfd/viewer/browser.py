@@ -48,7 +48,7 @@ class Chromium:
 
     """
 
-    def __init__(self, executable, width=1280, height=800):
+    def __init__(self, executable, width=960, height=600):
         self.width, self.height = width, height
         self._profile = tempfile.TemporaryDirectory(prefix='viewer-chromium-')
         self.proc = subprocess.Popen(
@@ -80,7 +80,7 @@ class Chromium:
                 return int(line.split('ws://', 1)[1].split('/', 1)[0].rsplit(':', 1)[1])
         raise RuntimeError('chromium did not open its DevTools port:\n' + ''.join(lines[-20:]))
 
-    def send(self, method, timeout=60.0, **params):
+    def send(self, method, timeout=600.0, **params):
         """Call a CDP method; return its result (events in between are dropped)."""
         self._id += 1
         ident = self._id
@@ -133,6 +133,22 @@ class Chromium:
             f' const r = e.getBoundingClientRect(); if (r.width > 0)'
             f' return [r.x + r.width / 2, r.y + r.height / 2]; }} }} return null; }})()')
         return rect
+
+    def close_notification(self, text):
+        """Click the close button of the notification that says ``text``; whether there was one."""
+        center = self.evaluate(
+            '(() => { let best = null; for (const d of document.querySelectorAll("div")) {'
+            f' if (!d.innerText || !d.innerText.includes({json.dumps(text)})) continue;'
+            ' const b = d.querySelector("button"); if (!b) continue;'
+            ' const r = d.getBoundingClientRect();'
+            ' if (!best || r.width * r.height < best[0]) {'
+            ' const c = b.getBoundingClientRect();'
+            ' best = [r.width * r.height, c.x + c.width / 2, c.y + c.height / 2]; } }'
+            ' return best && best.slice(1); })()')
+        if center is None:
+            return False
+        self.click(*center)
+        return True
 
     def canvas_rect(self):
         """``[x, y, width, height]`` of the largest canvas (the 3-D view), or None."""
