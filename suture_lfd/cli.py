@@ -123,10 +123,10 @@ def build_parser():
         'URL it prints. Ctrl-C stops it.')
     view.add_argument('path', help='bag directory, or a study folder with --throw')
     view.add_argument('--throw', default=None, metavar='ROW',
-                      help='row of the study\'s throws.csv (1 = first throw) or a throw key')
+                      help="row of the study's throws.csv (1 = first throw) or a throw key")
     view.add_argument('--segments', default=None,
                       help='segment file to mark on the slider (default: <bag>.segments.npz '
-                           'or the study\'s segments/<bag>.npz when present)')
+                           "or the study's segments/<bag>.npz when present)")
     view.add_argument('--host', default='127.0.0.1',
                       help='interface to listen on (default 127.0.0.1: this machine only)')
     view.add_argument('--port', type=int, default=8080, help='TCP port (default 8080)')

@@ -15,8 +15,16 @@ camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
 - ``sim/stats`` (std_msgs/String, JSON, every second of wall time): the requested
   ``real_time_factor``, the factor ``achieved`` over the last second, simulation seconds
   ``skipped`` so far because the loop fell behind, ``sim_time`` and ``clock``;
-- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED, needle on the pad; the
-  needle start is seeded with ``seed + number of resets``).
+- ``sim/process`` (std_msgs/String, JSON, latched): the node's pid, host and process start
+  time (:func:`sim_bridge.ros.peer.announcement`), so a client on this machine can tell a
+  starved simulator from a dead one;
+- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED at rest, needle on the pad;
+  the needle start is seeded with ``seed + number of resets``).
+
+Arms keep the dVRK's operating-state timings by default: ``enable`` powers up for
+``power_up_time`` before ENABLED, and ``home`` moves an arm from its rest pose (``psm_rest_jp``,
+``ecm_rest_jp``: retracted) to the homing goal in seconds, busy meanwhile; ``power_up_time: 0``
+and ``start_at_home: true`` make both take one step.
 
 Time: the node owns it. Every ``tick`` the simulation is stepped (fixed physics step) up to
 ``real_time_factor`` times the wall time elapsed (0: as fast as it goes); when it falls more than
@@ -54,14 +62,15 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sim_bridge import conversions as cv
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.peer import announcement
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from suture_lfd.nodes import declare_config
 
 EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -70,6 +79,8 @@ CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # No QoS-event handlers on the ~160 endpoints of the simulator and pedal nodes: rclpy's executor
 # visits each handler at every wake-up (1 kHz with a streaming client), which cost more than the
 # simulation itself; a client with incompatible QoS or type is still warned by its own endpoints.
@@ -85,7 +96,11 @@ class SimulatorConfig:
     Attributes
     ----------
     phantom : str
-        ``'synthetic'``, ``'scanned'`` or an STL/OBJ/PLY mesh path.
+        ``'synthetic'``, ``'scanned'`` (phantoms of the scene), an STL/OBJ/PLY mesh path
+        (metres, z up; markers laid on its top surface) or a phantom file (``.yaml``: mesh,
+        scale, pose, wound line or markers).
+    scene : str
+        Scene file replacing the installed ``scene.yaml`` (``''``: the installed one).
     seed : int
         Seed of the scene (needle start pose).
     target_pair : str
@@ -111,12 +126,24 @@ class SimulatorConfig:
         ``'limited'`` (joints follow setpoints within the dVRK limits) or ``'exact'``.
     tool_present : bool
         PSM instruments mounted at start-up.
+    power_up_time : float
+        Simulated time (s) from ``enable`` to ENABLED (DISABLED and busy meanwhile, as a dVRK
+        arm powering its amplifiers, which it must do within 3 s); 0: at once.
+    start_at_home : bool
+        Start (and restart on ``sim/reset``) the arms at the homing goal, so that ``home`` ends
+        at once; false: at ``psm_rest_jp`` / ``ecm_rest_jp``, and ``home`` is a trajectory of a
+        few seconds at the joint trajectory limits, as on a dVRK.
+    psm_rest_jp, ecm_rest_jp : tuple of float
+        Rest poses of the PSMs (6 joints) and the ECM (4 joints), rad / m; default all zeros
+        (the pose a simulated dVRK arm powers up in: instrument and endoscope retracted to the
+        cannula, insertion 0).
     footpedals : bool
         Run the console foot pedals (``/footpedals/*``) in this process.
 
     """
 
     phantom: str = 'synthetic'
+    scene: str = ''
     seed: int = 0
     target_pair: str = ''
     real_time_factor: float = 1.0
@@ -131,6 +158,10 @@ class SimulatorConfig:
     tracking: str = 'limited'
     tool_present: bool = True
     footpedals: bool = True
+    power_up_time: float = 1.0
+    start_at_home: bool = False
+    psm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    ecm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -147,6 +178,14 @@ class SimulatorConfig:
         for name in ('tick', 'max_lag'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0 s, got {getattr(self, name)}')
+        if not (math.isfinite(self.power_up_time) and self.power_up_time >= 0):
+            raise ValueError(f'parameter power_up_time must be >= 0 s (0: at once), '
+                             f'got {self.power_up_time}')
+        for name, n in (('psm_rest_jp', 6), ('ecm_rest_jp', 4)):
+            value = getattr(self, name)
+            if len(value) != n or not all(math.isfinite(float(v)) for v in value):
+                raise ValueError(f'parameter {name} must be {n} finite joint values (rad / m), '
+                                 f'got {list(value)}')
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
                              f'got {self.tracking!r}')
@@ -209,11 +248,15 @@ class Simulator(_QuietEndpoints, Node):
     def __init__(self):
         super().__init__('simulator')
         self.config = cfg = declare_config(self, SimulatorConfig, 'simulator.yaml', 'simulator')
-        sim_config = load_simulation_config()
+        sim_config = load_simulation_config(scene_path=cfg.scene or None)
+        rest = {} if cfg.start_at_home else {
+            'psm_rest_jp': tuple(float(v) for v in cfg.psm_rest_jp),
+            'ecm_rest_jp': tuple(float(v) for v in cfg.ecm_rest_jp)}
         sim_config = replace(
             sim_config,
-            arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present),
-            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None))
+            arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present,
+                        power_up_time=float(cfg.power_up_time)),
+            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None), **rest)
         self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
                               phantom=cfg.phantom)
         self._resets = 0
@@ -246,12 +289,19 @@ class Simulator(_QuietEndpoints, Node):
         self._clock_pub = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
         self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
         self._stats_pub = self.create_publisher(String, 'sim/stats', COMMAND_QOS)
+        # who runs the simulation, so that a client on this machine tells a starved simulator
+        # (silent, but its process exists) from a dead one (sim_bridge.ros.peer)
+        self._process_pub = self.create_publisher(String, 'sim/process', LATCHED_QOS)
+        self._process_pub.publish(String(data=announcement()))
         # held by the stepping thread for a round and by every callback that touches the scene
         self.lock = threading.RLock()
         self._waiting = 0  # callbacks waiting for the lock: the stepping thread lets them in
+        # at real time on the wall clock, clients without use_sim_time compare operating_state
+        # stamps with their system clock: those stamps never fall behind it
+        wall = time.time_ns if cfg.clock_start < 0 and self._rtf == 1.0 else None
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
-                                   lock=self.locked)
+                                   lock=self.locked, stamp_floor_ns=wall)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, COMMAND_QOS)
@@ -267,9 +317,13 @@ class Simulator(_QuietEndpoints, Node):
         self._stop = threading.Event()
         self._stepper = None
         self.failure = None  # the exception that stopped the stepping thread, if any
+        if self.sim.phantom.placement:
+            self.get_logger().info(f'phantom {self.sim.phantom.name}: '
+                                   f'{self.sim.phantom.placement}')
         self.get_logger().info(
-            f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
-            f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
+            f'simulating {cfg.phantom} phantom, pairs {", ".join(self.sim.phantom.markers)}, '
+            f'pair {self._pair}, real-time factor {self._rtf or "max"}, state at '
+            f'{cfg.rate:g} Hz')
 
     # -- time ----------------------------------------------------------------------------------
 

@@ -5,7 +5,7 @@ At start-up the node learns the skill (:func:`suture_lfd.skill.learn_skill`, par
 ``segments`` and ``method``, or loads a saved skill from ``skill``). A pair name on
 ``~/execute`` (std_msgs/String) starts a throw on that pair: the node enables and homes PSM1
 and PSM2 if needed, selects the pair on ``sim/target_pair``, and runs the core
-:class:`suture_lfd.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
+:class:`suture_lfd.skill.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
 scripted, ii and iv from the DMPs through the measured grasp, streamed as ``<ARM>/servo_cp``
 (in the ``measured_cp`` frame) and ``<ARM>/jaw/servo_jp``. It reads ``<ARM>/measured_cp``,
 ``<ARM>/measured_js``, ``<ARM>/jaw/measured_js``, ``<ARM>/operating_state``,
@@ -22,8 +22,11 @@ runs with ``use_sim_time``):
   throw settles): the simulation runs but the arm does not answer. A machine too busy to run
   the simulator or this node for a while stops both the clock and the arms, so it never counts;
 - the simulator is dead when neither ``/clock`` nor any ``measured_cp`` has arrived for
-  ``clock_timeout`` seconds of wall time (not counting ticks this node itself came late to);
-  keep it well above the longest stall the machine may impose on a live simulator.
+  ``clock_timeout`` seconds of wall time (not counting ticks this node itself came late to).
+  On the same machine the simulator's process tells more (``sim/process``,
+  :mod:`sim_bridge.ros.peer`): once it has exited the simulator is dead as soon as the topics
+  have been quiet for ``stale_timeout`` s of wall time; while it exists (starved of CPU by a
+  busier process, or stopped) the throw waits for it, up to ``starved_timeout`` s of silence.
 
 Without any ``/clock`` message the silence is estimated from the wall time since the last
 ``measured_cp`` and the rate the simulation clock was advancing over the last second, and a
@@ -64,16 +67,18 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from sim_bridge import conversions as cv
-from sim_bridge.expert import Observation
+from sim_bridge.control import Observation
+from sim_bridge.geometry import pose_from_transform
 from sim_bridge.kinematics import psm_kinematics
-from sim_bridge.phantom import MarkerPair
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.peer import ProcessWatch
+from sim_bridge.scene.phantom import MarkerPair
+from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
-from suture_lfd.executor import ExecutorConfig, ThrowExecutor
-from suture_lfd.geometry import pose_from_transform
-from suture_lfd.nodes import declare_config, run_until_finished
+from suture_lfd.nodes import run_until_finished
 from suture_lfd.skill import ThrowSkill, learn_skill
+from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -96,6 +101,7 @@ class ExecutorNodeConfig:
     rate: float = 100.0
     stale_timeout: float = 0.1
     clock_timeout: float = 1.0
+    starved_timeout: float = 30.0
     settle_time: float = 0.5
     timeout: float = 120.0
     prepare_timeout: float = 60.0
@@ -108,7 +114,8 @@ class ExecutorNodeConfig:
         if not self.segments and not self.skill:
             raise ValueError('parameter segments is empty: pass the segment file to learn '
                              'from, --ros-args -p segments:=PATH (or a saved skill, skill:=PATH)')
-        for name in ('rate', 'stale_timeout', 'clock_timeout', 'timeout', 'prepare_timeout'):
+        for name in ('rate', 'stale_timeout', 'clock_timeout', 'starved_timeout', 'timeout',
+                     'prepare_timeout'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.settle_time < 0:
@@ -149,6 +156,7 @@ class ExecutorNode(Node):
         self._stage = 'idle'
         self._stage_wall = time.monotonic()
         self._last_command = -1e9
+        self._commanded_on = None  # arm states when enable/home were last sent
         self._executor = None
         self._t_start = self._t_done = None
         self._last_obs_t = None
@@ -177,6 +185,9 @@ class ExecutorNode(Node):
                                          a, cv.matrix_from_pose(m.pose)), LATCHED)
         self.create_subscription(PoseStamped, 'sim/needle/measured_cp', self._on_needle, STATE)
         self.create_subscription(ClockMsg, '/clock', self._on_clock, CLOCK)
+        self._simulator = None   # ProcessWatch of the simulator, from sim/process
+        self._starved_said = False
+        self.create_subscription(String, 'sim/process', self._on_process, LATCHED)
         self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS)
         self.create_subscription(String, '~/execute', self._on_execute, STATE)
         self.create_subscription(Empty, '~/stop', self._on_stop, STATE)
@@ -223,6 +234,12 @@ class ExecutorNode(Node):
         if self._clock_t is None or t > self._clock_t:
             self._clock_t = t
             self._clock_wall = now
+
+    def _on_process(self, msg):
+        try:
+            self._simulator = ProcessWatch(msg.data)
+        except ValueError as exc:
+            self.get_logger().warning(f'sim/process: {exc}')
 
     def _on_needle(self, msg):
         self._needle = cv.matrix_from_pose(msg.pose)
@@ -487,8 +504,11 @@ class ExecutorNode(Node):
             if not cfg.home or self._waited() > cfg.prepare_timeout:
                 self._fail('arms not enabled and homed')
                 return
-            if time.monotonic() - self._last_command > 2.0:   # (again) every 2 s
-                self._last_command = time.monotonic()
+            # at once when an arm's state changes (a dVRK arm powers up for a while, then
+            # homes in a motion of seconds), and again every 2 s
+            seen = [(s.state, s.is_homed, s.is_busy) for s in states]
+            if seen != self._commanded_on or time.monotonic() - self._last_command > 2.0:
+                self._last_command, self._commanded_on = time.monotonic(), seen
                 for a in PSMS:
                     s = self._state[a]
                     if s.state != 'ENABLED':
@@ -505,8 +525,27 @@ class ExecutorNode(Node):
                                   f'time (last at t = {last:.3f} s): the arms stopped answering',
                        silence_s=silence, last_measured_t=last)
             return
-        if quiet is not None and quiet > cfg.clock_timeout:
+        alive = None
+        if quiet is not None and quiet > cfg.stale_timeout and self._simulator is not None:
+            alive = self._simulator.alive()
+        elif quiet is not None and quiet <= cfg.stale_timeout:
+            self._starved_said = False
+        if quiet is not None and quiet > cfg.clock_timeout and alive \
+                and quiet <= cfg.starved_timeout:
+            if not self._starved_said:   # its process runs: starved of CPU, not dead
+                self._starved_said = True
+                self.get_logger().warning(
+                    f'no /clock and no measured_cp for {quiet:.2f} s, but the simulator '
+                    f'process {self._simulator.pid} runs: waiting for it (starved_timeout '
+                    f'{cfg.starved_timeout:g} s)')
+        elif quiet is not None and (quiet > cfg.clock_timeout or alive is False):
             last = min(self._tools[a][0] for a in PSMS)
+            if alive is False:
+                self._halt('stopped', f'the simulator process {self._simulator.pid} exited: no '
+                                      f'/clock and no measured_cp for {quiet:.2f} s of wall '
+                                      f'time (last measured_cp at t = {last:.3f} s)',
+                           silence_s=silence, wall_silence_s=quiet, last_measured_t=last)
+                return
             self._halt('stopped', f'no /clock and no measured_cp for {quiet:.2f} s of wall time '
                                   f'(last measured_cp at t = {last:.3f} s, {silence * 1e3:.0f} '
                                   'ms of simulation time before the clock stopped): the '

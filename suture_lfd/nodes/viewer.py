@@ -57,10 +57,10 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import Image, Joy
-from sim_bridge import conversions as cv
+from sim_bridge.geometry import transform_from_pose
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Float64, String
-from suture_lfd.geometry import transform_from_pose
-from suture_lfd.nodes import declare_config
 from suture_lfd.viewer.assets import load_phantom, needle_arc
 from suture_lfd.viewer.controls import PSM_OF_MTM, MtmControls
 from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, FrameClock, ViewerPage

@@ -8,7 +8,7 @@ so a viewer started with the simulator's ``phantom`` parameter draws the same pa
 from dataclasses import replace
 from pathlib import Path
 
-from sim_bridge.phantom import build_phantom
+from sim_bridge.scene.phantom import build_phantom
 from sim_bridge.simulation import load_simulation_config
 
 
@@ -42,13 +42,13 @@ def load_phantom(phantom='synthetic', config=None):
 
 
 def phantom_of_pair(pair):
-    """The phantom a marker pair belongs to, from its name (``scan2`` -> ``scanned``)."""
+    """Return the phantom a marker pair belongs to, from its name (``scan2``: ``scanned``)."""
     return 'scanned' if str(pair).startswith('scan') else 'synthetic'
 
 
 def needle_arc(config=None, n=32):
     """
-    The needle's wire centre line in the ``needle`` frame and its diameter.
+    Return the needle's wire centre line in the ``needle`` frame and its diameter.
 
     Returns
     -------

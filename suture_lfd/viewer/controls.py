@@ -19,8 +19,7 @@ import math
 import threading
 
 import numpy as np
-from suture_lfd.geometry import matrix_from_quaternion
-
+from sim_bridge.geometry import matrix_from_quaternion
 from suture_lfd.viewer.scene import wxyz_from_matrix
 
 PSM_OF_MTM = {'MTMR': 'PSM1', 'MTML': 'PSM2'}

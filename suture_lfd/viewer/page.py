@@ -14,9 +14,8 @@ import threading
 import time
 
 import numpy as np
-import viser
-
 from suture_lfd.viewer.scene import SceneView
+import viser
 
 LOG = logging.getLogger(__name__)
 DEFAULT_HOST = '127.0.0.1'
@@ -30,7 +29,7 @@ CAMERA_FOV = np.radians(45.0)
 
 
 def page_url(host, port):
-    """The address a local browser opens for a server bound to ``host``:``port``."""
+    """Return the address a local browser opens for a server bound to ``host``:``port``."""
     shown = '127.0.0.1' if host in ('0.0.0.0', '', '::') else host
     if ':' in shown:
         shown = f'[{shown}]'
@@ -153,12 +152,12 @@ class ViewerPage:
         return self.scene.render()
 
     def connected_clients(self):
-        """Number of browsers connected."""
+        """Return the number of browsers connected."""
         return len(self.server.get_clients())
 
     def client_cameras(self):
         """
-        The camera of each connected browser (what it reported last).
+        Return the camera of each connected browser (what it reported last).
 
         Returns
         -------

@@ -17,10 +17,9 @@ import threading
 import time
 
 import numpy as np
+from sim_bridge.geometry import transform_from_pose
 from suture_lfd import bags
-from suture_lfd.geometry import transform_from_pose
-from suture_lfd.segments import SegmentFile
-
+from suture_lfd.segmentation.segments import SegmentFile
 from suture_lfd.viewer.assets import phantom_of_pair
 
 ARMS = ('PSM1', 'PSM2', 'ECM')
@@ -91,7 +90,7 @@ class Recording:
     source: str = ''
 
     def track(self, child):
-        """The track of frame ``child``."""
+        """Return the track of frame ``child``."""
         for track in self.tracks:
             if track.child == child:
                 return track
@@ -130,7 +129,7 @@ def _pose_topics(topics):
 
 
 def default_segments(bag):
-    """The segment file of a bag where the package puts it, or None."""
+    """Return the segment file of a bag where the package puts it, or None."""
     bag = Path(bag)
     for candidate in (bag.parent / f'{bag.name}.segments.npz',
                       bag.parent.parent / 'segments' / f'{bag.name}.npz'):

@@ -1,6 +1,4 @@
-"""
-``suture-lfd view``: serve a recording (a bag, or a study's throw) in the viewer's page.
-"""
+"""``suture-lfd view``: serve a recording (a bag, or a study's throw) in the viewer's page."""
 
 import time
 

@@ -14,8 +14,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from suture_lfd.geometry import pose_from_transform, transform_from_pose
-
+from sim_bridge.geometry import pose_from_transform, transform_from_pose
 from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
 
 FORMAT = 'suture_lfd.throw_replay'
@@ -78,7 +77,7 @@ class ThrowSampler:
         sim = self.sim
         rows = np.asarray(self.rows, dtype=float).reshape(-1, 1 + 7 + 2 * 8)
         bases = np.stack([sim.T_world_base(a) for a in ('PSM1', 'PSM2', 'ECM')])
-        markers = {k: v for k, v in sim.marker_poses().items()}
+        markers = dict(sim.marker_poses())
         spans = np.full((len(SUBTASKS), 2), np.nan)
         for k, name in enumerate(SUBTASKS):
             if subtask_times and name in subtask_times:
@@ -98,7 +97,7 @@ class ThrowSampler:
 
 
 def _find_row(study, throw):
-    from suture_lfd.report import read_csv
+    from suture_lfd.study.report import read_csv
 
     rows = read_csv(Path(study) / 'throws.csv')
     if str(throw).isdigit():

@@ -5,10 +5,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from sim_bridge.arm import ArmConfig
-from sim_bridge.expert import Command, ScriptedExpert
-from sim_bridge.needle import invert_transform
+from sim_bridge.control import Command
+from sim_bridge.scene.needle import invert_transform
 from sim_bridge.simulation import Simulation, load_simulation_config
-from sim_bridge.throw_geometry import ThrowArc
+from suture_lfd.planning.expert import ScriptedExpert
+from suture_lfd.planning.throw_geometry import ThrowArc
 
 
 @pytest.fixture(scope='module')
@@ -316,5 +317,23 @@ def test_a_needle_at_rest_on_the_scanned_pad_lies_on_the_tissue_not_in_it(exact_
         assert 'grasp' in kinds
         assert not {'entry', 'exit', 'trauma', 'withdrawn'} & set(kinds), kinds
         assert sim.tissue.punctures == []
+    finally:
+        sim.close()
+
+
+def test_arms_at_rest_power_up_then_home_with_the_dvrk_timings(config):
+    rest = {'psm_rest_jp': (0.0,) * 6, 'ecm_rest_jp': (0.0,) * 4}
+    sim = Simulation(replace(config, arm=ArmConfig(power_up_time=0.5), **rest))
+    try:
+        for name, arm in sim.arms.items():
+            assert arm.operating_state.state == 'DISABLED'
+            assert arm.measured_jp[2] == 0.0, name  # instrument and endoscope retracted
+        sim.enable_and_home_all()
+        # the power-up, then the slowest homing: the ECM's 12 cm at 60 mm/s and 60 mm/s^2
+        assert sim.time == pytest.approx(0.5 + 3.0, abs=0.05)
+        for arm in sim.arms.values():
+            assert arm.operating_state.is_homed and arm.measured_jp[2] == pytest.approx(0.12)
+        sim.reset()
+        assert all(arm.measured_jp[2] == 0.0 for arm in sim.arms.values())
     finally:
         sim.close()

@@ -180,7 +180,7 @@ def test_recorder_writes_every_message_of_a_burst_readable_by_rosbags_and_mcap(
     assert counts['received'] == counts['written'] == total
     for topic, sent in burst.sent.items():
         assert counts['topics'][topic] == {'received': len(sent), 'carried': 0,
-                                           'written': len(sent)}
+                                           'written': len(sent), 'missed': 0}
     assert any(s['recording'] and s.get('received', 0) > 0 for s in statuses)
     assert wait_for(lambda: statuses and not statuses[-1]['recording'], 5.0)
 

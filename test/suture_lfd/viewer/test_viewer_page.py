@@ -17,17 +17,17 @@ from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped
 from harness import REPO
 import numpy as np
+import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
-from sim_bridge import conversions as cv
+from sim_bridge.ros import conversions as cv
 from suture_lfd.viewer.assets import load_phantom
 from suture_lfd.viewer.page import CAMERA_FOV, CAMERA_LOOK_AT, CAMERA_POSITION
 from tf2_msgs.msg import TFMessage
-import pytest
 
 CHROMIUM = find_chromium()
 pytestmark = pytest.mark.skipif(
-    CHROMIUM is None, reason='no chromium executable: tools/setup.sh installs Debian\'s chromium '
+    CHROMIUM is None, reason="no chromium executable: tools/setup.sh installs Debian's chromium "
                              'with apt-get when it runs as root or with sudo')
 SCREENSHOT = REPO / 'doc' / 'viewer.png'
 STREAM = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
@@ -51,7 +51,8 @@ def near(mask, uv, radius):
     """Whether ``mask`` (h, w) is true anywhere within ``radius`` px of pixel ``uv``."""
     u, v = int(round(uv[0])), int(round(uv[1]))
     h, w = mask.shape
-    window = mask[max(v - radius, 0):min(v + radius + 1, h), max(u - radius, 0):min(u + radius + 1, w)]
+    window = mask[max(v - radius, 0):min(v + radius + 1, h),
+                  max(u - radius, 0):min(u + radius + 1, w)]
     return bool(window.any())
 
 
@@ -116,7 +117,7 @@ def test_the_page_shows_the_scene_follows_psm1_and_reports_input(ros, launch, tm
     try:
         browser.open(url)
         # the page loads, connects (its panels come over the websocket) and draws the markers
-        assert ros.wait_for(lambda: browser.element_center("Clutch") is not None, 600), \
+        assert ros.wait_for(lambda: browser.element_center('Clutch') is not None, 600), \
             'the page did not connect to the viewer'
         # software GL is expected here: close the page's notice of it, which hides the view
         assert ros.wait_for(lambda: browser.close_notification('Software WebGL'), 120, 1.0)

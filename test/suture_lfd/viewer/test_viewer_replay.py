@@ -9,13 +9,13 @@ import time
 
 from harness import wait_for
 import numpy as np
-from suture_lfd import bags
-from suture_lfd.demo_bag import write_demonstration_bag
-from suture_lfd.geometry import quaternion_angle
-from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import make_segment_file
-from suture_lfd.viewer.show import open_replay
 import pytest
+from sim_bridge.geometry import quaternion_angle
+from suture_lfd import bags
+from suture_lfd.demos.demo_bag import write_demonstration_bag
+from suture_lfd.segmentation import segment_demonstration
+from suture_lfd.segmentation.segments import make_segment_file
+from suture_lfd.viewer.show import open_replay
 
 
 @pytest.fixture(scope='module')
@@ -54,7 +54,7 @@ def test_the_slider_shows_the_needle_where_the_bag_recorded_it(demo_bag):
             panel.slider.value = t  # as a user drags it: the page's callback seeks
             k = np.searchsorted(t_bag - t_bag[0], t + 1e-9, side='right') - 1
             expected = poses[k]
-            assert wait_for(lambda: np.linalg.norm(np.asarray(needle.position) - expected[:3])
+            assert wait_for(lambda e=expected: np.linalg.norm(np.asarray(needle.position) - e[:3])
                             < 1e-6, 10), (t, needle.position, expected[:3])
             w, x, y, z = needle.wxyz
             assert quaternion_angle((x, y, z, w), expected[3:]) < 1e-6
