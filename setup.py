@@ -16,12 +16,9 @@ NODES = {
     'player': 'suture_lfd.nodes.player:main',
     'segmenter': 'suture_lfd.nodes.segmenter:main',
     'executor': 'suture_lfd.nodes.executor:main',
-<<<<<<< HEAD
-    'viewer': 'suture_lfd.nodes.viewer:main',
-=======
     'teleop': 'suture_lfd.nodes.teleop:main',
     'mtms': 'suture_lfd.nodes.mtms:main',
->>>>>>> main
+    'viewer': 'suture_lfd.nodes.viewer:main',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',
