@@ -160,8 +160,8 @@ def recording_from_file(path):
         events = sorted(((float(e.get('t', t0)) - t0, e)
                          for e in json.loads(str(data['events']))), key=lambda r: r[0])
         spans = data['subtasks']
-        marks = [(float(s) - t0, name) for name, (s, _) in zip(SUBTASKS, spans)
-                 if np.isfinite(s)]
+        # subtask spans count from the throw's first controller step, the first sample
+        marks = [(float(s), name) for name, (s, _) in zip(SUBTASKS, spans) if np.isfinite(s)]
         duration = float(t[-1] - t0) if len(t) else 0.0
         return Recording(tracks=tracks, statics=statics, events=events, duration=duration,
                          phantom=str(data['phantom']), marks=marks, source=str(path))
