@@ -17,6 +17,7 @@ import threading
 import time
 
 import numpy as np
+from sim_bridge import cdr
 from sim_bridge.geometry import transform_from_pose
 from suture_lfd import bags
 from suture_lfd.segmentation.segments import SegmentFile
@@ -165,7 +166,7 @@ def recording_from_bag(path, segments=None):
         for message in reader.messages([t for t in wanted if t in reader.topics]):
             if message.topic in topics:
                 kind, parent, child = topics[message.topic]
-                got = bags.pose_stamped_fields(message.rawdata)
+                got = cdr.pose_stamped_fields(message.rawdata)
                 if got is None:
                     msg = reader.deserialize(message)
                     p, q = msg.pose.position, msg.pose.orientation

@@ -30,12 +30,15 @@ def demo_bag(experienced_run, tmp_path_factory):
 
 
 def recorded_needle(path):
-    """The bag's needle poses ``(t s from the first needle stamp, (n, 7))``, read directly."""
+    """The bag's needle poses ``(t s of their stamps, (n, 7))``, decoded by rosbags."""
+    t, poses = [], []
     with bags.open_bag(path) as reader:
-        rows = [bags.pose_stamped_fields(m.rawdata)
-                for m in reader.messages(['/sim/needle/measured_cp'])]
-    t = np.array([r[0] for r in rows])
-    return t, np.array([r[2] for r in rows])
+        for message in reader.messages(['/sim/needle/measured_cp']):
+            msg = reader.deserialize(message)
+            p, q = msg.pose.position, msg.pose.orientation
+            t.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+            poses.append((p.x, p.y, p.z, q.x, q.y, q.z, q.w))
+    return np.array(t), np.array(poses)
 
 
 def test_the_slider_shows_the_needle_where_the_bag_recorded_it(demo_bag):
