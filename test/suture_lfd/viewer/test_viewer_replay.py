@@ -80,7 +80,7 @@ def test_playing_reaches_the_end_in_duration_over_speed(demo_bag, speed):
         assert panel.time == pytest.approx(panel.recording.duration)
         # wall time: never shorter than duration / speed; longer only by a loaded machine's lag
         assert elapsed >= expected - 0.05
-        assert elapsed < expected * 1.5 + 2.0, (elapsed, expected)
+        assert elapsed < expected * 2.0 + 5.0, (elapsed, expected)
         assert not panel.playing and panel.play_button.label == 'Play'
     finally:
         panel.close()
