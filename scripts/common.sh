@@ -15,6 +15,9 @@ children=()
 
 say() { printf '%s: %s\n' "$(basename "$0")" "$*" >&2; }
 
+# The script's help: its leading comment block, without the comment marks.
+usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
+
 # phantom_params PHANTOM SCENE PAIR: set phantom_args to the simulator's phantom parameters.
 # PHANTOM is a phantom of the scene, a mesh (STL/OBJ/PLY) or a phantom file (.yaml); empty:
 # the phantom the pair's name starts with (scan* scanned, synth* synthetic). SCENE ('' none)

@@ -20,7 +20,7 @@ while [ $# -gt 0 ]; do
     --scene) scene=$2; shift 2 ;;
     --no-simulator) simulator=0; shift ;;
     --ros-args) shift; break ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) positional+=("$1"); shift ;;
   esac
 done

@@ -24,7 +24,7 @@ while [ $# -gt 0 ]; do
     --phantom) phantom=$2; shift 2 ;;
     --scene) scene=$2; shift 2 ;;
     --no-simulator) simulator=0; shift ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done

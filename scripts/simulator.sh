@@ -17,7 +17,7 @@ while [ $# -gt 0 ]; do
     --scene) scene=$2; shift 2 ;;
     --rtf) rtf=$2; shift 2 ;;
     --ros-args) break ;;
-    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done

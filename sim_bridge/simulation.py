@@ -33,8 +33,7 @@ from dataclasses import dataclass, field, replace
 import logging
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
+from sim_bridge import bullet
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.control import Observation
@@ -243,11 +242,11 @@ class Simulation:
     client : pybullet_utils.bullet_client.BulletClient, optional
         PyBullet client to use (reset and owned by the simulation while it runs); default: a
         new DIRECT client, disconnected by :meth:`close`.
-    phantom : str or Path or sim_bridge.phantom.PhantomConfig
+    phantom : str or Path or sim_bridge.scene.phantom.PhantomConfig
         ``'synthetic'``, ``'scanned'`` (phantoms of the scene), the path of an STL/OBJ/PLY mesh
         (metres, z up; markers laid on its top surface along its longest flat-enough line), a
         phantom file (``.yaml``: mesh, scale, pose, wound line or markers; see
-        :func:`sim_bridge.scene_config.load_phantom_file`) or a phantom configuration.
+        :func:`sim_bridge.scene.scene_config.load_phantom_file`) or a phantom configuration.
     gui : bool
         Open a PyBullet GUI window instead of a DIRECT client (ignored with ``client``).
 
@@ -269,8 +268,7 @@ class Simulation:
         cfg = self.config
         self._own_client = client is None
         if client is None:
-            client = bullet_client.BulletClient(
-                connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+            client = bullet.connect(gui=gui)
         self.client = client
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.needle_geometry = cfg.scene.needle

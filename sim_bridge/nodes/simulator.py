@@ -56,12 +56,11 @@ import traceback
 
 from crtk_msgs.msg import StringStamped
 import numpy as np
-import rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
@@ -320,6 +319,8 @@ class Simulator(_QuietEndpoints, Node):
         if self.sim.phantom.placement:
             self.get_logger().info(f'phantom {self.sim.phantom.name}: '
                                    f'{self.sim.phantom.placement}')
+        # the console foot pedals, spun on the simulator's executor
+        self.companions = [_FootPedals()] if cfg.footpedals else []
         self.get_logger().info(
             f'simulating {cfg.phantom} phantom, pairs {", ".join(self.sim.phantom.markers)}, '
             f'pair {self._pair}, real-time factor {self._rtf or "max"}, state at '
@@ -502,39 +503,27 @@ class Simulator(_QuietEndpoints, Node):
         response.message = f'scene reset ({self._resets}), target pair {self._pair}'
         return response
 
+    @property
+    def exit_code(self):
+        """Return the process exit code: 1 when the stepping thread failed, else 0."""
+        return 1 if self.failure is not None else 0
+
+    def on_start(self):
+        """Start stepping once the node spins (the entry point calls it)."""
+        self.start()
+
+    def on_exit(self):
+        """Stop the stepping thread, then release the simulation (PyBullet)."""
+        self.stop()
+        self.close()
+
     def close(self):
         """Release the simulation (PyBullet)."""
         self.sim.close()
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Simulator()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('simulator').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    pedals = None
-    if node.config.footpedals:
-        pedals = _FootPedals()
-        executor.add_node(pedals)
-    node.start()
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.stop()
-        executor.shutdown()
-        if pedals is not None:
-            pedals.destroy_node()
-        node.destroy_node()
-        node.close()
-        rclpy.try_shutdown()
-    return 1 if node.failure is not None else 0
+    return executables.simulator(args)
 
 
 if __name__ == '__main__':

@@ -47,7 +47,7 @@ class WoundSearch:
     max_slope_deg: float = 20.0
     margin: float = 0.001
     angles: int = 36
-    spacing: float = 0.0005
+    spacing: float = 0.001
 
 
 @dataclass(frozen=True)

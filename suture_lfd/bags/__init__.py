@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import functools
 import logging
 import math
+import mmap
 import os
 from pathlib import Path
 import shutil
@@ -459,7 +460,11 @@ def _checked_storage(path, file):
     if file.suffix != '.mcap':
         return None
     try:
-        return check_mcap(file.read_bytes())
+        with open(file, 'rb') as handle:
+            # mapped, not read: a bag with camera images may be larger than the memory at hand
+            data = (mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+                    if os.fstat(handle.fileno()).st_size else b'')
+        return check_mcap(data)
     except OSError as exc:
         raise BagError(f'{file}: cannot read the bag ({exc})') from None
     except McapDamageError as exc:

@@ -76,7 +76,7 @@ from sim_bridge.ros.peer import ProcessWatch
 from sim_bridge.scene.phantom import MarkerPair
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
-from suture_lfd.nodes import run_until_finished
+from suture_lfd.nodes import executables
 from suture_lfd.skill import ThrowSkill, learn_skill
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 
@@ -86,6 +86,11 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE = QoSProfile(depth=10)
+# The servo streams: the arm takes only the newest goal, but a recorder takes every one, and a
+# publisher's history is all a reader that stalls for a moment can catch up from; 1000 goals
+# cover a second at 1 kHz (depth 10 lost 16 % of a demonstration's goals on a busy machine).
+COMMAND_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
 # Only the newest /clock matters (a backlog drained after a stall must not outrun measured_cp).
 CLOCK = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
@@ -162,9 +167,9 @@ class ExecutorNode(Node):
         self._last_obs_t = None
         self._last_tick = time.monotonic()
         self._sent = 0
-        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
+        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', COMMAND_STREAM)
                        for a in PSMS}
-        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', STATE)
+        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', COMMAND_STREAM)
                          for a in PSMS}
         self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
                          for a in PSMS}
@@ -253,7 +258,7 @@ class ExecutorNode(Node):
         kind, arm = data.get('kind'), data.get('arm')
         if kind in ('grasp', 'release', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
                     'drop') and self._stage in ('running', 'settling'):
-            at = '' if self._t_start is None else f' at t = {data.get("t", 0.0):.3f} s'
+            at = '' if self._t_start is None else f' at {_throw_time(stamp - self._t_start)}'
             self.get_logger().info(f'scene event {kind}{" " + arm if arm else ""}{at}')
         if kind == 'grasp' and arm in PSMS:
             self._holders.add(arm)
@@ -271,7 +276,7 @@ class ExecutorNode(Node):
                 self._pair_confirmed = True
         elif kind == 'score' and self._stage in ('running', 'settling'):
             self._score = data.get('score')
-            self.get_logger().info(f'sim/events: {json.dumps(data)}')
+            self.get_logger().debug(f'sim/events: {json.dumps(data)}')
 
     def _on_execute(self, msg):
         pair = msg.data.strip()
@@ -414,7 +419,7 @@ class ExecutorNode(Node):
                 and self._pair_stamp is not None and self._t_start is not None:
             # the scorer counts from the pair's selection, before the arms were homed
             time_s = score['time_s'] - (self._t_start - self._pair_stamp)
-        return {'pair': self._pair, 'state': state, 'reason': reason,
+        return {'pair': self._pair, 'state': state, 'outcome': state, 'reason': reason,
                 'method': self.skill.method.name, 'learnt_on': self.skill.pair.name,
                 'score': None if score is None else score.get('score'),
                 'subtasks': None if score is None else score.get('subtasks'),
@@ -444,8 +449,10 @@ class ExecutorNode(Node):
         self._executor = None
         log = self.get_logger().info if state == 'done' else self.get_logger().error
         record = {**self._result_record(state, reason), **extra}
-        log(f'throw on {self._pair} {state}: {reason} {json.dumps(record, sort_keys=True)}')
-        self._result.publish(String(data=json.dumps(record, sort_keys=True)))
+        log(f'throw on {self._pair} {state}: {reason} (score {record["score"]})')
+        line = json.dumps(record, sort_keys=True)
+        self._result.publish(String(data=line))
+        print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
         if self.config.result_file:
             self._write_result(record)
         self._stage = state
@@ -454,6 +461,11 @@ class ExecutorNode(Node):
         if self.config.exit_when_done or self.config.pair:
             self.exit_code = 0 if state == 'done' and record['score'] == 1.0 else 1
             self.finished = True
+
+    def on_interrupt(self, signal_name):
+        """Stop commanding (the arms hold their setpoints) and report a throw in progress."""
+        if self._stage in ('preparing', 'running', 'settling'):
+            self._halt('interrupted', f'stopped by {signal_name}')
 
     def _fail(self, reason):
         self._halt('failed', reason)
@@ -568,8 +580,8 @@ class ExecutorNode(Node):
                     (obs.t, pose_from_transform(obs.T_world_needle)))
             if command.subtask != self._subtask:
                 self._subtask = command.subtask
-                self.get_logger().info(f'subtask {command.subtask} at t = '
-                                       f'{obs.t - self._t_start:.3f} s')
+                self.get_logger().info(f'subtask {command.subtask} at '
+                                       f'{_throw_time(obs.t - self._t_start)}')
             if self._executor.done:
                 self._t_done = obs.t
                 self._enter('settling')
@@ -585,8 +597,13 @@ class ExecutorNode(Node):
         return time.monotonic() - self._stage_wall
 
 
+def _throw_time(seconds):
+    """Format simulation seconds since the throw started, labelled, for the log."""
+    return f'sim t = {seconds:.3f} s'
+
+
 def main(args=None):
-    return run_until_finished(ExecutorNode, 'executor', args, interrupted_code=0)
+    return executables.executor(args)
 
 
 if __name__ == '__main__':

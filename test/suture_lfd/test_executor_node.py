@@ -99,7 +99,10 @@ def test_the_executor_node_completes_a_throw_and_the_simulator_scores_it(launch,
                                            if 'scene event' in line or 'subtask' in line])
     assert all(result['subtasks'].values())
     assert watcher.scores and watcher.scores[-1]['score']['score'] == 1.0
-    assert '"kind": "score"' in executor.log()
+    # one result line (JSON) on stdout, and no score line before the throw has ended
+    lines = [json.loads(line) for line in executor.log().splitlines() if line.startswith('{')]
+    assert [r['score'] for r in lines] == [1.0]
+    assert '"score": 0.0' not in executor.log()
     assert executor.running() and sim.running()
 
     # one core, two faces: the same throw in-process gives the same score, and its needle tip

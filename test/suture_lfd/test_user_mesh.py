@@ -1,5 +1,6 @@
 """A user's own phantom mesh: markers laid on its top surface, phantom files, throws on it."""
 
+from dataclasses import replace
 import logging
 
 import numpy as np
@@ -77,13 +78,19 @@ def test_markers_of_a_user_mesh_lie_on_its_raised_top_surface(pad_obj, caplog):
     assert mids[:, 0].mean() == pytest.approx(0.0, abs=1e-6)
 
 
-def test_a_throw_learnt_on_the_synthetic_pad_succeeds_on_the_user_mesh(pad_obj, tmp_path):
+@pytest.fixture(scope='module')
+def synth1_segments(tmp_path_factory):
     synthetic = Simulation()
     demo, _, score = record_scripted_demonstration(synthetic, 'synth1', seed=0)
     synthetic.close()
     assert score.score == 1.0, score.failure
-    path = tmp_path / 'synth1.npz'
+    path = tmp_path_factory.mktemp('segments') / 'synth1.npz'
     make_segment_file(demo, segment_demonstration(demo), source='synth1 expert').save(path)
+    return path
+
+
+def test_a_throw_learnt_on_the_synthetic_pad_succeeds_on_the_user_mesh(pad_obj, synth1_segments):
+    path = synth1_segments
     user = Simulation(phantom=pad_obj)
     try:
         outcomes = {}
@@ -93,6 +100,20 @@ def test_a_throw_learnt_on_the_synthetic_pad_succeeds_on_the_user_mesh(pad_obj, 
         assert len(full) >= 2, {p: (o.score, o.failure) for p, o in outcomes.items()}
     finally:
         user.close()
+
+
+def test_an_unreachable_throw_says_which_parameter_to_change(synth1_segments):
+    scene = load_scene_config()
+    far = replace(scene.phantom_config('synthetic'), position=(0.25, 0.0, 0.0))
+    sim = Simulation(phantom=far)
+    try:
+        outcome = execute_throw(sim, learn_skill(synth1_segments, 'pair_frame'), 'synth2')
+    finally:
+        sim.close()
+    assert outcome.score == 0.0 and outcome.failure.startswith('unreachable')
+    for advice in ('simulator parameter seed', 'position and quaternion in the phantom file',
+                   'world.arms.<ARM> in world.yaml'):
+        assert advice in outcome.failure
 
 
 def test_a_phantom_file_gives_scale_pose_and_wound_line_in_file_coordinates(tmp_path):
