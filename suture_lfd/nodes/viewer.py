@@ -42,20 +42,15 @@ All three are RELIABLE, VOLATILE, depth 10, stamped with the node's clock. Param
 ``config/viewer.yaml``.
 """
 
-import argparse
 from dataclasses import dataclass
 import json
-import sys
 import time
 
 from crtk_msgs.msg import StringStamped
 from geometry_msgs.msg import PoseStamped
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import Image, Joy
 from sim_bridge.geometry import transform_from_pose
 from sim_bridge.ros import conversions as cv
@@ -86,6 +81,10 @@ class ViewerConfig:
 
     Attributes
     ----------
+    host : str
+        Interface the page listens on (``127.0.0.1``: this machine only; ``--host``).
+    port : int
+        TCP port of the page (``--port``; the next free one when it is taken).
     phantom : str
         The simulator's ``phantom`` (``synthetic``, ``scanned`` or a mesh file).
     frame_rate : float
@@ -100,6 +99,8 @@ class ViewerConfig:
 
     """
 
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
     phantom: str = 'synthetic'
     frame_rate: float = 30.0
     mtms: tuple[str, ...] = ('MTML', 'MTMR')
@@ -109,6 +110,9 @@ class ViewerConfig:
     def __post_init__(self):
         if not self.frame_rate > 0:
             raise ValueError(f'parameter frame_rate must be > 0 Hz, got {self.frame_rate}')
+        if not 0 <= self.port <= 65535:
+            raise ValueError(f'parameter port must be 0 .. 65535 (0: any free port), '
+                             f'got {self.port}')
         if not self.stats_period > 0:
             raise ValueError(f'parameter stats_period must be > 0 s, got {self.stats_period}')
 
@@ -130,12 +134,12 @@ def rgb_from_image(msg):
 class Viewer(Node):
     """The viewer node (see the module docstring)."""
 
-    def __init__(self, host=DEFAULT_HOST, port=DEFAULT_PORT):
+    def __init__(self):
         super().__init__('viewer')
         self.config = declare_config(self, ViewerConfig, 'viewer.yaml', 'viewer')
         phantom = load_phantom(self.config.phantom)
         points, diameter = needle_arc()
-        self.page = ViewerPage(points, diameter, host=host, port=port)
+        self.page = ViewerPage(points, diameter, host=self.config.host, port=self.config.port)
         self.page.show_phantom(phantom)
         self._input = {}
         for mtm in self.config.mtms:
@@ -161,6 +165,7 @@ class Viewer(Node):
         self.create_timer(1.0 / self.config.frame_rate, self._render)
         self.create_timer(self.config.stats_period, self._publish_stats)
         self.get_logger().info(f'viewer page at {self.page.url}')
+        print(f'viewer: open {self.page.url}', flush=True)
 
     # --- scene inputs --------------------------------------------------------------------------
 
@@ -238,43 +243,7 @@ class Viewer(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self._pedals.publish(msg)
 
-    def shutdown(self):
-        """Stop the page's server."""
+    def on_exit(self):
+        """Stop the page's server (the shared entry point calls this on the way out)."""
         self.page.close()
 
-
-def parse_args(argv):
-    """``--host`` and ``--port`` of the command line (ROS arguments removed)."""
-    parser = argparse.ArgumentParser(prog='viewer', description='The live scene in a browser.')
-    parser.add_argument('--host', default=DEFAULT_HOST,
-                        help='interface to listen on (default 127.0.0.1: this machine only; '
-                             '0.0.0.0: every interface, anyone who reaches it can drive)')
-    parser.add_argument('--port', type=int, default=DEFAULT_PORT,
-                        help='TCP port (default 8080; 0: any free port)')
-    return parser.parse_args(remove_ros_args(argv)[1:])
-
-
-def main(args=None):
-    argv = sys.argv if args is None else args
-    options = parse_args(argv)
-    rclpy.init(args=argv)
-    try:
-        node = Viewer(host=options.host, port=options.port)
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('viewer').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    print(f'viewer: open {node.page.url}', flush=True)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())
