@@ -9,6 +9,7 @@ folder (compressed; format tag :data:`FORMAT`). :func:`recording_from_throw` rea
 :class:`~suture_lfd.viewer.replay.Recording`.
 """
 
+import csv
 import json
 import os
 from pathlib import Path
@@ -97,9 +98,11 @@ class ThrowSampler:
 
 
 def _find_row(study, throw):
-    from suture_lfd.study.report import read_csv
-
-    rows = read_csv(Path(study) / 'throws.csv')
+    path = Path(study) / 'throws.csv'
+    if not path.is_file():
+        raise ValueError(f'{path} does not exist: give the folder of a study (its report)')
+    with open(path, newline='') as handle:
+        rows = list(csv.DictReader(handle))
     if str(throw).isdigit():
         index = int(throw)
         if not 1 <= index <= len(rows):
