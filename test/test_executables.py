@@ -11,7 +11,7 @@ import subprocess
 import time
 
 from crtk_msgs.msg import OperatingState
-from harness import REPO, executable
+from harness import REPO, executable, forbidden_lines
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from sim_bridge.configfile import load_yaml
@@ -122,3 +122,12 @@ def test_a_node_that_cannot_start_says_why_in_one_line(tmp_path):
     assert out.stderr.count('\n') == 1, out.stderr
     assert out.stdout == ''
 
+
+
+def test_pybullet_says_nothing_on_the_programs_output():
+    """``suture-lfd info > file`` holds the report only: no PyBullet banner on either stream."""
+    out = subprocess.run([executable('suture-lfd'), 'info', '--seconds', '0.01'],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith('phantom synthetic:'), out.stdout[:200]
+    assert forbidden_lines(out.stdout + out.stderr) == []
