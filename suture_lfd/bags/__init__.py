@@ -61,7 +61,8 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.base import Nodetype
 from sim_bridge import cdr
 from sim_bridge.paths import share_dir
-from suture_lfd.bags.mcap_check import CrcMcapWriter, McapDamageError, check_mcap, salvage_messages
+from suture_lfd.bags.mcap_check import CrcMcapWriter, check_mcap, salvage_messages
+from suture_lfd.errors import BagError, McapDamageError
 import yaml
 
 LOG = logging.getLogger(__name__)
@@ -73,10 +74,6 @@ CHUNK_BYTES = 256 * 1024
 CHUNK_SECONDS = 0.5
 _MCAP_CHUNK_LIMIT = 2**20  # rosbags closes a chunk itself past 1 MiB
 _NO_DURATION = QosTime(0, 0)
-
-
-class BagError(ValueError):
-    """A bag is missing, unreadable, truncated, corrupt or lacks what the caller needs."""
 
 
 # --- message types -------------------------------------------------------------------------------
