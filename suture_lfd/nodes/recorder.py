@@ -31,6 +31,7 @@ import threading
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
@@ -39,8 +40,6 @@ from suture_lfd import bags
 from suture_lfd.bags.losses import PublicationGaps
 from suture_lfd.nodes import executables
 
-STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _STOP = object()
 DRAIN = 200   # messages a callback takes from its subscription's queue after its own
 
@@ -193,13 +192,13 @@ class Recorder(Node):
         self._last = {}            # carry-over topic -> last CDR bytes
         self._gaps = PublicationGaps()
         self._ros_clock = self.get_clock()
-        self._status_pub = self.create_publisher(String, '~/status', STATUS_QOS)
+        self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         if self.config.toggle_pedal:
             # VOLATILE: a press latched before this node started must not toggle it.
             self.create_subscription(Joy, self.config.toggle_pedal, self._on_pedal,
-                                     QoSProfile(depth=10))
+                                     qos.STREAM)
         self._wanted = []
         for name in self._listed_topics():
             topic = self.resolve_topic_name(name)
@@ -241,7 +240,7 @@ class Recorder(Node):
                                     for e in endpoints))
         best_effort = self.config.matches('best_effort', topic) or any(
             e.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for e in endpoints)
-        qos = QoSProfile(
+        profile = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=self.config.depth,
             reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
                          else ReliabilityPolicy.RELIABLE),
@@ -251,7 +250,7 @@ class Recorder(Node):
         self._types[topic] = msgtype
         self._latched[topic] = latched
         self._topic_subs[topic] = self.create_subscription(
-            cls, topic, functools.partial(self._on_messages, topic, carry), qos, raw=True)
+            cls, topic, functools.partial(self._on_messages, topic, carry), profile, raw=True)
 
     def _discover(self):
         for topic, types in self.get_topic_names_and_types():

@@ -35,6 +35,7 @@ Frames: ``world``; suture frames as in :mod:`suture_lfd.planning.suturing_frames
 """
 
 from dataclasses import asdict, dataclass, field
+import functools
 import json
 from pathlib import Path
 import zipfile
@@ -550,16 +551,12 @@ class ThrowSkill:
         return cls(method, pair, dmps, timing, meta.get('source', ''))
 
 
-_NEEDLE = []
-
-
+@functools.cache
 def default_needle():
     """Return the scene's needle geometry (``config/scene.yaml``), read once."""
-    if not _NEEDLE:
-        from sim_bridge.scene.scene_config import load_scene_config
+    from sim_bridge.scene.scene_config import load_scene_config
 
-        _NEEDLE.append(load_scene_config().needle)
-    return _NEEDLE[0]
+    return load_scene_config().needle
 
 
 def _pose7(pose, name):
