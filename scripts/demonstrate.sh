@@ -4,6 +4,7 @@
 #
 #   scripts/demonstrate.sh --device browser|gamepad|spacemouse|console [--pair synth1]
 #                          [--out DIR] [--record-pedal camera|coag] [--no-align]
+#                          [--phantom NAME|MESH|PHANTOM.yaml] [--scene SCENE.yaml]
 #
 # Prints the viewer's URL and where the bags go. Press coag (operator present) and pinch the
 # gripper once to start following; hold the clutch to recentre the hands. The camera pedal (the
@@ -11,18 +12,21 @@
 # recording; --record-pedal coag makes the coag pedal do it, as the paper's users did. Segment
 # and learn the bags with scripts/segment_bag.sh and scripts/learn_and_execute.sh. Ctrl-C stops.
 # --device console: a physical dVRK console's MTMs and pedals on this ROS_DOMAIN_ID (DDS then
-# discovers beyond this machine); no virtual MTMs.
+# discovers beyond this machine); no virtual MTMs. --phantom defaults to the phantom the pair's
+# name starts with (scan* scanned, synth* synthetic).
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
-device='' pair=synth1 out=demonstrations record_pedal=camera align=true
+device='' pair=synth1 out=demonstrations record_pedal=camera align=true phantom='' scene=''
 while [ $# -gt 0 ]; do
   case "$1" in
     --device) device=$2; shift 2 ;;
     --pair) pair=$2; shift 2 ;;
+    --phantom) phantom=$2; shift 2 ;;
+    --scene) scene=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
     --record-pedal) record_pedal=$2; shift 2 ;;
     --no-align) align=false; shift ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done
@@ -35,11 +39,11 @@ case "$record_pedal" in
   camera|coag) ;;
   *) say "--record-pedal must be camera or coag"; exit 2 ;;
 esac
-case "$pair" in scan*) phantom=scanned ;; *) phantom=synthetic ;; esac
+phantom_params "$phantom" "$scene" "$pair"
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
 say "ROS_DOMAIN_ID=$ROS_DOMAIN_ID, logs in $LOG_DIR"
-start simulator --ros-args -p phantom:="$phantom" -p target_pair:="$pair" \
+start simulator --ros-args "${phantom_args[@]}" -p target_pair:="$pair" \
   -p real_time_factor:=1.0 -p footpedals:=false
 if [ -x "$venv/bin/viewer" ]; then
   start viewer

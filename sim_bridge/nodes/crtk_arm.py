@@ -457,13 +457,25 @@ class CrtkArm:
         return response
 
     def _srv_ik(self, request, response):
-        """Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint)."""
+        """
+        Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint).
+
+        The ECM answers as it moves: the position, rolled about the shaft towards the
+        orientation (:meth:`EcmKinematics.ik_position`); a position outside the workspace is
+        ``result`` false.
+        """
         arm = self._get_arm()
         k = arm.kinematics
         try:
             T = cv.matrix_from_pose(request.cp, what='inverse_kinematics cp')
             q_ref = np.asarray(request.jp, dtype=float) if len(request.jp) else arm.setpoint_jp
-            q = k.ik(T, q_ref=k.check_q(q_ref, name='inverse_kinematics jp'))
+            q_ref = k.check_q(q_ref, name='inverse_kinematics jp')
+            if arm.has_jaw:
+                q = k.ik(T, q_ref=q_ref)
+            else:
+                q, inside = k.ik_position(T, q_ref=q_ref)
+                if not inside:
+                    raise UnreachableError('the position is outside the workspace (joint limits)')
         except UnreachableError as exc:
             response.result, response.message = False, f'{self.name}: unreachable: {exc}'
             return response

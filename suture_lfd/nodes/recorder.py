@@ -28,8 +28,6 @@ import queue
 import sys
 import threading
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
@@ -39,6 +37,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
 from suture_lfd.bags.losses import PublicationGaps
+from suture_lfd.nodes import executables
 
 STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -380,7 +379,7 @@ class Recorder(Node):
         status = {'recording': session is not None, **(counts or {})}
         self._status_pub.publish(String(data=json.dumps(status)))
 
-    def shutdown(self):
+    def on_exit(self):
         """Close the bag if one is open (on exit)."""
         if self._session is not None:
             try:
@@ -390,22 +389,7 @@ class Recorder(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Recorder()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('recorder').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return executables.recorder(args)
 
 
 if __name__ == '__main__':

@@ -14,7 +14,7 @@ import time
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics
 from geometry_msgs.msg import PoseStamped
-from harness import FAST_ARMS
+from harness import FAST_ARMS, SIGINT_EXIT
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -222,7 +222,7 @@ def test_graph_matches_the_dvrk_contract_headless_from_any_directory(ros, launch
     assert ros.wait_for(lambda: [list(p.buttons) for p in presses] == [[1]], 10.0)
 
     assert sim.running()
-    assert sim.stop() == 0  # SIGINT: clean exit
+    assert sim.stop() == SIGINT_EXIT  # stopped by SIGINT, cleanly
     assert 'Traceback' not in sim.log_path.read_text()
 
 
@@ -669,7 +669,7 @@ def test_faster_than_real_time_under_a_namespace_with_remaps(ros, launch):
     idle = next(stamp_s(m) for m in states if not m.is_busy and stamp_s(m) > busy)
     expected = move_duration_in_core(start_q, goal_q, 0.002)
     assert idle - busy == pytest.approx(expected, abs=0.005)
-    assert sim.stop() == 0
+    assert sim.stop() == SIGINT_EXIT
     assert 'Traceback' not in sim.log_path.read_text()
 
 

@@ -132,6 +132,20 @@ def test_recover_keeps_the_chunks_that_check_out_and_says_what_it_dropped(clean,
         assert sum(1 for _ in reader) == kept
 
 
+def test_recover_names_the_topics_of_later_chunks_from_the_summary_when_the_first_is_lost(
+        clean, tmp_path):
+    bag, _ = clean
+    data = bytearray((bag / 'clean.mcap').read_bytes())
+    total = bags.bag_summary(bag).message_count
+    first = 8 + 9 + struct.unpack_from('<Q', data, 8 + 1)[0]   # after the header record
+    assert data[first] == 0x06
+    data[first + 200] ^= 0xFF    # in the first chunk, which holds the schemas and channels
+    copy = _copy(bag, tmp_path / 'first', bytes(data))
+    summary = bags.recover_bag(copy)
+    assert 0 < summary.message_count < total
+    assert '/PSM1/measured_cp' in summary.topics
+
+
 @pytest.mark.parametrize('damage', ['flip', 'truncate', 'metadata'])
 def test_the_cli_and_the_segmenter_process_refuse_a_damaged_bag_in_one_line(
         clean, tmp_path, launch, damage):

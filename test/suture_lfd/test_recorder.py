@@ -7,7 +7,7 @@ import sys
 import threading
 import time
 
-from harness import wait_for
+from harness import SIGINT_EXIT, wait_for
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import pytest
@@ -237,7 +237,7 @@ def test_recorder_refuses_a_bad_start_stop_sequence_and_keeps_running(ros, launc
     second = call(ros, node, '/recorder/start')
     assert second.success and second.message != first.message
     assert proc.running(), proc.log()
-    assert proc.stop() == 0, proc.log()
+    assert proc.stop() == SIGINT_EXIT, proc.log()
     # stopping the process closes the open bag properly
     assert bags.bag_summary(second.message).message_count == 0
 

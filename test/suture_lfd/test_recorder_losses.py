@@ -13,7 +13,7 @@ from test_recorder import call, launch_recorder
 TOPICS = ('/loss/PSM1/servo_cp', '/loss/PSM2/servo_cp')
 SECONDS = 10.0
 RATE_HZ = 1000.0
-DEPTH = '1000'
+DEPTH = '1000'   # the nodes' COMMAND_STREAM history (executor, demonstrator)
 
 # A separate publisher process: both topics at 1 kHz, paced on the monotonic clock, with the
 # QoS the nodes stream their commands with; it prints how many messages it published.
