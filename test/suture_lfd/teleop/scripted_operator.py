@@ -26,8 +26,8 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.entry import run_node
 from std_msgs.msg import Float64, String
-from suture_lfd.nodes import run_until_finished
 from suture_lfd.nodes.demonstrator import DemonstratorNode
 from suture_lfd.teleop.mapping import GripperToJaw
 
@@ -242,7 +242,8 @@ class ScriptedOperator(DemonstratorNode):
 
 
 def main(args=None):
-    return run_until_finished(ScriptedOperator, 'demonstrator', args)
+    return run_node(ScriptedOperator, 'demonstrator', args, doc=__doc__,
+                    config_file='demonstrator.yaml')
 
 
 if __name__ == '__main__':
