@@ -236,9 +236,9 @@ class ScriptedOperator(DemonstratorNode):
         super()._on_timer()
         self._correct()
 
-    def _finish(self, ok, why=''):
+    def _finish(self, ok, why='', outcome=None):
         self.get_logger().info(f'operator clutched {self.clutches} times')
-        super()._finish(ok, why)
+        super()._finish(ok, why, outcome=outcome)
 
 
 def main(args=None):
