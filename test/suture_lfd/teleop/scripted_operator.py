@@ -121,7 +121,7 @@ class ScriptedOperator(DemonstratorNode):
         """
         Watch the tools: when one has stopped short of where the hand should have brought it
         (the subject's clock has waited on it for ``STUCK_TIME`` s), move that hand to take up
-        the error; not while the needle is in the tissue.
+        the error (push or pull harder).
         """
         dem = self._dem
         if dem is None or not dem._last_cmd:
@@ -133,7 +133,7 @@ class ScriptedOperator(DemonstratorNode):
         else:
             self._stuck = 0.0
         self._lag_seen = waited
-        if self._stuck < STUCK_TIME or dem.subtask in ('ii', 'iv'):
+        if self._stuck < STUCK_TIME:
             return
         for arm, T_cmd in dem._last_cmd.items():
             error = T_cmd[:3, 3] - self._world_tool(arm)[:3, 3]
