@@ -41,8 +41,11 @@ def record_throw(launch, out, seed):
         launch('teleop', '--ros-args', '-r', '__node:=MTMR_PSM1'),
         launch('teleop', '--ros-args', '-r', '__node:=MTML_PSM2', '-p', 'mtm:=MTML',
                '-p', 'psm:=PSM2')]
+    # the operator waits for a tool only when it lags by more than the teleop's latency makes
+    # it (3 mm): a person's hand moves on, and a stop-and-go insertion would not segment
     operator = launch(sys.executable, str(OPERATOR), '--ros-args', '-p', 'subject:=S01',
-                      '-p', 'pair:=synth1', '-p', f'seed:={seed}', '-p', 'timeout:=240.0')
+                      '-p', 'pair:=synth1', '-p', f'seed:={seed}', '-p', 'timeout:=240.0',
+                      '-p', 'lag_tolerance:=0.003')
     finished = wait_for(lambda: not operator.running(), timeout=600, period=0.5)
     operator.stop()
     for proc in reversed(procs):      # the scripts below start a simulator of their own
@@ -79,5 +82,7 @@ def test_a_human_style_throw_through_the_virtual_mtms_is_learnt_and_scores_on_sy
     assert all(a[0] < b[0] for a, b in zip(times, times[1:]))
     code, stdout, stderr = run_script('learn_and_execute.sh', out, 'synth3', timeout=600)
     assert code == 0, stderr[-4000:]
-    scores = [json.loads(line) for line in stdout.splitlines() if line.startswith('{')]
-    assert scores and scores[-1]['score']['score'] == 1.0, stdout
+    results = [json.loads(line) for line in stdout.splitlines() if line.startswith('{')]
+    assert results, stdout                                   # the executor's result line
+    final = results[-1]
+    assert final['score'] == 1.0 and all(final['subtasks'].values()), final
