@@ -7,7 +7,8 @@ Processes (each its own rclpy process on loopback):
   script: SIGINT, as a user's Ctrl-C or a launch file does, then SIGKILL only after 30 s;
 - a *streamer* that enables and homes PSM1 and PSM2 (again after every restart of the
   simulator) and streams ``PSM1/servo_cp`` and ``PSM2/servo_cp`` at 1 kHz each, a 1 mm circle
-  around the arms' home poses, without pause, also while the simulator restarts;
+  around the arms' home poses (around their measured pose until they are homed: goals an arm
+  that is not ready answers with a throttled warning), also while the simulator restarts;
 - a *client* subscribed to the full state of the three arms (what ``dvrk.psm('PSM1')``,
   ``dvrk.psm('PSM2')`` and ``dvrk.ecm('ECM')`` subscribe, about 4300 messages/s; the client role
   of ``bench_simulator_node.py``).
@@ -19,7 +20,7 @@ Two phases:
    longest), the simulator's resident memory (RSS, from ``/proc``) after the first 30 s and at
    the end, and its exit code after the SIGINT;
 2. ``--stops`` rounds of start (until the node says it simulates), ``--round-seconds`` of
-   streaming, SIGINT: the exit codes (0 is a
+   streaming, SIGINT: the exit codes (130, or 0, is a
    clean stop; a negative code is the signal that killed it, -11 a SIGSEGV), the time each took
    to exit, and any line of a Python traceback or a fatal message in its log.
 
@@ -50,6 +51,7 @@ STREAM_HZ = 1000.0
 PSMS = ('PSM1', 'PSM2')
 GAP_S = 0.05
 WARMUP_S = 30.0
+CLEAN_EXITS = (0, 130)   # a node stopped by SIGINT exits 130 (0 before nodes said so)
 
 
 # -- the streamer role -----------------------------------------------------------------------
@@ -65,7 +67,7 @@ def role_stream(_args):
     node = rclpy.create_node('bench_streamer')
     state_qos, event_qos = node_bench.qos_profiles()
     lock = threading.Lock()
-    states, homes = {}, {}
+    states, homes, latest = {}, {}, {}
     command = {a: node.create_publisher(StringStamped, f'{a}/state_command', 10) for a in PSMS}
     servo = {a: node.create_publisher(PoseStamped, f'{a}/servo_cp', QoSProfile(depth=10))
              for a in PSMS}
@@ -76,6 +78,7 @@ def role_stream(_args):
 
     def on_cp(arm, msg):
         with lock:
+            latest[arm] = msg
             if arm not in homes and arm in states and states[arm].is_homed \
                     and not states[arm].is_busy:
                 homes[arm] = msg
@@ -105,8 +108,8 @@ def role_stream(_args):
     sent, k, t0 = 0, 0, time.monotonic()
     period = 1.0 / STREAM_HZ
     while not stop.is_set():
-        with lock:
-            poses = dict(homes)
+        with lock:   # around the home pose once homed; until then where the arm is
+            poses = {a: homes.get(a) or latest[a] for a in latest}
         angle = 2.0 * math.pi * 0.5 * k * period
         for a, home in poses.items():
             msg = PoseStamped()
@@ -224,7 +227,7 @@ def rounds(bin_dir, tmp, stops, round_seconds):
         results.append({'round': k, 'exit_code': code, 'exit_s': took, 'problems': problems})
         print(f'  stop {k + 1}/{stops}: exit {code} in {took:.2f} s'
               + (f'; {problems[:2]}' if problems else ''), flush=True)
-        if code != 0:
+        if code not in CLEAN_EXITS:
             os.replace(tmp / f'round{k:03d}.log', tmp / f'failed_round{k:03d}.log')
     client.tell('stop')
     client.wait(60.0)
@@ -232,7 +235,7 @@ def rounds(bin_dir, tmp, stops, round_seconds):
     for r in results:
         codes[str(r['exit_code'])] = codes.get(str(r['exit_code']), 0) + 1
     return {'stops': stops, 'round_seconds': round_seconds, 'exit_codes': codes,
-            'crashes': sum(1 for r in results if r['exit_code'] != 0),
+            'crashes': sum(1 for r in results if r['exit_code'] not in CLEAN_EXITS),
             'exit_s_max': max((r['exit_s'] for r in results), default=None),
             'rounds_with_log_problems': [r for r in results if r['problems']]}
 

@@ -54,3 +54,30 @@ def test_a_pair_of_a_user_mesh_needs_its_phantom_and_a_missing_file_is_named(tmp
                          env=_env(tmp_path), capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and 'phantom file nowhere.obj does not exist' in out.stderr
     assert time.monotonic() - t0 < 30
+
+
+def test_a_scene_file_of_ones_own_reaches_the_simulator(tmp_path):
+    trimesh.creation.box(extents=(0.060, 0.040, 0.008)).export(tmp_path / 'pad.stl')
+    text = (SCRIPTS.parent / 'config' / 'scene.yaml').read_text()
+    text = text.replace('phantoms:\n', 'phantoms:\n  mypad:\n    kind: mesh\n    mesh: pad.stl\n'
+                        '    frame: wound\n    marker_prefix: mine\n    wound: {line: []}\n', 1)
+    (tmp_path / 'my_scene.yaml').write_text(text)
+    proc = subprocess.Popen([str(SCRIPTS / 'simulator.sh'), '--scene', 'my_scene.yaml',
+                             '--phantom', 'mypad'], cwd=tmp_path, env=_env(tmp_path),
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        log = tmp_path / 'simulator.log'
+        deadline = time.monotonic() + 180
+        while (not log.exists() or 'simulating' not in log.read_text()) \
+                and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        text = log.read_text()
+        assert 'pairs mine1, mine2, mine3, mine4' in text, text[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(10)
