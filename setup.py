@@ -16,6 +16,8 @@ NODES = {
     'player': 'suture_lfd.nodes.player:main',
     'segmenter': 'suture_lfd.nodes.segmenter:main',
     'executor': 'suture_lfd.nodes.executor:main',
+    'teleop': 'suture_lfd.nodes.teleop:main',
+    'mtms': 'suture_lfd.nodes.mtms:main',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',

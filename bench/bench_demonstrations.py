@@ -1,11 +1,11 @@
 """
 Synthetic demonstrations over the cohort: durations, success, segmentation, and their cost.
 
-Ours: :func:`suture_lfd.demonstrator.run_demonstration` for every subject of the cohort on the
-chosen pairs (default: the first pair of each phantom), then
+Ours: :func:`suture_lfd.demos.demonstrator.run_demonstration` for every subject of the cohort on
+the chosen pairs (default: the first pair of each phantom), then
 :func:`suture_lfd.segmentation.segment_demonstration` on the record, compared with the
 subtask the subject was doing (``labels``); and the demonstration bag round trip
-(:func:`suture_lfd.demo_bag.write_demonstration_bag`, :func:`~suture_lfd.demo_bag.
+(:func:`suture_lfd.demos.demo_bag.write_demonstration_bag`, :func:`~suture_lfd.demos.demo_bag.
 demonstration_from_bag`).
 
 Anchor measured in the same run, on the same simulation: the scripted expert's throw on the
@@ -26,11 +26,11 @@ import tempfile
 import time
 
 import numpy as np
-from sim_bridge.expert import ScriptedExpert
 from sim_bridge.simulation import Simulation
-from suture_lfd.cohort import load_cohort
-from suture_lfd.demo_bag import demonstration_from_bag, write_demonstration_bag
-from suture_lfd.demonstrator import DemonstrationError, run_demonstration
+from suture_lfd.demos.cohort import load_cohort
+from suture_lfd.demos.demo_bag import demonstration_from_bag, write_demonstration_bag
+from suture_lfd.demos.demonstrator import DemonstrationError, run_demonstration
+from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.segmentation import SUBTASKS, segment_demonstration
 
 NAMES = [name for name, _, _ in SUBTASKS]

@@ -1,13 +1,14 @@
 """
 Executor speed: whole DMP throws per second in-process, and where the time goes.
 
-Ours: :func:`suture_lfd.executor.execute_throw` (reset, home, plan with the DMP rollouts, run the
-:class:`~suture_lfd.executor.ThrowExecutor` at the control period until the hand-over is done)
-with a ``paper`` skill learnt from a scripted demonstration on ``synth1``.
+Ours: :func:`suture_lfd.skill.executor.execute_throw` (reset, home, plan with the DMP rollouts, run
+the
+:class:`~suture_lfd.skill.executor.ThrowExecutor` at the control period until the hand-over is
+done) with a ``paper`` skill learnt from a scripted demonstration on ``synth1``.
 
 Anchor measured in the same run, on the same simulation: the scripted expert's whole throw
-(:class:`sim_bridge.expert.ScriptedExpert`, what the executor's scripted parts are built from).
-The ratios say what the executor adds on top of the simulator; the breakdown (planning,
+(:class:`suture_lfd.planning.expert.ScriptedExpert`, what the executor's scripted parts are built
+from). The ratios say what the executor adds on top of the simulator; the breakdown (planning,
 controller steps, simulator) says where a faster study has to save.
 
 Run: ``.venv/bin/python bench/bench_executor.py [--throws N] [--control-period S]``
@@ -16,13 +17,13 @@ Run: ``.venv/bin/python bench/bench_executor.py [--throws N] [--control-period S
 import argparse
 import time
 
-from sim_bridge.expert import ScriptedExpert
 from sim_bridge.simulation import Simulation
-from suture_lfd.executor import ExecutorConfig, ThrowExecutor, execute_throw, learn_skill
-from suture_lfd.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import make_segment_file
+from suture_lfd.segmentation.segments import make_segment_file
 from suture_lfd.skill import training_data
+from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw, learn_skill
 
 
 class _Timed:

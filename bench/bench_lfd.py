@@ -23,15 +23,15 @@ import argparse
 import time
 
 import numpy as np
+from sim_bridge.geometry import quaternion_angle
+from suture_lfd.demos.synthetic_throw import needle_throw
 from suture_lfd.dmp import DmpParams, PoseDmp
-from suture_lfd.geometry import quaternion_angle
-from suture_lfd.metrics import (
+from suture_lfd.study.metrics import (
     dtw_distance,
     dtw_path,
     orientation_trajectory_error,
     trajectory_error,
 )
-from suture_lfd.synthetic_throw import needle_throw
 
 ANCHOR_MP_FIT_S = 53e-3
 ANCHOR_MP_ROLLOUT_S = 42e-3

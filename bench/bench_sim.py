@@ -22,9 +22,9 @@ import numpy as np
 import pybullet
 from pybullet_utils import bullet_client
 from scipy.spatial.transform import Rotation
-from sim_bridge.expert import ScriptedExpert
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.expert import ScriptedExpert
 
 ANCHOR_SURROL_REALTIME = (18.0, 20.0)
 ANCHOR_AMBF_REALTIME = 1.0

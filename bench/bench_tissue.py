@@ -3,9 +3,9 @@
 import time
 
 import numpy as np
-from sim_bridge.scene_config import load_scene_config
-from sim_bridge.throw_geometry import ThrowArc
-from sim_bridge.tissue import TissueTracker
+from sim_bridge.scene.scene_config import load_scene_config
+from sim_bridge.scene.tissue import TissueTracker
+from suture_lfd.planning.throw_geometry import ThrowArc
 
 BUDGET_US = 50.0
 

@@ -2,7 +2,7 @@
 Simulated da Vinci Research Kit: PyBullet physics behind the dVRK CRTK interface.
 
 Core modules in this package never import rclpy or message packages; the ROS face lives in
-``sim_bridge.nodes`` and ``sim_bridge.conversions``.
+``sim_bridge.nodes`` and ``sim_bridge.ros.conversions``.
 
 Conventions (stated once for the whole project)
 -----------------------------------------------

@@ -14,14 +14,28 @@ Operating-state rules follow the dVRK (cisst ``prmOperatingState``, sawIntuitive
   ``home``, ``unhome``, ``pause``, ``resume``; every ``state_command`` first re-emits the current
   state, a command that the current state does not accept becomes the warning
   ``"<ARM>: command <cmd> is not supported in state <STATE>"``;
-- ``enable`` from DISABLED emits (DISABLED, busy) then (ENABLED, idle);
-- ``home`` (ENABLED only) emits busy, runs a trajectory to the homing goal (all joints 0,
-  insertion 0.12 m) and ends with (ENABLED, homed, idle);
+- ``enable`` from DISABLED (or FAULT) emits (DISABLED, busy), powers for ``power_up_time``
+  seconds of simulated time (the dVRK's POWERING state; another ``enable`` meanwhile changes
+  nothing, ``disable`` stops it) and then emits (ENABLED, idle), the arm holding where it is;
+- ``home`` (ENABLED only) emits busy, runs a trajectory at the joint trajectory limits from
+  where the arm is (its rest pose ``initial_jp`` after start-up) to the homing goal (all joints
+  0, insertion 0.12 m) and ends with (ENABLED, homed, idle);
 - ``move_*`` (and ``jaw_move_jp``) emit busy at the start, ``goal_reached(True)`` and idle at the
   end, also for zero-length moves (at the next step); a move that arrives while another runs
   replaces it; ``servo_*`` supersede any running move of the same part and leave busy false;
 - motion commands while not ready (not ENABLED, not homed, or no tool for Cartesian/jaw
   commands) are ignored with the throttled warning ``"<ARM>: <command>, arm not ready"``.
+
+ECM Cartesian goals (``servo_cp``, ``move_cp``; PoseStamped in the ``measured_cp`` frame, IK on
+``base_frame^-1 * goal``): a 4-DOF RCM arm cannot hold an arbitrary tip orientation while it
+moves, so the ECM reaches the commanded position, with the camera looking along the line from
+the RCM to it (what yaw, pitch and insertion give), and rolls about the shaft as close to the
+commanded orientation as that line allows (:meth:`EcmKinematics.ik_position`); ``setpoint_cp``
+then carries the commanded position and that orientation. The rest of the orientation is not a
+fault and raises nothing. A position outside the workspace (beyond the joint limits) is a
+``warning``: ``servo_cp`` goes to the joint-limited pose closest to it, ``move_cp`` moves there
+and ends with ``goal_reached`` true; the RCM itself is rejected (``goal_reached`` false). The
+PSM (6 joints) reaches position and orientation, and an unreachable pose is an ``error``.
 
 Frames: ``measured_cp = base_frame @ local_measured_cp``, ``local_measured_cp`` being the tool tip
 in the RCM frame ``<ARM>_base`` (DH chain and tooltip offset). Units are SI.
@@ -112,6 +126,8 @@ class ArmConfig:
         one setpoint to the next over the command interval; further apart, a command is a jump.
     tool_present : bool
         PSM instrument present at start-up (Cartesian and jaw commands need it).
+    power_up_time : float
+        Simulated time (s) from ``enable`` to ENABLED (DISABLED and busy meanwhile); 0: at once.
 
     """
 
@@ -122,12 +138,15 @@ class ArmConfig:
     throttle_period: float = 1.0
     servo_stream_gap: float = 0.1
     tool_present: bool = True
+    power_up_time: float = 0.0
 
     def __post_init__(self):
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"tracking must be 'limited' or 'exact', got {self.tracking!r}")
         if not self.throttle_period >= 0.0:
             raise ValueError(f'throttle_period must be >= 0 s, got {self.throttle_period}')
+        if not (np.isfinite(self.power_up_time) and self.power_up_time >= 0.0):
+            raise ValueError(f'power_up_time must be >= 0 s, got {self.power_up_time}')
         if not self.servo_stream_gap > 0.0:
             raise ValueError(f'servo_stream_gap must be > 0 s, got {self.servo_stream_gap}')
 
@@ -181,6 +200,7 @@ class Arm:
         self._homed = False
         self._busy = False
         self._homing = False
+        self._powered_at = None  # while powering: the simulated time ENABLED is reached
         self._free = False
         self._tool_present = bool(config.tool_present)
         self._ratio = 1.0
@@ -273,21 +293,29 @@ class Arm:
         self._homing = False
 
     def _command_enable(self):
-        if self._state == 'ENABLED':
-            return
-        self._busy = True
+        if self._state == 'ENABLED' or self._powered_at is not None:
+            return  # enabled, or powering already: the state has been emitted again
+        self._state, self._busy = 'DISABLED', True
         self._emit_state()  # powering
         self._arm.hold()
         if self._jaw is not None:
             self._jaw.hold()
+        if self.config.power_up_time > 0.0:
+            self._powered_at = self._time + self.config.power_up_time
+        else:
+            self._power_on()
+
+    def _power_on(self):
+        self._powered_at = None
         self._state = 'ENABLED'
         self._free = False
         self._busy = False
         self._emit_state()
 
     def _command_disable(self):
-        if self._state == 'DISABLED':
+        if self._state == 'DISABLED' and self._powered_at is None:
             return
+        self._powered_at = None
         self._abort_motions()
         self._state = 'DISABLED'
         self._busy = False
@@ -310,7 +338,7 @@ class Arm:
             return
         self._abort_motions()
         self._homed = False
-        self._busy = False
+        self._busy = self._powered_at is not None
         self._emit_state()
 
     def _command_home(self):
@@ -435,9 +463,14 @@ class Arm:
             key = (T.tobytes(), q_ref.tobytes())
             if self._ik_memo is not None and self._ik_memo[0] == key:
                 q = self._ik_memo[1].copy()  # the same goal from the same setpoint: same answer
+            elif not self._has_jaw:
+                q = self._ecm_goal(T, q_ref, 'servo_cp', stream=True)
+                self._ik_memo = (key, q.copy())
             else:
                 q = self.kinematics.ik(T, q_ref=q_ref)
                 self._ik_memo = (key, q.copy())
+        except _OutsideWorkspaceError:
+            return
         except UnreachableError as exc:
             self._message('error', f'{self.name}: servo_cp goal unreachable: {exc}',
                           throttle_key=('servo_cp', 'unreachable'))
@@ -446,6 +479,31 @@ class Arm:
             self._message('error', f'{self.name}: {exc}', throttle_key=('servo_cp', 'input'))
             return
         self._servo_arm(q)
+
+    def _ecm_goal(self, T, q_ref, command, stream):
+        """
+        ECM joints for a Cartesian goal in ``<ARM>_base``: its position, roll about the shaft.
+
+        A position outside the workspace is a warning and gives the joint-limited pose closest
+        to it; the RCM itself raises :class:`_OutsideWorkspaceError` after the warning.
+        """
+        throttle = (command, 'workspace') if stream else None
+        p = T[:3, 3]
+        where = f'({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}) m'
+        try:
+            q, inside = self.kinematics.ik_position(T, q_ref=q_ref)
+        except UnreachableError as exc:
+            self._message('warning', f'{self.name}: {command} position {where} is outside the '
+                          f'workspace: {exc}', throttle_key=throttle)
+            raise _OutsideWorkspaceError from exc
+        if not inside:
+            clipped = self.kinematics.clip(q)
+            names = [n for n, a, b in zip(self.kinematics.joint_names, q, clipped) if a != b]
+            self._message('warning', f'{self.name}: {command} position {where} is outside the '
+                          f'workspace; going to the closest pose within the joint limits '
+                          f'({", ".join(names)} limited)', throttle_key=throttle)
+            q = clipped
+        return q
 
     def _reject_move(self, text):
         """Error, then a busy pulse closed by goal_reached(False), the arm holding its goal."""
@@ -516,7 +574,16 @@ class Arm:
             return
         try:
             T = self._pose_in_rcm(pose, 'move_cp')
-            q = self.kinematics.ik(T, q_ref=self._arm.target(self._time)[0])
+            q_ref = self._arm.target(self._time)[0]
+            if self._has_jaw:
+                q = self.kinematics.ik(T, q_ref=q_ref)
+            else:
+                q = self._ecm_goal(T, q_ref, 'move_cp', stream=False)
+        except _OutsideWorkspaceError:
+            self._set_busy(True, force=True)  # the warning is out: a pulse ending the move
+            self._emit('goal_reached', False)
+            self._set_busy(self._motion_running())
+            return
         except UnreachableError as exc:
             self._reject_move(f'{self.name}: move_cp goal unreachable: {exc}')
             return
@@ -685,6 +752,8 @@ class Arm:
             raise ValueError(f'step dt must be a positive number of seconds, got {dt}')
         self._time += dt
         now = self._time
+        if self._powered_at is not None and now >= self._powered_at - 1e-9:
+            self._power_on()
         if self._state != 'ENABLED':
             self._arm.qd[:] = 0.0
             if self._jaw is not None:
@@ -846,6 +915,10 @@ class Arm:
     def jaw_setpoint_jp(self):
         """Jaw setpoint (rad), PSM only."""
         return float(self._require_jaw().setpoint[0])
+
+
+class _OutsideWorkspaceError(Exception):
+    """An ECM Cartesian goal at the RCM: warned about, nothing to move to."""
 
 
 def _is_numeric(value):

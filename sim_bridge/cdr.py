@@ -1,14 +1,17 @@
 """
-CDR bytes of the message layouts the simulator publishes and the bag writers store.
+CDR encoding and decoding of the message layouts the simulator publishes and bags store.
+
+Encoders build the bytes of the published layouts; lean readers (at the end) decode the two
+layouts a demonstration bag is made of.
 
 The simulator publishes ~40 state messages per 10 ms; building a message object and having rclpy
 convert it costs ~10-40 us each, while the bytes of these layouts follow from the CDR rules
 (little-endian XCDR1, as Fast DDS and rosbag2 use it: a 4-byte encapsulation header, then each
 primitive aligned to its size relative to the body after that header, padding zeroed). An rclpy
 publisher sends such bytes as they are (``Publisher.publish(bytes)``); a rosbag2 writer stores
-them. Field meanings and array layouts are those of :mod:`sim_bridge.conversions`, whose message
-builders make the same messages (the tests read these bytes back with rclpy and write them again
-with rosbags). No ROS imports: bag writing runs without ROS.
+them. Field meanings and array layouts are those of :mod:`sim_bridge.ros.conversions`, whose
+message builders make the same messages (the tests read these bytes back with rclpy and write them
+again with rosbags). No ROS imports: bag writing runs without ROS.
 """
 
 import functools
@@ -49,7 +52,7 @@ def pose_stamped(ns, frame_id, pose):
     frame_id : str
     pose : sequence of 7 float
         ``(x, y, z, qx, qy, qz, qw)``, written as given
-        (:func:`sim_bridge.conversions.pose_vector` of a matrix).
+        (:func:`sim_bridge.ros.conversions.pose_vector` of a matrix).
 
     """
     return _cdr_header(ns, frame_id, 8) + _POSE7.pack(*pose)
@@ -108,7 +111,7 @@ def jacobian_array(J):
     """
     Return the CDR bytes of a ``(6, n)`` Jacobian as a ``std_msgs/Float64MultiArray``.
 
-    The layout of :func:`sim_bridge.conversions.jacobian_array` (cisst-ros's).
+    The layout of :func:`sim_bridge.ros.conversions.jacobian_array` (cisst-ros's).
     """
     J = np.asarray(J, dtype=float)
     rows, cols = J.shape
@@ -122,3 +125,79 @@ def jacobian_array(J):
     body += _U32.pack(0)                 # data_offset
     _append_doubles(body, J.ravel().tolist())
     return _CDR_LE + bytes(body)
+
+
+# --- decoding: lean readers for the two message layouts a demonstration is made of ------------
+# A demonstration bag holds thousands of PoseStamped and JointState messages; decoding each into a
+# message object costs ~40 us, while its few fields sit at offsets the CDR rules fix. These read
+# just those fields from little-endian CDR (XCDR1, the rosbag2 default) and return None for
+# anything else, so a caller falls back to a full deserializer.
+
+_CDR_LE_KIND = b'\x00\x01'           # encapsulation kind CDR_LE (options ignored)
+_DOUBLE = struct.Struct('<d')
+
+
+def _read_header(raw):
+    """(stamp seconds, frame_id, offset after it from the CDR body start) or None."""
+    if len(raw) < 16 or raw[:2] != _CDR_LE_KIND:
+        return None
+    sec, nanosec, length = _HEADER.unpack_from(raw, 4)
+    end = 16 + length
+    if length < 1 or end > len(raw) or raw[end - 1] != 0:
+        return None
+    return sec + nanosec * 1e-9, raw[16:end - 1].decode('utf-8', 'replace'), end - 4
+
+
+def pose_stamped_fields(raw):
+    """
+    Read a geometry_msgs/PoseStamped from CDR bytes without building a message object.
+
+    Returns
+    -------
+    tuple or None
+        ``(stamp_s, frame_id, (x, y, z, qx, qy, qz, qw))``; None if the bytes are not a
+        little-endian CDR PoseStamped of the expected size.
+
+    """
+    head = _read_header(raw)
+    if head is None:
+        return None
+    stamp, frame, at = head
+    at = (at + 7) & ~7
+    if len(raw) - 4 - at not in (56, 57, 58, 59, 60, 61, 62, 63):   # 7 doubles (+ padding)
+        return None
+    return stamp, frame, _POSE7.unpack_from(raw, 4 + at)
+
+
+def joint_state_first_position(raw):
+    """
+    Read the stamp and ``position[0]`` of a sensor_msgs/JointState from CDR bytes.
+
+    Returns
+    -------
+    tuple or None
+        ``(stamp_s, position_0)``; None if the bytes are not a little-endian CDR JointState
+        with at least one position.
+
+    """
+    head = _read_header(raw)
+    if head is None:
+        return None
+    stamp, _, at = head
+    n = len(raw) - 4
+    try:
+        at = (at + 3) & ~3
+        (names,) = _U32.unpack_from(raw, 4 + at)
+        at += 4
+        for _ in range(names):
+            at = (at + 3) & ~3
+            (length,) = _U32.unpack_from(raw, 4 + at)
+            at += 4 + length
+        at = (at + 3) & ~3
+        (count,) = _U32.unpack_from(raw, 4 + at)
+        at = (at + 4 + 7) & ~7
+        if count < 1 or at + 8 > n:
+            return None
+        return stamp, _DOUBLE.unpack_from(raw, 4 + at)[0]
+    except struct.error:
+        return None

@@ -5,13 +5,14 @@ One :meth:`Simulation.step` is one fixed physics step (``world.physics_step``, 2
 
 1. every arm's state machine advances (:class:`sim_bridge.arm.Arm`: trajectories, joint
    tracking within the dVRK velocity and acceleration limits);
-2. the jaws are read and the needle is grasped or released (:mod:`sim_bridge.grasp`);
+2. the jaws are read and the needle is grasped or released (:mod:`sim_bridge.scene.grasp`);
 3. the needle moves: held, it follows the leading tool exactly; free inside the tissue, it stays
    where it is (the tissue holds it); free outside, PyBullet moves it under gravity until it
    rests on the pad or the table (a fall of ``drop_distance`` reports a ``drop``, and so does
    letting go of a needle in the tissue, ``in_tissue`` true);
-4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.tissue`) and the
-   throw scorer takes every event (:mod:`sim_bridge.scoring`);
+4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.scene.tissue`) and
+the
+   throw scorer takes every event (:mod:`sim_bridge.scene.scoring`);
 5. every ``thread_period`` the thread follows the needle tail; every ``collision_period`` the
    instrument ends are tested against the tissue (``collision`` events when contact starts).
 
@@ -36,19 +37,19 @@ import numpy as np
 import pybullet
 from pybullet_utils import bullet_client
 from sim_bridge.arm import Arm, ArmConfig
-from sim_bridge.camera import CameraConfig, StereoCamera
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.expert import Observation
-from sim_bridge.grasp import GraspConfig, GraspManager
+from sim_bridge.control import Observation
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
-from sim_bridge.needle import invert_transform
 from sim_bridge.paths import config_path
-from sim_bridge.phantom import build_phantom
-from sim_bridge.scene_config import SceneConfig, load_scene_config
-from sim_bridge.scoring import ThrowScorer
-from sim_bridge.thread_dynamics import ThreadChain, ThreadDynamicsConfig
-from sim_bridge.tissue import TissueTracker
-from sim_bridge.world import World, WorldConfig
+from sim_bridge.scene.camera import CameraConfig, StereoCamera
+from sim_bridge.scene.grasp import GraspConfig, GraspManager
+from sim_bridge.scene.needle import invert_transform
+from sim_bridge.scene.phantom import build_phantom
+from sim_bridge.scene.scene_config import SceneConfig, load_scene_config
+from sim_bridge.scene.scoring import ThrowScorer
+from sim_bridge.scene.thread import ThreadChain, ThreadDynamicsConfig
+from sim_bridge.scene.tissue import TissueTracker
+from sim_bridge.scene.world import World, WorldConfig
 
 _LOG = logging.getLogger(__name__)
 
@@ -152,7 +153,10 @@ class SimulationConfig:
     psm_tool : str or None
         PSM instrument for :func:`sim_bridge.kinematics.psm_kinematics` (None: its default).
     arm : ArmConfig
-        Arm options (tracking); ``initial_jaw`` is taken from ``loop``.
+        Arm options (tracking, power-up time); ``initial_jaw`` is taken from ``loop``.
+    psm_rest_jp, ecm_rest_jp : tuple of float or None
+        Where the PSMs / the ECM stand when a scene starts, before ``home`` (rad / m); None:
+        at the homing goal (batch runs), so that ``home`` takes one step.
 
     """
 
@@ -164,6 +168,8 @@ class SimulationConfig:
     scene: SceneConfig = field(default_factory=SceneConfig)
     psm_tool: str | None = None
     arm: ArmConfig = field(default_factory=ArmConfig)
+    psm_rest_jp: tuple[float, ...] | None = None
+    ecm_rest_jp: tuple[float, ...] | None = None
 
 
 def load_simulation_config(world_path=None, scene_path=None):
@@ -250,7 +256,7 @@ class Simulation:
         ``'PSM1'``, ``'PSM2'``, ``'ECM'``; :meth:`reset` replaces the Arm objects in this dict.
     world : World
         PyBullet bodies.
-    phantom : sim_bridge.phantom.Phantom
+    phantom : sim_bridge.scene.phantom.Phantom
     grasp : GraspManager
     tissue : TissueTracker
     camera : StereoCamera
@@ -316,7 +322,7 @@ class Simulation:
     # ------------------------------------------------------------------ reset
     def reset(self, seed=None):
         """
-        Start the scene again: arms at home (DISABLED), jaws at ``initial_jaw``, needle on the pad.
+        Start the scene again: arms DISABLED at rest, jaws at ``initial_jaw``, needle on the pad.
 
         Parameters
         ----------
@@ -332,9 +338,11 @@ class Simulation:
         arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
         self.arms.clear()
         for name in ARMS:
-            self.arms[name] = Arm(name, self.kinematics[name],
-                                  arm_config if name in PSMS else replace(arm_config,
-                                                                          initial_jaw=0.0))
+            config = arm_config if name in PSMS else replace(arm_config, initial_jaw=0.0)
+            rest = cfg.psm_rest_jp if name in PSMS else cfg.ecm_rest_jp
+            if rest is not None:
+                config = replace(config, initial_jp=tuple(rest))
+            self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
         self._tool_cache = {}
         self._steps = 0
@@ -497,8 +505,8 @@ class Simulation:
             Duration (s); rounded to whole physics steps.
         controller : object, optional
             Anything with ``step(observation) -> Command`` (e.g.
-            :class:`sim_bridge.expert.ScriptedExpert`); called every ``control_period`` and
-            its command applied with :meth:`apply`.
+            :class:`suture_lfd.planning.expert.ScriptedExpert`); called every ``control_period``
+            and its command applied with :meth:`apply`.
         control_period : float, optional
             Time (s) between controller calls (default: every physics step); a multiple of the
             physics step.
@@ -524,11 +532,15 @@ class Simulation:
         """
         for arm in self._arm_list:
             arm.state_command('enable')
-            arm.state_command('home')
+            if arm.operating_state.state == 'ENABLED':
+                arm.state_command('home')
         for _ in range(int(round(timeout / self._dt))):
             states = [arm.operating_state for arm in self._arm_list]
             if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
                 return
+            for arm, s in zip(self._arm_list, states):
+                if s.state == 'ENABLED' and not s.is_homed and not s.is_busy:
+                    arm.state_command('home')  # powered up after a power-up time
             self.step()
         raise RuntimeError(f'arms not homed after {timeout} s: '
                            + ', '.join(f'{a.name} {a.operating_state}' for a in self._arm_list))
@@ -647,7 +659,7 @@ class Simulation:
 
         Parameters
         ----------
-        command : sim_bridge.expert.Command
+        command : sim_bridge.control.Command
             Targets per arm (``world`` frame).
 
         """
@@ -710,7 +722,7 @@ class Simulation:
     # ------------------------------------------------------------------ observation and state
     @property
     def target_pair(self):
-        """The target :class:`~sim_bridge.phantom.MarkerPair` (world frame)."""
+        """The target :class:`~sim_bridge.scene.phantom.MarkerPair` (world frame)."""
         return self._pair
 
     @property
@@ -724,7 +736,7 @@ class Simulation:
 
         Returns
         -------
-        sim_bridge.expert.Observation
+        sim_bridge.control.Observation
             Tool poses and jaws of both PSMs, needle pose, holders, target pair, arm bases.
 
         """
@@ -740,7 +752,7 @@ class Simulation:
 
         Returns
         -------
-        sim_bridge.scoring.ThrowScore
+        sim_bridge.scene.scoring.ThrowScore
 
         """
         return self.scorer.result(self.time)
@@ -853,7 +865,7 @@ class Simulation:
 
         Returns
         -------
-        sim_bridge.camera.StereoFrame
+        sim_bridge.scene.camera.StereoFrame
             Left/right colour and metric depth images and camera poses.
 
         """

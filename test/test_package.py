@@ -11,7 +11,7 @@ import textwrap
 from harness import DOMAIN_ID, REPO, wait_for
 import pytest
 
-ROS_FACES = ('nodes', 'conversions.py')
+ROS_FACES = ('nodes', 'ros')
 
 
 def core_modules():
@@ -195,6 +195,17 @@ def test_main_job_command_starts():
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert 'study' in result.stdout
+
+
+def test_wrapper_passes_cli_subcommands_through(tmp_path):
+    result = subprocess.run([str(REPO / 'suture-lfd'), 'bag', 'info', str(tmp_path / 'none')],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0
+    assert 'unknown command' not in result.stderr
+    assert 'no such bag' in result.stderr, result.stderr
+    result = subprocess.run([str(REPO / 'suture-lfd'), 'no-such-command'],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and 'no-such-command' in result.stderr
 
 
 # --- setup: bad input gets a clear message ---------------------------------------------------

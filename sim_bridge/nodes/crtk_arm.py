@@ -13,7 +13,9 @@ cisst-ros):
   ``jaw/measured_js`` and ``jaw/setpoint_js``;
 - events (RELIABLE, TRANSIENT_LOCAL, depth 100): ``operating_state``, ``goal_reached``,
   ``error``, ``warning``, ``status``, ``trajectory_j/ratio``, and ``tool_type`` (PSM) or
-  ``endoscope_type`` (ECM); operating_state stamps are non-zero and strictly increasing;
+  ``endoscope_type`` (ECM); operating_state stamps are non-zero, strictly increasing and, when
+  the simulator clock stands for the wall clock, never behind it (crtk clients compare them
+  with their own ``now()``);
 - commands (RELIABLE, VOLATILE, depth 1): ``state_command``, ``servo_jp``, ``servo_jr``,
   ``servo_jf``, ``servo_cp``, ``move_jp``, ``move_jr``, ``move_cp``, ``hold``, ``free``,
   ``spatial/servo_cf``, ``body/servo_cf``, ``body/set_cf_orientation_absolute``,
@@ -42,8 +44,8 @@ from rclpy.callback_groups import CallbackGroup
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from sim_bridge import cdr
-from sim_bridge import conversions as cv
 from sim_bridge.kinematics import UnreachableError
+from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -164,6 +166,12 @@ class CrtkArm:
     lock : callable, optional
         Returns a context manager that every callback (command, service) holds while it runs;
         the owner holds the same lock when it steps the arm or publishes (default: none).
+    stamp_floor_ns : callable, optional
+        Returns a time (int ns) that ``operating_state`` stamps must not fall behind: the wall
+        clock when the simulator clock stands for it. A client without ``use_sim_time`` takes
+        ``now()`` just before it publishes a move and counts only states stamped later (crtk
+        ``wait_move_handle``), while the simulator clock, stepped in rounds, lags the wall
+        clock by up to a round (default: the simulator clock alone).
 
     Notes
     -----
@@ -172,8 +180,9 @@ class CrtkArm:
     """
 
     def __init__(self, node, name, get_arm, now_ns, on_command=None, poll_servo=False,
-                 lock=None):
+                 lock=None, stamp_floor_ns=None):
         self.name = name
+        self._stamp_floor_ns = stamp_floor_ns or (lambda: 0)
         self._lock = lock or nullcontext
         self._polled_group = _Polled() if poll_servo else None
         self._polled = []
@@ -355,7 +364,7 @@ class CrtkArm:
 
     def _state_stamp(self):
         """Return the simulator clock now, bumped so operating_state stamps strictly increase."""
-        ns = max(self._now_ns(), self._last_state_ns + _STAMP_STEP_NS, 1)
+        ns = max(self._now_ns(), self._stamp_floor_ns(), self._last_state_ns + _STAMP_STEP_NS, 1)
         self._last_state_ns = ns
         return cv.stamp_from_nanoseconds(ns)
 

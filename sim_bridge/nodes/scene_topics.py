@@ -21,7 +21,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from sim_bridge import cdr
-from sim_bridge import conversions as cv
+from sim_bridge.ros import conversions as cv
 from sim_bridge.simulation import ARMS, PSMS
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray

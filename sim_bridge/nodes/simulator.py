@@ -54,14 +54,14 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sim_bridge import conversions as cv
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from suture_lfd.nodes import declare_config
 
 EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -111,6 +111,17 @@ class SimulatorConfig:
         ``'limited'`` (joints follow setpoints within the dVRK limits) or ``'exact'``.
     tool_present : bool
         PSM instruments mounted at start-up.
+    power_up_time : float
+        Simulated time (s) from ``enable`` to ENABLED (DISABLED and busy meanwhile, as a dVRK
+        arm powering its amplifiers, which it must do within 3 s); 0: at once.
+    start_at_home : bool
+        Start (and restart on ``sim/reset``) the arms at the homing goal, so that ``home`` ends
+        at once; false: at ``psm_rest_jp`` / ``ecm_rest_jp``, and ``home`` is a trajectory of a
+        few seconds at the joint trajectory limits, as on a dVRK.
+    psm_rest_jp, ecm_rest_jp : tuple of float
+        Rest poses of the PSMs (6 joints) and the ECM (4 joints), rad / m; default all zeros
+        (the pose a simulated dVRK arm powers up in: instrument and endoscope retracted to the
+        cannula, insertion 0).
     footpedals : bool
         Run the console foot pedals (``/footpedals/*``) in this process.
 
@@ -131,6 +142,10 @@ class SimulatorConfig:
     tracking: str = 'limited'
     tool_present: bool = True
     footpedals: bool = True
+    power_up_time: float = 1.0
+    start_at_home: bool = False
+    psm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    ecm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -147,6 +162,14 @@ class SimulatorConfig:
         for name in ('tick', 'max_lag'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0 s, got {getattr(self, name)}')
+        if not (math.isfinite(self.power_up_time) and self.power_up_time >= 0):
+            raise ValueError(f'parameter power_up_time must be >= 0 s (0: at once), '
+                             f'got {self.power_up_time}')
+        for name, n in (('psm_rest_jp', 6), ('ecm_rest_jp', 4)):
+            value = getattr(self, name)
+            if len(value) != n or not all(math.isfinite(float(v)) for v in value):
+                raise ValueError(f'parameter {name} must be {n} finite joint values (rad / m), '
+                                 f'got {list(value)}')
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
                              f'got {self.tracking!r}')
@@ -210,10 +233,14 @@ class Simulator(_QuietEndpoints, Node):
         super().__init__('simulator')
         self.config = cfg = declare_config(self, SimulatorConfig, 'simulator.yaml', 'simulator')
         sim_config = load_simulation_config()
+        rest = {} if cfg.start_at_home else {
+            'psm_rest_jp': tuple(float(v) for v in cfg.psm_rest_jp),
+            'ecm_rest_jp': tuple(float(v) for v in cfg.ecm_rest_jp)}
         sim_config = replace(
             sim_config,
-            arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present),
-            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None))
+            arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present,
+                        power_up_time=float(cfg.power_up_time)),
+            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None), **rest)
         self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
                               phantom=cfg.phantom)
         self._resets = 0
@@ -249,9 +276,12 @@ class Simulator(_QuietEndpoints, Node):
         # held by the stepping thread for a round and by every callback that touches the scene
         self.lock = threading.RLock()
         self._waiting = 0  # callbacks waiting for the lock: the stepping thread lets them in
+        # at real time on the wall clock, clients without use_sim_time compare operating_state
+        # stamps with their system clock: those stamps never fall behind it
+        wall = time.time_ns if cfg.clock_start < 0 and self._rtf == 1.0 else None
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
-                                   lock=self.locked)
+                                   lock=self.locked, stamp_floor_ns=wall)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, COMMAND_QOS)

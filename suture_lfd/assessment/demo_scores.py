@@ -10,7 +10,7 @@ The measures of the suturing-skill literature the seed paper cites for its futur
 - idle time of the whole team: both instruments at rest together;
 - inside the tissue (subtasks ii to iv): how far the needle strays from the path it cut, the
   distance from each puncture to the needle's circle while the needle occupies it (the
-  simulator's trauma measure, :mod:`sim_bridge.tissue`, recomputed from the recorded needle),
+  simulator's trauma measure, :mod:`sim_bridge.scene.tissue`, recomputed from the recorded needle),
   and the tilt of the needle plane from the plane through the wound's perpendicular suture
   line and the surface normal (Frischknecht et al. 2013 measure the suture's angle to the
   incision);
@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 from suture_lfd.assessment.motion import MotionConfig, motion_metrics, rests, speed_profile
-from suture_lfd.geometry import transform_from_pose
+from sim_bridge.geometry import transform_from_pose
 
 SUBTASK_NAMES = ('i', 'ii', 'iii', 'iv', 'v')
 ARMS = ('psm1', 'psm2')

@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
-from suture_lfd.validation import check_array, check_times
+from sim_bridge.validation import check_array, check_times
 
 
 @dataclass(frozen=True)

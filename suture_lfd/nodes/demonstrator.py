@@ -6,7 +6,7 @@ Drives the ``simulator`` node the way an MTM teleoperation does: reads ``<ARM>/m
 and the simulator's ground truth (``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``,
 ``sim/markers/<pair>/entry|exit``, ``sim/events``), and streams ``<ARM>/servo_cp`` (in the
 ``measured_cp`` frame) and ``<ARM>/jaw/servo_jp`` at ``rate`` from the core
-:class:`suture_lfd.demonstrator.Demonstrator` of the configured subject.
+:class:`suture_lfd.demos.demonstrator.Demonstrator` of the configured subject.
 
 Sequence: wait for the topics; enable and home the arms if needed; press the record pedal (the
 recorder's toggle, ``/footpedals/camera`` through its ``emulate`` topic) and wait until
@@ -29,14 +29,15 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge import conversions as cv
-from sim_bridge.expert import Observation
-from sim_bridge.phantom import MarkerPair
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.control import Observation
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from sim_bridge.scene.phantom import MarkerPair
+from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import String
-from suture_lfd.cohort import load_cohort
-from suture_lfd.demonstrator import Demonstrator
-from suture_lfd.nodes import declare_config, run_until_finished
+from suture_lfd.demos.cohort import load_cohort
+from suture_lfd.demos.demonstrator import Demonstrator
+from suture_lfd.nodes import run_until_finished
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -105,6 +106,7 @@ class DemonstratorNode(Node):
         self._t_start = self._t_done = None
         self._dem = None
         self._last_command = -1e9
+        self._commanded_on = None  # arm states when enable/home were last sent
         self._published = {}
         self._scene = load_scene_config()
         self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
@@ -309,8 +311,11 @@ class DemonstratorNode(Node):
             if not cfg.home or self._waited() > cfg.startup_timeout:
                 self._finish(False, 'arms not enabled and homed')
                 return
-            if time.monotonic() - self._last_command > 2.0:   # (again) every 2 s
-                self._last_command = time.monotonic()
+            # at once when an arm's state changes (a dVRK arm powers up for a while, then
+            # homes in a motion of seconds), and again every 2 s
+            seen = [(s.state, s.is_homed, s.is_busy) for s in states]
+            if seen != self._commanded_on or time.monotonic() - self._last_command > 2.0:
+                self._last_command, self._commanded_on = time.monotonic(), seen
                 for a in PSMS:
                     s = self._state[a]
                     if s.state != 'ENABLED':

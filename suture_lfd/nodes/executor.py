@@ -5,7 +5,7 @@ At start-up the node learns the skill (:func:`suture_lfd.skill.learn_skill`, par
 ``segments`` and ``method``, or loads a saved skill from ``skill``). A pair name on
 ``~/execute`` (std_msgs/String) starts a throw on that pair: the node enables and homes PSM1
 and PSM2 if needed, selects the pair on ``sim/target_pair``, and runs the core
-:class:`suture_lfd.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
+:class:`suture_lfd.skill.executor.ThrowExecutor` at ``rate`` Hz (wall clock): subtasks i, iii, v
 scripted, ii and iv from the DMPs through the measured grasp, streamed as ``<ARM>/servo_cp``
 (in the ``measured_cp`` frame) and ``<ARM>/jaw/servo_jp``. It reads ``<ARM>/measured_cp``,
 ``<ARM>/measured_js``, ``<ARM>/jaw/measured_js``, ``<ARM>/operating_state``,
@@ -64,16 +64,17 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from sim_bridge import conversions as cv
-from sim_bridge.expert import Observation
+from sim_bridge.control import Observation
+from sim_bridge.geometry import pose_from_transform
 from sim_bridge.kinematics import psm_kinematics
-from sim_bridge.phantom import MarkerPair
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from sim_bridge.scene.phantom import MarkerPair
+from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
-from suture_lfd.executor import ExecutorConfig, ThrowExecutor
-from suture_lfd.geometry import pose_from_transform
-from suture_lfd.nodes import declare_config, run_until_finished
+from suture_lfd.nodes import run_until_finished
 from suture_lfd.skill import ThrowSkill, learn_skill
+from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -149,6 +150,7 @@ class ExecutorNode(Node):
         self._stage = 'idle'
         self._stage_wall = time.monotonic()
         self._last_command = -1e9
+        self._commanded_on = None  # arm states when enable/home were last sent
         self._executor = None
         self._t_start = self._t_done = None
         self._last_obs_t = None
@@ -487,8 +489,11 @@ class ExecutorNode(Node):
             if not cfg.home or self._waited() > cfg.prepare_timeout:
                 self._fail('arms not enabled and homed')
                 return
-            if time.monotonic() - self._last_command > 2.0:   # (again) every 2 s
-                self._last_command = time.monotonic()
+            # at once when an arm's state changes (a dVRK arm powers up for a while, then
+            # homes in a motion of seconds), and again every 2 s
+            seen = [(s.state, s.is_homed, s.is_busy) for s in states]
+            if seen != self._commanded_on or time.monotonic() - self._last_command > 2.0:
+                self._last_command, self._commanded_on = time.monotonic(), seen
                 for a in PSMS:
                     s = self._state[a]
                     if s.state != 'ENABLED':

@@ -22,10 +22,10 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
+from sim_bridge.ros.conversions import message_class
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd import bags
-from suture_lfd.nodes import declare_config
-from suture_lfd.nodes.recorder import message_class
 
 DONE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)

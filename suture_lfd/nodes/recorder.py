@@ -16,7 +16,6 @@ per topic the messages received while recording, carried over into the bag and w
 from dataclasses import dataclass
 import datetime
 import fnmatch
-import importlib
 import json
 from pathlib import Path
 import queue
@@ -28,10 +27,11 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.ros.conversions import message_class
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
-from suture_lfd.nodes import declare_config
 
 STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -83,15 +83,6 @@ class RecorderConfig:
     def matches(self, name, topic):
         """Whether the absolute ``topic`` matches a glob of the list parameter ``name``."""
         return any(fnmatch.fnmatchcase(topic, glob) for glob in getattr(self, name))
-
-
-def message_class(msgtype):
-    """Return the rclpy message class of ``'pkg/msg/Name'``."""
-    pkg, _, name = msgtype.partition('/msg/')
-    try:
-        return getattr(importlib.import_module(f'{pkg}.msg'), name)
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f'message type {msgtype!r} is not installed ({exc})') from exc
 
 
 def offered_qos(endpoints, fallback):

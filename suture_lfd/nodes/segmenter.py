@@ -1,12 +1,13 @@
 """
 Segmenter node: a demonstration bag in, a segment file for the executor out.
 
-Reads the bag named by the ``bag`` parameter (:func:`suture_lfd.demo_bag.demonstration_from_bag`:
-tool, jaw, needle, marker and event topics of the simulator), cuts it into the five subtasks
-(:func:`suture_lfd.segmentation.segment_demonstration`), resamples the needle trajectories of
-tasks ii and iv and writes the :class:`suture_lfd.segments.SegmentFile` to ``output`` (default
-``<bag>.segments.npz`` beside the bag). Publishes a JSON summary on ``~/result`` (latched) and
-exits: code 0 when the file was written, 1 when the bag could not be segmented (the error names
+Reads the bag named by the ``bag`` parameter
+(:func:`suture_lfd.demos.demo_bag.demonstration_from_bag`: tool, jaw, needle, marker and event
+topics of the simulator), cuts it into the five subtasks
+(:func:`suture_lfd.segmentation.segment_demonstration`), resamples the needle trajectories of tasks
+ii and iv and writes the :class:`suture_lfd.segmentation.segments.SegmentFile` to ``output``
+(default ``<bag>.segments.npz`` beside the bag). Publishes a JSON summary on ``~/result`` (latched)
+and exits: code 0 when the file was written, 1 when the bag could not be segmented (the error names
 the bag and what is missing). Parameters: ``config/segmenter.yaml``.
 """
 
@@ -18,11 +19,11 @@ import sys
 import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
-from suture_lfd.demo_bag import demonstration_from_bag
-from suture_lfd.nodes import declare_config
+from suture_lfd.demos.demo_bag import demonstration_from_bag
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import make_segment_file
+from suture_lfd.segmentation.segments import make_segment_file
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

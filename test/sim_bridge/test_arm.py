@@ -485,3 +485,131 @@ def test_ecm_homes_to_insertion_12_cm_and_has_no_jaw():
     goal = arm.measured_cp
     arm.move_cp(goal)
     assert messages(run_until_idle(arm), 'goal_reached') == [True]
+
+
+# --- dVRK operating-state timings -----------------------------------------------------------
+
+
+def test_enable_powers_up_for_the_power_up_time_then_is_enabled(psm_chain):
+    arm = make_psm(psm_chain, power_up_time=1.0, initial_jp=(0.0,) * 6)
+    arm.state_command('enable')
+    powering = OperatingState('DISABLED', False, True)
+    assert states(arm.pop_events()) == [DISABLED, powering]
+    # meanwhile: another enable changes nothing, home is refused, motions are not ready
+    events = run(arm, 0.5)
+    arm.state_command('enable')
+    arm.state_command('home')
+    arm.move_jp(HOME)
+    events += arm.pop_events()
+    assert states(events) == [powering, powering]
+    assert 'PSM1: command home is not supported in state DISABLED' in messages(events, 'warning')
+    assert 'PSM1: move_jp, arm not ready' in messages(events, 'warning')
+    events = run(arm, 0.5 + DT)
+    assert states(events) == [OperatingState('ENABLED', False, False)]
+    # the arm holds its rest pose (tool retracted) until homed
+    np.testing.assert_array_equal(arm.measured_jp, np.zeros(6))
+
+
+def test_disable_while_powering_stops_the_power_up(psm_chain):
+    arm = make_psm(psm_chain, power_up_time=1.0)
+    arm.state_command('enable')
+    run(arm, 0.2)
+    arm.state_command('disable')
+    assert states(arm.pop_events())[-1] == DISABLED
+    assert states(run(arm, 2.0)) == []
+    assert arm.operating_state == DISABLED
+
+
+def test_home_from_the_rest_pose_is_a_busy_motion_at_the_trajectory_limits(psm_chain):
+    arm = make_psm(psm_chain, initial_jp=(0.0,) * 6)
+    arm.state_command('enable')
+    arm.state_command('home')
+    arm.pop_events()
+    t, insertion = 0.0, []
+    while arm.operating_state.is_busy:
+        arm.step(DT)
+        t += DT
+        insertion.append(arm.setpoint_jp[2])
+    # 0.12 m of insertion at 0.2 m/s and 0.2 m/s^2: a triangle profile of 2 sqrt(0.12 / 0.2) s
+    assert t == pytest.approx(2.0 * np.sqrt(0.12 / 0.2), abs=0.02)
+    assert np.max(np.abs(np.diff(insertion))) / DT <= 0.2 + 1e-9
+    assert arm.operating_state == OperatingState('ENABLED', True, False)
+    np.testing.assert_allclose(arm.measured_jp, HOME, atol=1e-6)
+
+
+def test_a_negative_power_up_time_is_refused():
+    with pytest.raises(ValueError, match='power_up_time'):
+        ArmConfig(power_up_time=-1.0)
+
+
+# --- ECM Cartesian goals --------------------------------------------------------------------
+
+
+def ready_ecm():
+    arm = Arm('ECM', ecm_kinematics(), ArmConfig())
+    arm.state_command('enable')
+    arm.state_command('home')
+    run_until_idle(arm)
+    arm.pop_events()
+    return arm
+
+
+def test_ecm_servo_cp_reaches_the_position_of_a_goal_it_cannot_orient():
+    arm = ready_ecm()
+    T0 = arm.setpoint_cp
+    for k in range(100):
+        a = 2 * np.pi * k / 100
+        goal = T0.copy()
+        goal[:2, 3] += 0.02 * np.array([np.cos(a) - 1.0, np.sin(a)])  # start orientation kept
+        arm.servo_cp(goal)
+        arm.step(0.01)
+        T = arm.setpoint_cp
+        np.testing.assert_allclose(T[:3, 3], goal[:3, 3], atol=1e-9)
+        # the camera looks along the line from the RCM to the tip, as yaw, pitch and insertion
+        # make it
+        np.testing.assert_allclose(T[:3, 2], T[:3, 3] / np.linalg.norm(T[:3, 3]), atol=1e-9)
+    assert messages(arm.pop_events(), 'warning') == []
+    assert messages(arm.pop_events(), 'error') == []
+
+
+def test_ecm_cartesian_goals_roll_about_the_shaft_as_commanded():
+    arm = ready_ecm()
+    q = np.array([0.2, -0.1, 0.1, 0.4])
+    goal = arm.kinematics.fk(q)
+    tilted = goal.copy()
+    c, s = np.cos(0.05), np.sin(0.05)  # plus a small tilt the ECM cannot make
+    tilted[:3, :3] = goal[:3, :3] @ np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    arm.move_cp(tilted)
+    events = run_until_idle(arm)
+    assert messages(events, 'goal_reached') == [True]
+    np.testing.assert_allclose(arm.setpoint_jp, q, atol=2e-3)
+    np.testing.assert_allclose(arm.setpoint_cp[:3, 3], goal[:3, 3], atol=1e-9)
+
+
+def test_ecm_move_cp_5_cm_either_side_reaches_the_goal():
+    arm = ready_ecm()
+    T0 = arm.setpoint_cp
+    for dx in (-0.05, 0.05, 0.0):
+        goal = T0.copy()
+        goal[0, 3] += dx
+        arm.move_cp(goal)
+        events = run_until_idle(arm)
+        assert messages(events, 'goal_reached') == [True]
+        assert messages(events, 'warning') == [] and messages(events, 'error') == []
+        np.testing.assert_allclose(arm.measured_cp[:3, 3], goal[:3, 3], atol=1e-6)
+
+
+def test_ecm_goal_outside_the_workspace_is_a_warning_and_goes_to_the_closest_limit():
+    arm = ready_ecm()
+    goal = arm.setpoint_cp
+    goal[2, 3] = -0.5  # 0.5 m deep: insertion stops at its limit
+    arm.servo_cp(goal)
+    events = arm.pop_events()
+    assert messages(events, 'error') == []
+    [warning] = messages(events, 'warning')
+    assert 'outside the workspace' in warning and 'insertion' in warning
+    assert arm.setpoint_jp[2] == pytest.approx(arm.kinematics.upper[2])
+    arm.move_cp(np.eye(4))  # the RCM itself: nothing to move to
+    events = arm.pop_events()
+    assert 'outside the workspace' in messages(events, 'warning')[0]
+    assert messages(events, 'goal_reached') == [False]

@@ -5,7 +5,7 @@ import pybullet
 from pybullet_utils import bullet_client
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.camera import CameraConfig, StereoCamera
+from sim_bridge.scene.camera import CameraConfig, StereoCamera
 
 
 @pytest.fixture()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from sim_bridge import cdr
-from sim_bridge import conversions as cv
+from sim_bridge.ros import conversions as cv
 
 
 def random_pose(rng):

@@ -4,14 +4,15 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.expert import ExpertConfig, Observation, ScriptedExpert
-from sim_bridge.grasp import GraspConfig, GraspManager
+from sim_bridge.control import ExpertConfig, Observation
 from sim_bridge.kinematics import psm_kinematics
-from sim_bridge.needle import invert_transform
-from sim_bridge.scene_config import load_scene_config
-from sim_bridge.scoring import ThrowScorer
-from sim_bridge.tissue import TissueTracker
-from sim_bridge.world import read_world_config
+from sim_bridge.scene.grasp import GraspConfig, GraspManager
+from sim_bridge.scene.needle import invert_transform
+from sim_bridge.scene.scene_config import load_scene_config
+from sim_bridge.scene.scoring import ThrowScorer
+from sim_bridge.scene.tissue import TissueTracker
+from sim_bridge.scene.world import read_world_config
+from suture_lfd.planning.expert import ScriptedExpert
 
 ARMS = ('PSM1', 'PSM2')
 
@@ -222,7 +223,7 @@ def test_aiming_noise_moves_the_entry_off_the_marker(scene, phantoms, bases, cha
 
 def _best_grasp_solving_whole_paths(expert, arm, s, phase):
     """The grasp choice as defined: each candidate's whole path (approach, then carrying)."""
-    from sim_bridge.expert import _backed_off, _dense
+    from suture_lfd.planning.expert import _backed_off, _dense
 
     c = expert.config
     needles = np.array([path(x) for path in phase['paths'] for x in np.linspace(0.0, 1.0, 12)])

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.grasp import GraspConfig, GraspManager
-from sim_bridge.needle import NeedleGeometry, invert_transform
+from sim_bridge.scene.grasp import GraspConfig, GraspManager
+from sim_bridge.scene.needle import NeedleGeometry, invert_transform
 
 NEEDLE = NeedleGeometry()
 CONFIG = GraspConfig()

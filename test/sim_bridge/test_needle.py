@@ -2,7 +2,7 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.needle import NeedleGeometry, ThreadGeometry, invert_transform
+from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry, invert_transform
 
 
 def rot_z(a):

@@ -3,7 +3,7 @@ from pathlib import Path
 import pytest
 from sim_bridge.configfile import ConfigError
 from sim_bridge.paths import config_path
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.scene.scene_config import load_scene_config
 import yaml
 
 

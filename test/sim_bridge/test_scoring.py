@@ -2,8 +2,8 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.scoring import ScoringConfig, ThrowScorer
-from sim_bridge.tissue import TissueEvent
+from sim_bridge.scene.scoring import ScoringConfig, ThrowScorer
+from sim_bridge.scene.tissue import TissueEvent
 
 
 def event(t, kind, error_mm=0.0, deviation=0.0):

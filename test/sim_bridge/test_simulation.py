@@ -5,10 +5,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from sim_bridge.arm import ArmConfig
-from sim_bridge.expert import Command, ScriptedExpert
-from sim_bridge.needle import invert_transform
+from sim_bridge.control import Command
+from sim_bridge.scene.needle import invert_transform
 from sim_bridge.simulation import Simulation, load_simulation_config
-from sim_bridge.throw_geometry import ThrowArc
+from suture_lfd.planning.expert import ScriptedExpert
+from suture_lfd.planning.throw_geometry import ThrowArc
 
 
 @pytest.fixture(scope='module')

@@ -14,17 +14,18 @@ import time
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics
 from geometry_msgs.msg import PoseStamped
+from harness import FAST_ARMS
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
-from sim_bridge import conversions as cv
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.kinematics import psm_kinematics
-from sim_bridge.needle import invert_transform
-from sim_bridge.scene_config import load_scene_config
+from sim_bridge.ros import conversions as cv
+from sim_bridge.scene.needle import invert_transform
+from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -226,7 +227,7 @@ def test_graph_matches_the_dvrk_contract_headless_from_any_directory(ros, launch
 
 
 def test_a_client_runs_the_dvrk_arm_test_sequence(ros, launch):
-    sim = launch('simulator')
+    sim = launch('simulator', '--ros-args', *FAST_ARMS)
     psm = ArmClient(ros, 'PSM1')
     clock = []
     psm.node.create_subscription(Clock, '/clock', lambda m: clock.append(m.clock), STREAM)
@@ -343,7 +344,7 @@ def test_commands_take_effect_in_the_order_they_were_sent(ros, launch):
     # The node takes servo_* goals at each stepping round (as the dVRK applies them in its
     # control loop) and every other command first takes the servo goals that came before it,
     # so a client's sequence holds: the command sent last wins.
-    sim = launch('simulator')
+    sim = launch('simulator', '--ros-args', *FAST_ARMS)
     psm = ArmClient(ros, 'PSM1')
     assert ros.wait_for(psm.connected, 40.0), sim.log()
     psm.enable_and_home()
@@ -373,7 +374,7 @@ def test_commands_take_effect_in_the_order_they_were_sent(ros, launch):
 
 
 def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
-    sim = launch('simulator')
+    sim = launch('simulator', '--ros-args', *FAST_ARMS)
     psm = ArmClient(ros, 'PSM2')
     assert ros.wait_for(psm.connected, 40.0), sim.log()
 
@@ -488,7 +489,7 @@ def reachable_grasp(chain, needle, T_world_base, T_world_needle, s=1.0 / 3.0):
 
 
 def test_a_grasp_through_the_crtk_topics_is_an_event_and_the_scene_resets(ros, launch):
-    sim = launch('simulator')
+    sim = launch('simulator', '--ros-args', *FAST_ARMS)
     psm = ArmClient(ros, 'PSM2')
     node = psm.node
     events, truth = [], {}

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from sim_bridge.thread_dynamics import ThreadChain
+from sim_bridge.scene.thread import ThreadChain
 
 
 def _straight(n=40, seg=0.0025, start=(0.0, 0.0, 0.1), direction=(1.0, 0.0, 0.0)):

@@ -10,8 +10,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from sim_bridge.expert import Command, ScriptedExpert
+from sim_bridge.control import Command
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.expert import ScriptedExpert
 
 CONTROL = 0.01  # s between expert commands (100 Hz servo_cp stream)
 PAIRS = [('synthetic', f'synth{i}') for i in range(1, 5)] + \

@@ -3,9 +3,9 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.scene_config import load_scene_config
-from sim_bridge.throw_geometry import ThrowArc
-from sim_bridge.tissue import TissueTracker
+from sim_bridge.scene.scene_config import load_scene_config
+from sim_bridge.scene.tissue import TissueTracker
+from suture_lfd.planning.throw_geometry import ThrowArc
 
 
 @pytest.fixture(scope='module')

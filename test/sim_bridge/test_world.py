@@ -6,9 +6,9 @@ from pybullet_utils import bullet_client
 import pytest
 from scipy.spatial.transform import Rotation
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
-from sim_bridge.needle import NeedleGeometry, ThreadGeometry, invert_transform
-from sim_bridge.phantom import PhantomConfig, build_phantom
-from sim_bridge.world import World, read_world_config
+from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry, invert_transform
+from sim_bridge.scene.phantom import PhantomConfig, build_phantom
+from sim_bridge.scene.world import World, read_world_config
 
 
 @pytest.fixture(scope='module')

@@ -14,13 +14,13 @@ def simulation():
 
 @pytest.fixture(scope='session')
 def cohort():
-    from suture_lfd.cohort import load_cohort
+    from suture_lfd.demos.cohort import load_cohort
     return load_cohort()
 
 
 @pytest.fixture(scope='session')
 def experienced_run(simulation, cohort):
     """An experienced subject's demonstration on synth1, run in the real simulation."""
-    from suture_lfd.demonstrator import run_demonstration
+    from suture_lfd.demos.demonstrator import run_demonstration
     subject = next(s for s in cohort if s.group == 'experienced')
     return run_demonstration(simulation, subject, 'synth1', seed=0)

@@ -14,6 +14,7 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
+from sim_bridge import cdr
 from suture_lfd import bags
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
@@ -329,12 +330,12 @@ def test_lean_pose_stamped_cdr_is_what_ros_serialises_and_reads_back(store, fram
         assert msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 == pytest.approx(t, abs=1e-9)
         p, q = msg.pose.position, msg.pose.orientation
         assert [p.x, p.y, p.z, q.x, q.y, q.z, q.w] == pose.tolist()
-        stamp, got_frame, got = bags.pose_stamped_fields(raw)
+        stamp, got_frame, got = cdr.pose_stamped_fields(raw)
         assert got_frame == frame and list(got) == pose.tolist()
         assert stamp == msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         assert raw == bytes(store.serialize_cdr(store.deserialize_cdr(raw, POSE), POSE))
         # ROS's own bytes (its padding is not zeroed) read the same
-        assert bags.pose_stamped_fields(serialize_message(msg)) == (stamp, got_frame, got)
+        assert cdr.pose_stamped_fields(serialize_message(msg)) == (stamp, got_frame, got)
 
 
 @pytest.mark.parametrize('names', [['jaw'], ['a', 'bc', 'def'], []])
@@ -348,9 +349,9 @@ def test_lean_joint_state_cdr_is_what_ros_serialises_and_reads_back(store, names
     assert list(msg.name) == names and list(msg.position) == position.tolist()
     assert list(msg.velocity) == [] and list(msg.effort) == []
     assert raw == bytes(store.serialize_cdr(store.deserialize_cdr(raw, JOINT_STATE), JOINT_STATE))
-    got = bags.joint_state_first_position(raw)
+    got = cdr.joint_state_first_position(raw)
     assert got == (None if not names else (pytest.approx(3.14159, abs=1e-9), position[0]))
-    assert bags.joint_state_first_position(serialize_message(msg)) == got
+    assert cdr.joint_state_first_position(serialize_message(msg)) == got
 
 
 def test_lean_readers_leave_what_they_cannot_read_to_the_full_decoder():
@@ -360,9 +361,9 @@ def test_lean_readers_leave_what_they_cannot_read_to_the_full_decoder():
 
     pose = bags.pose_stamped_cdr(1.0, 'world', [0.0] * 7)
     big_endian = b'\x00\x00' + pose[2:]
-    assert bags.pose_stamped_fields(big_endian) is None
-    assert bags.pose_stamped_fields(pose[:-8]) is None            # truncated
-    assert bags.pose_stamped_fields(b'') is None
+    assert cdr.pose_stamped_fields(big_endian) is None
+    assert cdr.pose_stamped_fields(pose[:-8]) is None            # truncated
+    assert cdr.pose_stamped_fields(b'') is None
     velocity_only = JointState(name=['jaw'], velocity=[1.0])
-    assert bags.joint_state_first_position(serialize_message(velocity_only)) is None
-    assert bags.joint_state_first_position(serialize_message(PoseStamped())) is None
+    assert cdr.joint_state_first_position(serialize_message(velocity_only)) is None
+    assert cdr.joint_state_first_position(serialize_message(PoseStamped())) is None

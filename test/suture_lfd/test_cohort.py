@@ -5,7 +5,7 @@ from dataclasses import asdict
 import pytest
 from sim_bridge.configfile import ConfigError
 from sim_bridge.paths import config_path
-from suture_lfd.cohort import SkillProfile, load_cohort, load_study_design
+from suture_lfd.demos.cohort import SkillProfile, load_cohort, load_study_design
 import yaml
 
 

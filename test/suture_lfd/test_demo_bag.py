@@ -7,7 +7,7 @@ from mcap.reader import make_reader
 import numpy as np
 import pytest
 from suture_lfd import bags
-from suture_lfd.demo_bag import (
+from suture_lfd.demos.demo_bag import (
     DEMO_TOPICS,
     REQUIRED_TOPICS,
     demonstration_from_bag,

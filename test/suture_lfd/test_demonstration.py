@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-from suture_lfd.demonstration import Demonstration
-from suture_lfd.synthetic_throw import needle_throw
+from suture_lfd.demos.demonstration import Demonstration
+from suture_lfd.demos.synthetic_throw import needle_throw
 
 
 def make_demo(n=40, **changes):

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from suture_lfd.demonstrator import Demonstrator, run_demonstration
+from suture_lfd.demos.demonstrator import Demonstrator, run_demonstration
 from suture_lfd.segmentation import SUBTASKS, segment_demonstration
 
 NAMES = [name for name, _, _ in SUBTASKS]

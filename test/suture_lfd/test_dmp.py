@@ -4,6 +4,8 @@ import math
 import numpy as np
 import pytest
 from sim_bridge.configfile import ConfigError
+from sim_bridge.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
+from suture_lfd.demos.synthetic_throw import minimum_jerk, needle_throw
 from suture_lfd.dmp import (
     DmpParams,
     PoseDmp,
@@ -12,9 +14,11 @@ from suture_lfd.dmp import (
     load_dmp,
     load_dmp_params,
 )
-from suture_lfd.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
-from suture_lfd.metrics import endpoint_errors, orientation_trajectory_error, trajectory_error
-from suture_lfd.synthetic_throw import minimum_jerk, needle_throw
+from suture_lfd.study.metrics import (
+    endpoint_errors,
+    orientation_trajectory_error,
+    trajectory_error,
+)
 
 HUNDRED = DmpParams(n_bfs=100, n_bfs_o=100, n_pts=500)
 

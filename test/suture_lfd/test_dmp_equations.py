@@ -1,7 +1,14 @@
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
-from suture_lfd.dmp_equations import (
+from sim_bridge.geometry import (
+    quaternion_conjugate,
+    quaternion_from_rotvec,
+    quaternion_product,
+    rotvec_from_quaternion,
+    so3_left_jacobian_apply,
+)
+from suture_lfd.dmp.equations import (
     basis_activations,
     basis_centres,
     basis_widths,
@@ -13,13 +20,6 @@ from suture_lfd.dmp_equations import (
     nonlinear_rate,
     normalised_features,
     transition_matrices,
-)
-from suture_lfd.geometry import (
-    quaternion_conjugate,
-    quaternion_from_rotvec,
-    quaternion_product,
-    rotvec_from_quaternion,
-    so3_left_jacobian_apply,
 )
 
 

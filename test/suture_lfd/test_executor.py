@@ -2,20 +2,24 @@
 
 import numpy as np
 import pytest
+from sim_bridge.geometry import compose_poses, pose_from_transform, quaternion_angle
 from sim_bridge.simulation import Simulation
-from suture_lfd.executor import (
+from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.segmentation import segment_demonstration
+from suture_lfd.segmentation.segments import make_segment_file
+from suture_lfd.skill import PairGeometry, get_method, training_data
+from suture_lfd.skill.executor import (
     METHODS,
     ThrowSkill,
     execute_throw,
     learn_skill,
     training_data_from_demonstration,
 )
-from suture_lfd.geometry import compose_poses, pose_from_transform, quaternion_angle
-from suture_lfd.metrics import endpoint_errors, orientation_trajectory_error, trajectory_error
-from suture_lfd.scripted_demo import record_scripted_demonstration
-from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import make_segment_file
-from suture_lfd.skill import PairGeometry, get_method, training_data
+from suture_lfd.study.metrics import (
+    endpoint_errors,
+    orientation_trajectory_error,
+    trajectory_error,
+)
 
 
 @pytest.fixture(scope='module')

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
-from sim_bridge.conversions import matrix_from_pose
+from sim_bridge.ros.conversions import matrix_from_pose
 from std_msgs.msg import Empty, String
-from suture_lfd.executor import execute_throw, learn_skill
-from suture_lfd.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.scripted_demo import record_scripted_demonstration
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import make_segment_file
+from suture_lfd.segmentation.segments import make_segment_file
+from suture_lfd.skill.executor import execute_throw, learn_skill
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

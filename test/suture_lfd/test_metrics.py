@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
-from suture_lfd.geometry import quaternion_from_rotvec, quaternion_product
-from suture_lfd.metrics import (
+from sim_bridge.geometry import quaternion_from_rotvec, quaternion_product
+from suture_lfd.demos.synthetic_throw import needle_throw
+from suture_lfd.study.metrics import (
     dtw_distance,
     dtw_path,
     dtw_path_from_cost,
@@ -10,7 +11,6 @@ from suture_lfd.metrics import (
     orientation_trajectory_error,
     trajectory_error,
 )
-from suture_lfd.synthetic_throw import needle_throw
 
 
 def direct_dtw(cost):

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
-from suture_lfd.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
-from suture_lfd.resampling import resample_poses, resample_positions, resample_quaternions
+from sim_bridge.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
+from suture_lfd.demos.resampling import resample_poses, resample_positions, resample_quaternions
 
 
 def test_quintic_resampling_is_exact_on_quintic_polynomials():

@@ -1,19 +1,19 @@
 import numpy as np
 import pytest
-from suture_lfd.demonstration import Demonstration
-from suture_lfd.geometry import (
+from sim_bridge.geometry import (
     compose_poses,
     invert_pose,
     quaternion_from_rotvec,
     quaternion_product,
 )
+from suture_lfd.demos.demonstration import Demonstration
+from suture_lfd.demos.synthetic_throw import minimum_jerk
 from suture_lfd.segmentation import (
     SegmentationConfig,
     activity,
     segment_demonstration,
     velocity_keypoints,
 )
-from suture_lfd.synthetic_throw import minimum_jerk
 
 RATE_HZ = 200.0
 TOLERANCE_S = 0.050

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+from sim_bridge.geometry import transform_from_pose
 from suture_lfd.dmp import load_dmp_params
-from suture_lfd.geometry import transform_from_pose
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segments import FORMAT, SegmentFile, make_segment_file
+from suture_lfd.segmentation.segments import FORMAT, SegmentFile, make_segment_file
 
 
 @pytest.fixture(scope='module')
@@ -65,7 +65,7 @@ def _rewrite(src, dst, **changes):
 
 @pytest.mark.parametrize(('changes', 'words'), [
     ({'format_version': np.array(7)}, ['format_version', '7']),
-    ({'format': np.array('suture_lfd.demonstration')}, ['format', FORMAT]),
+    ({'format': np.array('suture_lfd.demos.demonstration')}, ['format', FORMAT]),
     ({'iv_grasp': None}, ["'iv_grasp'"]),
     ({'ii_needle': np.zeros((3, 7))}, ['ii_needle']),
 ])

@@ -17,7 +17,8 @@ import time
 
 import numpy as np
 import pytest
-from suture_lfd import report, study_tables
+from suture_lfd.study import report
+from suture_lfd.study import tables as study_tables
 
 SMALL = ['--quick', '--subjects', '1', '--phantoms', 'synthetic', '--pairs', '1',
          '--methods', 'paper', '--workers', '2']

@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 import pytest
-from suture_lfd import report, study_tables
-from suture_lfd.study_runner import Progress
-from suture_lfd.study_store import ResultStore, config_hash
+from suture_lfd.study import report
+from suture_lfd.study import tables as study_tables
+from suture_lfd.study.runner import Progress
+from suture_lfd.study.store import ResultStore, config_hash
 
 PAIRS = [('synthetic', 'synth1'), ('synthetic', 'synth2'), ('scanned', 'scan1')]
 SUBJECTS = [('S01', 'experienced'), ('S02', 'naive'), ('S03', 'naive')]

@@ -16,8 +16,8 @@ import sys
 import time
 
 import pytest
-from suture_lfd import report
-from suture_lfd.study_ros import (
+from suture_lfd.study import report
+from suture_lfd.study.ros import (
     DomainLease,
     RosSettings,
     RosThrowError,

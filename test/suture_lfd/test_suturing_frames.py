@@ -1,13 +1,14 @@
 import numpy as np
 import pytest
-from suture_lfd.dmp import DmpParams, PoseDmp
-from suture_lfd.geometry import (
+from sim_bridge.geometry import (
     compose_poses,
     quaternion_angle,
     quaternion_from_rotvec,
     transform_from_pose,
 )
-from suture_lfd.suturing_frames import (
+from suture_lfd.demos.synthetic_throw import needle_throw
+from suture_lfd.dmp import DmpParams, PoseDmp
+from suture_lfd.planning.suturing_frames import (
     grasp_transform,
     needle_from_tool_trajectory,
     poses_from_frame,
@@ -17,7 +18,6 @@ from suture_lfd.suturing_frames import (
     tool_from_needle_trajectory,
     transfer_pose,
 )
-from suture_lfd.synthetic_throw import needle_throw
 
 
 def same_pose(a, b):

@@ -1,0 +1,596 @@
+"""
+Suture phantoms: pad meshes, the tissue surface used for needle tracking, and red markers.
+
+Two generated phantoms follow the paper's experiment setup: ``synthetic`` (a flat suture pad with
+a wound slit along its length, markers ``synth1..4``) and ``scanned`` (a curved, irregular pad
+like an MRI scan of a moulded suture pad, markers ``scan1..4``). Kind ``mesh`` loads any STL,
+OBJ or PLY file instead.
+
+Phantom frame: ``x`` along the pad (the wound direction), ``y`` across it, ``z`` up; the origin
+is on the top surface at the wound centre. ``T_world_phantom`` (config ``position``,
+``quaternion`` (x, y, z, w)) places it in the world.
+
+Tissue surface: the top surface as a :class:`~sim_bridge.scene.heightfield.HeightField` in the
+phantom frame, with the wound slit closed (a needle passing under the wound stays inside the
+tissue): generated pads use their slit-free analytic surface; a user mesh is ray cast once at load
+time and gaps narrower than ``wound_closing`` are closed. ``Phantom.mesh`` (phantom frame) keeps
+the slit, for display and instrument collision.
+
+Markers: four entry/exit pairs, either given in the config (x-y in the phantom frame, dropped
+onto the surface) or spaced along the wound line at ``spacing`` with entry and exit
+``half_width`` either side of it. Entry is on the wound's left (``+y`` for a wound along ``+x``)
+when ``entry_side`` is +1, on its right when -1.
+"""
+
+from dataclasses import dataclass, field
+import logging
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from sim_bridge.scene.heightfield import HeightField, grid_mesh, rasterize_mesh
+from sim_bridge.scene.needle import invert_transform
+from sim_bridge.scene.phantom_shapes import (
+    ScannedShape,
+    WoundLine,
+    breakpoints,
+    scanned_height,
+    synthetic_height,
+)
+import trimesh
+
+_LOG = logging.getLogger(__name__)
+
+KINDS = ('synthetic', 'scanned', 'mesh')
+
+
+@dataclass(frozen=True)
+class WoundConfig:
+    """
+    Wound line and the markers placed along it (phantom frame, metres).
+
+    Attributes
+    ----------
+    line : tuple of (x, y)
+        Control points of the wound curve in the phantom's x-y plane.
+    slit_width : float
+        Width of the slit cut into the generated mesh (0: no slit).
+    slit_depth : float
+        Depth of the slit below the surface.
+    n_pairs : int
+        Number of entry/exit pairs placed along the wound.
+    spacing : float
+        Arc-length distance between neighbouring pairs.
+    half_width : float
+        Distance of entry and exit from the wound line (in x-y).
+    entry_side : int
+        +1: entry on the wound's left (``z x tangent``), -1: on its right.
+    offset : float
+        Arc-length shift of the pair pattern from the wound's middle.
+
+    """
+
+    line: tuple[tuple[float, float], ...] = ((-0.025, 0.0), (0.025, 0.0))
+    slit_width: float = 0.0008
+    slit_depth: float = 0.004
+    n_pairs: int = 4
+    spacing: float = 0.012
+    half_width: float = 0.004
+    entry_side: int = 1
+    offset: float = 0.0
+
+    def __post_init__(self):
+        if len(self.line) < 2:
+            raise ValueError('wound line needs at least two (x, y) points')
+        if self.entry_side not in (-1, 1):
+            raise ValueError(f'wound entry_side must be +1 or -1, got {self.entry_side}')
+        if self.n_pairs < 0:
+            raise ValueError(f'wound n_pairs must be >= 0, got {self.n_pairs}')
+        if not self.half_width > 0.0:
+            raise ValueError(f'wound half_width must be > 0 m, got {self.half_width}')
+        if self.slit_width < 0.0 or self.slit_depth < 0.0:
+            raise ValueError('wound slit_width and slit_depth must be >= 0 m')
+
+
+@dataclass(frozen=True)
+class MarkerConfig:
+    """
+    One entry/exit pair given explicitly (x-y in the phantom frame, metres).
+
+    Attributes
+    ----------
+    entry : (x, y)
+        Entry marker; its height is taken from the surface.
+    exit : (x, y)
+        Exit marker.
+
+    """
+
+    entry: tuple[float, float]
+    exit: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class PhantomConfig:
+    """
+    One phantom of the scene.
+
+    Attributes
+    ----------
+    kind : str
+        ``'synthetic'``, ``'scanned'`` or ``'mesh'``.
+    marker_prefix : str
+        Marker pair names are ``<prefix>1 .. <prefix>n`` (``synth``, ``scan``).
+    size : (length, width, thickness)
+        Pad size (m) of generated phantoms.
+    seed : int
+        Seed of the scanned pad's bumps.
+    position : (x, y, z)
+        Phantom frame origin in the world (m).
+    quaternion : (x, y, z, w)
+        Phantom frame orientation in the world.
+    mesh : str or None
+        Mesh file (STL, OBJ, PLY) for kind ``mesh``; relative paths are resolved against the
+        config file's directory.
+    mesh_scale : float
+        Factor applied to the mesh file's coordinates (0.001 for a file in millimetres).
+    resolution : float
+        Grid spacing (m) of the tissue height field.
+    mesh_resolution : float
+        Grid spacing (m) of generated meshes.
+    wound_closing : float
+        Gaps narrower than this (m) are closed in a user mesh's tissue surface.
+    wound : WoundConfig
+        Wound line, slit and marker placement.
+    markers : dict of MarkerConfig or None
+        Explicit marker pairs by name; replaces placement along the wound.
+    shape : ScannedShape
+        Surface shape of the scanned pad.
+    rgba : (r, g, b, a)
+        Pad colour.
+    marker_radius : float
+        Radius (m) of the red marker discs.
+    marker_rgba : (r, g, b, a)
+        Marker colour.
+
+    """
+
+    kind: str = 'synthetic'
+    marker_prefix: str = 'synth'
+    size: tuple[float, float, float] = (0.060, 0.040, 0.010)
+    seed: int = 0
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    mesh: str | None = None
+    mesh_scale: float = 1.0
+    resolution: float = 0.00025
+    mesh_resolution: float = 0.002
+    wound_closing: float = 0.002
+    wound: WoundConfig = field(default_factory=WoundConfig)
+    markers: dict[str, MarkerConfig] | None = None
+    shape: ScannedShape = field(default_factory=ScannedShape)
+    rgba: tuple[float, float, float, float] = (0.93, 0.72, 0.68, 1.0)
+    marker_radius: float = 0.0015
+    marker_rgba: tuple[float, float, float, float] = (0.9, 0.05, 0.05, 1.0)
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f'phantom kind must be one of {KINDS}, got {self.kind!r}')
+        if self.kind == 'mesh' and not self.mesh:
+            raise ValueError("phantom kind 'mesh' needs a mesh file (key 'mesh')")
+        if min(self.size) <= 0.0:
+            raise ValueError(f'phantom size must be positive (m), got {self.size}')
+        if not 0.0 < self.resolution <= 0.001:
+            raise ValueError(f'phantom resolution must be in (0, 0.001] m, got '
+                             f'{self.resolution}')
+        if not self.mesh_resolution > 0.0:
+            raise ValueError('phantom mesh_resolution must be > 0 m')
+        if not self.mesh_scale > 0.0:
+            raise ValueError('phantom mesh_scale must be > 0')
+        if abs(np.linalg.norm(self.quaternion) - 1.0) > 1e-6:
+            raise ValueError(f'phantom quaternion is not a unit quaternion (norm '
+                             f'{np.linalg.norm(self.quaternion):.6g})')
+
+    @property
+    def T_world_phantom(self):  # noqa: N802 (the project names poses T_a_b)
+        """Phantom pose in the world, shape (4, 4)."""
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(self.quaternion).as_matrix()
+        T[:3, 3] = self.position
+        return T
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerPair:
+    """
+    An entry/exit marker pair on the phantom surface (world frame, metres).
+
+    Attributes
+    ----------
+    name : str
+        Pair name (``synth1``, ``scan3``).
+    entry, exit : ndarray, shape (3,)
+        Marker centres on the surface.
+    normal : ndarray, shape (3,)
+        Unit mean of the two surface normals (outward, away from the tissue).
+    entry_normal, exit_normal : ndarray, shape (3,)
+        Unit surface normals at the markers.
+    index : int
+        1-based position of the pair along the wound.
+
+    """
+
+    name: str
+    entry: np.ndarray
+    exit: np.ndarray
+    normal: np.ndarray
+    entry_normal: np.ndarray
+    exit_normal: np.ndarray
+    index: int = 0
+
+    @property
+    def midpoint(self):
+        """Midpoint of entry and exit (m), shape (3,)."""
+        return 0.5 * (self.entry + self.exit)
+
+    @property
+    def chord(self):
+        """Entry-to-exit distance (m)."""
+        return float(np.linalg.norm(self.exit - self.entry))
+
+    @property
+    def frame(self):
+        """
+        Pair frame ``T_world_pair`` (4, 4).
+
+        Origin at the midpoint; ``x`` from entry towards exit (made perpendicular to ``z``);
+        ``z`` the mean surface normal; ``y = z x x`` runs along the wound.
+        """
+        z = self.normal
+        x = self.exit - self.entry
+        x = x - np.dot(x, z) * z
+        x /= np.linalg.norm(x)
+        T = np.eye(4)
+        T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+        T[:3, 3] = self.midpoint
+        return T
+
+    def transformed(self, T):
+        """
+        Return this pair with its points and normals mapped by the rigid transform ``T``.
+
+        Parameters
+        ----------
+        T : array_like, shape (4, 4)
+            Transform applied to positions (rotation only for normals).
+
+        Returns
+        -------
+        MarkerPair
+
+        """
+        T = np.asarray(T, dtype=float)
+        R, t = T[:3, :3], T[:3, 3]
+        return MarkerPair(self.name, R @ self.entry + t, R @ self.exit + t, R @ self.normal,
+                          R @ self.entry_normal, R @ self.exit_normal, self.index)
+
+
+class Phantom:
+    """
+    A suture phantom: mesh, tissue surface and markers, placed in the world.
+
+    Build it with :func:`build_phantom`.
+
+    Attributes
+    ----------
+    name : str
+        Config name (``synthetic``, ``scanned``).
+    config : PhantomConfig
+        Its configuration.
+    T_world_phantom : ndarray, shape (4, 4)
+        Pose of the phantom frame in the world.
+    mesh : trimesh.Trimesh
+        Watertight pad mesh in the phantom frame (with the wound slit).
+    surface : HeightField
+        Tissue surface (top, slit closed) and bottom, phantom frame.
+    wound : WoundLine or None
+        Wound curve in the phantom's x-y plane.
+    markers_phantom : dict of MarkerPair
+        Marker pairs in the phantom frame.
+    markers : dict of MarkerPair
+        Marker pairs in the world frame, in order ``<prefix>1 ..``.
+
+    """
+
+    def __init__(self, name, config, mesh, surface, wound, markers_phantom):
+        self.name = name
+        self.config = config
+        self.T_world_phantom = config.T_world_phantom
+        self.T_phantom_world = invert_transform(self.T_world_phantom)
+        self.mesh = mesh
+        self.surface = surface
+        self.wound = wound
+        self.markers_phantom = dict(markers_phantom)
+        self.markers = {k: m.transformed(self.T_world_phantom)
+                        for k, m in self.markers_phantom.items()}
+        self._R = self.T_phantom_world[:3, :3].copy()
+        self._t = self.T_phantom_world[:3, 3].copy()
+
+    @property
+    def kind(self):
+        """Phantom kind (``synthetic``, ``scanned``, ``mesh``)."""
+        return self.config.kind
+
+    @property
+    def marker_radius(self):
+        """Marker disc radius (m)."""
+        return self.config.marker_radius
+
+    @property
+    def marker_rgba(self):
+        """Marker colour (r, g, b, a)."""
+        return self.config.marker_rgba
+
+    @property
+    def rgba(self):
+        """Pad colour (r, g, b, a)."""
+        return self.config.rgba
+
+    def to_phantom(self, points_world):
+        """
+        Map world points into the phantom frame.
+
+        Parameters
+        ----------
+        points_world : array_like, shape (n, 3) or (3,)
+            Points (m), world frame.
+
+        Returns
+        -------
+        ndarray, same shape
+            Points (m), phantom frame.
+
+        """
+        return np.asarray(points_world, dtype=float) @ self._R.T + self._t
+
+    def mesh_world(self):
+        """Return a copy of the pad mesh in the world frame (trimesh.Trimesh)."""
+        m = self.mesh.copy()
+        m.apply_transform(self.T_world_phantom)
+        return m
+
+    def height(self, xy):
+        """
+        Tissue-surface height at phantom-frame x-y positions (slit closed).
+
+        Parameters
+        ----------
+        xy : array_like, shape (2,) or (n, 2)
+            Positions (m), phantom frame.
+
+        Returns
+        -------
+        float or ndarray, shape (n,)
+            Heights (m), phantom frame.
+
+        """
+        return self.surface.height(xy)
+
+    def normal(self, xy):
+        """
+        Upward unit surface normal at phantom-frame x-y positions (phantom frame).
+
+        Parameters
+        ----------
+        xy : array_like, shape (2,) or (n, 2)
+            Positions (m), phantom frame.
+
+        Returns
+        -------
+        ndarray, shape (3,) or (n, 3)
+
+        """
+        return self.surface.normal(xy)
+
+    def is_inside(self, points_world):
+        """
+        Whether world points lie inside the tissue (within the footprint, below the surface).
+
+        Parameters
+        ----------
+        points_world : array_like, shape (n, 3)
+            Points (m), world frame.
+
+        Returns
+        -------
+        ndarray of bool, shape (n,)
+
+        """
+        return self.surface.depth(self.to_phantom(points_world))[1]
+
+    def penetration(self, points_world):
+        """
+        Depth of world points below the tissue surface, zero outside the tissue.
+
+        Use it for instrument-phantom contact of tool-tip and jaw points.
+
+        Parameters
+        ----------
+        points_world : array_like, shape (n, 3)
+            Points (m), world frame.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Depth (m) >= 0.
+
+        """
+        d, inside = self.surface.depth(self.to_phantom(points_world))
+        return np.where(inside, d, 0.0)
+
+    def nearest_marker(self, point_world):
+        """
+        Nearest marker to a world point.
+
+        Parameters
+        ----------
+        point_world : array_like, shape (3,)
+            Point (m), world frame.
+
+        Returns
+        -------
+        name : str
+            ``'<pair>.entry'`` or ``'<pair>.exit'``, or ``''`` without markers.
+        distance : float
+            Distance (m).
+
+        """
+        p = np.asarray(point_world, dtype=float)
+        best, dist = '', float('inf')
+        for pair in self.markers.values():
+            for which, q in (('entry', pair.entry), ('exit', pair.exit)):
+                d = float(np.linalg.norm(p - q))
+                if d < dist:
+                    best, dist = f'{pair.name}.{which}', d
+        return best, dist
+
+
+# ---------------------------------------------------------------------- construction
+
+
+def _place_markers(config, surface, wound):
+    prefix = config.marker_prefix
+    pairs = {}
+    if config.markers:
+        items = [(name, np.array(m.entry, float), np.array(m.exit, float))
+                 for name, m in config.markers.items()]
+    else:
+        w = config.wound
+        items = []
+        centre = 0.5 * wound.length + w.offset
+        for k in range(w.n_pairs):
+            s = centre + (k - 0.5 * (w.n_pairs - 1)) * w.spacing
+            if not 0.0 <= s <= wound.length:
+                raise ValueError(
+                    f'phantom {prefix}: marker pair {k + 1} falls off the wound line '
+                    f'(arc length {s:.4f} m of {wound.length:.4f} m); reduce spacing or '
+                    f'n_pairs')
+            c = wound.point(s)
+            left = wound.left(s) * w.half_width * w.entry_side
+            items.append((f'{prefix}{k + 1}', c + left, c - left))
+    for index, (name, e_xy, x_xy) in enumerate(items, start=1):
+        ex = np.vstack([e_xy, x_xy])
+        inside = surface.contains(np.column_stack([ex, surface.height(ex) - 1e-6]))
+        if not inside.all():
+            raise ValueError(f'phantom {prefix}: marker pair {name} lies outside the pad '
+                             f'footprint')
+        pts = surface.surface_point(ex)
+        normals = surface.normal(ex)
+        mean = normals.sum(axis=0)
+        pairs[name] = MarkerPair(name, pts[0], pts[1], mean / np.linalg.norm(mean),
+                                 normals[0], normals[1], index)
+    return pairs
+
+
+def _generated(config):
+    length, width, thickness = config.size
+    wound = WoundLine(config.wound.line)
+    centre = wound.point(0.5 * wound.length)
+    if config.kind == 'synthetic':
+        def height(xy):
+            return synthetic_height(xy, config.size)
+    else:
+        def height(xy):
+            return scanned_height(xy, config.size, config.shape, config.seed, centre)
+    # Tissue surface: the slit-free analytic surface on a fine grid.
+    res = config.resolution
+    nx = int(np.ceil(length / res)) + 1
+    ny = int(np.ceil(width / res)) + 1
+    xs = np.linspace(-0.5 * length, 0.5 * length, nx)
+    ys = np.linspace(-0.5 * width, 0.5 * width, ny)
+    X, Y = np.meshgrid(xs, ys)
+    top = height(np.stack([X, Y], axis=-1))
+    bottom = np.full_like(top, -thickness)
+    surface = HeightField(xs[0], ys[0], xs[1] - xs[0], top, bottom)
+    if np.any(top <= -thickness):
+        raise ValueError(f'phantom {config.marker_prefix}: the surface dips below the pad '
+                         f'bottom; increase size[2] (thickness)')
+    # Mesh: a grid with the slit carved in; straight wounds get exact slit walls.
+    w = config.wound
+    extra_x, extra_y = [], []
+    step = config.mesh_resolution
+    if wound.straight and w.slit_width > 0.0:
+        (ax, ay), (bx, by) = wound.points[0], wound.points[-1]
+        hw, eps = 0.5 * w.slit_width, min(5e-5, 0.25 * w.slit_width)
+        if abs(ay - by) < 1e-9:
+            extra_y = [ay - hw - eps, ay - hw, ay + hw, ay + hw + eps]
+            extra_x = [min(ax, bx) - eps, min(ax, bx), max(ax, bx), max(ax, bx) + eps]
+        elif abs(ax - bx) < 1e-9:
+            extra_x = [ax - hw - eps, ax - hw, ax + hw, ax + hw + eps]
+            extra_y = [min(ay, by) - eps, min(ay, by), max(ay, by), max(ay, by) + eps]
+        else:
+            step = min(step, 0.5 * w.slit_width)
+    elif w.slit_width > 0.0:
+        step = min(step, max(0.5 * w.slit_width, 0.0005))
+    mx = breakpoints(-0.5 * length, 0.5 * length, step, extra_x)
+    my = breakpoints(-0.5 * width, 0.5 * width, step, extra_y)
+    MX, MY = np.meshgrid(mx, my)
+    grid_xy = np.stack([MX, MY], axis=-1)
+    mtop = height(grid_xy)
+    if w.slit_width > 0.0 and w.slit_depth > 0.0:
+        slit = wound.slit_mask(grid_xy.reshape(-1, 2), 0.5 * w.slit_width + 1e-9)
+        mtop = mtop - w.slit_depth * slit.reshape(mtop.shape)
+    mesh = grid_mesh(mx, my, mtop, -thickness)
+    return mesh, surface, wound
+
+
+def _load_user_mesh(config, base_dir):
+    path = Path(config.mesh)
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    try:
+        loaded = trimesh.load(str(path), force='mesh')
+    except Exception as exc:  # trimesh raises many types for bad files
+        raise ValueError(f'cannot read phantom mesh {path}: {exc}') from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise ValueError(f'cannot read phantom mesh {path}: no triangles found')
+    mesh = loaded.copy()
+    if config.mesh_scale != 1.0:
+        mesh.apply_scale(config.mesh_scale)
+    if not mesh.is_watertight:
+        _LOG.warning('phantom mesh %s is not watertight; its top surface is still used', path)
+    raw = rasterize_mesh(mesh, config.resolution)
+    surface = raw.closed(config.wound_closing)
+    wound = WoundLine(config.wound.line) if config.wound.line else None
+    return mesh, surface, wound
+
+
+def build_phantom(config, name='phantom', base_dir=None):
+    """
+    Build a phantom from its configuration.
+
+    Parameters
+    ----------
+    config : PhantomConfig
+        Configuration (kind, size, pose, wound, markers).
+    name : str
+        Name of the phantom in the scene.
+    base_dir : str or Path, optional
+        Directory against which a relative ``config.mesh`` path is resolved.
+
+    Returns
+    -------
+    Phantom
+
+    Raises
+    ------
+    ValueError
+        If the mesh file cannot be read, or a marker falls outside the pad.
+
+    """
+    if config.kind == 'mesh':
+        mesh, surface, wound = _load_user_mesh(config, base_dir)
+    else:
+        mesh, surface, wound = _generated(config)
+    markers = _place_markers(config, surface, wound)
+    return Phantom(name, config, mesh, surface, wound, markers)

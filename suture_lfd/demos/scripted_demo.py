@@ -1,0 +1,120 @@
+"""
+Demonstrations by the scripted expert, recorded in-process from the simulation.
+
+The scripted expert (:class:`suture_lfd.planning.expert.ScriptedExpert`) moves without rests
+between its motion segments, so a velocity-based segmenter would merge the pick-up, the carry and
+the insertion into one motion. :class:`PausingExpert` holds the plan still for ``pause`` seconds
+where a subtask starts (as a person does before inserting, after regrasping), and
+:func:`record_scripted_demonstration` records one throw as a
+:class:`~suture_lfd.demos.demonstration.Demonstration` (``world`` frame, SI units) together with
+the expert's own subtask labels.
+"""
+
+import numpy as np
+from sim_bridge.geometry import pose_from_transform
+from suture_lfd.demos.demonstration import Demonstration
+from suture_lfd.planning.expert import ScriptedExpert
+
+
+class PausingExpert(ScriptedExpert):
+    """
+    Scripted expert that rests ``pause`` seconds at the start of subtasks ii, iii, iv and v.
+
+    Parameters
+    ----------
+    pause : float
+        Rest (s) before each of those subtasks.
+    *args, **kwargs
+        As :class:`suture_lfd.planning.expert.ScriptedExpert`.
+
+    """
+
+    def __init__(self, *args, pause=0.3, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.pause = float(pause)
+
+    def reset(self, obs):
+        """Plan the throw and start its clock at ``obs.t``."""
+        super().reset(obs)
+        self._rests = [t for t, name in self.plan_.labels if name in ('ii', 'iii', 'iv', 'v')]
+        self._rest_end = None
+
+    def step(self, obs):
+        """Command for ``obs``; the plan clock stops for ``pause`` at each subtask start."""
+        if self.plan_ is None:
+            self.reset(obs)
+        tau = obs.t - self._t0 - self._offset
+        if self._rest_end is None and self._rests and tau >= self._rests[0]:
+            self._rest_end = obs.t + self.pause
+            self._offset += tau - self._rests.pop(0)
+        if self._rest_end is not None:
+            if obs.t < self._rest_end:
+                self._offset = obs.t - self._t0 - self._plan_time
+            else:
+                self._rest_end = None
+        return super().step(obs)
+
+
+def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3,
+                                  sample_period=0.01, timeout=60.0):
+    """
+    Run the pausing scripted expert for one throw and record it.
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+        The scene.
+    pair_name : str
+        Target pair.
+    seed : int
+        Scene seed.
+    config : sim_bridge.control.ExpertConfig, optional
+        Expert settings (default: the scene's ``expert`` section).
+    pause : float
+        Rest (s) at the start of subtasks ii .. v.
+    sample_period : float
+        Control and sampling period (s).
+    timeout : float
+        Longest simulated time (s).
+
+    Returns
+    -------
+    demo : Demonstration
+        The record (tool, jaw, needle, grasp flags, pair).
+    labels : ndarray of str, shape (n,)
+        The expert's subtask label at every sample.
+    score : sim_bridge.scene.scoring.ThrowScore
+        The simulator's score of the throw.
+
+    """
+    sim.reset(seed)
+    sim.enable_and_home_all()
+    sim.set_target_pair(pair_name)
+    pair = sim.target_pair
+    config = sim.config.scene.expert if config is None else config
+    expert = PausingExpert(pair, sim.needle_geometry, config=config,
+                           kinematics=sim.kinematics['PSM1'], pause=pause)
+    rows = []
+
+    class _Recorder:
+        def step(self, obs):
+            cmd = expert.step(obs)
+            rows.append((obs.t, obs.T_world_tool['PSM1'], obs.T_world_tool['PSM2'],
+                         obs.jaw['PSM1'], obs.jaw['PSM2'], obs.T_world_needle,
+                         'PSM1' in obs.holders, 'PSM2' in obs.holders, cmd.subtask))
+            return cmd
+
+    recorder = _Recorder()
+    t_start = sim.time
+    expert.reset(sim.observation())
+    while not expert.done and sim.time - t_start < timeout:
+        sim.run(0.5, recorder, sample_period)
+    sim.run(0.2, recorder, sample_period)
+    cols = list(zip(*rows))
+    demo = Demonstration(
+        t=np.array(cols[0]), psm1_pose=pose_from_transform(np.array(cols[1])),
+        psm2_pose=pose_from_transform(np.array(cols[2])), psm1_jaw=np.array(cols[3]),
+        psm2_jaw=np.array(cols[4]), needle_pose=pose_from_transform(np.array(cols[5])),
+        psm1_holds=np.array(cols[6]), psm2_holds=np.array(cols[7]), entry=pair.entry,
+        exit=pair.exit, normal=pair.normal, pair=pair.name)
+    return demo, np.array(cols[8]), sim.score()

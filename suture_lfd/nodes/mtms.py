@@ -1,0 +1,340 @@
+"""
+Virtual MTMs node: ``MTML`` and ``MTMR`` and the console's foot pedals, driven by a device.
+
+The dVRK MTM interface of each, driven by an input device (``device``: ``browser``,
+``gamepad`` or ``spacemouse``).
+
+Per MTM (namespace = its name), what a dVRK teleoperation client uses:
+
+- published: ``operating_state`` (crtk_msgs/OperatingState, latched event, again after every
+  ``state_command``), ``measured_cp``, ``setpoint_cp`` (geometry_msgs/PoseStamped, in the
+  device's frame: ``world`` for the browser, the camera ``ECM`` for velocity devices),
+  ``measured_cv`` (TwistStamped), ``gripper/measured_js`` (JointState ``gripper``, rad), every
+  ``1/rate`` s; ``goal_reached`` (Bool), ``error``/``warning``/``status`` (String) events;
+- subscribed: ``state_command`` (crtk_msgs/StringStamped), ``move_cp`` (PoseStamped; ``is_busy``
+  true until the MTM is there, then ``goal_reached``), ``lock_orientation``
+  (geometry_msgs/Quaternion), ``unlock_orientation`` (std_msgs/Empty),
+  ``use_gravity_compensation`` (std_msgs/Bool), ``body/servo_cf`` (WrenchStamped: accepted and
+  ignored, a virtual MTM has no motors).
+
+Pedals (``pedals: own``): ``/footpedals/clutch``, ``/footpedals/coag``, ``/footpedals/camera``
+and the console's ``/console/clutch``, ``/console/operator_present``, ``/console/camera``
+(sensor_msgs/Joy ``buttons=[1|0]``, latched events on every change), so run the simulator with
+``footpedals:=false``; ``pedals: emulate`` presses the simulator's pedals through
+``/footpedals/<name>/emulate`` instead. The browser back-end reads the viewer's
+``viewer/input/<MTM>/pose``, ``viewer/input/<MTM>/gripper`` and ``viewer/input/pedals``.
+Parameters: ``config/mtms.yaml``.
+"""
+
+from dataclasses import dataclass
+import sys
+
+from crtk_msgs.msg import OperatingState, StringStamped
+from geometry_msgs.msg import PoseStamped, Quaternion, TwistStamped, WrenchStamped
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState, Joy
+from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from std_msgs.msg import Bool, Empty, Float64, String
+from suture_lfd.teleop.devices import PEDALS, open_device
+from suture_lfd.teleop.virtual_mtm import VirtualMtm
+
+EVENTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED_IN = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE = QoSProfile(depth=10)
+SENSOR = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
+                    durability=DurabilityPolicy.VOLATILE)
+CONSOLE = {'clutch': 'clutch', 'coag': 'operator_present', 'camera': 'camera'}
+
+
+@dataclass(frozen=True)
+class MtmsConfig:
+    """
+    Parameters of the virtual MTMs node (names as in ``config/mtms.yaml``).
+
+    Attributes
+    ----------
+    device : str
+        ``browser``, ``gamepad`` or ``spacemouse``.
+    mtms : tuple of str
+        The MTMs served.
+    rate : float
+        Hz of the state topics and of the device polling.
+    pedals : str
+        ``own`` (publish ``/footpedals/*``) or ``emulate`` (press the simulator's).
+    move_duration : float
+        s a ``move_cp`` takes.
+    gripper_start : float
+        Gripper angle (rad) before the device gives one.
+    browser_prefix : str
+        Namespace of the viewer's input topics.
+    linear_speed, angular_speed : float
+        Velocity devices: m/s and rad/s at full deflection.
+    deadband : float
+        Velocity devices: fraction of full deflection ignored (jhu-dvrk's SpaceMouse: 0.03).
+    gripper_speed : float
+        Velocity devices: rad/s of the gripper while a gripper button is held.
+    device_index : int
+        Gamepad: SDL joystick index.
+    device_path : str
+        SpaceMouse: hidraw path (``''``: the first 3Dconnexion device found).
+
+    """
+
+    device: str = 'browser'
+    mtms: tuple[str, ...] = ('MTMR', 'MTML')
+    rate: float = 200.0
+    pedals: str = 'own'
+    move_duration: float = 0.5
+    gripper_start: float = 0.5
+    browser_prefix: str = 'viewer/input'
+    linear_speed: float = 0.05
+    angular_speed: float = 1.0
+    deadband: float = 0.03
+    gripper_speed: float = 1.5
+    device_index: int = 0
+    device_path: str = ''
+
+    def __post_init__(self):
+        if self.device not in ('browser', 'gamepad', 'spacemouse'):
+            raise ValueError(f'parameter device must be browser, gamepad or spacemouse, got '
+                             f'{self.device!r}')
+        if self.pedals not in ('own', 'emulate'):
+            raise ValueError(f'parameter pedals must be own or emulate, got {self.pedals!r}')
+        if not self.mtms:
+            raise ValueError('parameter mtms must name at least one MTM')
+        for name in ('rate', 'linear_speed', 'angular_speed', 'gripper_speed'):
+            if not getattr(self, name) > 0:
+                raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
+        if self.move_duration < 0:
+            raise ValueError(f'parameter move_duration must be >= 0, got {self.move_duration}')
+
+
+class MtmsNode(Node):
+    """Virtual MTMs and foot pedals driven by one input device."""
+
+    def __init__(self):
+        super().__init__('mtms')
+        cfg = self.config = declare_config(self, MtmsConfig, 'mtms.yaml', 'mtms')
+        options = {}
+        if cfg.device != 'browser':
+            options = {'linear_speed': cfg.linear_speed, 'angular_speed': cfg.angular_speed,
+                           'deadband': cfg.deadband, 'gripper_speed': cfg.gripper_speed,
+                       'gripper_start': cfg.gripper_start}
+            if cfg.device == 'gamepad':
+                options['index'] = cfg.device_index
+            else:
+                options['path'] = cfg.device_path
+        self.device = open_device(cfg.device, cfg.mtms, **options)
+        self.frame_id = self.device.frame_id
+        t = self._now()
+        self._t = t
+        self.mtms = {}
+        self._pubs = {}
+        self._has_pose = {}
+        self._last_cp = {}
+        self._busy = {}
+        for name in cfg.mtms:
+            T0 = np.eye(4)
+            T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
+            mtm = self.mtms[name] = VirtualMtm(name, T0, cfg.move_duration)
+            mtm.set_gripper(cfg.gripper_start)
+            self._has_pose[name] = cfg.device != 'browser'
+            self._busy[name] = False
+            pub = self.create_publisher
+            self._pubs[name] = {
+                'measured_cp': pub(PoseStamped, f'{name}/measured_cp', STATE),
+                'setpoint_cp': pub(PoseStamped, f'{name}/setpoint_cp', STATE),
+                'measured_cv': pub(TwistStamped, f'{name}/measured_cv', STATE),
+                'gripper': pub(JointState, f'{name}/gripper/measured_js', STATE),
+                'operating_state': pub(OperatingState, f'{name}/operating_state', EVENTS),
+                'goal_reached': pub(Bool, f'{name}/goal_reached', EVENTS),
+                'error': pub(String, f'{name}/error', EVENTS),
+                'warning': pub(String, f'{name}/warning', EVENTS),
+                'status': pub(String, f'{name}/status', EVENTS),
+            }
+            sub = self.create_subscription
+            sub(StringStamped, f'{name}/state_command',
+                lambda m, n=name: self._on_state_command(n, m), STATE)
+            sub(PoseStamped, f'{name}/move_cp', lambda m, n=name: self._on_move_cp(n, m), STATE)
+            sub(Quaternion, f'{name}/lock_orientation',
+                lambda m, n=name: self._on_lock(n, m), LATCHED_IN)
+            sub(Empty, f'{name}/unlock_orientation',
+                lambda m, n=name: self.mtms[n].unlock_orientation(self._now()), LATCHED_IN)
+            sub(Bool, f'{name}/use_gravity_compensation',
+                lambda m, n=name: setattr(self.mtms[n], 'gravity_compensation', m.data),
+                LATCHED_IN)
+            sub(WrenchStamped, f'{name}/body/servo_cf', lambda m: None, STATE)
+            if cfg.device == 'browser':
+                prefix = cfg.browser_prefix
+                sub(PoseStamped, f'{prefix}/{name}/pose',
+                    lambda m, n=name: self._on_handle(n, m), SENSOR)
+                sub(Float64, f'{prefix}/{name}/gripper',
+                    lambda m, n=name: self.device.set_gripper(n, m.data), SENSOR)
+            self._publish_state(name)
+        if cfg.device == 'browser':
+            self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals, STATE)
+        self._pedal_state = dict.fromkeys(PEDALS, False)
+        self._pedal_pubs = {}
+        for pedal in PEDALS:
+            if cfg.pedals == 'own':
+                self._pedal_pubs[pedal] = [
+                    self.create_publisher(Joy, f'/footpedals/{pedal}', EVENTS),
+                    self.create_publisher(Joy, f'/console/{CONSOLE[pedal]}', EVENTS)]
+            else:
+                self._pedal_pubs[pedal] = [
+                    self.create_publisher(Joy, f'/footpedals/{pedal}/emulate', STATE)]
+        self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self.get_logger().info(f'virtual {", ".join(cfg.mtms)} on the {cfg.device} '
+                               f'(frame {self.frame_id}), pedals {cfg.pedals}')
+
+    def _now(self):
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # --- MTM commands -----------------------------------------------------------------------
+
+    def _publish_state(self, name):
+        mtm = self.mtms[name]
+        busy = mtm.is_busy(self._now())
+        self._busy[name] = busy
+        self._pubs[name]['operating_state'].publish(cv.operating_state(
+            mtm.state, mtm.is_homed, busy, self.get_clock().now().to_msg()))
+
+    def _on_state_command(self, name, msg):
+        problem = self.mtms[name].state_command(msg.string)
+        if problem:
+            self._pubs[name]['warning'].publish(String(data=problem))
+            self.get_logger().warning(problem)
+        self._publish_state(name)
+
+    def _reject(self, name, text):
+        self._pubs[name]['error'].publish(String(data=text))
+        self.get_logger().error(text)
+
+    def _on_move_cp(self, name, msg):
+        try:
+            T = cv.matrix_from_pose(msg.pose, what=f'{name}/move_cp pose')
+        except ValueError as exc:
+            self._reject(name, str(exc))
+            return
+        mtm = self.mtms[name]
+        if mtm.state != 'ENABLED' or not self._has_pose[name]:
+            self._reject(name, f'{name}: move_cp, arm not ready')
+            self._pubs[name]['goal_reached'].publish(Bool(data=False))
+            return
+        mtm.move_cp(T, self._now())
+        self._publish_state(name)
+
+    def _on_lock(self, name, msg):
+        q = np.array([msg.x, msg.y, msg.z, msg.w])
+        norm = float(np.linalg.norm(q))
+        if not np.all(np.isfinite(q)) or abs(norm - 1.0) > 1e-3:
+            self._reject(name, f'{name}: lock_orientation is not a unit quaternion '
+                               f'(norm {norm:.6g})')
+            return
+        self.mtms[name].lock_orientation(matrix_from_quaternion(q / norm), self._now())
+
+    # --- device inputs ----------------------------------------------------------------------
+
+    def _on_handle(self, name, msg):
+        try:
+            T = cv.matrix_from_pose(msg.pose, what=f'{self.config.browser_prefix}/{name}/pose')
+        except ValueError as exc:
+            self.get_logger().warning(str(exc))
+            return
+        self.device.set_pose(name, T)
+
+    def _on_pedals(self, msg):
+        try:
+            self.device.set_pedals(list(msg.buttons))
+        except ValueError as exc:
+            self.get_logger().warning(str(exc))
+
+    def _press(self, pedal, pressed):
+        msg = Joy()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.buttons = [1 if pressed else 0]
+        for pub in self._pedal_pubs[pedal]:
+            pub.publish(msg)
+
+    # --- the cycle --------------------------------------------------------------------------
+
+    def _on_timer(self):
+        t = self._now()
+        dt = max(0.0, t - self._t)
+        self._t = t
+        reading = self.device.poll(t)
+        stamp = self.get_clock().now().to_msg()
+        for pedal, pressed in reading.pedals.items():
+            if pedal in self._pedal_state and pressed != self._pedal_state[pedal]:
+                self._pedal_state[pedal] = pressed
+                self._press(pedal, pressed)
+        for name, mtm in self.mtms.items():
+            arm = reading.arms.get(name)
+            if arm is not None:
+                if arm.pose is not None:
+                    if not self._has_pose[name]:
+                        mtm.device = np.array(arm.pose, dtype=float)
+                        mtm.measured_cp(t)
+                    self._has_pose[name] = True
+                    mtm.set_device_pose(arm.pose)
+                elif arm.twist is not None:
+                    mtm.apply_twist(arm.twist[0], arm.twist[1], dt)
+                if arm.gripper is not None:
+                    mtm.set_gripper(arm.gripper)
+            if not self._has_pose[name]:
+                continue
+            T = mtm.measured_cp(t)
+            pubs = self._pubs[name]
+            pubs['measured_cp'].publish(cv.pose_stamped(T, self.frame_id, stamp))
+            pubs['setpoint_cp'].publish(cv.pose_stamped(T, self.frame_id, stamp))
+            v = w = np.zeros(3)
+            last = self._last_cp.get(name)
+            if last is not None and dt > 0:
+                v = (T[:3, 3] - last[:3, 3]) / dt
+                dR = T[:3, :3] @ last[:3, :3].T
+                w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0],
+                              dR[1, 0] - dR[0, 1]]) * 0.5 / dt
+            self._last_cp[name] = T
+            pubs['measured_cv'].publish(cv.twist_stamped(np.concatenate([v, w]), self.frame_id,
+                                                         stamp))
+            pubs['gripper'].publish(cv.joint_state(['gripper'], stamp,
+                                                   position=[mtm.gripper]))
+            busy = mtm.is_busy(t)
+            if busy != self._busy[name]:
+                self._publish_state(name)
+                if not busy:
+                    pubs['goal_reached'].publish(Bool(data=True))
+
+    def destroy_node(self):
+        self.device.close()
+        return super().destroy_node()
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = MtmsNode()
+    except (ValueError, OSError) as exc:
+        rclpy.logging.get_logger('mtms').fatal(str(exc))
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

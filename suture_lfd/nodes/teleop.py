@@ -1,0 +1,255 @@
+"""
+Teleop node: one MTM drives one PSM as the dVRK's teleoperation does, over CRTK topics only.
+
+Runs against a physical dVRK console (``/MTMR``, ``/MTML``, ``/footpedals/*``) as well as the
+virtual MTMs (``mtms``) and the simulated PSMs. Reads ``<MTM>/measured_cp``,
+``<MTM>/gripper/measured_js``, ``<MTM>/operating_state``, ``<PSM>/setpoint_cp``,
+``<PSM>/jaw/setpoint_js``, ``<PSM>/operating_state``, ``<ECM>/measured_cp`` (the camera),
+``/tf_static`` (frames of the arms' bases) and the pedals ``clutch_topic`` and
+``operator_present_topic`` (sensor_msgs/Joy, ``buttons[0]``); sends ``<PSM>/servo_cp``,
+``<PSM>/jaw/servo_jp``, ``<PSM>/hold``, ``state_command`` to both arms, and to the MTM
+``move_cp``, ``lock_orientation``, ``unlock_orientation``, ``use_gravity_compensation`` and
+``body/servo_cf``. The state machine and the map are :mod:`suture_lfd.teleop.teleoperation`.
+
+Publishes ``~/current_state`` (std_msgs/String: SETTING_ARMS, ALIGNING, CLUTCHED, FOLLOWING,
+DISABLED) and ``~/following`` (std_msgs/Bool), latched; ``~/state_command``
+(crtk_msgs/StringStamped ``enable``/``disable``) starts and stops it, as the dVRK teleop
+components' topics. Run one per MTM/PSM pair, named like the dVRK's (``-r __node:=MTMR_PSM1``).
+Parameters: ``config/teleop.yaml``.
+"""
+
+import sys
+
+from crtk_msgs.msg import OperatingState, StringStamped
+from geometry_msgs.msg import PoseStamped, Quaternion, WrenchStamped
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState, Joy
+from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from std_msgs.msg import Bool, Empty, Header, String
+from suture_lfd.teleop.frames import FrameTree
+from suture_lfd.teleop.teleoperation import (
+    FOLLOWING,
+    ArmState,
+    TeleopConfig,
+    Teleoperation,
+    TeleopInputs,
+)
+from tf2_msgs.msg import TFMessage
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+EVENTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE = QoSProfile(depth=10)
+
+
+class TeleopNode(Node):
+    """The ROS face of :class:`suture_lfd.teleop.teleoperation.Teleoperation`."""
+
+    def __init__(self):
+        super().__init__('teleop')
+        cfg = self.config = declare_config(self, TeleopConfig, 'teleop.yaml', 'teleop')
+        self.teleop = Teleoperation(cfg)
+        self.frames = FrameTree()
+        self._mtm_cp = self._psm_cp = None
+        self._mtm_frame = self._psm_frame = ''
+        self._gripper = self._jaw = None
+        self._mtm_state = self._psm_state = None
+        self._clutch = False
+        self._present = not cfg.operator_present_topic
+        self._R_C_M_param = matrix_from_quaternion(np.asarray(cfg.mtm_rotation, dtype=float))
+        self._last_state = None
+        self._warned = set()
+        m, p = cfg.mtm, cfg.psm
+        sub = self.create_subscription
+        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, STATE)
+        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, STATE)
+        sub(OperatingState, f'{m}/operating_state',
+            lambda msg: setattr(self, '_mtm_state', self._arm_state(msg)), EVENTS)
+        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, STATE)
+        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, STATE)
+        sub(OperatingState, f'{p}/operating_state',
+            lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), EVENTS)
+        if cfg.ecm:
+            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, STATE)
+        sub(TFMessage, '/tf_static', self._on_tf_static, EVENTS)
+        sub(Joy, cfg.clutch_topic, self._on_clutch, EVENTS)
+        if cfg.operator_present_topic:
+            sub(Joy, cfg.operator_present_topic, self._on_present, EVENTS)
+        sub(StringStamped, '~/state_command', self._on_state_command, STATE)
+        pub = self.create_publisher
+        self._pubs = {
+            ('psm', 'servo_cp'): pub(PoseStamped, f'{p}/servo_cp', STATE),
+            ('psm', 'jaw_servo_jp'): pub(JointState, f'{p}/jaw/servo_jp', STATE),
+            ('psm', 'hold'): pub(Empty, f'{p}/hold', STATE),
+            ('psm', 'state_command'): pub(StringStamped, f'{p}/state_command', STATE),
+            ('mtm', 'state_command'): pub(StringStamped, f'{m}/state_command', STATE),
+            ('mtm', 'move_cp'): pub(PoseStamped, f'{m}/move_cp', STATE),
+            ('mtm', 'lock_orientation'): pub(Quaternion, f'{m}/lock_orientation', LATCHED),
+            ('mtm', 'unlock_orientation'): pub(Empty, f'{m}/unlock_orientation', LATCHED),
+            ('mtm', 'use_gravity_compensation'): pub(Bool, f'{m}/use_gravity_compensation',
+                                                     LATCHED),
+            ('mtm', 'body_servo_cf'): pub(WrenchStamped, f'{m}/body/servo_cf', STATE),
+        }
+        self._current = pub(String, '~/current_state', LATCHED)
+        self._following = pub(Bool, '~/following', LATCHED)
+        self._publish_state()
+        self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self.get_logger().info(f'{m} -> {p} (scale {cfg.scale}, camera '
+                               f'{cfg.ecm or "none"}, align_mtm {cfg.align_mtm})')
+
+    # --- inputs -----------------------------------------------------------------------------
+
+    @staticmethod
+    def _arm_state(msg):
+        return ArmState(msg.state, bool(msg.is_homed), bool(msg.is_busy))
+
+    def _pose(self, msg, what):
+        try:
+            return cv.matrix_from_pose(msg.pose, what=what)
+        except ValueError as exc:
+            self._warn_once(what, str(exc))
+            return None
+
+    def _warn_once(self, key, text):
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    def _on_mtm_cp(self, msg):
+        T = self._pose(msg, f'{self.config.mtm}/measured_cp')
+        if T is not None:
+            self._mtm_cp, self._mtm_frame = T, msg.header.frame_id
+
+    def _on_psm_cp(self, msg):
+        T = self._pose(msg, f'{self.config.psm}/setpoint_cp')
+        if T is not None:
+            self._psm_cp, self._psm_frame = T, msg.header.frame_id
+
+    def _on_ecm_cp(self, msg):
+        T = self._pose(msg, f'{self.config.ecm}/measured_cp')
+        if T is not None:
+            self.frames.set(msg.header.frame_id, self.config.ecm, T)
+
+    def _on_tf_static(self, msg):
+        for tr in msg.transforms:
+            t, q = tr.transform.translation, tr.transform.rotation
+            T = np.eye(4)
+            T[:3, :3] = matrix_from_quaternion(np.array([q.x, q.y, q.z, q.w]))
+            T[:3, 3] = (t.x, t.y, t.z)
+            self.frames.set(tr.header.frame_id, tr.child_frame_id, T)
+
+    def _on_gripper(self, msg):
+        if len(msg.position):
+            self._gripper = float(msg.position[0])
+
+    def _on_jaw(self, msg):
+        if len(msg.position):
+            self._jaw = float(msg.position[0])
+
+    def _on_clutch(self, msg):
+        if len(msg.buttons):
+            self._clutch = msg.buttons[0] == 1
+
+    def _on_present(self, msg):
+        if len(msg.buttons):
+            self._present = msg.buttons[0] == 1
+
+    def _on_state_command(self, msg):
+        if msg.string not in ('enable', 'disable'):
+            self.get_logger().warning(f'~/state_command: {msg.string!r} is not enable or '
+                                      'disable; ignored')
+            return
+        self.teleop.set_enabled(msg.string == 'enable', self._now())
+
+    # --- the cycle --------------------------------------------------------------------------
+
+    def _now(self):
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _rotations(self):
+        """Return ``(R_C_M, R_C_P)``, or ``(None, None)`` while a frame is unknown."""
+        cfg = self.config
+        camera = cfg.ecm
+        if not camera:
+            R_C_P = np.eye(3)
+            R_C_M = self.frames.rotation(self._psm_frame, self._mtm_frame)
+        else:
+            R_C_P = self.frames.rotation(camera, self._psm_frame)
+            R_C_M = self.frames.rotation(camera, self._mtm_frame)
+        if R_C_M is None and self._mtm_frame and not self.frames.knows(self._mtm_frame):
+            R_C_M = self._R_C_M_param    # a console frame: the configured rotation
+        return R_C_M, R_C_P
+
+    def _on_timer(self):
+        R_C_M, R_C_P = self._rotations()
+        inp = TeleopInputs(
+            t=self._now(), mtm_cp=self._mtm_cp, gripper=self._gripper, psm_cp=self._psm_cp,
+            psm_jaw=self._jaw, mtm_state=self._mtm_state, psm_state=self._psm_state,
+            R_C_M=R_C_M, R_C_P=R_C_P, clutch=self._clutch, operator_present=self._present)
+        commands = self.teleop.step(inp)
+        if commands:
+            stamp = self.get_clock().now().to_msg()
+            for command in commands:
+                self._send(command, stamp)
+        self._publish_state()
+
+    def _send(self, command, stamp):
+        kind, arm, value = command
+        pub = self._pubs[(arm, kind)]
+        if kind in ('servo_cp', 'move_cp'):
+            frame = self._psm_frame if arm == 'psm' else self._mtm_frame
+            pub.publish(cv.pose_stamped(value, frame, stamp))
+        elif kind == 'jaw_servo_jp':
+            pub.publish(cv.joint_state(['jaw'], stamp, position=[value]))
+        elif kind in ('hold', 'unlock_orientation'):
+            pub.publish(Empty())
+        elif kind == 'state_command':
+            pub.publish(StringStamped(header=Header(stamp=stamp), string=value))
+            self.get_logger().info(f'{self._arm_name(arm)}: {value}')
+        elif kind == 'lock_orientation':
+            x, y, z, w = quaternion_from_matrix(value).tolist()
+            pub.publish(Quaternion(x=x, y=y, z=z, w=w))
+        elif kind == 'use_gravity_compensation':
+            pub.publish(Bool(data=bool(value)))
+        elif kind == 'body_servo_cf':
+            pub.publish(cv.wrench_stamped(value, '', stamp))
+
+    def _arm_name(self, arm):
+        return self.config.mtm if arm == 'mtm' else self.config.psm
+
+    def _publish_state(self):
+        state = self.teleop.state
+        if state != self._last_state:
+            self._last_state = state
+            self._current.publish(String(data=state))
+            self._following.publish(Bool(data=state == FOLLOWING))
+            self.get_logger().info(f'{self.config.mtm} -> {self.config.psm}: {state}')
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = TeleopNode()
+    except ValueError as exc:
+        rclpy.logging.get_logger('teleop').fatal(str(exc))
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
