@@ -268,3 +268,78 @@ def assess_demonstration(demo, segments, needle=None, config=None):
 def finite(value):
     """Return whether a table value is a finite number."""
     return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def write_score_table(path, row):
+    """
+    Write one demonstration's scores as a two-column CSV table (``score,value``).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file.
+    row : dict
+        Scores (:func:`assess_demonstration`, possibly with the verdict's columns).
+
+    """
+    import csv
+
+    with open(path, 'w', newline='') as f:
+        writer = csv.writer(f, lineterminator='\n')
+        writer.writerow(('score', 'value'))
+        for key, value in row.items():
+            if isinstance(value, float):
+                value = '' if math.isnan(value) else repr(round(value, 6))
+            writer.writerow((key, value))
+
+
+def read_score_table(path):
+    """Read a table written by :func:`write_score_table` back into a dict (numbers parsed)."""
+    import csv
+
+    out = {}
+    with open(path, newline='') as f:
+        for rec in csv.DictReader(f):
+            value = rec['value']
+            try:
+                value = int(value) if value.lstrip('-').isdigit() else float(value or 'nan')
+            except ValueError:
+                pass
+            out[rec['score']] = value
+    return out
+
+
+def assess_bag(bag, segments=None, pair=None, needle=None, config=None):
+    """
+    Score the demonstration recorded in a bag.
+
+    Parameters
+    ----------
+    bag : str or Path
+        Demonstration bag (rosbag2 directory).
+    segments : str or Path, optional
+        Its segment file; without it the demonstration is segmented here, as the segmenter
+        does.
+    pair : str, optional
+        Pair name when the bag does not say it.
+    needle, config
+        As :func:`assess_demonstration`.
+
+    Returns
+    -------
+    dict
+        The scores of :func:`assess_demonstration`.
+
+    """
+    from suture_lfd.demos.demo_bag import demonstration_from_bag
+
+    demo = demonstration_from_bag(bag, pair=pair)
+    if segments is None:
+        from suture_lfd.segmentation import segment_demonstration
+
+        seg = segment_demonstration(demo)
+    else:
+        from suture_lfd.segmentation.segments import SegmentFile
+
+        seg = SegmentFile.load(segments)
+    return assess_demonstration(demo, seg, needle=needle, config=config)

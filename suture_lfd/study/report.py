@@ -8,7 +8,9 @@ The study's report folder: ``report.md``, CSV files, PNG figures and ``summary.j
 - ``report.md``: every table of the seed paper's evaluation with the paper's value beside ours,
   the calibration targets and residuals, the figures, the configuration and seeds,
 - ``heatmap_<method>.png``, ``task_time_<method>.png``, ``trajectories_<method>.png``,
-- ``summary.json``: the numbers of the tables, machine-readable.
+- ``summary.json``: the numbers of the tables, machine-readable,
+- ``assessment.csv`` and ``assessment/``: the skill assessment of every demonstration and the
+  section on learning only from the accepted ones (:mod:`suture_lfd.study.assessed`).
 
 The CSV files and every table depend only on the records (not on wall time), so the same
 configuration gives byte-identical CSV files; wall times appear only in the report's run section.
@@ -332,6 +334,17 @@ def write_report(folder, records, config, run_info=None):
                         (_f(100.0 * s['table4']['v'][2] / s['table4']['total'], 1) + ' %')
                         if s['table4']['total'] else '–']
                        for m, s in summary.items()]), '']
+    mode = config.get('assessment', 'subject')
+    if mode != 'off':
+        from suture_lfd.study.assessed import report_section
+
+        lines, assessed = report_section(folder, records, mode)
+        md += lines
+        if assessed:
+            summary_all = json.loads((folder / 'summary.json').read_text())
+            summary_all['skill_assessment'] = _nan_to_none(assessed)
+            (folder / 'summary.json').write_text(
+                json.dumps(summary_all, indent=1, sort_keys=True) + '\n')
     if errors:
         md += ['## Jobs that raised an error', '',
                _table(['job', 'error'], [[r['key'], r['error']] for r in errors[:50]]), '']
