@@ -77,8 +77,8 @@ class MotionConfig:
     sparc_padding: int = 4
 
     def __post_init__(self):
-        for name in ('cutoff_hz', 'idle_cutoff_hz', 'idle_speed', 'peak_prominence', 'sparc_cutoff_hz',
-                     'sparc_threshold'):
+        for name in ('cutoff_hz', 'idle_cutoff_hz', 'idle_speed', 'peak_prominence',
+                     'sparc_cutoff_hz', 'sparc_threshold'):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f'MotionConfig.{name} must be a number > 0, got {value!r}')
@@ -206,9 +206,7 @@ def speed_profile(T, P, config=None, cutoff_hz=None):
 
 
 def path_length(P):
-    """
-    Return the length (m) of the polyline through the positions ``P`` (n, n_dims).
-    """
+    """Return the length (m) of the polyline through the positions ``P`` (n, n_dims)."""
     P = check_array(P, 'P')
     if P.ndim == 1:
         P = P[:, None]

@@ -46,8 +46,8 @@ from sim_bridge.configfile import ConfigError, dataclass_from_mapping
 from sim_bridge.geometry import pose_from_transform, transform_from_pose
 from sim_bridge.validation import check_array
 from suture_lfd.demos.resampling import resample_poses
-from suture_lfd.dmp.base import REGRESSIONS
 from suture_lfd.dmp import DmpParams, PoseDmp, PositionDmp, QuaternionDmp, load_dmp_params
+from suture_lfd.dmp.base import REGRESSIONS
 from suture_lfd.planning.suturing_frames import (
     poses_from_frame,
     poses_in_frame,

@@ -1,6 +1,7 @@
 """
-Learning with skill assessment: the study's demonstrations scored, screened, and the
-generality of the skills learnt only from the accepted ones.
+Learning with skill assessment: the study's demonstrations scored and screened.
+
+The generality of the skills learnt only from the accepted demonstrations, beside it.
 
 :func:`score_demonstrations` scores every usable demonstration of a study from its bag and
 segment file (:mod:`suture_lfd.assessment`), writes one table per demonstration
@@ -244,16 +245,16 @@ def report_section(folder, records, mode='subject', rule=None):
         'punctures inside the tissue (Frischknecht 2013); grasps and regrasps.', '',
         f'Acceptance (expert-derived proficiency bounds, no throw outcome seen): a '
         f'demonstration is accepted when each of {bounds_text} is at most the mean + '
-        f'{rule.k_sd:g} SD of the {rule.reference_group} subjects\' demonstrations, the '
-        f'assessed subject\'s own left out; combined score = the largest of its z-scores. '
+        f"{rule.k_sd:g} SD of the {rule.reference_group} subjects' demonstrations, the "
+        f"assessed subject's own left out; combined score = the largest of its z-scores. "
         f'{scored}.', '',
-        f'With assessment (`--assessment {mode}`, the study\'s setting; the other mode beside '
-        'it): a rejected demonstration\'s pair is learnt from '
-        + ('the subject\'s own accepted demonstration with the best combined score (a subject '
+        f"With assessment (`--assessment {mode}`, the study's setting; the other mode beside "
+        "it): a rejected demonstration's pair is learnt from "
+        + ("the subject's own accepted demonstration with the best combined score (a subject "
            'with none accepted: the best accepted demonstration of that pair in the cohort)'
            if mode == 'subject' else
            'the best accepted demonstration of that pair in the cohort')
-        + '; that skill\'s throws on every test pair are the study\'s throws of it. '
+        + "; that skill's throws on every test pair are the study's throws of it. "
         'Generality = mean throw score.', '',
         '| method | user | without assessment | with assessment '
         f'({mode}) | with assessment ({other}) |',

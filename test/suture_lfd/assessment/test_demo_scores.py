@@ -35,9 +35,9 @@ def _poses(R_list, centres):
 _PLANE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
-def _throw(n=200, centre_height=0.004, turn=math.radians(175)):
+def _throw(n=200, centre_height=0.004, turn_deg=175.0):
     """Needle turned tip first about its centre (above a surface z = 0), tip down and up."""
-    angles = np.linspace(0.0, turn, n)
+    angles = np.linspace(0.0, math.radians(turn_deg), n)
     R = [_PLANE @ _rot_z(math.radians(120) - a) for a in angles]
     centres = np.tile([0.0, 0.0, centre_height], (n, 1))
     return np.linspace(0.0, 2.0, n), _poses(R, centres)
