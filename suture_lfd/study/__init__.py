@@ -32,6 +32,7 @@ import logging
 import os
 from pathlib import Path
 import shlex
+import signal
 import sys
 import time
 import zlib
@@ -371,12 +372,13 @@ def run_study(args, stream=None):
                 ran += run_stages([_attach_demos(throws, store)], run_job, store,
                                   workers=workers, progress=progress, initializer=init_worker,
                                   initargs=(settings, ros))
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as exc:
+                progress.finish()
                 ran = progress.done - progress.resumed
                 print(f'study interrupted: {progress.done}/{total} jobs stored in '
                       f'{store.path.name}; run the same command again to resume', file=stream,
                       flush=True)
-                status = 130
+                status = 128 + getattr(exc, 'signum', signal.SIGINT)  # 130, or 143 for SIGTERM
             finally:
                 close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
         wall = time.monotonic() - t0
