@@ -1,9 +1,14 @@
 """
+<<<<<<< HEAD
 Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info``, ``assess`` and ``bag``.
+=======
+Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info``, ``bag`` and ``view``.
+>>>>>>> main
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
 phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
 ``bag recover PATH [--out OUT]`` rebuilds a valid bag from one whose recording was interrupted.
+``view BAG`` and ``view STUDY --throw ROW`` replay a recording in the browser viewer.
 """
 
 import argparse
@@ -74,6 +79,7 @@ def cmd_bag_recover(args):
     return 0
 
 
+<<<<<<< HEAD
 def cmd_assess(args):
     """Score a demonstration bag and write its table of scores."""
     from pathlib import Path
@@ -95,6 +101,19 @@ def cmd_assess(args):
         print(f'{key:{width}s}  {text}')
     print(f'scores: {out}')
     return 0
+=======
+def cmd_view(args):
+    """Open a bag or a study's throw in the viewer's page and serve it until Ctrl-C."""
+    from suture_lfd.viewer.show import serve_recording
+
+    try:
+        return serve_recording(args.path, throw=args.throw, segments=args.segments,
+                               host=args.host, port=args.port, speed=args.speed,
+                               play=args.play, seconds=args.seconds)
+    except (ValueError, OSError, KeyError) as exc:
+        print(f'suture-lfd view: error: {exc}', file=sys.stderr)
+        return 1
+>>>>>>> main
 
 
 def build_parser():
@@ -138,6 +157,25 @@ def build_parser():
     recover.add_argument('--out', default=None,
                          help='new bag directory (default: PATH-recovered next to PATH)')
     recover.set_defaults(func=cmd_bag_recover)
+    view = sub.add_parser(
+        'view', help='replay a bag, or a throw of a study, in the browser viewer',
+        description='Serve a recorded bag (time slider with the subtasks of its segment file, '
+        'play/pause, speed) or a throw of a study (--throw ROW) in the viewer page; open the '
+        'URL it prints. Ctrl-C stops it.')
+    view.add_argument('path', help='bag directory, or a study folder with --throw')
+    view.add_argument('--throw', default=None, metavar='ROW',
+                      help="row of the study's throws.csv (1 = first throw) or a throw key")
+    view.add_argument('--segments', default=None,
+                      help='segment file to mark on the slider (default: <bag>.segments.npz '
+                           "or the study's segments/<bag>.npz when present)")
+    view.add_argument('--host', default='127.0.0.1',
+                      help='interface to listen on (default 127.0.0.1: this machine only)')
+    view.add_argument('--port', type=int, default=8080, help='TCP port (default 8080)')
+    view.add_argument('--speed', type=float, default=1.0, help='replay speed (default 1)')
+    view.add_argument('--play', action='store_true', help='start playing at once')
+    view.add_argument('--seconds', type=float, default=None,
+                      help='stop serving after this many seconds (default: until Ctrl-C)')
+    view.set_defaults(func=cmd_view)
     return parser
 
 

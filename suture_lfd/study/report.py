@@ -8,6 +8,8 @@ The study's report folder: ``report.md``, CSV files, PNG figures and ``summary.j
 - ``report.md``: every table of the seed paper's evaluation with the paper's value beside ours,
   the calibration targets and residuals, the figures, the configuration and seeds,
 - ``heatmap_<method>.png``, ``task_time_<method>.png``, ``trajectories_<method>.png``,
+  ``filmstrip_demo_<method>.png`` and ``filmstrip_throw_<method>.png`` (ECM frames of the
+  Fig. 7 subject's demonstration and of its skill executed on another pair),
 - ``summary.json``: the numbers of the tables, machine-readable,
 - ``assessment.csv`` and ``assessment/``: the skill assessment of every demonstration and the
   section on learning only from the accepted ones (:mod:`suture_lfd.study.assessed`).
@@ -18,6 +20,7 @@ configuration gives byte-identical CSV files; wall times appear only in the repo
 
 import csv
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -187,6 +190,46 @@ def _goal_note(method, config):
             'pull that LWR smooths away, so the rollout reaches the goal.')
 
 
+def _filmstrips(folder, rows, demo_rows, pick, method):
+    """
+    Draw the filmstrips of the Fig. 7 subject: its demonstration and a throw on another pair.
+
+    Returns the report lines (none when a file is missing or cannot be drawn).
+    """
+    from suture_lfd.viewer.filmstrip import write_filmstrip
+    from suture_lfd.viewer.replay import recording_from_bag
+    from suture_lfd.viewer.throw_replay import recording_from_file
+
+    folder = Path(folder)
+    demo = next((d for d in demo_rows if d['subject'] == pick['subject']
+                 and d['pair'] == pick['train_pair'] and d.get('bag')), None)
+    other = [r for r in rows if r['subject'] == pick['subject']
+             and r['train_pair'] == pick['train_pair'] and r['test_pair'] != pick['train_pair']
+             and r.get('replay') and (folder / r['replay']).is_file()]
+    if demo is None or not (folder / demo['bag']).is_dir() or not other:
+        return []
+    throw = max(other, key=lambda r: (r.get('score') or 0.0,
+                                      r['test_phantom'] == pick['train_phantom']))
+    demo_png = f'filmstrip_demo_{method}.png'
+    throw_png = f'filmstrip_throw_{method}.png'
+    try:
+        write_filmstrip(recording_from_bag(folder / demo['bag']), folder / demo_png,
+                        title=f'demonstration: {demo["subject"]} at {demo["pair"]}')
+        write_filmstrip(recording_from_file(folder / throw['replay']), folder / throw_png,
+                        title=f'learnt at {throw["train_pair"]}, executed at '
+                              f'{throw["test_pair"]} (score {_f(throw["score"], 1)})')
+    except (ValueError, OSError) as exc:
+        logging.getLogger(__name__).warning('filmstrips not drawn: %s', exc)
+        return []
+    return ['#### Seen from the ECM', '',
+            f'The demonstration of {demo["subject"]} at {demo["pair"]}, and the skill learnt '
+            f'from it executed at {throw["test_pair"]} (frames at the subtask starts and the '
+            f'end, rendered offline from the recorded poses; replay it with `suture-lfd view '
+            f'<study folder> --throw throw/{method}/{throw["subject"]}/{throw["train_pair"]}/'
+            f'{throw["test_pair"]}`).', '', f'![demonstration]({demo_png})', '',
+            f'![regeneration on another pair]({throw_png})', '']
+
+
 def summarise(records):
     """
     Return the numbers of every table for every method (JSON-serialisable).
@@ -287,8 +330,9 @@ def write_report(folder, records, config, run_info=None):
         f'error: {len(errors)}.', '',
         'Files: `throws.csv` (one row per executed throw), `demos.csv` (one row per '
         'demonstration), `summary.json` (every number below), PNG figures, `bags/` (the '
-        'demonstrations as rosbag2 bags), `segments/` (their segment files), `results-*.jsonl` '
-        '(the resumable per-job results).', '']
+        'demonstrations as rosbag2 bags), `segments/` (their segment files), `replays/` (what '
+        'the viewer needs to replay each throw: `suture-lfd view <this folder> --throw ROW`, '
+        'ROW a row of `throws.csv`), `results-*.jsonl` (the resumable per-job results).', '']
     for method, s in summary.items():
         rows = tables.throws(records, method)
         gen = tables.generality(rows)
@@ -342,6 +386,7 @@ def write_report(folder, records, config, run_info=None):
             md += ['### Demonstrated and regenerated needle trajectories (Fig. 7)', '',
                    f'Subject {pick["subject"]} ({pick["group"]}), pair {pick["test_pair"]}.',
                    '', f'![trajectories](trajectories_{method}.png)', '']
+            md += _filmstrips(folder, rows, demo_rows, pick, method)
     if len(summary) > 1:
         md += ['## Methods side by side', '',
                _table(['method', 'generality exp.', 'naive', 'overall', 'regeneration success',
