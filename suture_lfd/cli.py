@@ -1,9 +1,5 @@
 """
-<<<<<<< HEAD
-Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info``, ``assess`` and ``bag``.
-=======
-Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info``, ``bag`` and ``view``.
->>>>>>> main
+Command line of suture_lfd: ``study`` (the main job), ``info``, ``assess``, ``bag``, ``view``.
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
 phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
@@ -79,7 +75,6 @@ def cmd_bag_recover(args):
     return 0
 
 
-<<<<<<< HEAD
 def cmd_assess(args):
     """Score a demonstration bag and write its table of scores."""
     from pathlib import Path
@@ -101,7 +96,8 @@ def cmd_assess(args):
         print(f'{key:{width}s}  {text}')
     print(f'scores: {out}')
     return 0
-=======
+
+
 def cmd_view(args):
     """Open a bag or a study's throw in the viewer's page and serve it until Ctrl-C."""
     from suture_lfd.viewer.show import serve_recording
@@ -113,7 +109,6 @@ def cmd_view(args):
     except (ValueError, OSError, KeyError) as exc:
         print(f'suture-lfd view: error: {exc}', file=sys.stderr)
         return 1
->>>>>>> main
 
 
 def build_parser():
