@@ -1,10 +1,11 @@
 """
-Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info``, ``bag`` and ``view``.
+Command line of suture_lfd: ``study`` (the main job), ``info``, ``assess``, ``bag``, ``view``.
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
 phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
 ``bag recover PATH [--out OUT]`` rebuilds a valid bag from one whose recording was interrupted.
 ``view BAG`` and ``view STUDY --throw ROW`` replay a recording in the browser viewer.
+``assess BAG`` scores one demonstration (skill assessment) and writes its table.
 """
 
 import argparse
@@ -75,6 +76,29 @@ def cmd_bag_recover(args):
     return 0
 
 
+def cmd_assess(args):
+    """Score a demonstration bag and write its table of scores."""
+    from pathlib import Path
+
+    from suture_lfd import bags
+    from suture_lfd.assessment.demo_scores import assess_bag, write_score_table
+
+    bag = Path(args.bag)
+    try:
+        row = assess_bag(bag, segments=args.segments, pair=args.pair)
+    except (bags.BagError, ValueError, OSError) as exc:
+        print(f'suture-lfd assess: error: {exc}', file=sys.stderr)
+        return 1
+    out = Path(args.out) if args.out else bag.with_name(bag.name + '.assessment.csv')
+    write_score_table(out, row)
+    width = max(len(k) for k in row)
+    for key, value in row.items():
+        text = f'{value:.4g}' if isinstance(value, float) else str(value)
+        print(f'{key:{width}s}  {text}')
+    print(f'scores: {out}')
+    return 0
+
+
 def cmd_view(args):
     """Open a bag or a study's throw in the viewer's page and serve it until Ctrl-C."""
     from suture_lfd.viewer.show import serve_recording
@@ -104,6 +128,19 @@ def build_parser():
 
     add_study_arguments(study)
     study.set_defaults(func=cmd_study, seconds=0.5)
+    assess = sub.add_parser(
+        'assess', help='score a demonstration bag (skill assessment)',
+        description='Score one demonstration from its bag (and segment file): task and '
+        'subtask times, path length, economy, smoothness and idle time of each instrument, '
+        'entry/exit accuracy, needle tilt and arc deviation in the tissue, grasps; writes '
+        'the table as CSV.')
+    assess.add_argument('bag', help='demonstration bag directory (holding metadata.yaml)')
+    assess.add_argument('--segments', default=None,
+                        help='its segment file (default: segment the bag here)')
+    assess.add_argument('--pair', default=None, help='pair name when the bag does not say it')
+    assess.add_argument('--out', default=None,
+                        help='CSV table to write (default: BAG.assessment.csv beside the bag)')
+    assess.set_defaults(func=cmd_assess)
     bag = sub.add_parser('bag', help='inspect and recover rosbag2 bags (demonstrations)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True)
     bag_info = bag_sub.add_parser('info', help='topics, types, counts and duration of a bag')

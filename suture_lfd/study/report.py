@@ -10,7 +10,9 @@ The study's report folder: ``report.md``, CSV files, PNG figures and ``summary.j
 - ``heatmap_<method>.png``, ``task_time_<method>.png``, ``trajectories_<method>.png``,
   ``filmstrip_demo_<method>.png`` and ``filmstrip_throw_<method>.png`` (ECM frames of the
   Fig. 7 subject's demonstration and of its skill executed on another pair),
-- ``summary.json``: the numbers of the tables, machine-readable.
+- ``summary.json``: the numbers of the tables, machine-readable,
+- ``assessment.csv`` and ``assessment/``: the skill assessment of every demonstration and the
+  section on learning only from the accepted ones (:mod:`suture_lfd.study.assessed`).
 
 The CSV files and every table depend only on the records (not on wall time), so the same
 configuration gives byte-identical CSV files; wall times appear only in the report's run section.
@@ -167,6 +169,25 @@ def _fig7_curves(folder, rows):
             if len(entry) > 1:
                 curves[task] = entry
     return pick, curves
+
+
+def _goal_note(method, config):
+    """Say how the method fits its weights, and what that does to task iv's goal error."""
+    from suture_lfd.skill import METHODS
+
+    regression = getattr(METHODS.get(method), 'regression', 'lwr')
+    why = ("Task iv's needle centre rests while the needle turns about it and moves only in "
+           'the pull at the end of the subtask; the rollout runs over the demonstrated '
+           'duration, so at t = T the phase is still exp(-alpha_x) = 0.37 (alpha_x = 1) and '
+           'the forcing term still acts.')
+    if regression == 'lwr':
+        return (f'Weights fitted by LWR as in the paper (Table I bases). {why} LWR fits each '
+                'basis function alone, a weighted average of the target under it, and the '
+                'bases of width N^1.5 / (alpha_x c_i) span two to three centre spacings: the '
+                'short pull is smoothed away and the rollout ends short of the goal.')
+    return (f'Weights fitted by least squares over all basis functions (the paper: LWR; same '
+            f'Table I bases, alpha_x, gains and points). {why} The joint fit keeps the short '
+            'pull that LWR smooths away, so the rollout reaches the goal.')
 
 
 def _filmstrips(folder, rows, demo_rows, pick, method):
@@ -333,7 +354,7 @@ def write_report(folder, records, config, run_info=None):
                'error = mean distance along the DTW warping path (position: Euclidean, mm; '
                'orientation: rotation angle, deg). The `*_exec_traj_mm` CSV columns give the '
                'same trajectory error for the needle trajectory the simulator actually '
-               'executed.', '', _table2(reg), '',
+               'executed.', '', _table2(reg), '', _goal_note(method, config), '',
                f'Regeneration success (complete throws): **{reg["success"]} / {reg["total"]} '
                f'= {_f(100.0 * reg["rate"], 1)} %** (paper: 76 / 80 = 95 %).', '']
         md += ['### Table III: generality', '',
@@ -377,6 +398,17 @@ def write_report(folder, records, config, run_info=None):
                         (_f(100.0 * s['table4']['v'][2] / s['table4']['total'], 1) + ' %')
                         if s['table4']['total'] else '–']
                        for m, s in summary.items()]), '']
+    mode = config.get('assessment', 'subject')
+    if mode != 'off':
+        from suture_lfd.study.assessed import report_section
+
+        lines, assessed = report_section(folder, records, mode)
+        md += lines
+        if assessed:
+            summary_all = json.loads((folder / 'summary.json').read_text())
+            summary_all['skill_assessment'] = _nan_to_none(assessed)
+            (folder / 'summary.json').write_text(
+                json.dumps(summary_all, indent=1, sort_keys=True) + '\n')
     if errors:
         md += ['## Jobs that raised an error', '',
                _table(['job', 'error'], [[r['key'], r['error']] for r in errors[:50]]), '']

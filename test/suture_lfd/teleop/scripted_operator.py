@@ -76,6 +76,7 @@ class ScriptedOperator(DemonstratorNode):
         self._gesture = 0
         self._bias = {a: np.zeros(3) for a in MTM_OF}
         self._stuck = self._lag_seen = 0.0
+        self.sim.send = self._send          # the subject's commands go to the hands instead
         self._recentred_for = None
         self.clutches = 0
 
@@ -88,7 +89,7 @@ class ScriptedOperator(DemonstratorNode):
         super()._press(topic, value)
 
     def _tool_setpoint(self, arm):
-        return self._bases[arm] @ self._setpoint[arm]
+        return self.sim.bases[arm] @ self._setpoint[arm]
 
     def _publish_hands(self):
         stamp = self.get_clock().now().to_msg()
@@ -136,15 +137,15 @@ class ScriptedOperator(DemonstratorNode):
         if self._stuck < STUCK_TIME:
             return
         for arm, T_cmd in dem._last_cmd.items():
-            error = T_cmd[:3, 3] - self._world_tool(arm)[:3, 3]
+            error = T_cmd[:3, 3] - self.sim.world_tool(arm)[:3, 3]
             if np.linalg.norm(error) > 0.5 * self.config.lag_tolerance:
                 bias = self._bias[arm] + CORRECTION_GAIN * dt * error
                 norm = np.linalg.norm(bias)
                 self._bias[arm] = bias if norm <= MAX_CORRECTION \
                     else bias * (MAX_CORRECTION / norm)
 
-    def _send(self, command):
-        """Move the hands so that the teleoperated tools reach the command."""
+    def _send(self, command, stamp=None):
+        """Move the hands so that the teleoperated tools reach the command (not servo_cp)."""
         for arm in MTM_OF:
             T = command.T_world_tool.get(arm)
             if T is not None and arm in self._anchor:
@@ -198,9 +199,8 @@ class ScriptedOperator(DemonstratorNode):
         self._reported = wall
         dem = self._dem
         lag = {}
-        if dem is not None and self._ready():
-            obs = self._observation()
-            lag = {a: round(float(np.linalg.norm(obs.T_world_tool[a][:3, 3] - T[:3, 3])), 4)
+        if dem is not None and self.sim.ready():
+            lag = {a: round(float(np.linalg.norm(self.sim.world_tool(a)[:3, 3] - T[:3, 3])), 4)
                    for a, T in dem._last_cmd.items()}
         self.get_logger().info(
             f'stage {self._stage}, clutching {self._clutching and self._clutching[0]}, '
@@ -210,9 +210,9 @@ class ScriptedOperator(DemonstratorNode):
 
     def _on_timer(self):
         self._report()
-        if not self._hands and self._ready() and all(a in self._setpoint for a in MTM_OF):
+        if not self._hands and self.sim.ready() and all(a in self._setpoint for a in MTM_OF):
             for arm in MTM_OF:               # the handles start at the tools (as the viewer's)
-                self._hands[arm] = self._world_tool(arm)
+                self._hands[arm] = self.sim.world_tool(arm)
                 self._home[arm] = self._hands[arm].copy()
                 self._grippers[arm] = 0.6
         if self._hands:
