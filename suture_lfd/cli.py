@@ -1,5 +1,7 @@
 """
-Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info`` and ``bag``.
+Command line of suture_lfd: ``suture-lfd study`` (the main job), ``sweep``, ``info`` and ``bag``.
+
+``sweep SWEEP.yaml`` runs a grid of studies as one job set (:mod:`suture_lfd.study.sweep`).
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
 phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
@@ -48,6 +50,13 @@ def cmd_study(args):
     return study.main(args)
 
 
+def cmd_sweep(args):
+    """Run a grid of studies (seeds x methods x DMP hyper-parameters) and its report."""
+    from suture_lfd.study import sweep
+
+    return sweep.main(args)
+
+
 def cmd_bag_info(args):
     """Print the topics, types, message counts and duration of a bag."""
     from suture_lfd import bags
@@ -90,6 +99,14 @@ def build_parser():
 
     add_study_arguments(study)
     study.set_defaults(func=cmd_study, seconds=0.5)
+    sweep = sub.add_parser('sweep', help='run a grid of studies (seeds, methods, DMP '
+                                         'hyper-parameters) as one job set',
+                           description='Run the studies of a sweep file as one job set on the '
+                                       'chosen engine and write a sweep report.')
+    from suture_lfd.study.sweep import add_arguments as add_sweep_arguments
+
+    add_sweep_arguments(sweep)
+    sweep.set_defaults(func=cmd_sweep)
     bag = sub.add_parser('bag', help='inspect and recover rosbag2 bags (demonstrations)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True)
     bag_info = bag_sub.add_parser('info', help='topics, types, counts and duration of a bag')
