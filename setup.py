@@ -7,17 +7,18 @@ from setuptools import find_packages, setup
 PACKAGE = 'suture_lfd'
 HERE = Path(__file__).resolve().parent
 
-# One console_scripts entry per node executable (ros2 run suture_lfd <name>), plus the CLI.
+# One console_scripts entry per node executable (ros2 run suture_lfd <name>), plus the CLI; a
+# node's entry is its Executable (help before the node's module is imported).
 NODES = {
-    'simulator': 'sim_bridge.nodes.simulator:main',
-    'footpedals': 'sim_bridge.nodes.footpedals:main',
-    'demonstrator': 'suture_lfd.nodes.demonstrator:main',
-    'recorder': 'suture_lfd.nodes.recorder:main',
-    'player': 'suture_lfd.nodes.player:main',
-    'segmenter': 'suture_lfd.nodes.segmenter:main',
-    'executor': 'suture_lfd.nodes.executor:main',
-    'teleop': 'suture_lfd.nodes.teleop:main',
-    'mtms': 'suture_lfd.nodes.mtms:main',
+    'simulator': 'sim_bridge.nodes.executables:simulator',
+    'footpedals': 'sim_bridge.nodes.executables:footpedals',
+    'demonstrator': 'suture_lfd.nodes.executables:demonstrator',
+    'recorder': 'suture_lfd.nodes.executables:recorder',
+    'player': 'suture_lfd.nodes.executables:player',
+    'segmenter': 'suture_lfd.nodes.executables:segmenter',
+    'executor': 'suture_lfd.nodes.executables:executor',
+    'teleop': 'suture_lfd.nodes.executables:teleop',
+    'mtms': 'suture_lfd.nodes.executables:mtms',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',

@@ -13,9 +13,8 @@ import argparse
 import time
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
 from scipy.spatial.transform import Rotation
+from sim_bridge.bullet import bullet_client, pybullet
 from sim_bridge.kinematics import psm_kinematics
 
 ANCHOR_PYBULLET_IK_S = 1e-3

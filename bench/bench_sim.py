@@ -19,9 +19,8 @@ import argparse
 import time
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
 from scipy.spatial.transform import Rotation
+from sim_bridge.bullet import bullet_client, pybullet
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.planning.expert import ScriptedExpert

@@ -15,6 +15,36 @@ children=()
 
 say() { printf '%s: %s\n' "$(basename "$0")" "$*" >&2; }
 
+# The script's help: its leading comment block, without the comment marks.
+usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
+
+# phantom_params PHANTOM SCENE PAIR: set phantom_args to the simulator's phantom parameters.
+# PHANTOM is a phantom of the scene, a mesh (STL/OBJ/PLY) or a phantom file (.yaml); empty:
+# the phantom the pair's name starts with (scan* scanned, synth* synthetic). SCENE ('' none)
+# replaces the installed scene.yaml. Files are passed with absolute paths.
+phantom_params() {
+  local phantom=$1 scene=$2 pair=$3
+  if [ -z "$phantom" ]; then
+    case "$pair" in
+      scan*) phantom=scanned ;;
+      synth*|'') phantom=synthetic ;;
+      *) say "pair $pair: give the phantom it is on with --phantom (a mesh or phantom file)"
+         exit 2 ;;
+    esac
+  fi
+  if [ -f "$phantom" ]; then
+    phantom=$(cd "$(dirname "$phantom")" && pwd)/$(basename "$phantom")
+  elif [[ "$phantom" == */* || "$phantom" == *.* ]]; then
+    say "phantom file $phantom does not exist"
+    exit 2
+  fi
+  phantom_args=(-p phantom:="$phantom")
+  if [ -n "$scene" ]; then
+    [ -f "$scene" ] || { say "scene file $scene does not exist"; exit 2; }
+    phantom_args+=(-p scene:="$(cd "$(dirname "$scene")" && pwd)/$(basename "$scene")")
+  fi
+}
+
 start() {
   local name=$1
   shift

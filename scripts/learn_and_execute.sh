@@ -1,30 +1,35 @@
 #!/usr/bin/env bash
 # Learn the throw from a segment file and execute it on a marker pair in the simulator.
 #
-#   scripts/learn_and_execute.sh SEGMENTS PAIR [--rtf FACTOR] [--no-simulator] [--ros-args ...]
+#   scripts/learn_and_execute.sh SEGMENTS PAIR [--phantom NAME|MESH|PHANTOM.yaml]
+#                                [--scene SCENE.yaml] [--rtf FACTOR] [--no-simulator]
+#                                [--ros-args ...]
 #
-# Starts the simulator (phantom from the pair's name) unless --no-simulator, runs the executor
+# Starts the simulator (--phantom, by default the phantom the pair's name starts with: scan*
+# scanned, synth* synthetic) unless --no-simulator, runs the executor
 # node on SEGMENTS and PAIR until it reports the throw, and prints the simulator's score events
 # of the throw on stdout (one JSON object per line, the last one is the throw's score); exit
 # code 0 when the throw scored 1.0. Extra --ros-args go to the executor.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
-rtf=1.0 simulator=1 positional=()
+rtf=1.0 simulator=1 positional=() phantom='' scene=''
 while [ $# -gt 0 ]; do
   case "$1" in
     --rtf) rtf=$2; shift 2 ;;
+    --phantom) phantom=$2; shift 2 ;;
+    --scene) scene=$2; shift 2 ;;
     --no-simulator) simulator=0; shift ;;
     --ros-args) shift; break ;;
-    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) positional+=("$1"); shift ;;
   esac
 done
 [ ${#positional[@]} -eq 2 ] || { say "usage: $0 SEGMENTS PAIR"; exit 2; }
 segments=$(cd "$(dirname "${positional[0]}")" && pwd)/$(basename "${positional[0]}")
 pair=${positional[1]}
-case "$pair" in scan*) phantom=scanned ;; *) phantom=synthetic ;; esac
 if [ "$simulator" = 1 ]; then
-  start simulator --ros-args -p phantom:="$phantom" -p real_time_factor:="$rtf" \
+  phantom_params "$phantom" "$scene" "$pair"
+  start simulator --ros-args "${phantom_args[@]}" -p real_time_factor:="$rtf" \
     -p target_pair:="$pair"
 fi
 status=0

@@ -3,14 +3,16 @@
 #
 #   scripts/record_demo.sh [--subject S01] [--pair synth1] [--seed 0] [--cohort-seed 0]
 #                          [--out DIR] [--rtf FACTOR] [--no-simulator]
+#                          [--phantom NAME|MESH|PHANTOM.yaml] [--scene SCENE.yaml]
 #
 # The subject presses the recorder's toggle pedal (/footpedals/camera) before the throw and
 # again after it, so the bag holds exactly one demonstration. Prints the bag directory on
 # stdout and the subject's result (JSON) on stderr; exit code 0 when the throw scored 1.0.
-# --no-simulator uses a simulator already running on ROS_DOMAIN_ID.
+# --no-simulator uses a simulator already running on ROS_DOMAIN_ID. --phantom defaults to the
+# phantom the pair's name starts with (scan* scanned, synth* synthetic).
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
-subject=S01 pair=synth1 seed=0 cohort_seed=0 out=demonstrations rtf=1.0 simulator=1
+subject=S01 pair=synth1 seed=0 cohort_seed=0 out=demonstrations rtf=1.0 simulator=1 phantom='' scene=''
 while [ $# -gt 0 ]; do
   case "$1" in
     --subject) subject=$2; shift 2 ;;
@@ -19,16 +21,18 @@ while [ $# -gt 0 ]; do
     --cohort-seed) cohort_seed=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
     --rtf) rtf=$2; shift 2 ;;
+    --phantom) phantom=$2; shift 2 ;;
+    --scene) scene=$2; shift 2 ;;
     --no-simulator) simulator=0; shift ;;
-    -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done
-case "$pair" in scan*) phantom=scanned ;; *) phantom=synthetic ;; esac
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
 if [ "$simulator" = 1 ]; then
-  start simulator --ros-args -p phantom:="$phantom" -p real_time_factor:="$rtf"
+  phantom_params "$phantom" "$scene" "$pair"
+  start simulator --ros-args "${phantom_args[@]}" -p real_time_factor:="$rtf"
 fi
 start recorder --ros-args -p output_dir:="$out" -p use_sim_time:=true
 status=0

@@ -11,7 +11,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --pair) args+=(-p pair:="$2"); shift 2 ;;
     --subject) args+=(-p subject:="$2"); shift 2 ;;
-    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) positional+=("$1"); shift ;;
   esac
 done

@@ -31,11 +31,9 @@ whole physics steps, and the same seed gives bit-identical runs.
 
 from dataclasses import dataclass, field, replace
 import logging
-from pathlib import Path
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
+from sim_bridge import bullet
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.control import Observation
@@ -45,7 +43,7 @@ from sim_bridge.scene.camera import CameraConfig, StereoCamera
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
 from sim_bridge.scene.needle import invert_transform
 from sim_bridge.scene.phantom import build_phantom
-from sim_bridge.scene.scene_config import SceneConfig, load_scene_config
+from sim_bridge.scene.scene_config import SceneConfig, load_scene_config, phantom_from_argument
 from sim_bridge.scene.scoring import ThrowScorer
 from sim_bridge.scene.thread import ThreadChain, ThreadDynamicsConfig
 from sim_bridge.scene.tissue import TissueTracker
@@ -244,9 +242,11 @@ class Simulation:
     client : pybullet_utils.bullet_client.BulletClient, optional
         PyBullet client to use (reset and owned by the simulation while it runs); default: a
         new DIRECT client, disconnected by :meth:`close`.
-    phantom : str or Path
-        ``'synthetic'``, ``'scanned'`` (phantoms of the scene) or the path of an STL/OBJ/PLY
-        mesh (metres; markers placed along the synthetic phantom's wound line on its surface).
+    phantom : str or Path or sim_bridge.scene.phantom.PhantomConfig
+        ``'synthetic'``, ``'scanned'`` (phantoms of the scene), the path of an STL/OBJ/PLY mesh
+        (metres, z up; markers laid on its top surface along its longest flat-enough line), a
+        phantom file (``.yaml``: mesh, scale, pose, wound line or markers; see
+        :func:`sim_bridge.scene.scene_config.load_phantom_file`) or a phantom configuration.
     gui : bool
         Open a PyBullet GUI window instead of a DIRECT client (ignored with ``client``).
 
@@ -268,8 +268,7 @@ class Simulation:
         cfg = self.config
         self._own_client = client is None
         if client is None:
-            client = bullet_client.BulletClient(
-                connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+            client = bullet.connect(gui=gui)
         self.client = client
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.needle_geometry = cfg.scene.needle
@@ -300,18 +299,8 @@ class Simulation:
 
     # ------------------------------------------------------------------ construction
     def _build_phantom(self, phantom):
-        scene = self.config.scene
-        if str(phantom) in scene.phantoms:
-            return scene.build_phantom(str(phantom))
-        path = Path(phantom)
-        if path.suffix.lower() not in ('.stl', '.obj', '.ply'):
-            raise ValueError(f'phantom must be one of {sorted(scene.phantoms)} or an STL, OBJ '
-                             f'or PLY mesh file, got {phantom!r}')
-        if not path.is_file():
-            raise ValueError(f'phantom mesh file {path} does not exist')
-        template = scene.phantoms.get('synthetic', next(iter(scene.phantoms.values())))
-        config = replace(template, kind='mesh', mesh=str(path), marker_prefix='mesh')
-        return build_phantom(config, name=path.stem)
+        name, config = phantom_from_argument(self.config.scene, phantom)
+        return build_phantom(config, name=name)
 
     def close(self):
         """Disconnect the PyBullet client if the simulation created it."""

@@ -9,7 +9,7 @@ from ``conftest``: a folder may hold its own conftest.py).
 import os
 import signal
 
-from harness import NodeProcess, RosHarness, executable
+from harness import NodeProcess, RosHarness, executable, forbidden_lines
 import pytest
 
 # A test run started in the background of a non-interactive shell inherits SIGINT ignored, and
@@ -31,7 +31,11 @@ def ros():
 
 @pytest.fixture
 def launch(tmp_path):
-    """Start node executables as subprocesses; every one is stopped at teardown."""
+    """
+    Start node executables as subprocesses; every one is stopped at teardown.
+
+    At teardown every node's log is checked: no traceback, no ``RCLError``, no PyBullet banner.
+    """
     started = []
 
     def _launch(name, *args, env=None, cwd=None):
@@ -43,3 +47,6 @@ def launch(tmp_path):
     yield _launch
     for proc in started:
         proc.stop()
+    bad = {proc.log_path.name: forbidden_lines(proc.log()) for proc in started}
+    bad = {name: lines for name, lines in bad.items() if lines}
+    assert not bad, f'node logs hold forbidden lines: {bad}'

@@ -26,6 +26,18 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 os.environ['PYTHONUNBUFFERED'] = '1'
 
+SIGINT_EXIT = 128 + signal.SIGINT    # a node stopped by SIGINT exits with 130
+SIGTERM_EXIT = 128 + signal.SIGTERM  # ... by SIGTERM with 143
+# Lines no node log or program output may hold: a traceback, a ROS error from a context torn
+# down under a node, PyBullet's banner.
+FORBIDDEN_LINES = ('Traceback (most recent call last)', 'RCLError', 'argv[0]=',
+                   'pybullet build time')
+
+
+def forbidden_lines(text):
+    """Return the lines of ``text`` that hold one of :data:`FORBIDDEN_LINES`."""
+    return [line for line in text.splitlines() if any(f in line for f in FORBIDDEN_LINES)]
+
 
 def wait_for(predicate, timeout=10.0, period=0.005):
     """Poll ``predicate`` until it is true or ``timeout`` seconds pass; return its last value."""
@@ -108,7 +120,8 @@ class NodeProcess:
         return self.popen.poll() is None
 
     def log(self):
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text()
 
     def stop(self, timeout=10.0):

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import textwrap
 
-from harness import DOMAIN_ID, REPO, wait_for
+from harness import DOMAIN_ID, REPO, SIGINT_EXIT, wait_for
 import pytest
 
 ROS_FACES = ('nodes', 'ros')
@@ -141,7 +141,7 @@ def test_colcon_build_installs_every_node_executable(ros, launch, tmp_path):
     found = wait_for(lambda: ('pedals_renamed', '/colcon_test') in
                      node.get_node_names_and_namespaces(), 20.0)
     assert found, proc.log()
-    assert proc.stop() == 0, proc.log()
+    assert proc.stop() == SIGINT_EXIT, proc.log()
 
 
 def test_node_process_stops_cleanly_and_leaves_nothing_behind(launch):
@@ -156,7 +156,7 @@ def test_node_process_stops_cleanly_and_leaves_nothing_behind(launch):
         assert wait_for(lambda: 'footpedals' in node.get_node_names(), 20.0), proc.log()
     finally:
         probe.close()
-    assert proc.stop() == 0, proc.log()
+    assert proc.stop() == SIGINT_EXIT, proc.log()
     with pytest.raises(ProcessLookupError):
         os.killpg(proc.pid, 0)
     after = {p.name for p in shm.glob('*fastrtps*')} if shm.is_dir() else set()

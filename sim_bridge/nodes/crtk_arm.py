@@ -26,7 +26,9 @@ cisst-ros):
 
 Frames: ``measured_cp``/``setpoint_cp``/``measured_cv`` in the arm's reference frame
 (``<ARM>_base``, the RCM frame, unless ``set_base_frame`` names another); ``local/*`` always in
-``<ARM>_base``; body quantities in the tool-tip frame ``<ARM>``. SI units.
+``<ARM>_base``; body quantities in the tool-tip frame ``<ARM>``. SI units. ``servo_cp`` and
+``move_cp`` goals are read in the reference frame whatever their ``frame_id``; one stamped in
+another frame is executed all the same, with a warning (every 5 s per frame) naming both.
 
 Every command is handed to :class:`sim_bridge.arm.Arm` unchanged; the arm validates it (NaN,
 infinite values, non-unit quaternions, wrong vector lengths, joint limits, reachability, readiness)
@@ -35,6 +37,8 @@ and reports problems as ``error``/``warning`` events, which this face publishes.
 
 from contextlib import nullcontext
 from functools import cached_property
+import math
+import time
 
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
@@ -56,6 +60,9 @@ EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
 COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 CRTK_VERSION = '1.1.0'
+# A Cartesian command stamped in a frame other than the arm's reference frame is warned about
+# at most this often (s) per topic and frame: a 1 kHz stream must not flood the warning topic.
+FRAME_WARNING_PERIOD = 5.0
 # Streaming commands (up to 1 kHz from a teleoperation client): taken by the simulator right
 # before each stepping round (:meth:`CrtkArm.take_commands`) instead of waking the executor for
 # every message; like the dVRK, which applies servo goals in its control loop. Any other command
@@ -256,8 +263,8 @@ class CrtkArm:
         sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m)))
         sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m)))
         sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m)))
-        sub('servo_cp', PoseStamped, lambda a, m: a.servo_cp(cv.vector_from_pose(m.pose)))
-        sub('move_cp', PoseStamped, lambda a, m: a.move_cp(cv.vector_from_pose(m.pose)))
+        sub('servo_cp', PoseStamped, self._cartesian('servo_cp', lambda a, v: a.servo_cp(v)))
+        sub('move_cp', PoseStamped, self._cartesian('move_cp', lambda a, v: a.move_cp(v)))
         sub('hold', Empty, lambda a, m: a.hold())
         sub('free', Empty, lambda a, m: a.free())
         sub('trajectory_j/set_ratio', Float64, lambda a, m: a.set_ratio(m.data))
@@ -286,6 +293,27 @@ class CrtkArm:
             lambda req, resp: self._srv_fk(req, resp, local=True))
         srv(QueryInverseKinematics, f'{name}/inverse_kinematics', self._srv_ik)
         self._warned = set()
+        self._frame_warned = {}   # (topic, frame_id) -> monotonic time of its last warning
+
+    def _cartesian(self, topic, apply):
+        """Return the handler of a Cartesian command: warn about its frame_id, apply its pose."""
+        def handler(arm, msg):
+            frame = msg.header.frame_id
+            if frame and frame != arm.reference_frame:
+                self._warn_frame(topic, frame, arm.reference_frame)
+            apply(arm, cv.vector_from_pose(msg.pose))
+        return handler
+
+    def _warn_frame(self, topic, frame, reference):
+        """Say (at most every FRAME_WARNING_PERIOD s per frame) that frame_id is not applied."""
+        now = time.monotonic()
+        if now - self._frame_warned.get((topic, frame), -math.inf) < FRAME_WARNING_PERIOD:
+            return
+        self._frame_warned[(topic, frame)] = now
+        self._publish_text('warning', f'{self.name}: {topic} stamped in frame {frame!r} is read '
+                                      f"in {reference!r}, the arm's reference frame; frame_id "
+                                      'is not transformed (send it in that frame or leave it '
+                                      'empty)')
 
     @property
     def base_frame_id(self):
@@ -429,13 +457,25 @@ class CrtkArm:
         return response
 
     def _srv_ik(self, request, response):
-        """Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint)."""
+        """
+        Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint).
+
+        The ECM answers as it moves: the position, rolled about the shaft towards the
+        orientation (:meth:`EcmKinematics.ik_position`); a position outside the workspace is
+        ``result`` false.
+        """
         arm = self._get_arm()
         k = arm.kinematics
         try:
             T = cv.matrix_from_pose(request.cp, what='inverse_kinematics cp')
             q_ref = np.asarray(request.jp, dtype=float) if len(request.jp) else arm.setpoint_jp
-            q = k.ik(T, q_ref=k.check_q(q_ref, name='inverse_kinematics jp'))
+            q_ref = k.check_q(q_ref, name='inverse_kinematics jp')
+            if arm.has_jaw:
+                q = k.ik(T, q_ref=q_ref)
+            else:
+                q, inside = k.ik_position(T, q_ref=q_ref)
+                if not inside:
+                    raise UnreachableError('the position is outside the workspace (joint limits)')
         except UnreachableError as exc:
             response.result, response.message = False, f'{self.name}: unreachable: {exc}'
             return response

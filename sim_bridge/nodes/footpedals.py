@@ -10,11 +10,12 @@ transient-local events) and lets any client emulate presses through the console'
 As on the dVRK console, the operator-present pedal is the coag pedal.
 """
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
+import sys
+
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.nodes import executables
 
 EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -58,16 +59,8 @@ class FootPedals(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = FootPedals()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return executables.footpedals(args)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

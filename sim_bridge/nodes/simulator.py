@@ -15,8 +15,16 @@ camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
 - ``sim/stats`` (std_msgs/String, JSON, every second of wall time): the requested
   ``real_time_factor``, the factor ``achieved`` over the last second, simulation seconds
   ``skipped`` so far because the loop fell behind, ``sim_time`` and ``clock``;
-- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED, needle on the pad; the
-  needle start is seeded with ``seed + number of resets``).
+- ``sim/process`` (std_msgs/String, JSON, latched): the node's pid, host and process start
+  time (:func:`sim_bridge.ros.peer.announcement`), so a client on this machine can tell a
+  starved simulator from a dead one;
+- ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED at rest, needle on the pad;
+  the needle start is seeded with ``seed + number of resets``).
+
+Arms keep the dVRK's operating-state timings by default: ``enable`` powers up for
+``power_up_time`` before ENABLED, and ``home`` moves an arm from its rest pose (``psm_rest_jp``,
+``ecm_rest_jp``: retracted) to the homing goal in seconds, busy meanwhile; ``power_up_time: 0``
+and ``start_at_home: true`` make both take one step.
 
 Time: the node owns it. Every ``tick`` the simulation is stepped (fixed physics step) up to
 ``real_time_factor`` times the wall time elapsed (0: as fast as it goes); when it falls more than
@@ -48,17 +56,17 @@ import traceback
 
 from crtk_msgs.msg import StringStamped
 import numpy as np
-import rclpy
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.peer import announcement
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -70,6 +78,8 @@ CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
 COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # No QoS-event handlers on the ~160 endpoints of the simulator and pedal nodes: rclpy's executor
 # visits each handler at every wake-up (1 kHz with a streaming client), which cost more than the
 # simulation itself; a client with incompatible QoS or type is still warned by its own endpoints.
@@ -85,7 +95,11 @@ class SimulatorConfig:
     Attributes
     ----------
     phantom : str
-        ``'synthetic'``, ``'scanned'`` or an STL/OBJ/PLY mesh path.
+        ``'synthetic'``, ``'scanned'`` (phantoms of the scene), an STL/OBJ/PLY mesh path
+        (metres, z up; markers laid on its top surface) or a phantom file (``.yaml``: mesh,
+        scale, pose, wound line or markers).
+    scene : str
+        Scene file replacing the installed ``scene.yaml`` (``''``: the installed one).
     seed : int
         Seed of the scene (needle start pose).
     target_pair : str
@@ -128,6 +142,7 @@ class SimulatorConfig:
     """
 
     phantom: str = 'synthetic'
+    scene: str = ''
     seed: int = 0
     target_pair: str = ''
     real_time_factor: float = 1.0
@@ -232,7 +247,7 @@ class Simulator(_QuietEndpoints, Node):
     def __init__(self):
         super().__init__('simulator')
         self.config = cfg = declare_config(self, SimulatorConfig, 'simulator.yaml', 'simulator')
-        sim_config = load_simulation_config()
+        sim_config = load_simulation_config(scene_path=cfg.scene or None)
         rest = {} if cfg.start_at_home else {
             'psm_rest_jp': tuple(float(v) for v in cfg.psm_rest_jp),
             'ecm_rest_jp': tuple(float(v) for v in cfg.ecm_rest_jp)}
@@ -273,6 +288,10 @@ class Simulator(_QuietEndpoints, Node):
         self._clock_pub = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
         self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
         self._stats_pub = self.create_publisher(String, 'sim/stats', COMMAND_QOS)
+        # who runs the simulation, so that a client on this machine tells a starved simulator
+        # (silent, but its process exists) from a dead one (sim_bridge.ros.peer)
+        self._process_pub = self.create_publisher(String, 'sim/process', LATCHED_QOS)
+        self._process_pub.publish(String(data=announcement()))
         # held by the stepping thread for a round and by every callback that touches the scene
         self.lock = threading.RLock()
         self._waiting = 0  # callbacks waiting for the lock: the stepping thread lets them in
@@ -297,9 +316,15 @@ class Simulator(_QuietEndpoints, Node):
         self._stop = threading.Event()
         self._stepper = None
         self.failure = None  # the exception that stopped the stepping thread, if any
+        if self.sim.phantom.placement:
+            self.get_logger().info(f'phantom {self.sim.phantom.name}: '
+                                   f'{self.sim.phantom.placement}')
+        # the console foot pedals, spun on the simulator's executor
+        self.companions = [_FootPedals()] if cfg.footpedals else []
         self.get_logger().info(
-            f'simulating {cfg.phantom} phantom, pair {self._pair}, real-time factor '
-            f'{self._rtf or "max"}, state at {cfg.rate:g} Hz')
+            f'simulating {cfg.phantom} phantom, pairs {", ".join(self.sim.phantom.markers)}, '
+            f'pair {self._pair}, real-time factor {self._rtf or "max"}, state at '
+            f'{cfg.rate:g} Hz')
 
     # -- time ----------------------------------------------------------------------------------
 
@@ -478,39 +503,27 @@ class Simulator(_QuietEndpoints, Node):
         response.message = f'scene reset ({self._resets}), target pair {self._pair}'
         return response
 
+    @property
+    def exit_code(self):
+        """Return the process exit code: 1 when the stepping thread failed, else 0."""
+        return 1 if self.failure is not None else 0
+
+    def on_start(self):
+        """Start stepping once the node spins (the entry point calls it)."""
+        self.start()
+
+    def on_exit(self):
+        """Stop the stepping thread, then release the simulation (PyBullet)."""
+        self.stop()
+        self.close()
+
     def close(self):
         """Release the simulation (PyBullet)."""
         self.sim.close()
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Simulator()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('simulator').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    pedals = None
-    if node.config.footpedals:
-        pedals = _FootPedals()
-        executor.add_node(pedals)
-    node.start()
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.stop()
-        executor.shutdown()
-        if pedals is not None:
-            pedals.destroy_node()
-        node.destroy_node()
-        node.close()
-        rclpy.try_shutdown()
-    return 1 if node.failure is not None else 0
+    return executables.simulator(args)
 
 
 if __name__ == '__main__':

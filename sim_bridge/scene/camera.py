@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-import pybullet
+from sim_bridge.bullet import pybullet
 
 # Optical frame (x right, y down, z forward) -> OpenGL camera frame (x right, y up, z backward).
 _OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])

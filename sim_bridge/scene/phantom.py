@@ -20,15 +20,24 @@ Markers: four entry/exit pairs, either given in the config (x-y in the phantom f
 onto the surface) or spaced along the wound line at ``spacing`` with entry and exit
 ``half_width`` either side of it. Entry is on the wound's left (``+y`` for a wound along ``+x``)
 when ``entry_side`` is +1, on its right when -1.
+
+A user mesh with ``frame: wound`` is moved into the phantom frame of its wound: its wound line
+or markers are given in the file's coordinates (metres, after ``mesh_scale``), and the mesh is
+turned and shifted so that the wound's centre on the surface is the origin and the wound runs
+along ``x``. Without a wound line or markers, the longest straight line of the mesh's
+flat-enough top surface with room for the markers is the wound
+(:mod:`sim_bridge.scene.mesh_placement`); the log says where it lies in the file.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.scene.heightfield import HeightField, grid_mesh, rasterize_mesh
+from sim_bridge.scene.mesh_placement import WoundSearch, apply_xy, find_wound_line, wound_frame
 from sim_bridge.scene.needle import invert_transform
 from sim_bridge.scene.phantom_shapes import (
     ScannedShape,
@@ -42,6 +51,7 @@ import trimesh
 _LOG = logging.getLogger(__name__)
 
 KINDS = ('synthetic', 'scanned', 'mesh')
+FRAMES = ('file', 'wound')
 
 
 @dataclass(frozen=True)
@@ -52,7 +62,8 @@ class WoundConfig:
     Attributes
     ----------
     line : tuple of (x, y)
-        Control points of the wound curve in the phantom's x-y plane.
+        Control points of the wound curve in the phantom's x-y plane (in the file's x-y plane
+        for a mesh with ``frame: wound``); empty for a user mesh: found on its top surface.
     slit_width : float
         Width of the slit cut into the generated mesh (0: no slit).
     slit_depth : float
@@ -80,8 +91,9 @@ class WoundConfig:
     offset: float = 0.0
 
     def __post_init__(self):
-        if len(self.line) < 2:
-            raise ValueError('wound line needs at least two (x, y) points')
+        if len(self.line) == 1:
+            raise ValueError('wound line needs at least two (x, y) points (or none on a user '
+                             'mesh: found on its top surface)')
         if self.entry_side not in (-1, 1):
             raise ValueError(f'wound entry_side must be +1 or -1, got {self.entry_side}')
         if self.n_pairs < 0:
@@ -140,6 +152,12 @@ class PhantomConfig:
         Grid spacing (m) of generated meshes.
     wound_closing : float
         Gaps narrower than this (m) are closed in a user mesh's tissue surface.
+    frame : str
+        User mesh only: ``'file'`` (the file's coordinates are the phantom frame) or
+        ``'wound'`` (the phantom frame of the wound: origin on the surface at the wound's
+        centre, ``x`` along it; wound line and markers given in file coordinates).
+    wound_search : WoundSearch
+        How a user mesh without wound line or markers gets one (top band, slope limit).
     wound : WoundConfig
         Wound line, slit and marker placement.
     markers : dict of MarkerConfig or None
@@ -166,6 +184,8 @@ class PhantomConfig:
     resolution: float = 0.00025
     mesh_resolution: float = 0.002
     wound_closing: float = 0.002
+    frame: str = 'file'
+    wound_search: WoundSearch = field(default_factory=WoundSearch)
     wound: WoundConfig = field(default_factory=WoundConfig)
     markers: dict[str, MarkerConfig] | None = None
     shape: ScannedShape = field(default_factory=ScannedShape)
@@ -178,6 +198,11 @@ class PhantomConfig:
             raise ValueError(f'phantom kind must be one of {KINDS}, got {self.kind!r}')
         if self.kind == 'mesh' and not self.mesh:
             raise ValueError("phantom kind 'mesh' needs a mesh file (key 'mesh')")
+        if self.kind != 'mesh' and len(self.wound.line) < 2:
+            raise ValueError(f'phantom kind {self.kind!r} needs a wound line of at least two '
+                             f'(x, y) points (key wound.line)')
+        if self.frame not in FRAMES:
+            raise ValueError(f'phantom frame must be one of {FRAMES}, got {self.frame!r}')
         if min(self.size) <= 0.0:
             raise ValueError(f'phantom size must be positive (m), got {self.size}')
         if not 0.0 < self.resolution <= 0.001:
@@ -299,6 +324,11 @@ class Phantom:
         Marker pairs in the phantom frame.
     markers : dict of MarkerPair
         Marker pairs in the world frame, in order ``<prefix>1 ..``.
+    placement : str
+        Where the markers of a user mesh lie (a sentence for the log; empty otherwise).
+    T_phantom_file : ndarray, shape (4, 4)
+        Maps a user mesh file's coordinates (metres, after ``mesh_scale``) into the phantom
+        frame (identity for generated pads).
 
     """
 
@@ -315,6 +345,8 @@ class Phantom:
                         for k, m in self.markers_phantom.items()}
         self._R = self.T_phantom_world[:3, :3].copy()
         self._t = self.T_phantom_world[:3, 3].copy()
+        self.placement = ''
+        self.T_phantom_file = np.eye(4)
 
     @property
     def kind(self):
@@ -559,10 +591,85 @@ def _load_user_mesh(config, base_dir):
         mesh.apply_scale(config.mesh_scale)
     if not mesh.is_watertight:
         _LOG.warning('phantom mesh %s is not watertight; its top surface is still used', path)
+    config, T, note = _place_wound(config, mesh, path)
+    if T is not None:
+        mesh.apply_transform(T)
     raw = rasterize_mesh(mesh, config.resolution)
     surface = raw.closed(config.wound_closing)
     wound = WoundLine(config.wound.line) if config.wound.line else None
-    return mesh, surface, wound
+    return mesh, surface, wound, config, T, note
+
+
+def _place_wound(config, mesh, path):
+    """
+    Wound line or markers of a user mesh, and its phantom frame.
+
+    Returns the configuration with wound line and markers in the phantom frame, the transform
+    ``T_phantom_file`` (None: the file's frame is the phantom frame) and a sentence saying
+    where the markers lie.
+    """
+    w = config.wound
+    if config.frame == 'file' and (config.markers or w.line):
+        return config, None, ''
+    coarse = rasterize_mesh(mesh, max(config.resolution, config.wound_search.spacing))
+    coarse = coarse.closed(config.wound_closing)
+    mm = 1e3
+    if config.markers and not w.line:
+        entries = np.array([m.entry for m in config.markers.values()], dtype=float)
+        exits = np.array([m.exit for m in config.markers.values()], dtype=float)
+        across = (entries - exits).mean(axis=0) * w.entry_side
+        centre = 0.5 * (entries + exits).mean(axis=0)
+        T = wound_frame(centre, (across[1], -across[0]), coarse.height(centre))
+        markers = {name: MarkerConfig(tuple(apply_xy(T, m.entry)[0]),
+                                      tuple(apply_xy(T, m.exit)[0]))
+                   for name, m in config.markers.items()}
+        note = (f'{len(markers)} marker pairs as given, centred at ({centre[0] * mm:.1f}, '
+                f'{centre[1] * mm:.1f}) mm of {path.name}')
+        return replace(config, markers=markers), T, note
+    if w.line:
+        line = WoundLine(w.line)
+        centre = line.point(0.5 * line.length)
+        T = wound_frame(centre, np.subtract(w.line[-1], w.line[0]), coarse.height(centre))
+        points = tuple(tuple(p) for p in apply_xy(T, w.line))
+        markers = config.markers
+        if markers:  # given with the line: placed in the line's frame
+            markers = {name: MarkerConfig(tuple(apply_xy(T, m.entry)[0]),
+                                          tuple(apply_xy(T, m.exit)[0]))
+                       for name, m in markers.items()}
+        n = len(markers) if markers else w.n_pairs
+        how = 'as given' if markers else 'along the given wound line'
+        note = (f'{n} marker pairs {how}, wound centred at ({centre[0] * mm:.1f}, '
+                f'{centre[1] * mm:.1f}) mm of {path.name}')
+        return replace(config, wound=replace(w, line=points), markers=markers), T, note
+    search = config.wound_search
+    clearance = w.half_width + config.marker_radius + search.margin
+    found = find_wound_line(coarse, clearance, search)
+    if found is None:
+        raise ValueError(
+            f'phantom mesh {path}: no point of its top surface (within '
+            f'{search.top_band * mm:g} mm of its highest point, slope <= '
+            f'{search.max_slope_deg:g} deg) has {clearance * mm:.1f} mm of room around it for '
+            f'the markers; give the wound line (wound.line) or the marker pairs (markers) in '
+            f"the file's coordinates, or a smaller wound.half_width")
+    n_pairs = min(w.n_pairs, int(math.floor(found.length / w.spacing + 1e-9)) + 1)
+    if n_pairs < w.n_pairs:
+        _LOG.warning('phantom mesh %s: its longest flat-enough line is %.1f mm long: room '
+                     'for %d of %d marker pairs %.1f mm apart (wound.spacing)', path,
+                     found.length * mm, n_pairs, w.n_pairs, w.spacing * mm)
+    direction = found.end - found.start
+    T = wound_frame(found.centre, direction, found.height)
+    if config.frame == 'file':
+        T = None
+        points = (tuple(found.start), tuple(found.end))
+    else:
+        half = 0.5 * found.length
+        points = ((-half, 0.0), (half, 0.0))
+    note = (f'{n_pairs} marker pairs {w.spacing * mm:g} mm apart on the top surface of '
+            f'{path.name}, along its longest flat-enough line from ({found.start[0] * mm:.1f}, '
+            f'{found.start[1] * mm:.1f}) to ({found.end[0] * mm:.1f}, {found.end[1] * mm:.1f}) '
+            f'mm ({found.length * mm:.1f} mm long, surface at z = {found.height * mm:.1f} mm; '
+            f'file coordinates)')
+    return replace(config, wound=replace(w, line=points, n_pairs=n_pairs)), T, note
 
 
 def build_phantom(config, name='phantom', base_dir=None):
@@ -588,9 +695,16 @@ def build_phantom(config, name='phantom', base_dir=None):
         If the mesh file cannot be read, or a marker falls outside the pad.
 
     """
+    T_phantom_file, placement = None, ''
     if config.kind == 'mesh':
-        mesh, surface, wound = _load_user_mesh(config, base_dir)
+        mesh, surface, wound, config, T_phantom_file, placement = _load_user_mesh(config,
+                                                                                  base_dir)
     else:
         mesh, surface, wound = _generated(config)
     markers = _place_markers(config, surface, wound)
-    return Phantom(name, config, mesh, surface, wound, markers)
+    if placement:
+        _LOG.info('phantom %s: %s', name, placement)
+    phantom = Phantom(name, config, mesh, surface, wound, markers)
+    phantom.placement = placement
+    phantom.T_phantom_file = np.eye(4) if T_phantom_file is None else T_phantom_file
+    return phantom

@@ -4,9 +4,24 @@ Scene configuration (``config/scene.yaml``): needle, thread, phantoms, tissue, s
 ``load_scene_config`` reads the YAML file through :mod:`sim_bridge.configfile` into frozen
 dataclasses. Errors name the file, the key and what was expected. Relative phantom mesh paths
 are resolved against the directory of the YAML file.
+
+A *phantom file* (:func:`load_phantom_file`) describes one user phantom with the keys of a
+``phantoms.<name>`` entry of ``scene.yaml``; unlike there, ``kind`` defaults to ``mesh``,
+``frame`` to ``wound`` (wound line and markers in the mesh file's coordinates; without them the
+wound is found on the mesh's top surface) and ``marker_prefix`` to ``mesh``::
+
+    mesh: my_pad.obj              # STL, OBJ or PLY, z up; relative to this file
+    mesh_scale: 0.001             # the file is in millimetres
+    position: [0.0, 0.0, 0.0]     # phantom frame (the wound's centre) in the world
+    quaternion: [0.0, 0.0, 0.0, 1.0]
+    wound:                        # optional
+      line: [[0.040, 0.077], [0.110, 0.077]]   # file coordinates (m, after mesh_scale)
+      n_pairs: 4
+      spacing: 0.012
+      half_width: 0.004
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
@@ -16,6 +31,9 @@ from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.scene.phantom import PhantomConfig, build_phantom
 from sim_bridge.scene.scoring import ScoringConfig
 from sim_bridge.scene.tissue import TissueConfig
+
+PHANTOM_FILE_DEFAULTS = {'kind': 'mesh', 'frame': 'wound', 'marker_prefix': 'mesh'}
+MESH_SUFFIXES = ('.stl', '.obj', '.ply')
 
 
 def _default_phantoms():
@@ -148,12 +166,110 @@ def load_scene_config(path=None):
     phantoms = {}
     for name, cfg in scene.phantoms.items():
         if cfg.mesh:
-            mesh = Path(cfg.mesh)
-            if not mesh.is_absolute():
-                mesh = path.parent / mesh
-            if not mesh.is_file():
-                raise ConfigError(f"{source}: key 'phantoms.{name}.mesh': cannot read mesh "
-                                  f'file {mesh} (expected an STL, OBJ or PLY file)')
-            cfg = replace(cfg, mesh=str(mesh))
+            cfg = _resolve_mesh(cfg, path.parent, source, f'phantoms.{name}.mesh')
         phantoms[name] = cfg
     return replace(scene, phantoms=phantoms)
+
+
+def _resolve_mesh(cfg, base, source, key):
+    mesh = Path(cfg.mesh)
+    if not mesh.is_absolute():
+        mesh = Path(base) / mesh
+    if not mesh.is_file():
+        raise ConfigError(f"{source}: key '{key}': cannot read mesh file {mesh} (expected an "
+                          f'STL, OBJ or PLY file)')
+    return replace(cfg, mesh=str(mesh))
+
+
+def load_phantom_file(path, template=None):
+    """
+    Read a phantom file: one user phantom (mesh, scale, pose, wound line or markers).
+
+    Parameters
+    ----------
+    path : str or Path
+        YAML file with the keys of a ``phantoms.<name>`` entry of ``scene.yaml``.
+    template : PhantomConfig, optional
+        Values of the keys the file leaves out (marker size and colour, grid resolution, wound
+        spacing); the file's defaults (``kind`` mesh, ``frame`` wound, ``marker_prefix`` mesh,
+        no wound line) override it.
+
+    Returns
+    -------
+    PhantomConfig
+
+    Raises
+    ------
+    ConfigError
+        Unreadable file, unknown key, wrong type or invalid value, or a mesh file that cannot
+        be read; the message names the file and the key.
+
+    """
+    path = Path(path)
+    source = str(path)
+    data = load_yaml(path)
+    if not isinstance(data, dict):
+        raise ConfigError(f'{source}: expected a mapping of phantom keys (mesh, mesh_scale, '
+                          f'position, quaternion, wound, markers)')
+    base = {}
+    if template is not None:
+        base = {f.name: getattr(template, f.name) for f in fields(template)
+                if f.name not in ('markers', 'mesh', 'shape', 'wound', 'wound_search')}
+        base['wound'] = {f.name: getattr(template.wound, f.name)
+                         for f in fields(template.wound)}
+    merged = {**base, **PHANTOM_FILE_DEFAULTS, **data}
+    wound = {**base.get('wound', {}), 'line': [], **(data.get('wound') or {})}
+    merged['wound'] = wound
+    try:
+        cfg = dataclass_from_mapping(PhantomConfig, merged, source=source)
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        raise ConfigError(f'{source}: invalid value: {exc}') from exc
+    if not cfg.mesh:
+        raise ConfigError(f"{source}: key 'mesh' is missing (expected an STL, OBJ or PLY file)")
+    return _resolve_mesh(cfg, path.parent, source, 'mesh')
+
+
+def phantom_from_argument(scene, phantom):
+    """
+    Return the phantom configuration a ``phantom`` argument names.
+
+    Parameters
+    ----------
+    scene : SceneConfig
+        The scene (its phantoms are the templates).
+    phantom : str or Path or PhantomConfig
+        A phantom of the scene (``'synthetic'``, ``'scanned'``), a mesh file (STL, OBJ, PLY in
+        metres, z up; markers on its top surface), a phantom file (``.yaml``) or a
+        configuration.
+
+    Returns
+    -------
+    name : str
+        Phantom name (the scene's name, or the file's stem).
+    config : PhantomConfig
+
+    Raises
+    ------
+    ValueError
+        Neither a phantom of the scene nor a readable mesh or phantom file.
+
+    """
+    if isinstance(phantom, PhantomConfig):
+        return 'phantom', phantom
+    if str(phantom) in scene.phantoms:
+        return str(phantom), scene.phantoms[str(phantom)]
+    path = Path(phantom)
+    template = scene.phantoms.get('synthetic', next(iter(scene.phantoms.values())))
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES + ('.yaml', '.yml'):
+        raise ValueError(f'phantom must be one of {sorted(scene.phantoms)}, an STL, OBJ or PLY '
+                         f'mesh file or a phantom file (.yaml), got {str(phantom)!r}')
+    if not path.is_file():
+        raise ValueError(f'phantom file {path} does not exist')
+    if suffix in ('.yaml', '.yml'):
+        return path.stem, load_phantom_file(path, template)
+    wound = replace(template.wound, line=())
+    return path.stem, replace(template, kind='mesh', mesh=str(path), marker_prefix='mesh',
+                              frame='wound', wound=wound)

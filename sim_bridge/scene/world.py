@@ -28,8 +28,8 @@ import os
 import tempfile
 
 import numpy as np
-import pybullet
 from scipy.spatial.transform import Rotation
+from sim_bridge.bullet import pybullet
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.paths import config_path
 from sim_bridge.scene.needle import invert_transform

@@ -22,9 +22,9 @@ stops cleanly at the first truncated or corrupt record, and writes a new, valid 
 ``suture-lfd bag info PATH`` prints the topics, types, counts and duration of a bag.
 
 Integrity: the MCAP files carry CRC-32s of every chunk, of the data section and of the summary
-(:mod:`suture_lfd.mcap_check`). Opening a bag checks them all, and that ``metadata.yaml`` agrees
-with the MCAP summary, so a flipped byte is refused before any message is read; ``bag recover``
-keeps the chunks whose CRC holds and says which it dropped.
+(:mod:`suture_lfd.bags.mcap_check`). Opening a bag checks them all, and that ``metadata.yaml``
+agrees with the MCAP summary, so a flipped byte is refused before any message is read;
+``bag recover`` keeps the chunks whose CRC holds and says which it dropped.
 
 Errors about a bag (missing ``metadata.yaml``, truncated or corrupt file, a message that does not
 decode, missing topics) raise :class:`BagError`, a ``ValueError`` whose one-line message names the
@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import functools
 import logging
 import math
+import mmap
 import os
 from pathlib import Path
 import shutil
@@ -59,7 +60,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.base import Nodetype
 from sim_bridge import cdr
 from sim_bridge.paths import share_dir
-from suture_lfd.mcap_check import CrcMcapWriter, McapDamageError, check_mcap, salvage_messages
+from suture_lfd.bags.mcap_check import CrcMcapWriter, McapDamageError, check_mcap, salvage_messages
 import yaml
 
 LOG = logging.getLogger(__name__)
@@ -459,7 +460,11 @@ def _checked_storage(path, file):
     if file.suffix != '.mcap':
         return None
     try:
-        return check_mcap(file.read_bytes())
+        with open(file, 'rb') as handle:
+            # mapped, not read: a bag with camera images may be larger than the memory at hand
+            data = (mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+                    if os.fstat(handle.fileno()).st_size else b'')
+        return check_mcap(data)
     except OSError as exc:
         raise BagError(f'{file}: cannot read the bag ({exc})') from None
     except McapDamageError as exc:
@@ -691,6 +696,29 @@ def bag_summary(path):
     """
     with BagReader(path) as reader:
         return reader.summary
+
+
+def bag_custom_data(path):
+    """
+    Return the ``custom_data`` strings of a bag's ``metadata.yaml`` (recorder counts, ...).
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory.
+
+    Returns
+    -------
+    dict[str, str]
+        Key to value; empty when the bag has none.
+
+    """
+    path, _ = _check_bag_dir(path)
+    info = yaml.safe_load((path / METADATA).read_text())['rosbag2_bagfile_information']
+    custom = info.get('custom_data') or {}
+    if not isinstance(custom, dict):
+        raise BagError(f'{path / METADATA}: custom_data is not a mapping')
+    return {str(k): str(v) for k, v in custom.items()}
 
 
 def _seconds_text(t_ns):

@@ -226,7 +226,7 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
                 writer.add_topic(topic, msgtype, qos=qos.get(topic, [_STATE_QOS]))
             raw = msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype)
             writer.write(topic, int(round(time * 1e9)), raw)
-        writer.set_custom_data('suture_lfd.demos.demonstration', demo.pair)
+        writer.set_custom_data('suture_lfd.demonstration', demo.pair)
         return dict(writer.counts)
 
 

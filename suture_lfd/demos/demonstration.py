@@ -13,7 +13,7 @@ import zipfile
 import numpy as np
 from sim_bridge.validation import check_array, check_quaternions, check_times
 
-FORMAT = 'suture_lfd.demos.demonstration'
+FORMAT = 'suture_lfd.demonstration'  # the files' format tag (kept when the module moved)
 FORMAT_VERSION = 1
 
 _POSES = ('psm1_pose', 'psm2_pose', 'needle_pose')

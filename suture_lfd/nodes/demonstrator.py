@@ -37,7 +37,7 @@ from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import String
 from suture_lfd.demos.cohort import load_cohort
 from suture_lfd.demos.demonstrator import Demonstrator
-from suture_lfd.nodes import run_until_finished
+from suture_lfd.nodes import executables
 
 PSMS = ('PSM1', 'PSM2')
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -45,6 +45,11 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE = QoSProfile(depth=10)
+# The servo streams: the arm takes only the newest goal, but a recorder takes every one, and a
+# publisher's history is all a reader that stalls for a moment can catch up from; 1000 goals
+# cover a second at 1 kHz (depth 10 lost 16 % of a demonstration's goals on a busy machine).
+COMMAND_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
 
 
 @dataclass(frozen=True)
@@ -109,9 +114,9 @@ class DemonstratorNode(Node):
         self._commanded_on = None  # arm states when enable/home were last sent
         self._published = {}
         self._scene = load_scene_config()
-        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
+        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', COMMAND_STREAM)
                        for a in PSMS}
-        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', STATE)
+        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', COMMAND_STREAM)
                          for a in PSMS}
         self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
                          for a in PSMS}
@@ -263,22 +268,32 @@ class DemonstratorNode(Node):
                 self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
                 self._count(self._jaw_pub[arm])
 
-    def _finish(self, ok, why=''):
+    def _finish(self, ok, why='', outcome=None):
         score = self._score
         value = score.get('score') if isinstance(score, dict) else score
+        outcome = outcome or ('completed' if ok else 'failed')
         result = {'subject': self.subject.name, 'group': self.subject.group,
-                  'pair': self.config.pair, 'completed': bool(ok), 'reason': why,
+                  'pair': self.config.pair, 'completed': bool(ok), 'outcome': outcome,
+                  'reason': why,
                   'score': value, 'score_detail': score if isinstance(score, dict) else None,
                   'bag': self._bag, 'published': dict(self._published),
                   'duration': (None if self._t_done is None or self._t_start is None
                                else self._t_done - self._t_start)}
-        self._result.publish(String(data=json.dumps(result, sort_keys=True)))
+        line = json.dumps(result, sort_keys=True)
+        self._result.publish(String(data=line))
+        print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
         self.exit_code = 0 if ok and value == 1.0 else 1
         log = self.get_logger().info if self.exit_code == 0 else self.get_logger().error
-        log(f'throw on {self.config.pair} by {self.subject.name}: {json.dumps(result)}')
+        log(f'throw on {self.config.pair} by {self.subject.name} {outcome}'
+            f'{": " + why if why else ""} (score {value})')
         self._enter('finished')
         if self.config.exit_when_done:
             self.finished = True
+
+    def on_interrupt(self, signal_name):
+        """Stop commanding (the arms hold their setpoints) and report the throw interrupted."""
+        if self._stage != 'finished':
+            self._finish(False, f'stopped by {signal_name}', outcome='interrupted')
 
     # --- the sequence -----------------------------------------------------------------------
 
@@ -375,7 +390,7 @@ class DemonstratorNode(Node):
 
 
 def main(args=None):
-    return run_until_finished(DemonstratorNode, 'demonstrator', args)
+    return executables.demonstrator(args)
 
 
 if __name__ == '__main__':

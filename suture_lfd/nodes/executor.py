@@ -22,8 +22,11 @@ runs with ``use_sim_time``):
   throw settles): the simulation runs but the arm does not answer. A machine too busy to run
   the simulator or this node for a while stops both the clock and the arms, so it never counts;
 - the simulator is dead when neither ``/clock`` nor any ``measured_cp`` has arrived for
-  ``clock_timeout`` seconds of wall time (not counting ticks this node itself came late to);
-  keep it well above the longest stall the machine may impose on a live simulator.
+  ``clock_timeout`` seconds of wall time (not counting ticks this node itself came late to).
+  On the same machine the simulator's process tells more (``sim/process``,
+  :mod:`sim_bridge.ros.peer`): once it has exited the simulator is dead as soon as the topics
+  have been quiet for ``stale_timeout`` s of wall time; while it exists (starved of CPU by a
+  busier process, or stopped) the throw waits for it, up to ``starved_timeout`` s of silence.
 
 Without any ``/clock`` message the silence is estimated from the wall time since the last
 ``measured_cp`` and the rate the simulation clock was advancing over the last second, and a
@@ -69,10 +72,11 @@ from sim_bridge.geometry import pose_from_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.peer import ProcessWatch
 from sim_bridge.scene.phantom import MarkerPair
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
-from suture_lfd.nodes import run_until_finished
+from suture_lfd.nodes import executables
 from suture_lfd.skill import ThrowSkill, learn_skill
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 
@@ -82,6 +86,11 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE = QoSProfile(depth=10)
+# The servo streams: the arm takes only the newest goal, but a recorder takes every one, and a
+# publisher's history is all a reader that stalls for a moment can catch up from; 1000 goals
+# cover a second at 1 kHz (depth 10 lost 16 % of a demonstration's goals on a busy machine).
+COMMAND_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
 # Only the newest /clock matters (a backlog drained after a stall must not outrun measured_cp).
 CLOCK = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
@@ -97,6 +106,7 @@ class ExecutorNodeConfig:
     rate: float = 100.0
     stale_timeout: float = 0.1
     clock_timeout: float = 1.0
+    starved_timeout: float = 30.0
     settle_time: float = 0.5
     timeout: float = 120.0
     prepare_timeout: float = 60.0
@@ -109,7 +119,8 @@ class ExecutorNodeConfig:
         if not self.segments and not self.skill:
             raise ValueError('parameter segments is empty: pass the segment file to learn '
                              'from, --ros-args -p segments:=PATH (or a saved skill, skill:=PATH)')
-        for name in ('rate', 'stale_timeout', 'clock_timeout', 'timeout', 'prepare_timeout'):
+        for name in ('rate', 'stale_timeout', 'clock_timeout', 'starved_timeout', 'timeout',
+                     'prepare_timeout'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.settle_time < 0:
@@ -156,9 +167,9 @@ class ExecutorNode(Node):
         self._last_obs_t = None
         self._last_tick = time.monotonic()
         self._sent = 0
-        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', STATE)
+        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', COMMAND_STREAM)
                        for a in PSMS}
-        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', STATE)
+        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', COMMAND_STREAM)
                          for a in PSMS}
         self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
                          for a in PSMS}
@@ -179,6 +190,9 @@ class ExecutorNode(Node):
                                          a, cv.matrix_from_pose(m.pose)), LATCHED)
         self.create_subscription(PoseStamped, 'sim/needle/measured_cp', self._on_needle, STATE)
         self.create_subscription(ClockMsg, '/clock', self._on_clock, CLOCK)
+        self._simulator = None   # ProcessWatch of the simulator, from sim/process
+        self._starved_said = False
+        self.create_subscription(String, 'sim/process', self._on_process, LATCHED)
         self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS)
         self.create_subscription(String, '~/execute', self._on_execute, STATE)
         self.create_subscription(Empty, '~/stop', self._on_stop, STATE)
@@ -226,6 +240,12 @@ class ExecutorNode(Node):
             self._clock_t = t
             self._clock_wall = now
 
+    def _on_process(self, msg):
+        try:
+            self._simulator = ProcessWatch(msg.data)
+        except ValueError as exc:
+            self.get_logger().warning(f'sim/process: {exc}')
+
     def _on_needle(self, msg):
         self._needle = cv.matrix_from_pose(msg.pose)
 
@@ -238,7 +258,7 @@ class ExecutorNode(Node):
         kind, arm = data.get('kind'), data.get('arm')
         if kind in ('grasp', 'release', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
                     'drop') and self._stage in ('running', 'settling'):
-            at = '' if self._t_start is None else f' at t = {data.get("t", 0.0):.3f} s'
+            at = '' if self._t_start is None else f' at {_throw_time(stamp - self._t_start)}'
             self.get_logger().info(f'scene event {kind}{" " + arm if arm else ""}{at}')
         if kind == 'grasp' and arm in PSMS:
             self._holders.add(arm)
@@ -256,7 +276,7 @@ class ExecutorNode(Node):
                 self._pair_confirmed = True
         elif kind == 'score' and self._stage in ('running', 'settling'):
             self._score = data.get('score')
-            self.get_logger().info(f'sim/events: {json.dumps(data)}')
+            self.get_logger().debug(f'sim/events: {json.dumps(data)}')
 
     def _on_execute(self, msg):
         pair = msg.data.strip()
@@ -399,7 +419,7 @@ class ExecutorNode(Node):
                 and self._pair_stamp is not None and self._t_start is not None:
             # the scorer counts from the pair's selection, before the arms were homed
             time_s = score['time_s'] - (self._t_start - self._pair_stamp)
-        return {'pair': self._pair, 'state': state, 'reason': reason,
+        return {'pair': self._pair, 'state': state, 'outcome': state, 'reason': reason,
                 'method': self.skill.method.name, 'learnt_on': self.skill.pair.name,
                 'score': None if score is None else score.get('score'),
                 'subtasks': None if score is None else score.get('subtasks'),
@@ -429,8 +449,10 @@ class ExecutorNode(Node):
         self._executor = None
         log = self.get_logger().info if state == 'done' else self.get_logger().error
         record = {**self._result_record(state, reason), **extra}
-        log(f'throw on {self._pair} {state}: {reason} {json.dumps(record, sort_keys=True)}')
-        self._result.publish(String(data=json.dumps(record, sort_keys=True)))
+        log(f'throw on {self._pair} {state}: {reason} (score {record["score"]})')
+        line = json.dumps(record, sort_keys=True)
+        self._result.publish(String(data=line))
+        print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
         if self.config.result_file:
             self._write_result(record)
         self._stage = state
@@ -439,6 +461,11 @@ class ExecutorNode(Node):
         if self.config.exit_when_done or self.config.pair:
             self.exit_code = 0 if state == 'done' and record['score'] == 1.0 else 1
             self.finished = True
+
+    def on_interrupt(self, signal_name):
+        """Stop commanding (the arms hold their setpoints) and report a throw in progress."""
+        if self._stage in ('preparing', 'running', 'settling'):
+            self._halt('interrupted', f'stopped by {signal_name}')
 
     def _fail(self, reason):
         self._halt('failed', reason)
@@ -510,8 +537,27 @@ class ExecutorNode(Node):
                                   f'time (last at t = {last:.3f} s): the arms stopped answering',
                        silence_s=silence, last_measured_t=last)
             return
-        if quiet is not None and quiet > cfg.clock_timeout:
+        alive = None
+        if quiet is not None and quiet > cfg.stale_timeout and self._simulator is not None:
+            alive = self._simulator.alive()
+        elif quiet is not None and quiet <= cfg.stale_timeout:
+            self._starved_said = False
+        if quiet is not None and quiet > cfg.clock_timeout and alive \
+                and quiet <= cfg.starved_timeout:
+            if not self._starved_said:   # its process runs: starved of CPU, not dead
+                self._starved_said = True
+                self.get_logger().warning(
+                    f'no /clock and no measured_cp for {quiet:.2f} s, but the simulator '
+                    f'process {self._simulator.pid} runs: waiting for it (starved_timeout '
+                    f'{cfg.starved_timeout:g} s)')
+        elif quiet is not None and (quiet > cfg.clock_timeout or alive is False):
             last = min(self._tools[a][0] for a in PSMS)
+            if alive is False:
+                self._halt('stopped', f'the simulator process {self._simulator.pid} exited: no '
+                                      f'/clock and no measured_cp for {quiet:.2f} s of wall '
+                                      f'time (last measured_cp at t = {last:.3f} s)',
+                           silence_s=silence, wall_silence_s=quiet, last_measured_t=last)
+                return
             self._halt('stopped', f'no /clock and no measured_cp for {quiet:.2f} s of wall time '
                                   f'(last measured_cp at t = {last:.3f} s, {silence * 1e3:.0f} '
                                   'ms of simulation time before the clock stopped): the '
@@ -534,8 +580,8 @@ class ExecutorNode(Node):
                     (obs.t, pose_from_transform(obs.T_world_needle)))
             if command.subtask != self._subtask:
                 self._subtask = command.subtask
-                self.get_logger().info(f'subtask {command.subtask} at t = '
-                                       f'{obs.t - self._t_start:.3f} s')
+                self.get_logger().info(f'subtask {command.subtask} at '
+                                       f'{_throw_time(obs.t - self._t_start)}')
             if self._executor.done:
                 self._t_done = obs.t
                 self._enter('settling')
@@ -551,8 +597,13 @@ class ExecutorNode(Node):
         return time.monotonic() - self._stage_wall
 
 
+def _throw_time(seconds):
+    """Format simulation seconds since the throw started, labelled, for the log."""
+    return f'sim t = {seconds:.3f} s'
+
+
 def main(args=None):
-    return run_until_finished(ExecutorNode, 'executor', args, interrupted_code=0)
+    return executables.executor(args)
 
 
 if __name__ == '__main__':

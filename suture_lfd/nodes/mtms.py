@@ -32,8 +32,6 @@ import sys
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, TwistStamped, WrenchStamped
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
@@ -41,6 +39,7 @@ from sim_bridge.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Float64, String
+from suture_lfd.nodes import executables
 from suture_lfd.teleop.devices import PEDALS, open_device
 from suture_lfd.teleop.virtual_mtm import VirtualMtm
 
@@ -319,21 +318,7 @@ class MtmsNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = MtmsNode()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('mtms').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return executables.mtms(args)
 
 
 if __name__ == '__main__':

@@ -16,9 +16,7 @@ import sys
 import threading
 import time
 
-import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -26,6 +24,7 @@ from sim_bridge.ros.conversions import message_class
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd import bags
+from suture_lfd.nodes import executables
 
 DONE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -94,7 +93,8 @@ class Player(Node):
                            if self.config.publish_clock else None)
         self._done_pub = self.create_publisher(String, '~/done', DONE_QOS)
         self.published = dict.fromkeys(self._topic_pubs, 0)
-        self.finished = threading.Event()
+        self.exit_code = 0
+        self._done = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._play, name='bag-player', daemon=True)
         self._thread.start()
@@ -165,12 +165,16 @@ class Player(Node):
                                    f'in {played:.3f} s')
         except bags.BagError as exc:
             self.get_logger().error(str(exc))
+            self.exit_code = 1
         finally:
-            self.finished.set()
-            if self.config.exit_when_done and not self._stop.is_set():
-                rclpy.try_shutdown(context=self.context)
+            self._done.set()
 
-    def shutdown(self):
+    @property
+    def finished(self):
+        """Return True once the bag is played and the node should exit (``exit_when_done``)."""
+        return self._done.is_set() and self.config.exit_when_done
+
+    def on_exit(self):
         """Stop playing and close the bag."""
         self._stop.set()
         self._thread.join(2.0)
@@ -178,22 +182,7 @@ class Player(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Player()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('player').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return executables.player(args)
 
 
 if __name__ == '__main__':

@@ -10,20 +10,24 @@ holds the bag path, the stop response a JSON object of counts) and on a press of
 (``/footpedals/camera`` by default). A writer thread empties a queue into the bag and closes an
 MCAP chunk every ``chunk_seconds``, so a recorder killed mid-recording leaves a bag that
 ``suture-lfd bag recover`` restores. ``~/status`` (std_msgs/String, JSON, latched) reports
-per topic the messages received while recording, carried over into the bag and written.
+per topic the messages received while recording, carried over into the bag, written, and
+``missed``: published but never received, counted from the gaps in the publishers' sequence
+numbers (:class:`suture_lfd.bags.losses.PublicationGaps`). ``lost`` is what was missed plus
+what was received but not written, so ``lost: 0`` means the bag holds every message published
+while it was recorded; the bag's ``metadata.yaml`` keeps the per-topic counts (custom data
+``suture_lfd.counts``) and the total (``suture_lfd.lost``).
 """
 
 from dataclasses import dataclass
 import datetime
 import fnmatch
+import functools
 import json
 from pathlib import Path
 import queue
 import sys
 import threading
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
@@ -32,10 +36,13 @@ from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
+from suture_lfd.bags.losses import PublicationGaps
+from suture_lfd.nodes import executables
 
 STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _STOP = object()
+DRAIN = 200   # messages a callback takes from its subscription's queue after its own
 
 
 @dataclass(frozen=True)
@@ -101,6 +108,7 @@ class BagSession:
         self.path = path
         self.received = {}
         self.carried = {}
+        self.missed = {}
         self.types = {}
         self.qos = {}
         self.error = None
@@ -138,23 +146,32 @@ class BagSession:
                 self.error = f'writing {topic} to {self.path} failed: {exc}'
                 self._logger.error(self.error)
 
-    def counts(self):
-        """Return per-topic counts and totals as a JSON-ready mapping."""
+    def counts(self, closed=False):
+        """
+        Return per-topic counts and totals as a JSON-ready mapping.
+
+        ``missed``: published, never received; ``queued``: received, not yet written; ``lost``:
+        missed, plus (once ``closed``) received but never written.
+        """
         written = dict(self._writer.counts)
-        topics = sorted(set(self.received) | set(self.carried) | set(written))
+        topics = sorted(set(self.received) | set(self.carried) | set(written) | set(self.missed))
         per_topic = {t: {'received': self.received.get(t, 0), 'carried': self.carried.get(t, 0),
-                         'written': written.get(t, 0)} for t in topics}
+                         'written': written.get(t, 0), 'missed': self.missed.get(t, 0)}
+                     for t in topics}
         total = {k: sum(v[k] for v in per_topic.values())
-                 for k in ('received', 'carried', 'written')}
-        lost = total['received'] + total['carried'] - total['written']
-        return {'bag': str(self.path), **total, 'lost': lost, 'topics': per_topic}
+                 for k in ('received', 'carried', 'written', 'missed')}
+        queued = total['received'] + total['carried'] - total['written']
+        lost = total['missed'] + (queued if closed else 0)
+        return {'bag': str(self.path), **total, 'queued': 0 if closed else queued, 'lost': lost,
+                'topics': per_topic}
 
     def close(self):
         """Write what is queued, close the bag; return the counts."""
         self._queue.put(_STOP)
         self._thread.join()
-        summary = self.counts()
+        summary = self.counts(closed=True)
         self._writer.set_custom_data('suture_lfd.counts', json.dumps(summary['topics']))
+        self._writer.set_custom_data('suture_lfd.lost', str(summary['lost']))
         try:
             self._writer.close()
         except (OSError, ValueError) as exc:
@@ -174,6 +191,7 @@ class Recorder(Node):
         self._types = {}           # absolute topic -> msgtype
         self._latched = {}         # absolute topic -> subscribed TRANSIENT_LOCAL
         self._last = {}            # carry-over topic -> last CDR bytes
+        self._gaps = PublicationGaps()
         self._ros_clock = self.get_clock()
         self._status_pub = self.create_publisher(String, '~/status', STATUS_QOS)
         self.create_service(Trigger, '~/start', self._on_start)
@@ -233,7 +251,7 @@ class Recorder(Node):
         self._types[topic] = msgtype
         self._latched[topic] = latched
         self._topic_subs[topic] = self.create_subscription(
-            cls, topic, lambda raw, t=topic, c=carry: self._on_message(t, c, raw), qos, raw=True)
+            cls, topic, functools.partial(self._on_messages, topic, carry), qos, raw=True)
 
     def _discover(self):
         for topic, types in self.get_topic_names_and_types():
@@ -246,12 +264,30 @@ class Recorder(Node):
             self.get_logger().info(f'discovered {topic} ({msgtype})')
             self._subscribe(topic, msgtype, endpoints)
 
-    def _on_message(self, topic, carry, rawdata):
+    def _on_messages(self, topic, carry, rawdata, info):
+        """Handle a message, then take the ones queued behind it (at most ``DRAIN``)."""
+        self._on_message(topic, carry, rawdata, info)
+        sub = self._topic_subs.get(topic)
+        if sub is None:
+            return
+        # The executor hands over one message per wait; at 1 kHz its overhead per wait is what
+        # falls behind, so the messages already queued are taken here, in one go.
+        with sub.handle:
+            for _ in range(DRAIN):
+                taken = sub.handle.take_message(sub.msg_type, True)
+                if taken is None:
+                    return
+                self._on_message(topic, carry, taken[0], taken[1])
+
+    def _on_message(self, topic, carry, rawdata, info):
         if carry:
             self._last[topic] = rawdata
+        missed = self._gaps.observe(topic, info.get('publication_sequence_number'))
         session = self._session
         if session is None:
             return
+        if missed:
+            session.missed[topic] = session.missed.get(topic, 0) + missed
         if topic not in session.types:
             session.types[topic] = self._types[topic]
             fallback = bags.make_qos(transient_local=self._latched[topic],
@@ -297,10 +333,10 @@ class Recorder(Node):
         if session is None:
             raise ValueError('not recording; call ~/start first')
         counts = session.close()
-        self.get_logger().info(
-            f'closed {session.path}: {counts["written"]} messages written, '
+        log = self.get_logger().warning if counts['lost'] else self.get_logger().info
+        log(f'closed {session.path}: {counts["written"]} messages written, '
             f'{counts["received"]} received, {counts["carried"]} carried over, '
-            f'{counts["lost"]} lost')
+            f'{counts["missed"]} published but never received, {counts["lost"]} lost')
         if publish:
             self._publish_status(counts)
         if session.error:
@@ -343,7 +379,7 @@ class Recorder(Node):
         status = {'recording': session is not None, **(counts or {})}
         self._status_pub.publish(String(data=json.dumps(status)))
 
-    def shutdown(self):
+    def on_exit(self):
         """Close the bag if one is open (on exit)."""
         if self._session is not None:
             try:
@@ -353,22 +389,7 @@ class Recorder(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Recorder()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('recorder').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return executables.recorder(args)
 
 
 if __name__ == '__main__':

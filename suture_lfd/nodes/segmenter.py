@@ -16,12 +16,12 @@ import json
 from pathlib import Path
 import sys
 
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd.demos.demo_bag import demonstration_from_bag
+from suture_lfd.nodes import executables
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.segmentation.segments import make_segment_file
 
@@ -111,19 +111,7 @@ class Segmenter(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Segmenter()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('segmenter').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        code = node.run()
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return executables.segmenter(args)
 
 
 if __name__ == '__main__':

@@ -23,8 +23,6 @@ import sys
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, WrenchStamped
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
@@ -32,6 +30,7 @@ from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Header, String
+from suture_lfd.nodes import executables
 from suture_lfd.teleop.frames import FrameTree
 from suture_lfd.teleop.teleoperation import (
     FOLLOWING,
@@ -234,21 +233,7 @@ class TeleopNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = TeleopNode()
-    except ValueError as exc:
-        rclpy.logging.get_logger('teleop').fatal(str(exc))
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return executables.teleop(args)
 
 
 if __name__ == '__main__':

@@ -48,6 +48,12 @@ ARMS = ('PSM1', 'PSM2')
 LABELS = ('i', 'ii', 'iii', 'iv', 'v', 'done')
 
 
+# What decides whether the arms reach a throw, and where a user changes it.
+UNREACHABLE_ADVICE = ('try another needle start (the simulator parameter seed), or bring the '
+                      'pair between the arms: move the phantom (its position and quaternion in '
+                      'the phantom file) or the arm bases (world.arms.<ARM> in world.yaml)')
+
+
 @dataclass(frozen=True)
 class Gate:
     """
@@ -470,7 +476,7 @@ class ScriptedExpert:
                 best, best_cost, best_roll = G, cost, end_roll
         if best is None:
             raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
-                             f'{what} of pair {self.pair.name}; move the arm or the needle')
+                             f'{what} of pair {self.pair.name}; {UNREACHABLE_ADVICE}')
         return best, best_roll
 
     def _noisy_pair(self):

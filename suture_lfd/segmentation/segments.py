@@ -28,7 +28,7 @@ from suture_lfd.dmp import load_dmp_params
 from suture_lfd.planning.suturing_frames import grasp_transform
 from suture_lfd.segmentation import SUBTASKS, Segmentation
 
-FORMAT = 'suture_lfd.segmentation.segments'
+FORMAT = 'suture_lfd.segments'  # the files' format tag (kept when the module moved)
 FORMAT_VERSION = 1
 SUBTASK_NAMES = tuple(name for name, _, _ in SUBTASKS)
 _STRINGS = ('source', 'subject', 'pair')

@@ -14,6 +14,11 @@ Long runs print progress; the per-job results are appended to ``results-<hash>.j
 output folder as they finish, so running the same command again after an interruption only
 does the jobs that are missing. ``--workers N`` runs jobs in N processes.
 
+``--held-out N`` also executes every subject's skills on pairs that are not among the fixed
+ones (N random pairs per phantom on its wound line, and on a user mesh with
+``--held-out-mesh``) and reports generality on them beside the fixed pairs
+(:mod:`suture_lfd.study.held_out`); the fixed pairs' results are unchanged by it.
+
 ``--via-ros`` executes every throw through real node processes instead of in-process: per
 throw a ``simulator`` node (the job's phantom and seed) and an ``executor`` node with the skill
 the study learnt, on a private ROS domain per worker (:mod:`suture_lfd.study.ros`); the
@@ -32,6 +37,7 @@ import time
 import zlib
 
 import numpy as np
+from suture_lfd.study import held_out
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,
@@ -78,6 +84,7 @@ def add_arguments(parser):
                         help='execute every throw through the ROS node graph: a simulator and '
                              'an executor node process per throw, a private ROS domain per '
                              'worker (demonstrations stay in-process; ~10x slower per throw)')
+    held_out.add_arguments(parser)
     parser.add_argument('--plan', action='store_true',
                         help='write the configuration (subjects, seeds, jobs) and stop')
     parser.add_argument('--report-only', action='store_true',
@@ -176,6 +183,7 @@ def build_config(args):
                              f'{sorted(METHODS)}')
     else:
         methods = list(METHODS)
+    held = held_out.held_out_config(args, phantoms, args.seed)
     settings = JobSettings(out='', cohort_path=str(cohort_path), cohort_seed=args.seed)
     files = {name: _file_digest(config_path(name))
              for name in ('scene.yaml', 'world.yaml', 'dmp.yaml', 'kinematics.yaml')
@@ -207,13 +215,15 @@ def build_config(args):
         'files': files,
         'code': _code_digest(),
         **extra,
+        **({'held_out': held} if held else {}),
     }
 
 
 def _hashed(config):
     """Return the configuration that decides the results (not paths or descriptions)."""
+    # held-out throws are keyed by their geometry: the fixed-pair results stay shared
     return {k: v for k, v in config.items()
-            if k not in ('cohort_file', 'method_descriptions', 'quick')}
+            if k not in ('cohort_file', 'method_descriptions', 'quick', 'held_out')}
 
 
 def plan_jobs(config):
@@ -325,14 +335,16 @@ def run_study(args, stream=None):
     digest = config_hash(_hashed(config))
     config['hash'] = digest
     demos, throws = plan_jobs(config)
+    held_jobs = held_out.plan_held_out(config, job_seed)
     (out / 'config.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
-    total = len(demos) + len(throws)
+    total = len(demos) + len(throws) + len(held_jobs)
     print(f'study {digest}: {len(config["subjects"])} subjects, '
           f'{sum(len(p) for p in config["phantoms"].values())} pairs, methods '
           f'{", ".join(config["methods"])}: {len(demos)} demonstrations + {len(throws)} '
-          f'throws; results in {out}', file=stream, flush=True)
+          f'throws' + (f' + {len(held_jobs)} held-out throws' if held_jobs else '')
+          + f'; results in {out}', file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps(demos + throws, indent=1) + '\n')
+        (out / 'jobs.json').write_text(json.dumps(demos + throws + held_jobs, indent=1) + '\n')
         return 0
     if args.workers is not None:
         workers = args.workers
@@ -347,22 +359,27 @@ def run_study(args, stream=None):
                            cohort_seed=config['seed'])
     status = 0
     with ResultStore(out, digest) as store:
-        done_before = sum(1 for j in demos + throws
+        done_before = sum(1 for j in demos + throws + held_jobs
                           if not store.records.get(j['key'], {'error': 'missing'}).get('error'))
         progress = Progress(total, done=done_before, stream=stream)
         ran = 0
         if not args.report_only:
             session = None
             try:
-                if engine.kind == 'dask' and pending(demos + throws, store):
+                if engine.kind == 'dask' and pending(demos + held_jobs + throws, store):
                     session = open_session(engine, workers)
                     print(f'study: jobs run on the {engine.describe()} '
                           f'({session.n_workers()} workers)', file=stream, flush=True)
-                ran += run_stages_on(session or engine, [demos], run_job, store,
+                where = session or engine
+                ran += run_stages_on(where, [demos], run_job, store, workers=workers,
+                                     progress=progress, initializer=init_worker,
+                                     initargs=(settings,))
+                if held_jobs:  # fewer than the matrix's throws: their figure comes first
+                    ran += run_stages_on(where, [_attach_demos(held_jobs, store)], run_job,
+                                         store, workers=workers, progress=progress,
+                                         initializer=init_worker, initargs=(settings,))
+                ran += run_stages_on(where, [_attach_demos(throws, store)], run_job, store,
                                      workers=workers, progress=progress,
-                                     initializer=init_worker, initargs=(settings,))
-                ran += run_stages_on(session or engine, [_attach_demos(throws, store)], run_job,
-                                     store, workers=workers, progress=progress,
                                      initializer=init_worker, initargs=(settings, ros))
             except (CodeMismatchError, EngineError) as exc:
                 print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
@@ -379,6 +396,7 @@ def run_study(args, stream=None):
                 close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
         wall = time.monotonic() - t0
         records = _ordered_records(store, demos + throws)
+        held_records = _ordered_records(store, held_jobs)
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())
     run_info = {'command': command.strip(), 'workers': workers, 'engine': engine.describe(),
                 'jobs_run': ran,
@@ -386,11 +404,25 @@ def run_study(args, stream=None):
     from suture_lfd.study import report as report_writer  # matplotlib: only when writing
 
     path = report_writer.write_report(out, records, config, run_info)
-    missing = total - len(records)
-    print(f'report: {path} ({len(records)}/{total} jobs'
+    if held_jobs:
+        _write_held_out(out, path, records, held_records, config)
+    missing = total - len(records) - len(held_records)
+    print(f'report: {path} ({len(records) + len(held_records)}/{total} jobs'
           + (f', {missing} missing' if missing else '') + f'; {wall:.1f} s)', file=stream,
           flush=True)
     return status
+
+
+def _write_held_out(out, report, records, held_records, config):
+    """Add the held-out geometry section to the report, and ``held_out.csv``."""
+    from suture_lfd.study.report import write_csv
+
+    ok = [r for r in held_records if not r.get('error')]
+    write_csv(out / 'held_out.csv', held_out.held_out_rows(ok, config), held_out.HELD_OUT_COLUMNS)
+    (out / 'held_out.json').write_text(
+        json.dumps(held_out.summarise(records, ok), indent=1, sort_keys=True) + '\n')
+    with open(report, 'a') as f:
+        f.write('\n' + '\n'.join(held_out.report_section(records, ok, config)) + '\n')
 
 
 def _study_argv():

@@ -151,8 +151,13 @@ def _settings():
     return _STATE['settings']
 
 
-def _simulation(phantom, step=None):
-    """Return the worker's simulation of a phantom at ``step`` (default: the throws' step)."""
+def _simulation(phantom, step=None, spec=None):
+    """
+    Return the worker's simulation of a phantom at ``step`` (default: the throws' step).
+
+    ``spec`` (a held-out phantom's configuration, :mod:`suture_lfd.study.held_out`): ``phantom`` is
+    then the key of that geometry.
+    """
     s = _settings()
     step = s.physics_step if step is None else float(step)
     sims = _STATE['sims']
@@ -163,7 +168,14 @@ def _simulation(phantom, step=None):
         loop = replace(config.loop, thread_period=s.thread_period,
                        collision_period=max(s.collision_period, step))
         config = replace(config, world=replace(config.world, physics_step=step), loop=loop)
-        sims[phantom, step] = Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
+        if spec is not None:
+            from suture_lfd.study.held_out import phantom_config
+
+            sims[phantom, step] = Simulation(config, phantom=phantom_config(spec),
+                                             rng=np.random.default_rng(0))
+        else:
+            sims[phantom, step] = Simulation(config, phantom=phantom,
+                                             rng=np.random.default_rng(0))
     return sims[phantom, step]
 
 
@@ -199,7 +211,7 @@ def run_job(job):
     """
     if job['kind'] == 'demo':
         return demo_job(job)
-    if job['kind'] == 'throw':
+    if job['kind'] in ('throw', 'held_out'):
         return throw_job(job)
     raise ValueError(f'unknown study job kind {job["kind"]!r}')
 
@@ -405,6 +417,7 @@ def throw_job(job):
     s = _settings()
     out = Path(s.out)
     record = {**job, 'regeneration': job['train_pair'] == job['test_pair']}
+    spec = record.pop('test_config', None)  # a held-out pair's phantom (kept in the config)
     if not job.get('segments'):
         record.update(score=0.0, failure='no successful demonstration to learn from',
                       time_s=_nan(), entry_error_mm=_nan(), exit_error_mm=_nan(),
@@ -416,7 +429,8 @@ def throw_job(job):
     skill = _skill(path, job['method'], job.get('dmp'))
     ros = _STATE.get('ros')
     if ros is None:
-        sim = _simulation(job['test_phantom'])
+        sim = (_simulation(job['test_key'], spec=spec) if spec is not None
+               else _simulation(job['test_phantom']))
         outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
                                 timeout=s.timeout, control_period=s.control_period)
         markers = sim.phantom.markers

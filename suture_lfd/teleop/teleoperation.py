@@ -374,23 +374,24 @@ class Teleoperation:
                 self._enter_aligning(inp.t)
             return out
         # ALIGNING
-        if cfg.align_mtm and not inp.clutch and \
-                inp.t - self._last_align >= cfg.align_period and \
-                (inp.mtm_state is None or not inp.mtm_state.is_busy):
+        error = 0.0
+        if cfg.align_mtm:
+            error = CartesianMap.alignment_error(inp.mtm_cp[:3, :3], inp.psm_cp[:3, :3],
+                                                 inp.R_C_M, inp.R_C_P)
+        mtm_busy = inp.mtm_state is not None and inp.mtm_state.is_busy
+        if cfg.align_mtm and not inp.clutch and error > cfg.orientation_tolerance \
+                and inp.t - self._last_align >= cfg.align_period and not mtm_busy:
             self._last_align = inp.t
             T = np.array(inp.mtm_cp, dtype=float)
             T[:3, :3] = CartesianMap.aligned_mtm_rotation(inp.psm_cp[:3, :3], inp.R_C_M,
                                                           inp.R_C_P)
             out.append(Command('move_cp', 'mtm', T))
             self._range = None          # the move turns the wrist: not the operator's gesture
-        elif present and (inp.mtm_state is None or not inp.mtm_state.is_busy):
+            return out
+        if present and not mtm_busy:
             self._track_activity(inp)
-        error = 0.0
-        if cfg.align_mtm:
-            error = CartesianMap.alignment_error(inp.mtm_cp[:3, :3], inp.psm_cp[:3, :3],
-                                                 inp.R_C_M, inp.R_C_P)
         if present and self.operator_active and error <= cfg.orientation_tolerance \
-                and (inp.mtm_state is None or not inp.mtm_state.is_busy):
+                and not mtm_busy:
             if inp.clutch:
                 self._start_following(inp, [])
                 self._clutch_in(inp, out)

@@ -1,10 +1,9 @@
 """The stereo endoscope: images agree with the intrinsics that camera_info publishes."""
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
 import pytest
 from scipy.spatial.transform import Rotation
+from sim_bridge.bullet import bullet_client, pybullet
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
 
 

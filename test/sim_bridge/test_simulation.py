@@ -319,3 +319,21 @@ def test_a_needle_at_rest_on_the_scanned_pad_lies_on_the_tissue_not_in_it(exact_
         assert sim.tissue.punctures == []
     finally:
         sim.close()
+
+
+def test_arms_at_rest_power_up_then_home_with_the_dvrk_timings(config):
+    rest = {'psm_rest_jp': (0.0,) * 6, 'ecm_rest_jp': (0.0,) * 4}
+    sim = Simulation(replace(config, arm=ArmConfig(power_up_time=0.5), **rest))
+    try:
+        for name, arm in sim.arms.items():
+            assert arm.operating_state.state == 'DISABLED'
+            assert arm.measured_jp[2] == 0.0, name  # instrument and endoscope retracted
+        sim.enable_and_home_all()
+        # the power-up, then the slowest homing: the ECM's 12 cm at 60 mm/s and 60 mm/s^2
+        assert sim.time == pytest.approx(0.5 + 3.0, abs=0.05)
+        for arm in sim.arms.values():
+            assert arm.operating_state.is_homed and arm.measured_jp[2] == pytest.approx(0.12)
+        sim.reset()
+        assert all(arm.measured_jp[2] == 0.0 for arm in sim.arms.values())
+    finally:
+        sim.close()

@@ -14,7 +14,7 @@ import time
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics
 from geometry_msgs.msg import PoseStamped
-from harness import FAST_ARMS
+from harness import FAST_ARMS, SIGINT_EXIT
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -222,7 +222,7 @@ def test_graph_matches_the_dvrk_contract_headless_from_any_directory(ros, launch
     assert ros.wait_for(lambda: [list(p.buttons) for p in presses] == [[1]], 10.0)
 
     assert sim.running()
-    assert sim.stop() == 0  # SIGINT: clean exit
+    assert sim.stop() == SIGINT_EXIT  # stopped by SIGINT, cleanly
     assert 'Traceback' not in sim.log_path.read_text()
 
 
@@ -447,6 +447,34 @@ def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
     assert ros.wait_for(lambda: len(psm.get('measured_js')) > n + 20, 10.0)
 
 
+def test_a_cartesian_goal_in_another_frame_is_warned_about_once_and_read_in_the_base(
+        ros, launch):
+    sim = launch('simulator')
+    psm = ArmClient(ros, 'PSM2')
+    assert ros.wait_for(psm.connected, 40.0), sim.log()
+    psm.enable_and_home()
+    T = cv.matrix_from_pose(psm.last('measured_cp').pose)
+    T[2, 3] -= 0.005
+    t = time.monotonic()
+    for frame in ('', 'PSM2_base'):   # the arm's own frame or none: no warning
+        msg = pose_msg(T)
+        msg.header.frame_id = frame
+        psm.send('servo_cp', msg)
+    msg = pose_msg(T)
+    msg.header.frame_id = 'world'
+    for _ in range(50):                # a stream of them: one warning, throttled
+        psm.send('servo_cp', msg)
+        time.sleep(0.002)
+    assert ros.wait_for(lambda: any('world' in m.data for m in psm.get('warning', t)), 10.0)
+    # executed as a goal in PSM2_base, as before
+    assert ros.wait_for(lambda: np.allclose(
+        cv.matrix_from_pose(psm.last('setpoint_cp').pose)[:3, 3], T[:3, 3], atol=1e-6), 10.0)
+    time.sleep(0.5)
+    warnings = [m.data for m in psm.get('warning', t)]
+    assert len(warnings) == 1, warnings
+    assert "servo_cp stamped in frame 'world' is read in 'PSM2_base'" in warnings[0]
+
+
 def test_a_state_snapshot_gives_the_arm_properties():
     from sim_bridge.kinematics import ecm_kinematics
     from sim_bridge.nodes.crtk_arm import ArmSnapshot
@@ -641,7 +669,7 @@ def test_faster_than_real_time_under_a_namespace_with_remaps(ros, launch):
     idle = next(stamp_s(m) for m in states if not m.is_busy and stamp_s(m) > busy)
     expected = move_duration_in_core(start_q, goal_q, 0.002)
     assert idle - busy == pytest.approx(expected, abs=0.005)
-    assert sim.stop() == 0
+    assert sim.stop() == SIGINT_EXIT
     assert 'Traceback' not in sim.log_path.read_text()
 
 

@@ -1,10 +1,9 @@
 """The PyBullet world: arms match their DH chains, the needle body, the table, the placement."""
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
 import pytest
 from scipy.spatial.transform import Rotation
+from sim_bridge.bullet import bullet_client, pybullet
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry, invert_transform
 from sim_bridge.scene.phantom import PhantomConfig, build_phantom

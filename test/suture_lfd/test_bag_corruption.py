@@ -11,8 +11,8 @@ from mcap.stream_reader import StreamReader
 import numpy as np
 import pytest
 from suture_lfd import bags
+from suture_lfd.bags.mcap_check import check_mcap, salvage_messages
 from suture_lfd.demos.demo_bag import write_demonstration_bag
-from suture_lfd.mcap_check import check_mcap, salvage_messages
 from suture_lfd.nodes.segmenter import SegmenterConfig, segment_bag
 
 
@@ -130,6 +130,20 @@ def test_recover_keeps_the_chunks_that_check_out_and_says_what_it_dropped(clean,
     assert 0 < kept < total
     with bags.open_bag(tmp_path / 'kept') as reader:   # what was kept reads and checks out
         assert sum(1 for _ in reader) == kept
+
+
+def test_recover_names_the_topics_of_later_chunks_from_the_summary_when_the_first_is_lost(
+        clean, tmp_path):
+    bag, _ = clean
+    data = bytearray((bag / 'clean.mcap').read_bytes())
+    total = bags.bag_summary(bag).message_count
+    first = 8 + 9 + struct.unpack_from('<Q', data, 8 + 1)[0]   # after the header record
+    assert data[first] == 0x06
+    data[first + 200] ^= 0xFF    # in the first chunk, which holds the schemas and channels
+    copy = _copy(bag, tmp_path / 'first', bytes(data))
+    summary = bags.recover_bag(copy)
+    assert 0 < summary.message_count < total
+    assert '/PSM1/measured_cp' in summary.topics
 
 
 @pytest.mark.parametrize('damage', ['flip', 'truncate', 'metadata'])

@@ -6,6 +6,8 @@ node learns from it and performs throws on the simulator node through the CRTK t
 """
 
 import json
+import os
+import signal
 import time
 
 from geometry_msgs.msg import PoseStamped
@@ -97,7 +99,10 @@ def test_the_executor_node_completes_a_throw_and_the_simulator_scores_it(launch,
                                            if 'scene event' in line or 'subtask' in line])
     assert all(result['subtasks'].values())
     assert watcher.scores and watcher.scores[-1]['score']['score'] == 1.0
-    assert '"kind": "score"' in executor.log()
+    # one result line (JSON) on stdout, and no score line before the throw has ended
+    lines = [json.loads(line) for line in executor.log().splitlines() if line.startswith('{')]
+    assert [r['score'] for r in lines] == [1.0]
+    assert '"score": 0.0' not in executor.log()
     assert executor.running() and sim.running()
 
     # one core, two faces: the same throw in-process gives the same score, and its needle tip
@@ -133,6 +138,44 @@ def test_the_executor_stops_and_says_so_when_the_simulator_dies(launch, ros, seg
     assert not [t for t in watcher.servo if t > killed + 0.3]   # it stopped commanding
     assert watcher.results[-1]['state'] == 'stopped'
     assert executor.running()                          # and it is still there
+
+
+def test_a_starved_simulator_is_waited_for_and_a_killed_one_is_dead_within_a_second(
+        launch, ros, segments):
+    sim, executor, watcher = start_nodes(launch, ros, segments)
+    deadline = time.monotonic() + 60.0
+    while watcher.state() == 'idle' and time.monotonic() < deadline:
+        watcher.send('synth1')
+        time.sleep(0.5)
+    assert ros.wait_for(lambda: watcher.state() == 'running', timeout=120.0), executor.log()
+    assert ros.wait_for(lambda: len(watcher.servo) > 200, timeout=120.0)
+    # starved: the simulator gets no CPU at all for 2 s (stopped), then runs again
+    os.kill(sim.pid, signal.SIGSTOP)
+    try:
+        stopped_at = time.monotonic()
+        states = set()
+        while time.monotonic() - stopped_at < 2.0:
+            states.add(watcher.state())
+            time.sleep(0.01)
+    finally:
+        os.kill(sim.pid, signal.SIGCONT)
+    time.sleep(1.0)
+    states.add(watcher.state())
+    assert 'stopped' not in states and 'failed' not in states, watcher.status[-1]
+    assert 'simulator process' in executor.log() and 'runs: waiting for it' in executor.log()
+    # the throw goes on (at a quarter of real time it lasts minutes) ...
+    assert watcher.state() == 'running', watcher.status[-1]
+    n = len(watcher.servo)
+    assert ros.wait_for(lambda: len(watcher.servo) > n + 20, timeout=30.0)
+    # ... and a dead simulator is still found within a second
+    killed = time.monotonic()
+    sim.kill()
+    assert ros.wait_for(lambda: watcher.state() == 'stopped', timeout=10.0), executor.log()
+    reported = time.monotonic()
+    assert 'simulator process' in watcher.status[-1]['reason'], watcher.status[-1]
+    assert reported - killed < 1.0, (reported - killed, watcher.status[-1])
+    assert not [t for t in watcher.servo if t > killed + 0.5]
+    assert executor.running()
 
 
 def test_a_stop_request_and_a_bad_pair_are_reported_and_the_node_survives(launch, ros, segments):

@@ -5,7 +5,7 @@ from pathlib import Path
 import re
 import time
 
-from harness import wait_for
+from harness import SIGINT_EXIT, wait_for
 import pytest
 from suture_lfd import bags
 from test_recorder import BURST_TOPICS, call, launch_recorder, make_message, message_types
@@ -151,7 +151,7 @@ def test_player_loops_until_stopped(ros, launch, tmp_path):
     assert wait_for(lambda: len(got) >= 3 * n, 10.0), player.log()
     assert got[:2 * n] == sent['/PSM2/measured_js'] * 2
     assert player.running()
-    assert player.stop() == 0, player.log()
+    assert player.stop() == SIGINT_EXIT, player.log()
 
 
 @pytest.mark.parametrize('case', ['no-metadata', 'missing-topic', 'bad-rate'])

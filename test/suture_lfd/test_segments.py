@@ -65,7 +65,7 @@ def _rewrite(src, dst, **changes):
 
 @pytest.mark.parametrize(('changes', 'words'), [
     ({'format_version': np.array(7)}, ['format_version', '7']),
-    ({'format': np.array('suture_lfd.demos.demonstration')}, ['format', FORMAT]),
+    ({'format': np.array('suture_lfd.demonstration')}, ['format', FORMAT]),
     ({'iv_grasp': None}, ["'iv_grasp'"]),
     ({'ii_needle': np.zeros((3, 7))}, ['ii_needle']),
 ])

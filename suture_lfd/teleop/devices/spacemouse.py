@@ -3,8 +3,9 @@ The SpaceMouse back-end: 3Dconnexion 6-DOF devices through hidapi drive the virt
 
 As jhu-dvrk's PyBullet dVRK uses two SpaceNavigators as non-haptic MTMs: the device's velocity
 (after a ``deadband`` of full scale, 0.03) is integrated into the MTM's pose, and the two
-buttons close (left) and open (right) the gripper; both held together is the clutch. The
-operator is taken as present (coag held) while the device is open. The first device found
+buttons close (left) and open (right) the gripper; both held together is the clutch; a third
+button (SpaceMouse Pro and others) is the camera pedal. The operator is taken as present (coag
+held) while the device is open. The first device found
 drives MTMR, a second one MTML.
 
 HID reports (little-endian int16, full scale about +-350): report 1 carries the translation
@@ -149,7 +150,7 @@ class SpaceMouseDevice(InputDevice):
     def poll(self, t):
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t
-        arms, clutch = {}, False
+        arms, clutch, camera = {}, False, False
         for mtm, (dev, state) in self.devices.items():
             for _ in range(64):                   # every report waiting, newest last
                 report = dev.read(64)
@@ -161,6 +162,7 @@ class SpaceMouseDevice(InputDevice):
                     continue                      # other reports (LEDs, battery) are skipped
             close, open_ = state.button(0), state.button(1)
             clutch = clutch or (close and open_)
+            camera = camera or state.button(2)
             if close != open_:
                 rate = self.gripper_speed if open_ else -self.gripper_speed
                 g = self.grippers[mtm] + rate * dt
@@ -168,7 +170,7 @@ class SpaceMouseDevice(InputDevice):
             arms[mtm] = ArmReading(twist=state.twist(self.linear_speed, self.angular_speed,
                                                      self.deadband),
                                    gripper=self.grippers[mtm])
-        return Reading(arms=arms, pedals={'clutch': clutch, 'coag': True})
+        return Reading(arms=arms, pedals={'clutch': clutch, 'coag': True, 'camera': camera})
 
     def close(self):
         for dev, _ in self.devices.values():

@@ -320,4 +320,24 @@ def salvage_messages(data):
     except McapDamageError as exc:
         salvage.stop = (f'truncated or damaged at byte {exc.offset}: {exc.what}; the '
                         f'{len(data) - exc.offset} bytes from there on are dropped')
+    _summary_definitions(data, salvage)
     return salvage, messages
+
+
+def _summary_definitions(data, salvage):
+    """Add the schemas and channels of an intact summary section that the chunks lacked."""
+    footer = len(data) - len(MAGIC) - _FOOTER.size
+    if footer < len(MAGIC) or bytes(data[-len(MAGIC):]) != MAGIC:
+        return
+    op, length, start, _, crc = _FOOTER.unpack_from(data, footer)
+    if op != OP_FOOTER or length != 20 or not len(MAGIC) <= start <= footer or not crc \
+            or crc32(data[start:footer + _FOOTER.size - 4]) != crc:
+        return
+    try:
+        schemas, channels, _ = _inner(memoryview(bytes(data[start:footer])))
+    except (struct.error, UnicodeDecodeError, ValueError, McapDamageError):
+        return
+    for sid, schema in schemas.items():
+        salvage.schemas.setdefault(sid, schema)
+    for cid, channel in channels.items():
+        salvage.channels.setdefault(cid, channel)
