@@ -246,15 +246,19 @@ class DaskSession:
 
         window = IN_FLIGHT_PER_WORKER * self.n_workers()
         jobs = iter(stage)
-        first = [self._submit(job, job_fn, initializer, initargs)
-                 for _, job in zip(range(window), jobs)]
-        in_flight = set(first)
-        running = as_completed(first)
+        in_flight = {}
+        for _, job in zip(range(window), jobs):
+            in_flight[self._submit(job, job_fn, initializer, initargs)] = job['key']
+        running = as_completed(list(in_flight))
         ran = 0
         try:
             for future in running:
-                in_flight.discard(future)
-                record = future.result()
+                key = in_flight.pop(future)
+                try:
+                    record = future.result()
+                except Exception as exc:  # the worker machinery, not the job: jobs return errors
+                    raise EngineError(f'the Dask cluster could not run job {key}: '
+                                      f'{type(exc).__name__}: {exc}') from exc
                 check_code(record, self.code)
                 store.add(record)
                 ran += 1
@@ -263,7 +267,7 @@ class DaskSession:
                 job = next(jobs, None)
                 if job is not None:
                     future = self._submit(job, job_fn, initializer, initargs)
-                    in_flight.add(future)
+                    in_flight[future] = job['key']
                     running.add(future)
         except BaseException:
             for future in in_flight:

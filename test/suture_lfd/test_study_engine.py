@@ -147,14 +147,18 @@ def test_a_worker_with_other_code_is_refused_and_nothing_is_stored(tmp_path):
     from distributed import LocalCluster
 
     other = _other_code(tmp_path)
-    env = {**os.environ, 'PYTHONPATH': str(other)}
+    log = open(tmp_path / 'worker.log', 'w')
     with LocalCluster(n_workers=0, host='127.0.0.1', dashboard_address=None,
                       processes=True) as cluster:
+        # A worker whose sys.path puts the other copy first (ahead of the environment's
+        # install of this one), and this folder, where the job function lives.
+        start = ('import sys; sys.path[:0] = sys.argv[1:3]; del sys.argv[1:3]; '
+                 'from distributed.cli.dask_worker import main; main()')
         worker = subprocess.Popen(
-            [sys.executable, '-m', 'distributed.cli.dask_worker', cluster.scheduler_address,
-             '--nthreads', '1', '--nworkers', '1', '--host', '127.0.0.1',
-             '--no-dashboard'],
-            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            [sys.executable, '-c', start, str(other), str(Path(__file__).parent),
+             cluster.scheduler_address, '--nthreads', '1', '--nworkers', '1', '--host',
+             '127.0.0.1', '--no-dashboard'],
+            stdout=log, stderr=subprocess.STDOUT)
         try:
             spec = parse_engine(cluster.scheduler_address)
             with DaskSession(spec) as session:
@@ -166,6 +170,7 @@ def test_a_worker_with_other_code_is_refused_and_nothing_is_stored(tmp_path):
         finally:
             worker.terminate()
             worker.wait(timeout=60)
+            log.close()
     assert not (tmp_path / 'runs').exists()  # the refused worker ran nothing
 
 
