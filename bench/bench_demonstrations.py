@@ -30,6 +30,7 @@ from sim_bridge.simulation import Simulation
 from suture_lfd.demos.cohort import load_cohort
 from suture_lfd.demos.demo_bag import demonstration_from_bag, write_demonstration_bag
 from suture_lfd.demos.demonstrator import DemonstrationError, run_demonstration
+from suture_lfd.planning.episode import start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.segmentation import SUBTASKS, segment_demonstration
 
@@ -37,10 +38,8 @@ NAMES = [name for name, _, _ in SUBTASKS]
 
 
 def expert_throw(sim, pair):
-    sim.reset(seed=0)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair)
-    expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
+    target = start_episode(sim, pair, 0)
+    expert = ScriptedExpert(target, sim.needle_geometry, sim.config.scene.expert,
                             kinematics=sim.kinematics['PSM2'])
     t0, wall = sim.time, time.perf_counter()
     while not expert.done and sim.time - t0 < 60.0:

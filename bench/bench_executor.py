@@ -19,6 +19,7 @@ import time
 
 from sim_bridge.simulation import Simulation
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.segmentation.segments import make_segment_file
@@ -50,17 +51,12 @@ class _Timed:
 
 def expert_throw(sim, pair, control_period):
     """One scripted expert throw; return (wall s, simulated s, score)."""
-    sim.reset(seed=0)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair)
+    target = start_episode(sim, pair, 0)
     start = time.perf_counter()
-    expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
+    expert = ScriptedExpert(target, sim.needle_geometry, sim.config.scene.expert,
                             kinematics=sim.kinematics['PSM2'])
     t0 = sim.time
-    expert.reset(sim.observation())
-    while not expert.done:
-        sim.run(0.5, expert, control_period)
-    sim.run(0.2, expert, control_period)
+    run_episode(sim, expert, control_period, always_settle=True)
     return time.perf_counter() - start, sim.time - t0, sim.score().score
 
 

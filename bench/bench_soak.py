@@ -20,7 +20,7 @@ Two phases:
    longest), the simulator's resident memory (RSS, from ``/proc``) after the first 30 s and at
    the end, and its exit code after the SIGINT;
 2. ``--stops`` rounds of start (until the node says it simulates), ``--round-seconds`` of
-   streaming, SIGINT: the exit codes (0 is a
+   streaming, SIGINT: the exit codes (130, or 0, is a
    clean stop; a negative code is the signal that killed it, -11 a SIGSEGV), the time each took
    to exit, and any line of a Python traceback or a fatal message in its log.
 
@@ -51,6 +51,7 @@ STREAM_HZ = 1000.0
 PSMS = ('PSM1', 'PSM2')
 GAP_S = 0.05
 WARMUP_S = 30.0
+CLEAN_EXITS = (0, 130)   # a node stopped by SIGINT exits 130 (0 before nodes said so)
 
 
 # -- the streamer role -----------------------------------------------------------------------
@@ -226,7 +227,7 @@ def rounds(bin_dir, tmp, stops, round_seconds):
         results.append({'round': k, 'exit_code': code, 'exit_s': took, 'problems': problems})
         print(f'  stop {k + 1}/{stops}: exit {code} in {took:.2f} s'
               + (f'; {problems[:2]}' if problems else ''), flush=True)
-        if code != 0:
+        if code not in CLEAN_EXITS:
             os.replace(tmp / f'round{k:03d}.log', tmp / f'failed_round{k:03d}.log')
     client.tell('stop')
     client.wait(60.0)
@@ -234,7 +235,7 @@ def rounds(bin_dir, tmp, stops, round_seconds):
     for r in results:
         codes[str(r['exit_code'])] = codes.get(str(r['exit_code']), 0) + 1
     return {'stops': stops, 'round_seconds': round_seconds, 'exit_codes': codes,
-            'crashes': sum(1 for r in results if r['exit_code'] != 0),
+            'crashes': sum(1 for r in results if r['exit_code'] not in CLEAN_EXITS),
             'exit_s_max': max((r['exit_s'] for r in results), default=None),
             'rounds_with_log_problems': [r for r in results if r['problems']]}
 

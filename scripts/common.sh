@@ -1,7 +1,11 @@
 # Shared by the scripts: environment (DDS on this machine only), node start-up, clean stop.
 # Source it; it defines `start NAME ARGS...` (a node executable in the background, log in
-# $LOG_DIR/NAME.log) and stops every started node on exit (SIGTERM, then SIGKILL after
-# $STOP_TIMEOUT seconds).
+# $LOG_DIR/NAME.log), `run NAME ARGS...` (a node in the foreground while the started ones are
+# watched: a node that dies ends the script at once with its error line), `wait_ready NAME
+# TEXT` (until the node's log says TEXT), and stops every started node on exit (SIGTERM, then
+# SIGKILL after $STOP_TIMEOUT seconds). Logs go to one folder per run under
+# $SUTURE_LFD_LOGS (default: suture-lfd-logs in the temporary directory), printed at the
+# start and removed when the script succeeds; LOG_DIR names another folder, always kept.
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv=${SUTURE_LFD_VENV:-$repo/.venv}
 [ -x "$venv/bin/simulator" ] || "$repo/tools/setup.sh"
@@ -9,11 +13,125 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-$(( $$ % 90 + 10 ))}
 export AMENT_PREFIX_PATH=$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}
 export PYTHONUNBUFFERED=1
-LOG_DIR=${LOG_DIR:-$(mktemp -d "${TMPDIR:-/tmp}/suture-lfd-logs.XXXXXX")}
 STOP_TIMEOUT=${STOP_TIMEOUT:-10}
 children=()
+names=()
+declare -A ready_text=([simulator]='simulating')  # the log line that says a node is ready
+declare -A announced=()
+logs_announced=0
+keep_logs=1
+if [ -z "${LOG_DIR:-}" ]; then
+  logs_root=${SUTURE_LFD_LOGS:-${TMPDIR:-/tmp}/suture-lfd-logs}
+  mkdir -p "$logs_root"
+  LOG_DIR=$(mktemp -d "$logs_root/$(basename "$0" .sh)-$(date +%Y%m%d-%H%M%S)-XXXX")
+  keep_logs=0
+fi
 
 say() { printf '%s: %s\n' "$(basename "$0")" "$*" >&2; }
+
+# last_error LOG: the line of a node's log that says why it stopped (its last error, or else
+# its last line).
+last_error() {
+  local line
+  line=$(grep -E 'error|Error|ERROR|FATAL|refused|unknown' "$1" 2>/dev/null | tail -1 || true)
+  [ -n "$line" ] || line=$(grep -v '^[[:space:]]*$' "$1" 2>/dev/null | tail -1 || true)
+  printf '%s\n' "${line:-(its log is empty)}"
+}
+
+# check_children: exit at once, with the node's error line, if a started node has exited.
+check_children() {
+  local i pid status
+  for i in "${!children[@]}"; do
+    pid=${children[$i]}
+    kill -0 "$pid" 2>/dev/null && continue
+    status=0
+    wait "$pid" 2>/dev/null || status=$?
+    say "${names[$i]:-process $pid} exited (code $status):" \
+      "$(last_error "$LOG_DIR/${names[$i]:-}.log")"
+    exit $(( status ? status : 1 ))
+  done
+}
+
+# wait_ready NAME TEXT [TIMEOUT]: wait until the started node NAME logs TEXT; say it is ready.
+wait_ready() {
+  local name=$1 text=$2 deadline=$(( SECONDS + ${3:-300} ))
+  until grep -q -- "$text" "$LOG_DIR/$name.log" 2>/dev/null; do
+    check_children
+    if [ "$SECONDS" -ge "$deadline" ]; then
+      say "$name not ready after ${3:-300} s: $(last_error "$LOG_DIR/$name.log")"
+      exit 1
+    fi
+    sleep 0.2
+  done
+  announced[$name]=1
+  say "$name ready"
+}
+
+# run NAME ARGS...: run a node to its end (log in $LOG_DIR/NAME.log) while watching the started
+# ones; set run_status to its exit code; on failure say its error line.
+run() {
+  local name=$1 pid
+  shift
+  "$venv/bin/$name" "$@" >"$LOG_DIR/$name.log" 2>&1 &
+  pid=$!
+  local began=$SECONDS
+  while kill -0 "$pid" 2>/dev/null; do
+    if ! check_running; then
+      kill -TERM "$pid" 2>/dev/null || true
+      wait "$pid" 2>/dev/null || true
+      progress_done
+      check_children
+    fi
+    announce_ready
+    progress "$name" $(( SECONDS - began )) "$LOG_DIR/$name.log"
+    sleep 0.2
+  done
+  progress_done
+  run_status=0
+  wait "$pid" || run_status=$?
+  if [ "$run_status" -ne 0 ]; then
+    say "$name exited (code $run_status): $(last_error "$LOG_DIR/$name.log")"
+  fi
+}
+
+# progress NAME SECONDS LOG: on a terminal, one updating line: the node, its time, its last
+# log message (nothing when standard error is not a terminal: the log has it all).
+progress() {
+  [ -t 2 ] || return 0
+  local message
+  message=$(grep -v '^{' "$3" 2>/dev/null | tail -1 | sed 's/^\[[A-Z]*\] \[[0-9.]*\] \[[^]]*\]: //')
+  printf '\r\033[K%s: %s (%d s)' "$1" "${message:0:$(( ${COLUMNS:-100} - ${#1} - 12 ))}" "$2" >&2
+  progress_shown=1
+}
+
+progress_done() {
+  if [ "${progress_shown:-0}" = 1 ]; then
+    printf '\r\033[K' >&2
+    progress_shown=0
+  fi
+}
+
+# announce_ready: say once that a started node is ready, when its log says so.
+announce_ready() {
+  local name
+  for name in "${names[@]}"; do
+    [ -n "${ready_text[$name]:-}" ] && [ -z "${announced[$name]:-}" ] || continue
+    if grep -q -- "${ready_text[$name]}" "$LOG_DIR/$name.log" 2>/dev/null; then
+      announced[$name]=1
+      progress_done
+      say "$name ready"
+    fi
+  done
+}
+
+# check_running: true while every started node runs.
+check_running() {
+  local pid
+  for pid in "${children[@]}"; do
+    kill -0 "$pid" 2>/dev/null || return 1
+  done
+  return 0
+}
 
 # The script's help: its leading comment block, without the comment marks.
 usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
@@ -48,13 +166,18 @@ phantom_params() {
 start() {
   local name=$1
   shift
+  if [ "$logs_announced" = 0 ]; then
+    say "logs in $LOG_DIR"
+    logs_announced=1
+  fi
   "$venv/bin/$name" "$@" >"$LOG_DIR/$name.log" 2>&1 &
   children+=("$!")
-  say "started $name (pid $!, log $LOG_DIR/$name.log)"
+  names+=("$name")
+  say "started $name (pid $!)"
 }
 
 stop_children() {
-  local pid deadline
+  local status=$? pid deadline
   trap - EXIT INT TERM
   for pid in "${children[@]}"; do
     kill -TERM "$pid" 2>/dev/null || true
@@ -65,6 +188,13 @@ stop_children() {
     kill -KILL "$pid" 2>/dev/null || true
     wait "$pid" 2>/dev/null || true
   done
+  if [ "$keep_logs" = 0 ] && [ "$status" = 0 ]; then
+    rm -rf "$LOG_DIR"
+    rmdir "$(dirname "$LOG_DIR")" 2>/dev/null || true
+  elif [ "$logs_announced" = 1 ] && [ "$status" != 0 ]; then
+    say "logs kept in $LOG_DIR"
+  fi
+  exit "$status"
 }
 trap stop_children EXIT
 trap 'exit 130' INT

@@ -26,7 +26,7 @@ while [ $# -gt 0 ]; do
     --out) out=$2; shift 2 ;;
     --record-pedal) record_pedal=$2; shift 2 ;;
     --no-align) align=false; shift ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) usage; exit 0 ;;
     *) say "unknown option $1"; exit 2 ;;
   esac
 done

@@ -7,9 +7,9 @@
 #
 # Starts the simulator (--phantom, by default the phantom the pair's name starts with: scan*
 # scanned, synth* synthetic) unless --no-simulator, runs the executor
-# node on SEGMENTS and PAIR until it reports the throw, and prints the simulator's score events
-# of the throw on stdout (one JSON object per line, the last one is the throw's score); exit
-# code 0 when the throw scored 1.0. Extra --ros-args go to the executor.
+# node on SEGMENTS and PAIR until it reports the throw, and prints its result on stdout (one
+# JSON object: pair, outcome, score, subtasks, entry and exit errors, time); exit code 0 when
+# the throw scored 1.0. Extra --ros-args go to the executor.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 rtf=1.0 simulator=1 positional=() phantom='' scene=''
@@ -32,8 +32,7 @@ if [ "$simulator" = 1 ]; then
   start simulator --ros-args "${phantom_args[@]}" -p real_time_factor:="$rtf" \
     -p target_pair:="$pair"
 fi
-status=0
-"$venv/bin/executor" --ros-args -p segments:="$segments" -p pair:="$pair" \
-  -p use_sim_time:=true "$@" 2>&1 | tee "$LOG_DIR/executor.log" >&2 || status=$?
-sed -n 's/.*sim\/events: \({.*}\)$/\1/p' "$LOG_DIR/executor.log" | grep '"kind": "score"' || true
-exit "$status"
+run executor --ros-args -p segments:="$segments" -p pair:="$pair" -p use_sim_time:=true "$@"
+# the executor's result: its one JSON line on standard output
+grep '^{' "$LOG_DIR/executor.log" | tail -1 || true
+exit "$run_status"

@@ -32,17 +32,19 @@ mkdir -p "$out"
 out=$(cd "$out" && pwd)
 if [ "$simulator" = 1 ]; then
   phantom_params "$phantom" "$scene" "$pair"
-  start simulator --ros-args "${phantom_args[@]}" -p real_time_factor:="$rtf"
+  start simulator --ros-args "${phantom_args[@]}" -p real_time_factor:="$rtf" \
+    -p target_pair:="$pair"
 fi
 start recorder --ros-args -p output_dir:="$out" -p use_sim_time:=true
-status=0
-"$venv/bin/demonstrator" --ros-args -p subject:="$subject" -p pair:="$pair" -p seed:="$seed" \
-  -p cohort_seed:="$cohort_seed" >"$LOG_DIR/demonstrator.log" 2>&1 || status=$?
-result=$(grep -o 'throw on .*' "$LOG_DIR/demonstrator.log" | tail -1 || true)
-[ -n "$result" ] && say "$result"
+run demonstrator --ros-args -p subject:="$subject" -p pair:="$pair" -p seed:="$seed" \
+  -p cohort_seed:="$cohort_seed"
+status=$run_status
+# the demonstrator's result: its one JSON line on standard output
+result=$(grep '^{' "$LOG_DIR/demonstrator.log" | tail -1 || true)
+[ -n "$result" ] && say "throw on $pair by $subject: $result"
 bag=$(printf '%s\n' "$result" | sed -n 's/.*"bag": "\([^"]*\)".*/\1/p')
 if [ -z "$bag" ]; then
-  say "no bag recorded (demonstrator exit code $status); logs in $LOG_DIR"
+  say "no bag recorded (demonstrator exit code $status)"
   exit $(( status ? status : 1 ))
 fi
 printf '%s\n' "$bag"

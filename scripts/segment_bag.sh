@@ -18,5 +18,7 @@ done
 [ ${#positional[@]} -ge 1 ] || { say "usage: $0 BAG [OUTPUT]"; exit 2; }
 bag=$(cd "$(dirname "${positional[0]}")" && pwd)/$(basename "${positional[0]}")
 output=${positional[1]:-$bag.segments.npz}
-"$venv/bin/segmenter" --ros-args -p bag:="$bag" -p output:="$output" "${args[@]}" >&2
+run segmenter --ros-args -p bag:="$bag" -p output:="$output" "${args[@]}"
+[ "$run_status" = 0 ] || exit "$run_status"
+grep -v '^[[:space:]]*$' "$LOG_DIR/segmenter.log" | tail -1 >&2
 printf '%s\n' "$output"

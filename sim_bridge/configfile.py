@@ -11,11 +11,8 @@ from pathlib import Path
 import types
 import typing
 
+from sim_bridge.errors import ConfigError
 import yaml
-
-
-class ConfigError(ValueError):
-    """A configuration file or mapping is unreadable or does not match its schema."""
 
 
 def load_yaml(path):

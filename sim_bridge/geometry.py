@@ -431,6 +431,12 @@ def invert_transform(T):
 
     """
     T = np.asarray(T, dtype=float)
+    if T.ndim == 2:  # one transform (the simulator's hot path): no einsum overhead
+        out = np.eye(4)
+        Rt = T[:3, :3].T
+        out[:3, :3] = Rt
+        out[:3, 3] = -Rt @ T[:3, 3]
+        return out
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
     out = np.zeros_like(T)
     out[..., :3, :3] = Rt

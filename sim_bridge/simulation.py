@@ -37,11 +37,11 @@ from sim_bridge import bullet
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.control import Observation
+from sim_bridge.geometry import invert_transform
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.paths import config_path
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
-from sim_bridge.scene.needle import invert_transform
 from sim_bridge.scene.phantom import build_phantom
 from sim_bridge.scene.scene_config import SceneConfig, load_scene_config, phantom_from_argument
 from sim_bridge.scene.scoring import ThrowScorer

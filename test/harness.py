@@ -16,6 +16,8 @@ import sys
 import threading
 import time
 
+from sim_bridge.processes import stop_group
+
 REPO = Path(__file__).resolve().parent.parent
 DOMAIN_ID = 10 + os.getpid() % 90
 # Simulator arguments of tests that need speed, not the dVRK's timings: arms power up at once
@@ -126,24 +128,7 @@ class NodeProcess:
 
     def stop(self, timeout=10.0):
         """Ask the process to stop (SIGINT), escalate if it does not; return its exit code."""
-        if self.popen.poll() is None:
-            for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0),
-                              (signal.SIGKILL, 3.0)):
-                try:
-                    os.killpg(self.popen.pid, sig)
-                except ProcessLookupError:
-                    break
-                try:
-                    self.popen.wait(wait)
-                    break
-                except subprocess.TimeoutExpired:
-                    continue
-        code = self.popen.wait(5.0)
-        # Nothing of the group may survive its leader.
-        try:
-            os.killpg(self.popen.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        code = stop_group(self.popen, timeout)
         self._log.close()
         return code
 

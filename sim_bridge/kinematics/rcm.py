@@ -17,6 +17,7 @@ Poses are tool tips in the RCM frame ``<ARM>_base`` (metres, 4x4); joints in rad
 from dataclasses import dataclass
 
 import numpy as np
+from sim_bridge.errors import UnreachableError
 from sim_bridge.kinematics.dh_chain import (
     SerialChain,
     check_pose,
@@ -34,10 +35,6 @@ _STRUCTURE_TOL = 1e-9
 IK_TOLERANCE = 1e-6
 # Joint values this far outside a limit (rounding) are clipped onto it instead of rejected.
 _LIMIT_SLACK = 1e-9
-
-
-class UnreachableError(ValueError):
-    """A Cartesian goal has no joint solution inside the joint limits."""
 
 
 @dataclass(frozen=True)

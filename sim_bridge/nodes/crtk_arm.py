@@ -45,20 +45,14 @@ from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, Trigge
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from sim_bridge import cdr
 from sim_bridge.kinematics import UnreachableError
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-STATE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
-COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
 CRTK_VERSION = '1.1.0'
 # A Cartesian command stamped in a frame other than the arm's reference frame is warned about
 # at most this often (s) per topic and frame: a 1 kHz stream must not flood the warning topic.
@@ -242,18 +236,18 @@ class CrtkArm:
 
         pub = node.create_publisher
         self._events = {
-            'operating_state': pub(OperatingState, f'{name}/operating_state', EVENT_QOS),
-            'goal_reached': pub(Bool, f'{name}/goal_reached', EVENT_QOS),
-            'error': pub(String, f'{name}/error', EVENT_QOS),
-            'warning': pub(String, f'{name}/warning', EVENT_QOS),
-            'status': pub(String, f'{name}/status', EVENT_QOS),
-            'ratio': pub(Float64, f'{name}/trajectory_j/ratio', EVENT_QOS),
+            'operating_state': pub(OperatingState, f'{name}/operating_state', qos.EVENTS),
+            'goal_reached': pub(Bool, f'{name}/goal_reached', qos.EVENTS),
+            'error': pub(String, f'{name}/error', qos.EVENTS),
+            'warning': pub(String, f'{name}/warning', qos.EVENTS),
+            'status': pub(String, f'{name}/status', qos.EVENTS),
+            'ratio': pub(Float64, f'{name}/trajectory_j/ratio', qos.EVENTS),
         }
         if self._has_jaw:
-            self._type_pub = pub(String, f'{name}/tool_type', EVENT_QOS)
+            self._type_pub = pub(String, f'{name}/tool_type', qos.EVENTS)
             self._type_pub.publish(String(data=str(getattr(k, 'tool_type', ''))))
         else:
-            self._type_pub = pub(String, f'{name}/endoscope_type', EVENT_QOS)
+            self._type_pub = pub(String, f'{name}/endoscope_type', qos.EVENTS)
             self._type_pub.publish(String(data=str(getattr(k, 'endoscope_type', ''))))
 
         sub = self._subscribe
@@ -323,7 +317,7 @@ class CrtkArm:
     # -- wiring --------------------------------------------------------------------------------
 
     def _add_state(self, topic, msg_type, build):
-        pub = self._node.create_publisher(msg_type, f'{self.name}/{topic}', STATE_QOS)
+        pub = self._node.create_publisher(msg_type, f'{self.name}/{topic}', qos.STATE)
         self._state[topic] = (pub, build)
 
     def _subscribe(self, topic, msg_type, handler):
@@ -332,7 +326,8 @@ class CrtkArm:
             self._on_command()
         if self._polled_group is not None and topic in POLLED_COMMANDS:
             sub = self._node.create_subscription(msg_type, f'{self.name}/{topic}', callback,
-                                                 COMMAND_QOS, callback_group=self._polled_group)
+                                                 qos.ARM_COMMANDS,
+                                                 callback_group=self._polled_group)
             self._polled.append(sub)
         else:
             def in_order(msg, info):
@@ -344,7 +339,7 @@ class CrtkArm:
                     for sub, newer in later:
                         sub.callback(newer)
             self._node.create_subscription(msg_type, f'{self.name}/{topic}', in_order,
-                                           COMMAND_QOS)
+                                           qos.ARM_COMMANDS)
 
     def take_commands(self, before_ns=None):
         """

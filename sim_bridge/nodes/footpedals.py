@@ -13,14 +13,9 @@ As on the dVRK console, the operator-present pedal is the coag pedal.
 import sys
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
 from sim_bridge.nodes import executables
-
-EVENT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+from sim_bridge.ros import qos
 
 # pedal name -> console topic that mirrors it (None: pedal topic only)
 PEDALS = {'clutch': 'clutch', 'coag': 'operator_present', 'camera': 'camera'}
@@ -35,15 +30,15 @@ class FootPedals(Node):
         self._console_pubs = {}
         for pedal, console in PEDALS.items():
             self._pedal_pubs[pedal] = self.create_publisher(
-                Joy, f'/footpedals/{pedal}', EVENT_QOS)
+                Joy, f'/footpedals/{pedal}', qos.EVENTS)
             self._console_pubs[pedal] = self.create_publisher(
-                Joy, f'/console/{console}', EVENT_QOS)
+                Joy, f'/console/{console}', qos.EVENTS)
             self.create_subscription(
                 Joy, f'/footpedals/{pedal}/emulate',
-                lambda msg, p=pedal: self._on_emulate(p, msg), COMMAND_QOS)
+                lambda msg, p=pedal: self._on_emulate(p, msg), qos.COMMANDS)
             self.create_subscription(
                 Joy, f'/console/emulate_{console}',
-                lambda msg, p=pedal: self._on_emulate(p, msg), COMMAND_QOS)
+                lambda msg, p=pedal: self._on_emulate(p, msg), qos.COMMANDS)
 
     def _on_emulate(self, pedal, msg):
         if len(msg.buttons) != 1 or msg.buttons[0] not in (0, 1, 2):

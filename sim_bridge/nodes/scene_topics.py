@@ -18,22 +18,14 @@ The node calls these publishers from its one executor thread; they skip topics n
 """
 
 from geometry_msgs.msg import PoseStamped
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from sim_bridge import cdr
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
 from sim_bridge.simulation import ARMS, PSMS
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.VOLATILE)
-IMAGE_QOS = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
 WORLD = 'world'
 _RED = (0.85, 0.05, 0.05, 1.0)
 _SILVER = (0.75, 0.75, 0.8, 1.0)
@@ -56,18 +48,18 @@ class SceneTopics:
         self._node = node
         self._sim = sim
         pub = node.create_publisher
-        self._needle = pub(PoseStamped, 'sim/needle/measured_cp', STATE_QOS)
-        self._phantom = pub(PoseStamped, 'sim/phantom/measured_cp', LATCHED_QOS)
-        self._bases = {a: pub(PoseStamped, f'sim/{a}/base_frame', LATCHED_QOS) for a in ARMS}
+        self._needle = pub(PoseStamped, 'sim/needle/measured_cp', qos.STATE)
+        self._phantom = pub(PoseStamped, 'sim/phantom/measured_cp', qos.LATCHED)
+        self._bases = {a: pub(PoseStamped, f'sim/{a}/base_frame', qos.LATCHED) for a in ARMS}
         self._markers = {}
         for key in sim.marker_poses():
             pair, which = key.split('.')
-            self._markers[key] = pub(PoseStamped, f'sim/markers/{pair}/{which}', LATCHED_QOS)
-        self._tf = pub(TFMessage, '/tf', TF_QOS)
-        self._tf_static = pub(TFMessage, '/tf_static', LATCHED_QOS)
-        self._viz = pub(MarkerArray, 'sim/visualization', STATE_QOS)
-        self._images = {s: pub(Image, f'ECM/{s}/image_raw', IMAGE_QOS) for s in ('left', 'right')}
-        self._infos = {s: pub(CameraInfo, f'ECM/{s}/camera_info', IMAGE_QOS)
+            self._markers[key] = pub(PoseStamped, f'sim/markers/{pair}/{which}', qos.LATCHED)
+        self._tf = pub(TFMessage, '/tf', qos.STATE)
+        self._tf_static = pub(TFMessage, '/tf_static', qos.LATCHED)
+        self._viz = pub(MarkerArray, 'sim/visualization', qos.STATE)
+        self._images = {s: pub(Image, f'ECM/{s}/image_raw', qos.IMAGES) for s in ('left', 'right')}
+        self._infos = {s: pub(CameraInfo, f'ECM/{s}/camera_info', qos.IMAGES)
                        for s in ('left', 'right')}
 
     def publish_latched(self, stamp):

@@ -58,28 +58,20 @@ from crtk_msgs.msg import StringStamped
 import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.scene_topics import SceneTopics
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
-COMMAND_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # No QoS-event handlers on the ~160 endpoints of the simulator and pedal nodes: rclpy's executor
 # visits each handler at every wake-up (1 kHz with a streaming client), which cost more than the
 # simulation itself; a client with incompatible QoS or type is still warned by its own endpoints.
@@ -285,12 +277,12 @@ class Simulator(_QuietEndpoints, Node):
         self._stats_wall = time.monotonic()
         self._clock_wall, self._clock_period = -math.inf, 1.0 / cfg.clock_rate - 1e-4
 
-        self._clock_pub = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
-        self._events_pub = self.create_publisher(StringStamped, 'sim/events', EVENTS_QOS)
-        self._stats_pub = self.create_publisher(String, 'sim/stats', COMMAND_QOS)
+        self._clock_pub = self.create_publisher(ClockMsg, '/clock', qos.CLOCK)
+        self._events_pub = self.create_publisher(StringStamped, 'sim/events', qos.SCENE_EVENTS)
+        self._stats_pub = self.create_publisher(String, 'sim/stats', qos.COMMANDS)
         # who runs the simulation, so that a client on this machine tells a starved simulator
         # (silent, but its process exists) from a dead one (sim_bridge.ros.peer)
-        self._process_pub = self.create_publisher(String, 'sim/process', LATCHED_QOS)
+        self._process_pub = self.create_publisher(String, 'sim/process', qos.LATCHED)
         self._process_pub.publish(String(data=announcement()))
         # held by the stepping thread for a round and by every callback that touches the scene
         self.lock = threading.RLock()
@@ -303,7 +295,7 @@ class Simulator(_QuietEndpoints, Node):
                                    lock=self.locked, stamp_floor_ns=wall)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
-        self.create_subscription(String, 'sim/target_pair', self._on_target_pair, COMMAND_QOS)
+        self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
         self.create_service(Trigger, 'sim/reset', self._on_reset)
 
         stamp = self.stamp()

@@ -25,7 +25,7 @@ needle poses ``T_world_needle`` (the needle frame of :mod:`sim_bridge.scene.need
 from dataclasses import dataclass
 
 import numpy as np
-from sim_bridge.scene.needle import invert_transform
+from sim_bridge.geometry import invert_transform
 
 
 @dataclass(frozen=True)

@@ -48,34 +48,12 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from sim_bridge.geometry import invert_transform
 
 
 def _rot_x(angle):
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def invert_transform(T):
-    """
-    Invert a rigid 4x4 homogeneous transform.
-
-    Parameters
-    ----------
-    T : array_like, shape (4, 4)
-        ``T_a_b``.
-
-    Returns
-    -------
-    ndarray, shape (4, 4)
-        ``T_b_a``.
-
-    """
-    T = np.asarray(T, dtype=float)
-    out = np.eye(4)
-    R = T[:3, :3]
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
-    return out
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from sim_bridge.geometry import invert_transform
 from sim_bridge.scene.heightfield import HeightField, grid_mesh, rasterize_mesh
 from sim_bridge.scene.mesh_placement import WoundSearch, apply_xy, find_wound_line, wound_frame
-from sim_bridge.scene.needle import invert_transform
 from sim_bridge.scene.phantom_shapes import (
     ScannedShape,
     WoundLine,

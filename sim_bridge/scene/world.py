@@ -31,8 +31,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import pybullet
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
+from sim_bridge.geometry import invert_transform
 from sim_bridge.paths import config_path
-from sim_bridge.scene.needle import invert_transform
 
 # Collision groups (bit masks).
 GROUP_ENVIRONMENT = 1
@@ -211,9 +211,9 @@ def quat_from_matrix(R):
     return Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat().tolist()
 
 
-def matrix_from_pose(position, quaternion):
+def transform_from_bullet(position, quaternion):
     """
-    4x4 pose from a position and a quaternion ``(x, y, z, w)``.
+    Return the 4x4 pose of a PyBullet position and quaternion ``(x, y, z, w)``.
 
     Parameters
     ----------
@@ -548,7 +548,7 @@ class World:
         body = self.arm_body[name]
         n = self.client.getNumJoints(body)
         states = self.client.getLinkStates(body, list(range(n)), computeForwardKinematics=1)
-        return np.stack([matrix_from_pose(s[4], s[5]) for s in states])
+        return np.stack([transform_from_bullet(s[4], s[5]) for s in states])
 
     def tool_tip_pose(self, name):
         """
@@ -567,7 +567,7 @@ class World:
         """
         s = self.client.getLinkState(self.arm_body[name], self.link_index[name]['tip'],
                                      computeForwardKinematics=1)
-        return matrix_from_pose(s[4], s[5])
+        return transform_from_bullet(s[4], s[5])
 
     def instrument_points(self, name, q, jaw):
         """
@@ -660,7 +660,7 @@ class World:
 
         """
         pos, quat = self.client.getBasePositionAndOrientation(self.needle_body)
-        return matrix_from_pose(pos, quat) @ self._T_com_needle
+        return transform_from_bullet(pos, quat) @ self._T_com_needle
 
     def needle_speed(self):
         """

@@ -38,6 +38,7 @@ import math
 import mmap
 import os
 from pathlib import Path
+import re
 import shutil
 import struct
 import sys
@@ -60,21 +61,19 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.base import Nodetype
 from sim_bridge import cdr
 from sim_bridge.paths import share_dir
-from suture_lfd.bags.mcap_check import CrcMcapWriter, McapDamageError, check_mcap, salvage_messages
+from suture_lfd.bags.mcap_check import CrcMcapWriter, check_mcap, salvage_messages
+from suture_lfd.errors import BagError, McapDamageError
 import yaml
 
 LOG = logging.getLogger(__name__)
 
 INTERFACE_PACKAGES = ('crtk_msgs', 'tf2_msgs')
 METADATA = 'metadata.yaml'
+ROS_DISTRO = 'jazzy'  # metadata.yaml's ros_distro: the distribution of the message types
 CHUNK_BYTES = 256 * 1024
 CHUNK_SECONDS = 0.5
 _MCAP_CHUNK_LIMIT = 2**20  # rosbags closes a chunk itself past 1 MiB
 _NO_DURATION = QosTime(0, 0)
-
-
-class BagError(ValueError):
-    """A bag is missing, unreadable, truncated, corrupt or lacks what the caller needs."""
 
 
 # --- message types -------------------------------------------------------------------------------
@@ -387,6 +386,7 @@ class BagWriter:
         """
         if self._writer.storage is not None:
             self._writer.close()
+            _name_ros_distro(self.path / METADATA)
         return self.path
 
     def abort(self):
@@ -470,6 +470,13 @@ def _checked_storage(path, file):
     except McapDamageError as exc:
         raise BagError(f'{file}: damaged bag: {exc}; run `suture-lfd bag recover {path}` to keep '
                        'what checks out') from None
+
+
+def _name_ros_distro(meta):
+    """Write the ROS distribution the bag's types are from (rosbags' writer names itself)."""
+    text = meta.read_text()
+    meta.write_text(re.sub(r'^(\s*ros_distro:)\s*rosbags\s*$', rf'\1 {ROS_DISTRO}', text,
+                           flags=re.M))
 
 
 def _agree_with_metadata(path, summary, facts):

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import struct
 
 from rosbags.rosbag2.storage_mcap import McapWriter
+from suture_lfd.errors import McapDamageError
 
 MAGIC = b'\x89MCAP0\r\n'
 OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x02, 0x03, 0x04, 0x05
@@ -29,15 +30,6 @@ _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _MESSAGE_HEAD = struct.Struct('<HIQQ')          # channel id, sequence, log time, publish time
 _STATISTICS_HEAD = struct.Struct('<QHIIIIQQ')   # counts, message start and end time
 _CRC_AT = 1 + 8 + 24                            # chunk CRC offset in its record
-
-
-class McapDamageError(ValueError):
-    """A part of an MCAP file fails its check; ``offset`` (bytes) and ``topics`` say where."""
-
-    def __init__(self, what, offset, topics=()):
-        self.what, self.offset, self.topics = what, int(offset), tuple(topics)
-        where = f' (topic {", ".join(self.topics)})' if self.topics else ''
-        super().__init__(f'{what} at byte {self.offset}{where}')
 
 
 @dataclass

@@ -40,10 +40,11 @@ import math
 
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
-from sim_bridge.geometry import pose_from_transform
-from sim_bridge.scene.needle import invert_transform
+from sim_bridge.geometry import invert_transform, pose_from_transform
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
+from suture_lfd.errors import DemonstrationError
+from suture_lfd.planning.episode import start_episode
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
 
@@ -54,10 +55,6 @@ DEFAULT_LAG_TOLERANCE_RAD = 0.05
 _WANDER_SINES = 3
 _HOVER_TIME = 0.15   # s the tip hovers above the entry before it is pressed in
 _LOWER_TIME = 0.55   # s to press it in (slow: peak speed ~2 mm/s, below a motion's threshold)
-
-
-class DemonstrationError(RuntimeError):
-    """A demonstration could not be completed (timeout, or every attempt failed)."""
 
 
 @dataclass(frozen=True)
@@ -555,11 +552,8 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
 def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
                config):
     scene_seed = int(seed) + 1000 * attempt
-    sim.reset(seed=scene_seed)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair_name)
+    pair = start_episode(sim, pair_name, scene_seed)
     sim.pop_events()
-    pair = sim.target_pair
     dem = Demonstrator(subject, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM2'],
                        rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
                        expert_config=config)

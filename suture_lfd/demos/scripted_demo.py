@@ -13,6 +13,7 @@ the expert's own subtask labels.
 import numpy as np
 from sim_bridge.geometry import pose_from_transform
 from suture_lfd.demos.demonstration import Demonstration
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 
 
@@ -43,13 +44,14 @@ class PausingExpert(ScriptedExpert):
         """Command for ``obs``; the plan clock stops for ``pause`` at each subtask start."""
         if self.plan_ is None:
             self.reset(obs)
-        tau = obs.t - self._t0 - self._offset
+        clock = self.follower
+        tau = clock.tau(obs.t)
         if self._rest_end is None and self._rests and tau >= self._rests[0]:
             self._rest_end = obs.t + self.pause
-            self._offset += tau - self._rests.pop(0)
+            clock.offset += tau - self._rests.pop(0)
         if self._rest_end is not None:
             if obs.t < self._rest_end:
-                self._offset = obs.t - self._t0 - self._plan_time
+                clock.offset = obs.t - clock.t0 - clock.plan_time
             else:
                 self._rest_end = None
         return super().step(obs)
@@ -87,10 +89,7 @@ def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3
         The simulator's score of the throw.
 
     """
-    sim.reset(seed)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair_name)
-    pair = sim.target_pair
+    pair = start_episode(sim, pair_name, seed)
     config = sim.config.scene.expert if config is None else config
     expert = PausingExpert(pair, sim.needle_geometry, config=config,
                            kinematics=sim.kinematics['PSM1'], pause=pause)
@@ -104,12 +103,8 @@ def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3
                          'PSM1' in obs.holders, 'PSM2' in obs.holders, cmd.subtask))
             return cmd
 
-    recorder = _Recorder()
-    t_start = sim.time
-    expert.reset(sim.observation())
-    while not expert.done and sim.time - t_start < timeout:
-        sim.run(0.5, recorder, sample_period)
-    sim.run(0.2, recorder, sample_period)
+    run_episode(sim, expert, sample_period, stepper=_Recorder(), timeout=timeout,
+                always_settle=True)
     cols = list(zip(*rows))
     demo = Demonstration(
         t=np.array(cols[0]), psm1_pose=pose_from_transform(np.array(cols[1])),

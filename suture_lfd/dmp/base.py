@@ -11,11 +11,11 @@ format tag and version.
 from dataclasses import asdict, dataclass
 import json
 import math
-import zipfile
 
 import numpy as np
 from sim_bridge.configfile import dataclass_from_mapping
 from sim_bridge.validation import check_positive, check_times
+from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.dmp.equations import (
     basis_activations,
     canonical_phase,
@@ -258,11 +258,9 @@ class Primitive:
 
         """
         self._check_fitted()
-        arrays = {'format': np.array(FORMAT), 'format_version': np.array(FORMAT_VERSION),
-                  'kind': np.array(self.KIND), 'params': np.array(json.dumps(asdict(self.params)))}
+        arrays = {'kind': np.array(self.KIND), 'params': np.array(json.dumps(asdict(self.params)))}
         arrays.update(self._arrays())
-        with open(path, 'wb') as handle:
-            np.savez(handle, **arrays)
+        save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
     def load(cls, path):
@@ -312,20 +310,7 @@ def read_dmp_file(path):
         All stored arrays.
 
     """
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise ValueError(f'{path}: not a readable DMP file ({exc})') from exc
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ValueError(f'{path}: not a DMP file (expected an .npz archive)')
-    with data:
-        arrays = {key: data[key] for key in data.files}
-    if 'format' not in arrays or str(arrays['format']) != FORMAT:
-        raise ValueError(f'{path}: not a DMP file (missing format tag {FORMAT!r})')
-    version = int(arrays.get('format_version', -1))
-    if version != FORMAT_VERSION:
-        raise ValueError(f'{path}: DMP file format version {version} is not supported '
-                         f'(expected {FORMAT_VERSION})')
+    arrays = load_archive(path, FORMAT, FORMAT_VERSION, 'DMP file')
     try:
         mapping = json.loads(str(arrays['params']))
         kind = str(arrays['kind'])

@@ -23,16 +23,12 @@ import json
 import sys
 import time
 
-from crtk_msgs.msg import OperatingState, StringStamped
-from geometry_msgs.msg import PoseStamped
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState, Joy
-from sim_bridge.control import Observation
-from sim_bridge.ros import conversions as cv
+from sensor_msgs.msg import Joy
+from sim_bridge.ros import qos
+from sim_bridge.ros.client import SimClient
 from sim_bridge.ros.params import declare_config
-from sim_bridge.scene.phantom import MarkerPair
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import String
 from suture_lfd.demos.cohort import load_cohort
@@ -40,16 +36,6 @@ from suture_lfd.demos.demonstrator import Demonstrator
 from suture_lfd.nodes import executables
 
 PSMS = ('PSM1', 'PSM2')
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE = QoSProfile(depth=10)
-# The servo streams: the arm takes only the newest goal, but a recorder takes every one, and a
-# publisher's history is all a reader that stalls for a moment can catch up from; 1000 goals
-# cover a second at 1 kHz (depth 10 lost 16 % of a demonstration's goals on a busy machine).
-COMMAND_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.VOLATILE)
 
 
 @dataclass(frozen=True)
@@ -98,10 +84,6 @@ class DemonstratorNode(Node):
         self.subject = named[cfg.subject]
         self.finished = False
         self.exit_code = 1
-        self._tools, self._q, self._jaw, self._state = {}, {}, {}, {}
-        self._bases, self._markers = {}, {}
-        self._needle = None
-        self._holders = set()
         self._score = None
         self._pair_confirmed = False
         self._recording = None
@@ -110,75 +92,26 @@ class DemonstratorNode(Node):
         self._stage_wall = time.monotonic()
         self._t_start = self._t_done = None
         self._dem = None
-        self._last_command = -1e9
-        self._commanded_on = None  # arm states when enable/home were last sent
-        self._published = {}
         self._scene = load_scene_config()
-        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', COMMAND_STREAM)
-                       for a in PSMS}
-        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', COMMAND_STREAM)
-                         for a in PSMS}
-        self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
-                         for a in PSMS}
-        self._target = self.create_publisher(String, 'sim/target_pair', STATE)
-        self._result = self.create_publisher(String, '~/result', LATCHED)
+        self.sim = SimClient(self, PSMS, on_event=self._on_event)
+        self.sim.watch_pairs([cfg.pair, cfg.next_pair])
+        self._result = self.create_publisher(String, '~/result', qos.LATCHED)
         self._pedals = {}
         self._pressed = 0.0
         for name in (cfg.record_pedal, cfg.operator_pedal):
             if name:
-                self._pedals[name] = self.create_publisher(Joy, name, STATE)
-        for a in PSMS:
-            self.create_subscription(PoseStamped, f'{a}/measured_cp',
-                                     lambda m, a=a: self._on_cp(a, m), STATE)
-            self.create_subscription(JointState, f'{a}/measured_js',
-                                     lambda m, a=a: self._q.__setitem__(a, m), STATE)
-            self.create_subscription(JointState, f'{a}/jaw/measured_js',
-                                     lambda m, a=a: self._jaw.__setitem__(a, m), STATE)
-            self.create_subscription(OperatingState, f'{a}/operating_state',
-                                     lambda m, a=a: self._state.__setitem__(a, m), LATCHED)
-            self.create_subscription(PoseStamped, f'sim/{a}/base_frame',
-                                     lambda m, a=a: self._bases.__setitem__(
-                                         a, cv.matrix_from_pose(m.pose)), LATCHED)
-        for which in ('entry', 'exit'):
-            self.create_subscription(PoseStamped, f'sim/markers/{cfg.pair}/{which}',
-                                     lambda m, w=which: self._markers.__setitem__(
-                                         w, cv.matrix_from_pose(m.pose)), LATCHED)
-        if cfg.next_pair:
-            for which in ('entry', 'exit'):
-                self.create_subscription(PoseStamped, f'sim/markers/{cfg.next_pair}/{which}',
-                                         lambda m, w=which: self._markers.__setitem__(
-                                             'next_' + w, cv.matrix_from_pose(m.pose)), LATCHED)
-        self.create_subscription(PoseStamped, 'sim/needle/measured_cp', self._on_needle, STATE)
-        self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS)
+                self._pedals[name] = self.create_publisher(Joy, name, qos.STREAM)
         if cfg.recorder_status:
-            self.create_subscription(String, cfg.recorder_status, self._on_recorder, LATCHED)
+            self.create_subscription(String, cfg.recorder_status, self._on_recorder, qos.LATCHED)
         self.create_timer(1.0 / cfg.rate, self._on_timer)
         self.get_logger().info(f'subject {self.subject.name} ({self.subject.group}) will suture '
                                f'{cfg.pair}')
 
     # --- inputs -----------------------------------------------------------------------------
 
-    def _on_cp(self, arm, msg):
-        self._tools[arm] = (cv.seconds_from_stamp(msg.header.stamp), msg.header.frame_id,
-                            cv.matrix_from_pose(msg.pose))
-
-    def _on_needle(self, msg):
-        self._needle = cv.matrix_from_pose(msg.pose)
-
-    def _on_event(self, msg):
-        try:
-            _, data = cv.event_from_message(msg)
-        except ValueError as exc:
-            self.get_logger().warning(f'sim/events: {exc}')
-            return
-        kind, arm = data.get('kind'), data.get('arm')
-        if kind == 'grasp' and arm in PSMS:
-            self._holders.add(arm)
-        elif kind == 'release' and arm in PSMS:
-            self._holders.discard(arm)
-        elif kind == 'reset':
-            self._holders.clear()
-        elif kind == 'target_pair' and data.get('pair') == self.config.pair \
+    def _on_event(self, _stamp, data):
+        kind = data.get('kind')
+        if kind == 'target_pair' and data.get('pair') == self.config.pair \
                 and self._stage == 'target':
             if data.get('error'):
                 self.get_logger().error(f'the simulator refused pair {self.config.pair}: '
@@ -199,25 +132,6 @@ class DemonstratorNode(Node):
 
     # --- helpers ----------------------------------------------------------------------------
 
-    def _world_tool(self, arm):
-        _, frame, T = self._tools[arm]
-        return T if frame == 'world' else self._bases[arm] @ T
-
-    def _pair(self, prefix=''):
-        m = self._markers
-        entry, exit_ = m[prefix + 'entry'], m[prefix + 'exit']
-        n = entry[:3, 2] + exit_[:3, 2]
-        name = self.config.next_pair if prefix else self.config.pair
-        return MarkerPair(name=name, entry=entry[:3, 3].copy(), exit=exit_[:3, 3].copy(),
-                          normal=n / np.linalg.norm(n), entry_normal=entry[:3, 2].copy(),
-                          exit_normal=exit_[:3, 2].copy())
-
-    def _ready(self):
-        need = len(self._markers) >= (4 if self.config.next_pair else 2)
-        return (need and self._needle is not None and all(
-            a in self._tools and a in self._bases and a in self._jaw and a in self._state
-            for a in PSMS))
-
     def _press(self, topic, value):
         self._pressed = time.monotonic()
         if topic in self._pedals:
@@ -226,47 +140,12 @@ class DemonstratorNode(Node):
             msg.buttons = [int(value)]
             self._pedals[topic].publish(msg)
 
-    def _state_command(self, arm, command):
-        msg = StringStamped()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.string = command
-        self._command[arm].publish(msg)
-
     def _enter(self, stage):
         self._stage = stage
         self._stage_wall = time.monotonic()
 
     def _waited(self):
         return time.monotonic() - self._stage_wall
-
-    def _observation(self):
-        q = {a: np.asarray(self._q[a].position, dtype=float) for a in PSMS
-             if a in self._q and len(self._q[a].position) >= 6}
-        return Observation(
-            t=max(self._tools[a][0] for a in PSMS),
-            T_world_tool={a: self._world_tool(a) for a in PSMS},
-            jaw={a: float(self._jaw[a].position[0]) if len(self._jaw[a].position) else 0.0
-                 for a in PSMS},
-            T_world_needle=self._needle, holders=tuple(sorted(self._holders)),
-            pair=self._pair(), T_world_base=dict(self._bases), q=q or None)
-
-    def _count(self, publisher):
-        topic = publisher.topic_name
-        self._published[topic] = self._published.get(topic, 0) + 1
-
-    def _send(self, command):
-        stamp = self.get_clock().now().to_msg()
-        for arm in PSMS:
-            T = command.T_world_tool.get(arm)
-            if T is not None:
-                _, frame, _ = self._tools[arm]
-                T_cmd = T if frame == 'world' else np.linalg.solve(self._bases[arm], T)
-                self._servo[arm].publish(cv.pose_stamped(T_cmd, frame, stamp))
-                self._count(self._servo[arm])
-            jaw = command.jaw.get(arm)
-            if jaw is not None:
-                self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
-                self._count(self._jaw_pub[arm])
 
     def _finish(self, ok, why='', outcome=None):
         score = self._score
@@ -276,7 +155,7 @@ class DemonstratorNode(Node):
                   'pair': self.config.pair, 'completed': bool(ok), 'outcome': outcome,
                   'reason': why,
                   'score': value, 'score_detail': score if isinstance(score, dict) else None,
-                  'bag': self._bag, 'published': dict(self._published),
+                  'bag': self._bag, 'published': dict(self.sim.published),
                   'duration': (None if self._t_done is None or self._t_start is None
                                else self._t_done - self._t_start)}
         line = json.dumps(result, sort_keys=True)
@@ -303,14 +182,13 @@ class DemonstratorNode(Node):
         if stage == 'finished':
             return
         if stage == 'waiting':
-            if self._ready():
+            if self.sim.ready([cfg.pair, cfg.next_pair] if cfg.next_pair else [cfg.pair]):
                 self._enter('homing')
             elif self._waited() > cfg.startup_timeout:
                 self._finish(False, 'simulator topics missing (is the simulator running?)')
             return
         if stage == 'homing':
-            states = [self._state[a] for a in PSMS]
-            if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
+            if self.sim.homed():
                 pedal = self._pedals.get(cfg.record_pedal)
                 if (pedal is not None and cfg.recorder_status
                         and pedal.get_subscription_count() == 0
@@ -321,22 +199,12 @@ class DemonstratorNode(Node):
                 self._enter('recording' if cfg.record_pedal and cfg.recorder_status
                             else 'target')
                 if self._stage == 'target':
-                    self._target.publish(String(data=cfg.pair))
+                    self.sim.select_pair(cfg.pair)
                 return
             if not cfg.home or self._waited() > cfg.startup_timeout:
                 self._finish(False, 'arms not enabled and homed')
                 return
-            # at once when an arm's state changes (a dVRK arm powers up for a while, then
-            # homes in a motion of seconds), and again every 2 s
-            seen = [(s.state, s.is_homed, s.is_busy) for s in states]
-            if seen != self._commanded_on or time.monotonic() - self._last_command > 2.0:
-                self._last_command, self._commanded_on = time.monotonic(), seen
-                for a in PSMS:
-                    s = self._state[a]
-                    if s.state != 'ENABLED':
-                        self._state_command(a, 'enable')
-                    elif not s.is_homed and not s.is_busy:
-                        self._state_command(a, 'home')
+            self.sim.enable_and_home()
             return
         if stage == 'recording':
             if not self._recording and time.monotonic() - self._pressed > 2.0 \
@@ -350,25 +218,25 @@ class DemonstratorNode(Node):
                     self.get_logger().warning(f'{cfg.recorder_status} does not report a '
                                               'recording; going on')
                 self._press(cfg.operator_pedal, 1)
-                self._target.publish(String(data=cfg.pair))
+                self.sim.select_pair(cfg.pair)
                 self._enter('target')
             return
         if stage == 'target':
             if self._pair_confirmed or self._waited() > 5.0:
-                obs = self._observation()
+                obs = self.sim.observation(cfg.pair)
                 self._dem = Demonstrator(
                     self.subject, obs.pair, self._scene.needle,
                     rng=np.random.default_rng([self.subject.trial_seed(cfg.pair), cfg.seed]),
-                    next_pair=self._pair('next_') if cfg.next_pair else None,
+                    next_pair=self.sim.marker_pair(cfg.next_pair) if cfg.next_pair else None,
                     expert_config=self._scene.expert, lag_tolerance=cfg.lag_tolerance,
                     lag_tolerance_rad=cfg.lag_tolerance_rad)
                 self._dem.reset(obs)
                 self._t_start = obs.t
                 self._enter('running')
             return
-        obs = self._observation()
+        obs = self.sim.observation(cfg.pair)
         if stage == 'running':
-            self._send(self._dem.step(obs))
+            self.sim.send(self._dem.step(obs), self.get_clock().now().to_msg())
             if self._dem.done:
                 self._t_done = obs.t
                 self._enter('settling')

@@ -59,21 +59,16 @@ from pathlib import Path
 import sys
 import time
 
-from crtk_msgs.msg import OperatingState, StringStamped
-from geometry_msgs.msg import PoseStamped
-import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import JointState
-from sim_bridge.control import Observation
 from sim_bridge.geometry import pose_from_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
+from sim_bridge.ros.client import SimClient
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import ProcessWatch
-from sim_bridge.scene.phantom import MarkerPair
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.nodes import executables
@@ -81,18 +76,6 @@ from suture_lfd.skill import ThrowSkill, learn_skill
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 
 PSMS = ('PSM1', 'PSM2')
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE = QoSProfile(depth=10)
-# The servo streams: the arm takes only the newest goal, but a recorder takes every one, and a
-# publisher's history is all a reader that stalls for a moment can catch up from; 1000 goals
-# cover a second at 1 kHz (depth 10 lost 16 % of a demonstration's goals on a busy machine).
-COMMAND_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.VOLATILE)
-# Only the newest /clock matters (a backlog drained after a stall must not outrun measured_cp).
-CLOCK = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 @dataclass(frozen=True)
@@ -142,7 +125,6 @@ class ExecutorNode(Node):
         self._kinematics = psm_kinematics()
         self.finished = False
         self.exit_code = 0
-        self._tools, self._q, self._jaw, self._state = {}, {}, {}, {}
         self._arrival = {}       # arm -> wall time (monotonic) of the last measured_cp
         self._sim_rate = 1.0     # simulation seconds per wall second, from measured_cp stamps
         self._rate_window = deque()
@@ -152,51 +134,26 @@ class ExecutorNode(Node):
         self._heard = {}         # arm -> /clock (s) when its last measured_cp was handled
         self._pair_stamp = None  # simulator clock (s) when the simulator selected the pair
         self._executed = {}      # 'ii' / 'iv' -> [(t, needle pose 7-vector)] measured
-        self._bases, self._markers = {}, {}
-        self._needle = None
-        self._holders = set()
         self._score = None
         self._pair = ''
         self._pair_confirmed = False
         self._stage = 'idle'
         self._stage_wall = time.monotonic()
-        self._last_command = -1e9
-        self._commanded_on = None  # arm states when enable/home were last sent
         self._executor = None
         self._t_start = self._t_done = None
         self._last_obs_t = None
         self._last_tick = time.monotonic()
         self._sent = 0
-        self._servo = {a: self.create_publisher(PoseStamped, f'{a}/servo_cp', COMMAND_STREAM)
-                       for a in PSMS}
-        self._jaw_pub = {a: self.create_publisher(JointState, f'{a}/jaw/servo_jp', COMMAND_STREAM)
-                         for a in PSMS}
-        self._command = {a: self.create_publisher(StringStamped, f'{a}/state_command', STATE)
-                         for a in PSMS}
-        self._target = self.create_publisher(String, 'sim/target_pair', STATE)
-        self._status = self.create_publisher(String, '~/status', LATCHED)
-        self._result = self.create_publisher(String, '~/result', LATCHED)
-        for a in PSMS:
-            self.create_subscription(PoseStamped, f'{a}/measured_cp',
-                                     lambda m, a=a: self._on_cp(a, m), STATE)
-            self.create_subscription(JointState, f'{a}/measured_js',
-                                     lambda m, a=a: self._q.__setitem__(a, m), STATE)
-            self.create_subscription(JointState, f'{a}/jaw/measured_js',
-                                     lambda m, a=a: self._jaw.__setitem__(a, m), STATE)
-            self.create_subscription(OperatingState, f'{a}/operating_state',
-                                     lambda m, a=a: self._state.__setitem__(a, m), LATCHED)
-            self.create_subscription(PoseStamped, f'sim/{a}/base_frame',
-                                     lambda m, a=a: self._bases.__setitem__(
-                                         a, cv.matrix_from_pose(m.pose)), LATCHED)
-        self.create_subscription(PoseStamped, 'sim/needle/measured_cp', self._on_needle, STATE)
-        self.create_subscription(ClockMsg, '/clock', self._on_clock, CLOCK)
+        self.sim = SimClient(self, PSMS, on_event=self._on_event,
+                             on_measured_cp=self._on_measured_cp)
+        self._status = self.create_publisher(String, '~/status', qos.LATCHED)
+        self._result = self.create_publisher(String, '~/result', qos.LATCHED)
+        self.create_subscription(ClockMsg, '/clock', self._on_clock, qos.CLOCK_LATEST)
+        self.create_subscription(String, '~/execute', self._on_execute, qos.STREAM)
+        self.create_subscription(Empty, '~/stop', self._on_stop, qos.STREAM)
         self._simulator = None   # ProcessWatch of the simulator, from sim/process
         self._starved_said = False
-        self.create_subscription(String, 'sim/process', self._on_process, LATCHED)
-        self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS)
-        self.create_subscription(String, '~/execute', self._on_execute, STATE)
-        self.create_subscription(Empty, '~/stop', self._on_stop, STATE)
-        self._marker_subs = []
+        self.create_subscription(String, 'sim/process', self._on_process, qos.LATCHED)
         # A steady (wall) clock: the watchdog must run when the simulation clock has stopped.
         self.create_timer(1.0 / cfg.rate, self._on_timer,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -208,9 +165,8 @@ class ExecutorNode(Node):
 
     # --- inputs -----------------------------------------------------------------------------
 
-    def _on_cp(self, arm, msg):
+    def _on_measured_cp(self, arm, stamp):
         now = time.monotonic()
-        stamp = cv.seconds_from_stamp(msg.header.stamp)
         if arm == PSMS[0]:
             # Simulation seconds per wall second over the last second of arrivals (bursts of
             # queued messages would make a per-message estimate wild).
@@ -223,7 +179,6 @@ class ExecutorNode(Node):
                 self._sim_rate = min(max(advance / wall, 0.05), 100.0)
         self._arrival[arm] = now
         self._heard[arm] = stamp if self._clock_t is None else max(stamp, self._clock_t)
-        self._tools[arm] = (stamp, msg.header.frame_id, cv.matrix_from_pose(msg.pose))
 
     def _on_clock(self, msg):
         t = cv.seconds_from_stamp(msg.clock)
@@ -246,27 +201,13 @@ class ExecutorNode(Node):
         except ValueError as exc:
             self.get_logger().warning(f'sim/process: {exc}')
 
-    def _on_needle(self, msg):
-        self._needle = cv.matrix_from_pose(msg.pose)
-
-    def _on_event(self, msg):
-        try:
-            stamp, data = cv.event_from_message(msg)
-        except ValueError as exc:
-            self.get_logger().warning(f'sim/events: {exc}')
-            return
+    def _on_event(self, stamp, data):
         kind, arm = data.get('kind'), data.get('arm')
         if kind in ('grasp', 'release', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
                     'drop') and self._stage in ('running', 'settling'):
             at = '' if self._t_start is None else f' at {_throw_time(stamp - self._t_start)}'
             self.get_logger().info(f'scene event {kind}{" " + arm if arm else ""}{at}')
-        if kind == 'grasp' and arm in PSMS:
-            self._holders.add(arm)
-        elif kind == 'release' and arm in PSMS:
-            self._holders.discard(arm)
-        elif kind == 'reset':
-            self._holders.clear()
-        elif kind == 'target_pair' and data.get('pair') == self._pair \
+        if kind == 'target_pair' and data.get('pair') == self._pair \
                 and self._stage in ('preparing', 'running', 'settling'):
             if data.get('error'):
                 if self._stage == 'preparing':
@@ -311,70 +252,19 @@ class ExecutorNode(Node):
     def _start(self, pair):
         self._pair = pair
         self._pair_confirmed = False
-        self._markers = {}
         self._score = None
         self._pair_stamp = None
         self._executor = None
         self._t_start = self._t_done = None
-        for sub in self._marker_subs:
-            self.destroy_subscription(sub)
-        self._marker_subs = [
-            self.create_subscription(PoseStamped, f'sim/markers/{pair}/{which}',
-                                     lambda m, w=which: self._markers.__setitem__(
-                                         w, cv.matrix_from_pose(m.pose)), LATCHED)
-            for which in ('entry', 'exit')]
-        self._target.publish(String(data=pair))
+        self.sim.watch_pairs([pair])
+        self.sim.select_pair(pair)
         self._last_target = time.monotonic()
         self.get_logger().info(f'executing the {self.skill.method.name} skill learnt on '
                                f'{self.skill.pair.name} on pair {pair}')
         self._enter('preparing', f'throw on {pair} requested')
 
-    def _world_tool(self, arm):
-        _, frame, T = self._tools[arm]
-        return T if frame == 'world' else self._bases[arm] @ T
-
-    def _marker_pair(self):
-        entry, exit_ = self._markers['entry'], self._markers['exit']
-        n = entry[:3, 2] + exit_[:3, 2]
-        return MarkerPair(name=self._pair, entry=entry[:3, 3].copy(), exit=exit_[:3, 3].copy(),
-                          normal=n / np.linalg.norm(n), entry_normal=entry[:3, 2].copy(),
-                          exit_normal=exit_[:3, 2].copy())
-
-    def _ready(self):
-        return ('entry' in self._markers and 'exit' in self._markers
-                and self._needle is not None and all(
-                    a in self._tools and a in self._bases and a in self._jaw
-                    and a in self._state for a in PSMS))
-
-    def _state_command(self, arm, command):
-        msg = StringStamped()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.string = command
-        self._command[arm].publish(msg)
-
-    def _observation(self):
-        q = {a: np.asarray(self._q[a].position, dtype=float) for a in PSMS
-             if a in self._q and len(self._q[a].position) >= 6}
-        return Observation(
-            t=max(self._tools[a][0] for a in PSMS),
-            T_world_tool={a: self._world_tool(a) for a in PSMS},
-            jaw={a: float(self._jaw[a].position[0]) if len(self._jaw[a].position) else 0.0
-                 for a in PSMS},
-            T_world_needle=self._needle, holders=tuple(sorted(self._holders)),
-            pair=self._marker_pair(), T_world_base=dict(self._bases), q=q or None)
-
     def _send(self, command, t):
-        stamp = cv.stamp_from_seconds(t)
-        for arm in PSMS:
-            T = command.T_world_tool.get(arm)
-            if T is not None:
-                _, frame, _ = self._tools[arm]
-                T_cmd = T if frame == 'world' else np.linalg.solve(self._bases[arm], T)
-                self._servo[arm].publish(cv.pose_stamped(T_cmd, frame, stamp))
-                self._sent += 1
-            jaw = command.jaw.get(arm)
-            if jaw is not None:
-                self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
+        self._sent += self.sim.send(command, cv.stamp_from_seconds(t))
 
     def _silence(self):
         """
@@ -402,13 +292,6 @@ class ExecutorNode(Node):
         silence = max(self._clock_t - self._heard.get(a, -math.inf) for a in PSMS)
         heard = max([self._clock_wall] + [self._arrival.get(a, -math.inf) for a in PSMS])
         return max(silence, 0.0), now - heard
-
-    def _fault(self):
-        for a in PSMS:
-            s = self._state.get(a)
-            if s is not None and s.state != 'ENABLED':
-                return f'{a} is {s.state}'
-        return None
 
     def _result_record(self, state, reason):
         score = self._score if isinstance(self._score, dict) else None
@@ -478,15 +361,14 @@ class ExecutorNode(Node):
         if stage not in ('preparing', 'running', 'settling'):
             return
         if stage == 'preparing':
-            if not self._ready():
+            if not self.sim.ready([self._pair]):
                 if self._waited() > cfg.prepare_timeout:
-                    missing = 'markers of the pair' if len(self._markers) < 2 else \
+                    missing = 'markers of the pair' if not self.sim.has_pair(self._pair) else \
                         'simulator topics'
                     self._fail(f'unknown marker pair {self._pair!r} or simulator not running '
                                f'({missing} not received in {cfg.prepare_timeout} s)')
                 return
-            states = [self._state[a] for a in PSMS]
-            if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
+            if self.sim.homed():
                 if not self._pair_confirmed:
                     if self._waited() > cfg.prepare_timeout:
                         self._fail(f'the simulator did not confirm pair {self._pair!r}')
@@ -494,10 +376,10 @@ class ExecutorNode(Node):
                         # (again) every second: the first may have gone out before the
                         # simulator's subscription was matched
                         self._last_target = time.monotonic()
-                        self._target.publish(String(data=self._pair))
+                        self.sim.select_pair(self._pair)
                     return
                 try:
-                    obs = self._observation()
+                    obs = self.sim.observation(self._pair)
                     self._executor = ThrowExecutor(
                         self.skill, obs.pair, self._scene.needle, kinematics=self._kinematics,
                         config=ExecutorConfig(script=self._scene.expert,
@@ -516,23 +398,13 @@ class ExecutorNode(Node):
             if not cfg.home or self._waited() > cfg.prepare_timeout:
                 self._fail('arms not enabled and homed')
                 return
-            # at once when an arm's state changes (a dVRK arm powers up for a while, then
-            # homes in a motion of seconds), and again every 2 s
-            seen = [(s.state, s.is_homed, s.is_busy) for s in states]
-            if seen != self._commanded_on or time.monotonic() - self._last_command > 2.0:
-                self._last_command, self._commanded_on = time.monotonic(), seen
-                for a in PSMS:
-                    s = self._state[a]
-                    if s.state != 'ENABLED':
-                        self._state_command(a, 'enable')
-                    elif not s.is_homed and not s.is_busy:
-                        self._state_command(a, 'home')
+            self.sim.enable_and_home()
             return
         silence, quiet = self._silence()
         # While commanding, 100 ms of silence stops the throw; once the commands are done
         # (settling) a silent arm is only reported if it lasts ten times longer.
         if silence > cfg.stale_timeout * (1.0 if stage == 'running' else 10.0):
-            last = min(self._tools[a][0] for a in PSMS)
+            last = min(self.sim.tools[a][0] for a in PSMS)
             self._halt('stopped', f'no measured_cp for {silence * 1e3:.0f} ms of simulation '
                                   f'time (last at t = {last:.3f} s): the arms stopped answering',
                        silence_s=silence, last_measured_t=last)
@@ -551,7 +423,7 @@ class ExecutorNode(Node):
                     f'process {self._simulator.pid} runs: waiting for it (starved_timeout '
                     f'{cfg.starved_timeout:g} s)')
         elif quiet is not None and (quiet > cfg.clock_timeout or alive is False):
-            last = min(self._tools[a][0] for a in PSMS)
+            last = min(self.sim.tools[a][0] for a in PSMS)
             if alive is False:
                 self._halt('stopped', f'the simulator process {self._simulator.pid} exited: no '
                                       f'/clock and no measured_cp for {quiet:.2f} s of wall '
@@ -564,11 +436,11 @@ class ExecutorNode(Node):
                                   'simulator stopped', silence_s=silence, wall_silence_s=quiet,
                        last_measured_t=last)
             return
-        fault = self._fault()
+        fault = self.sim.fault()
         if fault is not None:
             self._halt('stopped', f'arm fault: {fault}')
             return
-        obs = self._observation()
+        obs = self.sim.observation(self._pair)
         if obs.t == self._last_obs_t and stage == 'running':
             return  # nothing new measured since the last command
         self._last_obs_t = obs.t

@@ -33,23 +33,16 @@ from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, TwistStamped, WrenchStamped
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
 from sim_bridge.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Float64, String
 from suture_lfd.nodes import executables
 from suture_lfd.teleop.devices import PEDALS, open_device
 from suture_lfd.teleop.virtual_mtm import VirtualMtm
 
-EVENTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-LATCHED_IN = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE = QoSProfile(depth=10)
-SENSOR = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
-                    durability=DurabilityPolicy.VOLATILE)
 CONSOLE = {'clutch': 'clutch', 'coag': 'operator_present', 'camera': 'camera'}
 
 
@@ -149,47 +142,49 @@ class MtmsNode(Node):
             self._busy[name] = False
             pub = self.create_publisher
             self._pubs[name] = {
-                'measured_cp': pub(PoseStamped, f'{name}/measured_cp', STATE),
-                'setpoint_cp': pub(PoseStamped, f'{name}/setpoint_cp', STATE),
-                'measured_cv': pub(TwistStamped, f'{name}/measured_cv', STATE),
-                'gripper': pub(JointState, f'{name}/gripper/measured_js', STATE),
-                'operating_state': pub(OperatingState, f'{name}/operating_state', EVENTS),
-                'goal_reached': pub(Bool, f'{name}/goal_reached', EVENTS),
-                'error': pub(String, f'{name}/error', EVENTS),
-                'warning': pub(String, f'{name}/warning', EVENTS),
-                'status': pub(String, f'{name}/status', EVENTS),
+                'measured_cp': pub(PoseStamped, f'{name}/measured_cp', qos.STREAM),
+                'setpoint_cp': pub(PoseStamped, f'{name}/setpoint_cp', qos.STREAM),
+                'measured_cv': pub(TwistStamped, f'{name}/measured_cv', qos.STREAM),
+                'gripper': pub(JointState, f'{name}/gripper/measured_js', qos.STREAM),
+                'operating_state': pub(OperatingState, f'{name}/operating_state', qos.EVENTS),
+                'goal_reached': pub(Bool, f'{name}/goal_reached', qos.EVENTS),
+                'error': pub(String, f'{name}/error', qos.EVENTS),
+                'warning': pub(String, f'{name}/warning', qos.EVENTS),
+                'status': pub(String, f'{name}/status', qos.EVENTS),
             }
             sub = self.create_subscription
             sub(StringStamped, f'{name}/state_command',
-                lambda m, n=name: self._on_state_command(n, m), STATE)
-            sub(PoseStamped, f'{name}/move_cp', lambda m, n=name: self._on_move_cp(n, m), STATE)
+                lambda m, n=name: self._on_state_command(n, m), qos.STREAM)
+            sub(PoseStamped, f'{name}/move_cp', lambda m, n=name: self._on_move_cp(n, m),
+                qos.STREAM)
             sub(Quaternion, f'{name}/lock_orientation',
-                lambda m, n=name: self._on_lock(n, m), LATCHED_IN)
+                lambda m, n=name: self._on_lock(n, m), qos.LATCHED)
             sub(Empty, f'{name}/unlock_orientation',
-                lambda m, n=name: self.mtms[n].unlock_orientation(self._now()), LATCHED_IN)
+                lambda m, n=name: self.mtms[n].unlock_orientation(self._now()), qos.LATCHED)
             sub(Bool, f'{name}/use_gravity_compensation',
                 lambda m, n=name: setattr(self.mtms[n], 'gravity_compensation', m.data),
-                LATCHED_IN)
-            sub(WrenchStamped, f'{name}/body/servo_cf', lambda m: None, STATE)
+                qos.LATCHED)
+            sub(WrenchStamped, f'{name}/body/servo_cf', lambda m: None, qos.STREAM)
             if cfg.device == 'browser':
                 prefix = cfg.browser_prefix
                 sub(PoseStamped, f'{prefix}/{name}/pose',
-                    lambda m, n=name: self._on_handle(n, m), SENSOR)
+                    lambda m, n=name: self._on_handle(n, m), qos.SENSOR)
                 sub(Float64, f'{prefix}/{name}/gripper',
-                    lambda m, n=name: self.device.set_gripper(n, m.data), SENSOR)
+                    lambda m, n=name: self.device.set_gripper(n, m.data), qos.SENSOR)
             self._publish_state(name)
         if cfg.device == 'browser':
-            self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals, STATE)
+            self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals,
+                                     qos.STREAM)
         self._pedal_state = dict.fromkeys(PEDALS, False)
         self._pedal_pubs = {}
         for pedal in PEDALS:
             if cfg.pedals == 'own':
                 self._pedal_pubs[pedal] = [
-                    self.create_publisher(Joy, f'/footpedals/{pedal}', EVENTS),
-                    self.create_publisher(Joy, f'/console/{CONSOLE[pedal]}', EVENTS)]
+                    self.create_publisher(Joy, f'/footpedals/{pedal}', qos.EVENTS),
+                    self.create_publisher(Joy, f'/console/{CONSOLE[pedal]}', qos.EVENTS)]
             else:
                 self._pedal_pubs[pedal] = [
-                    self.create_publisher(Joy, f'/footpedals/{pedal}/emulate', STATE)]
+                    self.create_publisher(Joy, f'/footpedals/{pedal}/emulate', qos.STREAM)]
         self.create_timer(1.0 / cfg.rate, self._on_timer)
         self.get_logger().info(f'virtual {", ".join(cfg.mtms)} on the {cfg.device} '
                                f'(frame {self.frame_id}), pedals {cfg.pedals}')

@@ -20,16 +20,12 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
+from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd import bags
 from suture_lfd.nodes import executables
-
-DONE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
 
 
 @dataclass(frozen=True)
@@ -89,9 +85,9 @@ class Player(Node):
                 continue
             self._topic_pubs[topic] = self.create_publisher(
                 cls, topic, playback_qos(info.qos, self.config.depth))
-        self._clock_pub = (self.create_publisher(Clock, '/clock', CLOCK_QOS)
+        self._clock_pub = (self.create_publisher(Clock, '/clock', qos.CLOCK)
                            if self.config.publish_clock else None)
-        self._done_pub = self.create_publisher(String, '~/done', DONE_QOS)
+        self._done_pub = self.create_publisher(String, '~/done', qos.LATCHED)
         self.published = dict.fromkeys(self._topic_pubs, 0)
         self.exit_code = 0
         self._done = threading.Event()

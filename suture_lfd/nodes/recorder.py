@@ -15,7 +15,9 @@ per topic the messages received while recording, carried over into the bag, writ
 numbers (:class:`suture_lfd.bags.losses.PublicationGaps`). ``lost`` is what was missed plus
 what was received but not written, so ``lost: 0`` means the bag holds every message published
 while it was recorded; the bag's ``metadata.yaml`` keeps the per-topic counts (custom data
-``suture_lfd.counts``) and the total (``suture_lfd.lost``).
+``suture_lfd.counts``) and the total (``suture_lfd.lost``). Stopped by SIGINT or SIGTERM while
+recording, the node closes the bag with what it holds and marks it ``suture_lfd.outcome:
+interrupted``.
 """
 
 from dataclasses import dataclass
@@ -31,6 +33,7 @@ import threading
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
@@ -39,8 +42,6 @@ from suture_lfd import bags
 from suture_lfd.bags.losses import PublicationGaps
 from suture_lfd.nodes import executables
 
-STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _STOP = object()
 DRAIN = 200   # messages a callback takes from its subscription's queue after its own
 
@@ -165,6 +166,10 @@ class BagSession:
         return {'bag': str(self.path), **total, 'queued': 0 if closed else queued, 'lost': lost,
                 'topics': per_topic}
 
+    def set_custom_data(self, key, value):
+        """Store a string in the bag's ``metadata.yaml`` ``custom_data`` (written at close)."""
+        self._writer.set_custom_data(key, value)
+
     def close(self):
         """Write what is queued, close the bag; return the counts."""
         self._queue.put(_STOP)
@@ -193,13 +198,13 @@ class Recorder(Node):
         self._last = {}            # carry-over topic -> last CDR bytes
         self._gaps = PublicationGaps()
         self._ros_clock = self.get_clock()
-        self._status_pub = self.create_publisher(String, '~/status', STATUS_QOS)
+        self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
         if self.config.toggle_pedal:
             # VOLATILE: a press latched before this node started must not toggle it.
             self.create_subscription(Joy, self.config.toggle_pedal, self._on_pedal,
-                                     QoSProfile(depth=10))
+                                     qos.STREAM)
         self._wanted = []
         for name in self._listed_topics():
             topic = self.resolve_topic_name(name)
@@ -241,7 +246,7 @@ class Recorder(Node):
                                     for e in endpoints))
         best_effort = self.config.matches('best_effort', topic) or any(
             e.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for e in endpoints)
-        qos = QoSProfile(
+        profile = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=self.config.depth,
             reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
                          else ReliabilityPolicy.RELIABLE),
@@ -251,7 +256,7 @@ class Recorder(Node):
         self._types[topic] = msgtype
         self._latched[topic] = latched
         self._topic_subs[topic] = self.create_subscription(
-            cls, topic, functools.partial(self._on_messages, topic, carry), qos, raw=True)
+            cls, topic, functools.partial(self._on_messages, topic, carry), profile, raw=True)
 
     def _discover(self):
         for topic, types in self.get_topic_names_and_types():
@@ -378,6 +383,13 @@ class Recorder(Node):
             counts = session.counts()
         status = {'recording': session is not None, **(counts or {})}
         self._status_pub.publish(String(data=json.dumps(status)))
+
+    def on_interrupt(self, signal_name):
+        """Mark the bag being written as ended by a signal (``on_exit`` then closes it)."""
+        if self._session is not None:
+            self._session.set_custom_data('suture_lfd.outcome', 'interrupted')
+            self.get_logger().warning(f'{signal_name} while recording {self._session.path}: '
+                                      'the bag is closed with what it holds, outcome interrupted')
 
     def on_exit(self):
         """Close the bag if one is open (on exit)."""

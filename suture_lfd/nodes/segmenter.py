@@ -17,16 +17,13 @@ from pathlib import Path
 import sys
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd.demos.demo_bag import demonstration_from_bag
 from suture_lfd.nodes import executables
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.segmentation.segments import make_segment_file
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @dataclass(frozen=True)
@@ -91,7 +88,7 @@ class Segmenter(Node):
     def __init__(self):
         super().__init__('segmenter')
         self.config = declare_config(self, SegmenterConfig, 'segmenter.yaml', 'segmenter')
-        self._result = self.create_publisher(String, '~/result', LATCHED)
+        self._result = self.create_publisher(String, '~/result', qos.LATCHED)
 
     def run(self):
         """Segment the bag; return the exit code."""

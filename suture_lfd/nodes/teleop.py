@@ -24,10 +24,10 @@ from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, WrenchStamped
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
 from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Header, String
 from suture_lfd.nodes import executables
@@ -40,12 +40,6 @@ from suture_lfd.teleop.teleoperation import (
     TeleopInputs,
 )
 from tf2_msgs.msg import TFMessage
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-EVENTS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE = QoSProfile(depth=10)
 
 
 class TeleopNode(Node):
@@ -67,37 +61,37 @@ class TeleopNode(Node):
         self._warned = set()
         m, p = cfg.mtm, cfg.psm
         sub = self.create_subscription
-        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, STATE)
-        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, STATE)
+        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, qos.STREAM)
+        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, qos.STREAM)
         sub(OperatingState, f'{m}/operating_state',
-            lambda msg: setattr(self, '_mtm_state', self._arm_state(msg)), EVENTS)
-        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, STATE)
-        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, STATE)
+            lambda msg: setattr(self, '_mtm_state', self._arm_state(msg)), qos.EVENTS)
+        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, qos.STREAM)
+        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, qos.STREAM)
         sub(OperatingState, f'{p}/operating_state',
-            lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), EVENTS)
+            lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), qos.EVENTS)
         if cfg.ecm:
-            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, STATE)
-        sub(TFMessage, '/tf_static', self._on_tf_static, EVENTS)
-        sub(Joy, cfg.clutch_topic, self._on_clutch, EVENTS)
+            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.STREAM)
+        sub(TFMessage, '/tf_static', self._on_tf_static, qos.EVENTS)
+        sub(Joy, cfg.clutch_topic, self._on_clutch, qos.EVENTS)
         if cfg.operator_present_topic:
-            sub(Joy, cfg.operator_present_topic, self._on_present, EVENTS)
-        sub(StringStamped, '~/state_command', self._on_state_command, STATE)
+            sub(Joy, cfg.operator_present_topic, self._on_present, qos.EVENTS)
+        sub(StringStamped, '~/state_command', self._on_state_command, qos.STREAM)
         pub = self.create_publisher
         self._pubs = {
-            ('psm', 'servo_cp'): pub(PoseStamped, f'{p}/servo_cp', STATE),
-            ('psm', 'jaw_servo_jp'): pub(JointState, f'{p}/jaw/servo_jp', STATE),
-            ('psm', 'hold'): pub(Empty, f'{p}/hold', STATE),
-            ('psm', 'state_command'): pub(StringStamped, f'{p}/state_command', STATE),
-            ('mtm', 'state_command'): pub(StringStamped, f'{m}/state_command', STATE),
-            ('mtm', 'move_cp'): pub(PoseStamped, f'{m}/move_cp', STATE),
-            ('mtm', 'lock_orientation'): pub(Quaternion, f'{m}/lock_orientation', LATCHED),
-            ('mtm', 'unlock_orientation'): pub(Empty, f'{m}/unlock_orientation', LATCHED),
+            ('psm', 'servo_cp'): pub(PoseStamped, f'{p}/servo_cp', qos.STREAM),
+            ('psm', 'jaw_servo_jp'): pub(JointState, f'{p}/jaw/servo_jp', qos.STREAM),
+            ('psm', 'hold'): pub(Empty, f'{p}/hold', qos.STREAM),
+            ('psm', 'state_command'): pub(StringStamped, f'{p}/state_command', qos.STREAM),
+            ('mtm', 'state_command'): pub(StringStamped, f'{m}/state_command', qos.STREAM),
+            ('mtm', 'move_cp'): pub(PoseStamped, f'{m}/move_cp', qos.STREAM),
+            ('mtm', 'lock_orientation'): pub(Quaternion, f'{m}/lock_orientation', qos.LATCHED),
+            ('mtm', 'unlock_orientation'): pub(Empty, f'{m}/unlock_orientation', qos.LATCHED),
             ('mtm', 'use_gravity_compensation'): pub(Bool, f'{m}/use_gravity_compensation',
-                                                     LATCHED),
-            ('mtm', 'body_servo_cf'): pub(WrenchStamped, f'{m}/body/servo_cf', STATE),
+                                                     qos.LATCHED),
+            ('mtm', 'body_servo_cf'): pub(WrenchStamped, f'{m}/body/servo_cf', qos.STREAM),
         }
-        self._current = pub(String, '~/current_state', LATCHED)
-        self._following = pub(Bool, '~/following', LATCHED)
+        self._current = pub(String, '~/current_state', qos.LATCHED)
+        self._following = pub(Bool, '~/following', qos.LATCHED)
         self._publish_state()
         self.create_timer(1.0 / cfg.rate, self._on_timer)
         self.get_logger().info(f'{m} -> {p} (scale {cfg.scale}, camera '

@@ -35,14 +35,15 @@ Frames: ``world``; suture frames as in :mod:`suture_lfd.planning.suturing_frames
 """
 
 from dataclasses import asdict, dataclass, field
+import functools
 import json
 from pathlib import Path
-import zipfile
 
 import numpy as np
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping
 from sim_bridge.geometry import pose_from_transform, transform_from_pose
 from sim_bridge.validation import check_array
+from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.dmp import DmpParams, PoseDmp, PositionDmp, QuaternionDmp, load_dmp_params
 from suture_lfd.planning.suturing_frames import (
@@ -479,16 +480,13 @@ class ThrowSkill:
         meta = {'method': asdict(self.method), 'pair': self.pair.name, 'timing': self.timing,
                 'source': self.source, 'tasks': list(self.dmps),
                 'params': {task: asdict(dmp.params) for task, dmp in self.dmps.items()}}
-        arrays = {'format': np.array(SKILL_FORMAT),
-                  'format_version': np.array(SKILL_FORMAT_VERSION),
-                  'meta': np.array(json.dumps(meta)), 'pair.entry': self.pair.entry,
+        arrays = {'meta': np.array(json.dumps(meta)), 'pair.entry': self.pair.entry,
                   'pair.exit': self.pair.exit, 'pair.normal': self.pair.normal}
         for task, dmp in self.dmps.items():
             arrays[f'{task}.duration'] = np.array(dmp.duration_)
             for key, value in dmp._arrays().items():
                 arrays[f'{task}.{key}'] = value
-        with open(path, 'wb') as handle:
-            np.savez(handle, **arrays)
+        save_archive(path, arrays, SKILL_FORMAT, SKILL_FORMAT_VERSION)
 
     @classmethod
     def load(cls, path):
@@ -502,27 +500,13 @@ class ThrowSkill:
             message names the file and the key.
 
         """
-        try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise ValueError(f'{path}: not a readable skill file ({exc})') from exc
-        if not isinstance(data, np.lib.npyio.NpzFile):
-            raise ValueError(f'{path}: not a skill file (expected an .npz archive)')
-        with data:
-            arrays = {key: data[key] for key in data.files}
+        arrays = load_archive(path, SKILL_FORMAT, SKILL_FORMAT_VERSION, 'skill file')
 
         def need(key):
             if key not in arrays:
                 raise ValueError(f'{path}: skill file lacks the key {key!r}')
             return arrays[key]
 
-        if str(need('format')) != SKILL_FORMAT:
-            raise ValueError(f'{path}: key \'format\' is {str(arrays["format"])!r}, expected '
-                             f'{SKILL_FORMAT!r} (not a skill file)')
-        version = int(need('format_version'))
-        if version != SKILL_FORMAT_VERSION:
-            raise ValueError(f"{path}: key 'format_version' is {version}, expected "
-                             f'{SKILL_FORMAT_VERSION}')
         try:
             meta = json.loads(str(need('meta')))
             method = Method(**meta['method'])
@@ -550,16 +534,12 @@ class ThrowSkill:
         return cls(method, pair, dmps, timing, meta.get('source', ''))
 
 
-_NEEDLE = []
-
-
+@functools.cache
 def default_needle():
     """Return the scene's needle geometry (``config/scene.yaml``), read once."""
-    if not _NEEDLE:
-        from sim_bridge.scene.scene_config import load_scene_config
+    from sim_bridge.scene.scene_config import load_scene_config
 
-        _NEEDLE.append(load_scene_config().needle)
-    return _NEEDLE[0]
+    return load_scene_config().needle
 
 
 def _pose7(pose, name):

@@ -2,9 +2,10 @@
 DMP executor: performs a whole throw on a marker pair from a learnt :class:`ThrowSkill`.
 
 Subtasks i, iii and v are scripted as in the seed paper ("we grasp the needle using a script
-and utilize a simple trajectory planning technique to move the PSMs"), with the planning pieces
-of :class:`suture_lfd.planning.expert.ScriptedExpert` (reachable grasps, minimum-jerk motions,
-grasp and release gates). Subtasks ii (insertion, PSM2) and iv (extraction, PSM1) come from the
+and utilize a simple trajectory planning technique to move the PSMs") by the one throw planner,
+:func:`suture_lfd.planning.throw.plan_throw` (reachable grasps, minimum-jerk motions, grasp and
+release gates), which the scripted expert uses too: the two differ only in the needle paths they
+pass for ii and iv. Subtasks ii (insertion, PSM2) and iv (extraction, PSM1) come from the
 skill's DMPs: the needle start and goal on the target pair are derived from the demonstrated pair's
 (:meth:`ThrowSkill.start_goal`), the DMP rollout is the needle trajectory, and the tool targets
 streamed to the arm are ``T_world_needle(t) @ inv(T_tool_needle)`` with the grasp
@@ -25,17 +26,13 @@ import math
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
 from sim_bridge.geometry import matrix_from_quaternion, pose_from_transform
-from sim_bridge.scene.needle import invert_transform
-from suture_lfd.planning.expert import (  # planning pieces of the script
-    Gate,
-    Plan,
-    ScriptedExpert,
-    _backed_off,
-    _Track,
-    _translated,
-)
+from suture_lfd.planning.episode import run_episode, start_episode
+from suture_lfd.planning.grasps import GraspPlanner
+from suture_lfd.planning.plan import PlanFollower
+from suture_lfd.planning.throw import Carry, Follow, Hold, ThrowPaths, drive_grasp_s, plan_throw
 from suture_lfd.planning.throw_geometry import ThrowArc
-from suture_lfd.planning.waypoints import NeedleMove, RigidPath, rotation_exp, rotation_log
+from suture_lfd.planning.tracks import TimedNeedleMove, translated
+from suture_lfd.planning.waypoints import RigidPath, rotation_exp, rotation_log
 from suture_lfd.skill import (
     METHODS,
     Method,
@@ -52,10 +49,8 @@ __all__ = ['METHODS', 'Method', 'ThrowSkill', 'TrainingData', 'learn_skill',
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 
-# Grasp search along the needle (arc parameter: 0 tail, 1 tip): arc parameters tried besides
-# the preferred one, the span kept between the two jaws (about 2.5 mm of wire), and the
-# highest parameter (the jaw keeps off the point).
-_GRASP_CANDIDATES = 9
+# Grasp search along the needle (arc parameter: 0 tail, 1 tip): the span kept between the two
+# jaws (about 2.5 mm of wire), and the highest parameter (the jaw keeps off the point).
 _JAW_GAP_S = 0.15
 _TIP_MARGIN_S = 0.97
 # Part of the insertion (fraction of its duration) over which the start press fades out.
@@ -177,14 +172,7 @@ class _SubPath:
         return self.path(self.a + sigma * (self.b - self.a))
 
 
-class DmpMove(NeedleMove):
-    """A tool carrying the needle along a DMP rollout, with the rollout's own timing."""
-
-    def sigma(self, t):
-        """Path parameter: linear in time (the DMP sets the speed profile)."""
-        if self.t1 <= self.t0:
-            return 1.0
-        return min(1.0, max(0.0, (t - self.t0) / (self.t1 - self.t0)))
+DmpMove = TimedNeedleMove  # a segment of a plan that follows a DMP rollout
 
 
 def _transforms(P, Q):
@@ -193,26 +181,6 @@ def _transforms(P, Q):
     T[:, :3, 3] = P
     T[:, 3, 3] = 1.0
     return T
-
-
-def _carry_rollout(track, path, duration):
-    """Append a DMP-timed needle carry to an expert track."""
-    grasp = track.held[1]
-    seg = DmpMove(track.t, track.t + duration, path, grasp, track.jaw)
-    track.segments.append(seg)
-    track.t = seg.t1
-    track.pose = path.B @ invert_transform(grasp)
-    track.held = (path.B, grasp)
-
-
-def _carry_timed(track, path, duration):
-    """Append a minimum-jerk needle carry of at least ``duration`` seconds to a track."""
-    start = len(track.segments)
-    track.carry(path)
-    seg = track.segments[start]
-    if seg.t1 - seg.t0 < duration:
-        seg.t1 = seg.t0 + duration
-        track.t = seg.t1
 
 
 def _emerged_s(needle, N, pair):
@@ -230,7 +198,7 @@ def _emerged_s(needle, N, pair):
     return float(s[k])
 
 
-class ThrowExecutor(ScriptedExpert):
+class ThrowExecutor:
     """
     Controller of one throw: scripted i, iii, v and DMP-driven ii, iv.
 
@@ -263,80 +231,38 @@ class ThrowExecutor(ScriptedExpert):
     def __init__(self, skill, pair, needle_geometry, kinematics=None, config=None,
                  next_pair=None):
         self.executor_config = ExecutorConfig() if config is None else config
-        super().__init__(pair, needle_geometry, config=self.executor_config.script,
-                         kinematics=kinematics, next_pair=next_pair)
+        self.config = self.executor_config.script
         if not isinstance(skill, ThrowSkill):
             raise ValueError(f'skill must be a ThrowSkill, got {type(skill).__name__}')
         self.skill = skill
+        self.pair = pair
+        self.needle = needle_geometry
+        self.next_pair = next_pair
+        self.grasps = GraspPlanner(pair, needle_geometry, self.config, kinematics)
+        self.kinematics = self.grasps.kinematics
         self.rollouts = {}
         self.targets = {}
-
-    # ------------------------------------------------------------------ grasp choice
-    def _choose_grasp_along(self, arm, s, span, phase, what):
-        """
-        Reachable grasp at arc parameter ``s`` or, failing that, at the nearest one in ``span``.
-
-        Parameters
-        ----------
-        arm : str
-            Arm.
-        s : float
-            Preferred arc parameter (0 tail, 1 tip).
-        span : tuple of float
-            ``(lo, hi)``: arc parameters the grasp may move to.
-        phase : dict
-            As :meth:`suture_lfd.planning.expert.ScriptedExpert._choose_grasp`.
-        what : str
-            Phase name for error messages.
-
-        Returns
-        -------
-        grasp : ndarray, shape (4, 4)
-            ``T_tool_needle``.
-        roll : float
-            Roll joint (rad) at the end of the phase.
-        s : float
-            Arc parameter of the chosen grasp.
-
-        Raises
-        ------
-        ValueError
-            If no arc parameter of the span gives a reachable grasp (the message names the span).
-
-        """
-        lo, hi = float(span[0]), float(span[1])
-        others = np.linspace(lo, hi, _GRASP_CANDIDATES) if hi > lo else np.array([])
-        candidates = [float(s)] + sorted((float(x) for x in others
-                                          if abs(x - s) > 1e-6), key=lambda x: abs(x - s))
-        first = None
-        for x in candidates:
-            try:
-                G, roll = self._choose_grasp(arm, x, phase, what)
-            except ValueError as exc:
-                first = exc if first is None else first
-                continue
-            return G, roll, x
-        raise ValueError(f'{first}; no arc parameter in [{lo:.2f}, {hi:.2f}] is reachable '
-                         f'either') from first
+        self.plan_ = None
+        self.follower = None
 
     # ------------------------------------------------------------------ planning
-    def plan(self, obs):
+    def rollout_paths(self):
         """
-        Plan the whole throw from an observation (DMP rollouts included).
+        Roll the skill's DMPs out on the target pair and return the throw's needle paths.
 
-        Parameters
-        ----------
-        obs : sim_bridge.control.Observation
-            Start state.
+        Sets :attr:`rollouts` and :attr:`targets`.
 
         Returns
         -------
-        suture_lfd.planning.expert.Plan
+        suture_lfd.planning.throw.ThrowPaths
+            The insertion (ii) and extraction (iv) follow the rollouts with their own timing;
+            subtask i lowers the needle onto the insertion start (at least
+            ``final_approach_time``) and settles.
 
         Raises
         ------
         ValueError
-            If no grasp keeps a holding phase inside the arms' reach.
+            If a rollout diverges.
 
         """
         c = self.config
@@ -346,8 +272,6 @@ class ThrowExecutor(ScriptedExpert):
         arc = ThrowArc(pair, g)
         deg = math.radians
         normal = np.asarray(pair.normal, dtype=float)
-        up = np.array([0.0, 0.0, 1.0])
-        bases = obs.T_world_base
 
         # ii from the DMP: start/goal on this pair, rollout in world.
         start2, goal2 = skill.start_goal('ii', pair, needle=g)
@@ -360,7 +284,7 @@ class ThrowExecutor(ScriptedExpert):
         P2 = P2 - self.executor_config.start_press * fade * normal
         R2 = _transforms(P2, Q2)
         S2 = R2[0]
-        S2_hi = _translated(S2, self.executor_config.start_lift * normal)
+        S2_hi = translated(S2, self.executor_config.start_lift * normal)
         N_ins = R2[-1]
         start4, goal4 = skill.start_goal('iv', pair, needle=g)
         T4, P4, Q4 = skill.rollout('iv', pair, start=pose_from_transform(N_ins), goal=goal4,
@@ -374,140 +298,58 @@ class ThrowExecutor(ScriptedExpert):
             nxt = PairGeometry.of(self.next_pair)
             start_next = skill.start_goal('ii', nxt, needle=g)[0]
             S_next = _transforms(start_next[None, :3], start_next[None, 3:])[0]
-            N_next = _translated(S_next, (self.executor_config.start_lift + c.next_lift)
+            N_next = translated(S_next, (self.executor_config.start_lift + c.next_lift)
                                  * np.asarray(self.next_pair.normal))
         else:
-            N_next = _translated(S2_hi, c.next_lift * normal)
+            N_next = translated(S2_hi, c.next_lift * normal)
 
-        s_g = 1.0 - (deg(c.clearance_deg) + arc.inside_angle + deg(c.protrusion_deg)) / g.arc
-        s_g = min(c.grasp_s_max, max(c.grasp_s_min, s_g))
+        s_g = drive_grasp_s(arc, g, c)
         s_out = _emerged_s(g, N_ins, pair)
         if s_out is None:
             s_1 = 1.0 - 0.5 * deg(c.protrusion_deg) / g.arc
         else:
             s_1 = 0.5 * (1.0 + s_out)
-
-        N0 = np.array(obs.T_world_needle, dtype=float)
-        N_up = _translated(N0, c.pick_lift * up)
-        holders = tuple(obs.holders)
-        picked = 'PSM2' in holders
-        clear2 = [path2(x) for x in np.linspace(0.0, 1.0, 9)]
-        drive_paths = [RigidPath(S2_hi, S2)] + path2.pieces(3)
-        if picked:
-            G2 = invert_transform(obs.T_world_tool['PSM2']) @ N0
-            _, roll2 = self._path_cost(
-                'PSM2', bases, self._start_roll('PSM2', obs),
-                [N @ invert_transform(G2) for p in [RigidPath(N0, S2_hi)] + drive_paths
-                 for N in (p(x) for x in np.linspace(0.0, 1.0, 12))])
-            if roll2 is None:
-                raise ValueError(f'PSM2 cannot carry the needle it holds through the insertion '
-                                 f'of pair {pair.name}; regrasp it first')
-        else:
-            G2, roll2 = self._choose_grasp('PSM2', s_g, {
-                'start': obs.T_world_tool['PSM2'], 'roll0': self._start_roll('PSM2', obs),
-                'grasp_at': N0, 'paths': [RigidPath(N0, N_up), RigidPath(N_up, S2_hi)]
-                + drive_paths, 'clear': clear2, 'bases': bases}, 'the pick-up and insertion')
         # The extraction grasp closes on the part of the needle out of the exit, the hand-over
         # grasp anywhere on the needle off PSM1's jaw: the preferred arc parameter first, then
         # the others of that span (a rollout on another pair can put the preferred one out of
         # the arm's reach).
         lo_1 = s_g + _JAW_GAP_S if s_out is None else s_out + 0.25 * (1.0 - s_out)
-        G1, _, s_1 = self._choose_grasp_along('PSM1', s_1, (lo_1, _TIP_MARGIN_S), {
-            'start': obs.T_world_tool['PSM1'], 'roll0': self._start_roll('PSM1', obs),
-            'grasp_at': N_ins, 'paths': path4.pieces(4), 'clear': [N_ins], 'bases': bases},
-            'the extraction')
-        park2 = _translated(_backed_off(N_ins @ invert_transform(G2), c.retreat_distance),
-                            c.retreat_distance * up)
-        handover = {'start': park2, 'roll0': roll2, 'grasp_at': N_lift,
-                    'paths': [RigidPath(N_lift, N_next)], 'clear': (), 'bases': bases}
-        span_h = (c.grasp_s_min, s_1 - _JAW_GAP_S)
-        try:
-            Gh, _, _ = self._choose_grasp_along('PSM2', s_g, span_h, handover, 'the handover')
-        except ValueError:
-            # No grasp of the extracted needle also carries it to the next start (the
-            # extraction may end turned far from it): the hand-over completes and PSM2 lifts
-            # the needle straight up instead.
-            N_next = _translated(N_lift, c.next_lift * up)
-            Gh, _, _ = self._choose_grasp_along(
-                'PSM2', s_g, span_h, {**handover, 'paths': [RigidPath(N_lift, N_next)]},
-                'the handover')
+        return ThrowPaths(
+            above=S2_hi,
+            approach=(Carry(RigidPath(S2_hi, S2),
+                            min_duration=self.executor_config.final_approach_time),
+                      Hold(c.settle_time)),
+            insertion=(Follow(path2, skill.duration('ii')),),
+            insertion_reach=tuple([RigidPath(S2_hi, S2)] + path2.pieces(3)),
+            insertion_clear=tuple(path2(x) for x in np.linspace(0.0, 1.0, 9)),
+            insertion_end=N_ins,
+            extraction=(Follow(path4, skill.duration('iv')),),
+            extraction_reach=tuple(path4.pieces(4)), extraction_clear=(N_ins,),
+            extraction_end=N_lift, next_pose=N_next,
+            extract_s=s_1, extract_span=(lo_1, _TIP_MARGIN_S), handover_gap=_JAW_GAP_S,
+            handover_fallback=True)
 
-        t1 = _Track('PSM1', obs.T_world_tool['PSM1'], obs.jaw['PSM1'], c)
-        t2 = _Track('PSM2', obs.T_world_tool['PSM2'], obs.jaw['PSM2'], c)
-        labels = [(0.0, 'i')]
-        gates = []
+    def plan(self, obs):
+        """
+        Plan the whole throw from an observation (DMP rollouts included).
 
-        # i (scripted): pick with PSM2, carry the needle above the DMP start, lower it there.
-        if not picked:
-            grasp_pose = N0 @ invert_transform(G2)
-            t2.move(_backed_off(grasp_pose, c.approach_distance), jaw=c.jaw_open)
-            t2.move(grasp_pose)
-            t2.set_jaw(c.jaw_closed)
-            gates.append(Gate(t2.t, 'PSM2', 'grasp'))
-            t2.grab(N0, G2)
-            t2.hold(c.settle_time)
-            t2.carry(RigidPath(N0, N_up))
-            t2.carry(RigidPath(N_up, S2_hi))
-        else:
-            t2.grab(N0, G2)
-            t2.carry(RigidPath(N0, S2_hi))
-        _carry_timed(t2, RigidPath(S2_hi, S2), self.executor_config.final_approach_time)
-        t2.hold(c.settle_time)
+        Parameters
+        ----------
+        obs : sim_bridge.control.Observation
+            Start state.
 
-        # ii (DMP): insertion; PSM1 gets ready.
-        labels.append((t2.t, 'ii'))
-        t1.hold_until(t2.t)
-        pre1 = _backed_off(N_ins @ invert_transform(G1), c.approach_distance)
-        t1.move(pre1, jaw=c.jaw_open_near_tissue)
-        _carry_rollout(t2, path2, skill.duration('ii'))
+        Returns
+        -------
+        suture_lfd.planning.plan.Plan
 
-        # iii (scripted): regrasp with PSM1, PSM2 lets go.
-        labels.append((t2.t, 'iii'))
-        t1.hold_until(t2.t)
-        t1.move(N_ins @ invert_transform(G1))
-        t1.set_jaw(c.jaw_closed)
-        gates.append(Gate(t1.t, 'PSM1', 'grasp'))
-        t1.grab(N_ins, G1)
-        t1.hold(c.settle_time)
-        t2.hold_until(t1.t)
-        t2.set_jaw(c.jaw_open)
-        gates.append(Gate(t2.t, 'PSM2', 'release'))
-        t2.let_go()
+        Raises
+        ------
+        ValueError
+            If no grasp keeps a holding phase inside the arms' reach.
 
-        # iv (DMP): extraction with PSM1; PSM2 backs away meanwhile.
-        labels.append((t2.t, 'iv'))
-        t1.hold_until(t2.t)
-        t2.move(_backed_off(t2.pose, c.retreat_distance))
-        t2.move(_translated(t2.pose, c.retreat_distance * up))
-        _carry_rollout(t1, path4, skill.duration('iv'))
-
-        # v (scripted): hand over to PSM2, PSM1 releases and parks, PSM2 moves on.
-        labels.append((max(t1.t, t2.t), 'v'))
-        t1.hold_until(t2.t)
-        grasp_h = N_lift @ invert_transform(Gh)
-        t2.move(_backed_off(grasp_h, c.approach_distance), jaw=c.jaw_open)
-        t2.hold_until(t1.t)
-        t2.move(grasp_h)
-        t2.set_jaw(c.jaw_closed)
-        gates.append(Gate(t2.t, 'PSM2', 'grasp'))
-        t2.grab(N_lift, Gh)
-        t2.hold(c.settle_time)
-        t1.hold_until(t2.t)
-        t1.set_jaw(c.jaw_open)
-        gates.append(Gate(t1.t, 'PSM1', 'release'))
-        t1.let_go()
-        t2.hold_until(t1.t)
-        t1.move(_backed_off(t1.pose, c.retreat_distance))
-        t1.move(np.array(obs.T_world_tool['PSM1'], dtype=float))
-        t2.carry(RigidPath(N_lift, N_next))
-        end = max(t1.t, t2.t)
-        t1.hold_until(end)
-        t2.hold_until(end)
-        labels.append((end, 'done'))
-        return Plan(segments={'PSM1': t1.segments, 'PSM2': t2.segments}, labels=tuple(labels),
-                    gates=tuple(sorted(gates, key=lambda gt: gt.t)),
-                    grasps={'PSM2_drive': G2, 'PSM1_extract': G1, 'PSM2_handover': Gh},
-                    arc=arc, alphas={})
+        """
+        paths = self.rollout_paths()
+        return plan_throw(obs, self.grasps, ThrowArc(self.pair, self.needle), paths, self.config)
 
     # ------------------------------------------------------------------ control
     def reset(self, obs):
@@ -517,9 +359,14 @@ class ThrowExecutor(ScriptedExpert):
         Planning takes a while; where the scene runs on meanwhile (a simulator node), starting
         the clock at the first command keeps the plan from starting part-way through.
         """
-        super().reset(obs)
-        self._t0 = None
+        self.plan_ = self.plan(obs)
+        self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
         self._sent = {}
+
+    @property
+    def done(self):
+        """Whether the plan has run to its end."""
+        return self.follower is not None and self.follower.done
 
     def step(self, obs):
         """
@@ -537,17 +384,18 @@ class ThrowExecutor(ScriptedExpert):
         """
         if self.plan_ is None:
             self.reset(obs)
-        if self._t0 is None:
-            self._t0 = self._last_t = float(obs.t)
+        follower = self.follower
+        if follower.t0 is None:
+            follower.t0 = self._last_t = float(obs.t)
         cfg = self.executor_config
         dt = float(obs.t) - self._last_t
         self._last_t = float(obs.t)
         if cfg.phase_stopping and dt > 0.0:
-            tau = obs.t - self._t0 - self._offset
+            tau = follower.tau(obs.t)
             label = self.plan_.label(tau)
             if label in ('ii', 'iv'):
                 arm = 'PSM2' if label == 'ii' else 'PSM1'
-                seg = self.plan_._segment(arm, tau)
+                seg = self.plan_.segment_at(arm, tau)
                 if isinstance(seg, DmpMove) and arm in obs.holders:
                     N = seg.needle(tau)
                     M = np.asarray(obs.T_world_needle)
@@ -555,8 +403,8 @@ class ThrowExecutor(ScriptedExpert):
                     c_ang = 0.5 * (float(np.sum(M[:3, :3] * N[:3, :3])) - 1.0)
                     e_o = math.acos(max(-1.0, min(1.0, c_ang))) ** 2
                     slow = 1.0 + cfg.phase_stop_position * e_p + cfg.phase_stop_orientation * e_o
-                    self._offset += dt * (1.0 - 1.0 / slow)
-        cmd = super().step(obs)
+                    follower.offset += dt * (1.0 - 1.0 / slow)
+        cmd = follower.step(obs)
         if not cfg.resend_unchanged:
             tools = dict(cmd.T_world_tool)
             for arm, T in tools.items():
@@ -706,11 +554,8 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     if pair_name not in sim.phantom.markers:
         raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                          f'{sorted(sim.phantom.markers)}')
-    sim.reset(seed)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair_name)
+    pair = start_episode(sim, pair_name, seed)
     sim.pop_events()
-    pair = sim.target_pair
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
@@ -728,11 +573,7 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
                             entry_error_mm=math.nan, exit_error_mm=math.nan, executed={},
                             rollouts=dict(executor.rollouts), targets=dict(executor.targets),
                             subtask_times={}, events=[], score_detail=None)
-    chunk = 0.5
-    while not executor.done and sim.time - t_start < timeout:
-        sim.run(min(chunk, timeout - (sim.time - t_start)), recorder, control_period)
-    if executor.done:
-        sim.run(0.2, recorder, control_period)
+    run_episode(sim, executor, control_period, stepper=recorder, timeout=timeout, reset=False)
     result = sim.score()
     events = [_event_dict(ev) for ev in sim.pop_events()]
     complete = not result.failures

@@ -32,6 +32,7 @@ import logging
 import os
 from pathlib import Path
 import shlex
+import signal
 import sys
 import time
 import zlib
@@ -382,14 +383,16 @@ def run_study(args, stream=None):
                                      workers=workers, progress=progress,
                                      initializer=init_worker, initargs=(settings, ros))
             except (CodeMismatchError, EngineError) as exc:
+                progress.finish()
                 print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
                 status = 1
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as exc:
+                progress.finish()
                 ran = progress.done - progress.resumed
                 print(f'study interrupted: {progress.done}/{total} jobs stored in '
                       f'{store.path.name}; run the same command again to resume', file=stream,
                       flush=True)
-                status = 130
+                status = 128 + getattr(exc, 'signum', signal.SIGINT)  # 130, or 143 for SIGTERM
             finally:
                 if session is not None:
                     session.close()

@@ -27,7 +27,7 @@ nodes report. Demonstrations always run in-process.
 Units of the records: times s (simulated), position errors mm, orientation errors deg.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import logging
 import math
 import os
@@ -106,7 +106,37 @@ class JobSettings:
     collision_period: float = 0.05
 
 
-_STATE = {}
+@dataclass(eq=False)
+class WorkerState:
+    """
+    What one study process keeps between jobs (set up by :func:`init_worker`).
+
+    Attributes
+    ----------
+    settings : JobSettings
+        The study's job settings.
+    sims : dict
+        ``(phantom, physics step) -> Simulation``, built on first use.
+    data : dict
+        Training data of demonstrations, by key.
+    skills : dict
+        Learnt skills, by key.
+    subjects : dict or None
+        The cohort's subjects by name, read on first use.
+    ros : suture_lfd.study.ros.RosThrows or None
+        Node processes executing the throws (None: in-process).
+
+    """
+
+    settings: object
+    sims: dict = field(default_factory=dict)
+    data: dict = field(default_factory=dict)
+    skills: dict = field(default_factory=dict)
+    subjects: dict | None = None
+    ros: object = None
+
+
+_worker = None  # this process's WorkerState (a pool worker is initialised once)
 
 
 def init_worker(settings, ros=None):
@@ -116,39 +146,37 @@ def init_worker(settings, ros=None):
     ``ros`` (:class:`suture_lfd.study.ros.RosSettings`, optional): execute the throws through
     the node processes.
     """
+    global _worker
     logging.getLogger('suture_lfd').setLevel(logging.WARNING)
     logging.getLogger('sim_bridge').setLevel(logging.WARNING)
-    previous = _STATE.get('ros')
-    if previous is not None:
-        previous.close()
-    _STATE.clear()
-    _STATE['settings'] = settings
-    _STATE['sims'] = {}
-    _STATE['data'] = {}
-    _STATE['skills'] = {}
-    _STATE['ros'] = None
+    if _worker is not None and _worker.ros is not None:
+        _worker.ros.close()
+    _worker = WorkerState(settings)
     if ros is not None:
         import multiprocessing
 
         from suture_lfd.study.ros import RosThrows
 
-        _STATE['ros'] = RosThrows(ros, settings.out, settings.timeout)
+        _worker.ros = RosThrows(ros, settings.out, settings.timeout)
         if multiprocessing.parent_process() is not None:  # a worker: stop its nodes on SIGTERM
-            _STATE['ros'].install_sigterm()
+            _worker.ros.install_sigterm()
 
 
 def close_worker():
     """Release what :func:`init_worker` set up in this process (node processes, ROS domain)."""
-    ros = _STATE.get('ros')
-    if ros is not None:
-        ros.close()
-        _STATE['ros'] = None
+    if _worker is not None and _worker.ros is not None:
+        _worker.ros.close()
+        _worker.ros = None
+
+
+def _state():
+    if _worker is None:
+        raise RuntimeError('study jobs need init_worker(settings) first')
+    return _worker
 
 
 def _settings():
-    if 'settings' not in _STATE:
-        raise RuntimeError('study jobs need init_worker(settings) first')
-    return _STATE['settings']
+    return _state().settings
 
 
 def _simulation(phantom, step=None, spec=None):
@@ -160,7 +188,7 @@ def _simulation(phantom, step=None, spec=None):
     """
     s = _settings()
     step = s.physics_step if step is None else float(step)
-    sims = _STATE['sims']
+    sims = _state().sims
     if (phantom, step) not in sims:
         from sim_bridge.simulation import Simulation, load_simulation_config
 
@@ -183,12 +211,14 @@ def _subject(name, seed=None):
     """Return a subject of the cohort drawn with ``seed`` (default: the settings' seed)."""
     s = _settings()
     seed = s.cohort_seed if seed is None else int(seed)
-    cohorts = _STATE.setdefault('subjects', {})
-    if seed not in cohorts:
+    state = _state()
+    if state.subjects is None:
+        state.subjects = {}
+    if seed not in state.subjects:
         from suture_lfd.demos.cohort import load_cohort
 
-        cohorts[seed] = {x.name: x for x in load_cohort(s.cohort_path, seed=seed)}
-    subjects = cohorts[seed]
+        state.subjects[seed] = {x.name: x for x in load_cohort(s.cohort_path, seed=seed)}
+    subjects = state.subjects[seed]
     if name not in subjects:
         raise ValueError(f'subject {name!r} is not in the cohort ({sorted(subjects)})')
     return subjects[name]
@@ -293,7 +323,7 @@ def _save_segments(demo, segmentation, path, source='', subject=''):
 
 # ---------------------------------------------------------------------- throws
 def _training(path):
-    data = _STATE['data']
+    data = _state().data
     if path not in data:
         from suture_lfd.skill import training_data, training_data_from_demonstration
 
@@ -334,7 +364,7 @@ def _skill(path, method, dmp=None):
     ``dmp`` (optional): DMP hyper-parameters that differ from ``config/dmp.yaml``, as
     ``{task: {key: value}}`` (a sweep's cell).
     """
-    skills = _STATE['skills']
+    skills = _state().skills
     overrides = tuple(sorted((task, tuple(sorted(values.items())))
                              for task, values in (dmp or {}).items()))
     key = (path, method, overrides)
@@ -427,7 +457,7 @@ def throw_job(job):
 
     path = str(out / job['segments'])
     skill = _skill(path, job['method'], job.get('dmp'))
-    ros = _STATE.get('ros')
+    ros = _state().ros
     if ros is None:
         sim = (_simulation(job['test_key'], spec=spec) if spec is not None
                else _simulation(job['test_phantom']))

@@ -44,13 +44,11 @@ import tempfile
 import time
 
 import numpy as np
+from sim_bridge.processes import kill_group, stop_group
+from suture_lfd.errors import RosThrowError
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 MAX_DOMAIN_ID = 101   # highest ROS domain id whose ports stay clear of Linux's ephemeral range
-
-
-class RosThrowError(RuntimeError):
-    """A throw the node processes did not carry out (crash, hang, watchdog); says why."""
 
 
 @dataclass(frozen=True)
@@ -201,30 +199,11 @@ class NodeProcess:
 
     def stop(self, timeout=10.0):
         """Stop the whole group (SIGINT, then SIGTERM, then SIGKILL); return the exit code."""
-        if self.popen.poll() is None:
-            for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0),
-                              (signal.SIGKILL, 3.0)):
-                try:
-                    os.killpg(self.popen.pid, sig)
-                except ProcessLookupError:
-                    break
-                try:
-                    self.popen.wait(wait)
-                    break
-                except subprocess.TimeoutExpired:
-                    continue
-        self.kill_group()
-        try:
-            return self.popen.wait(5.0)
-        except subprocess.TimeoutExpired:
-            return None
+        return stop_group(self.popen, timeout)
 
     def kill_group(self):
         """SIGKILL whatever is left of the group (nothing may outlive its leader)."""
-        try:
-            os.killpg(self.popen.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
+        kill_group(self.popen)
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,14 +5,15 @@ import math
 import numpy as np
 import pytest
 from sim_bridge.control import ExpertConfig, Observation
+from sim_bridge.geometry import invert_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
-from sim_bridge.scene.needle import invert_transform
 from sim_bridge.scene.scene_config import load_scene_config
 from sim_bridge.scene.scoring import ThrowScorer
 from sim_bridge.scene.tissue import TissueTracker
 from sim_bridge.scene.world import read_world_config
 from suture_lfd.planning.expert import ScriptedExpert
+from suture_lfd.planning.grasps import GraspPlanner
 
 ARMS = ('PSM1', 'PSM2')
 
@@ -223,28 +224,28 @@ def test_aiming_noise_moves_the_entry_off_the_marker(scene, phantoms, bases, cha
 
 def _best_grasp_solving_whole_paths(expert, arm, s, phase):
     """The grasp choice as defined: each candidate's whole path (approach, then carrying)."""
-    from suture_lfd.planning.expert import _backed_off, _dense
+    from suture_lfd.planning.tracks import backed_off, dense_poses
 
     c = expert.config
-    needles = np.array([path(x) for path in phase['paths'] for x in np.linspace(0.0, 1.0, 12)])
+    needles = np.array([path(x) for path in phase.paths for x in np.linspace(0.0, 1.0, 12)])
     rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, math.radians(c.roll_step_deg)), key=abs)
     chain = expert.kinematics[arm]
-    T_base_world = invert_transform(phase['bases'][arm])
+    T_base_world = invert_transform(phase.bases[arm])
     best, best_cost, best_roll = None, math.inf, None
     for flip in (False, True):
         for roll in rolls:
             G = expert.needle.grasp_transform(s, roll=roll, flip=flip)
             inv = invert_transform(G)
             tools = []
-            if phase['start'] is not None:
-                grasp_pose = phase['grasp_at'] @ inv
-                pre = _backed_off(grasp_pose, c.approach_distance)
-                tools = _dense(phase['start'], pre) + _dense(pre, grasp_pose)
+            if phase.start is not None:
+                grasp_pose = phase.grasp_at @ inv
+                pre = backed_off(grasp_pose, c.approach_distance)
+                tools = dense_poses(phase.start, pre) + dense_poses(pre, grasp_pose)
             path = np.concatenate((np.asarray(tools).reshape(-1, 4, 4), needles @ inv))
             Q, ok = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, path))
-            cost, end_roll = expert._joint_path_cost(chain, Q, ok, phase['roll0'])
-            if phase['clear'] and math.isfinite(cost):
-                low = expert._jaw_clearance([N @ inv for N in phase['clear']])
+            cost, end_roll = expert.joint_path_cost(chain, Q, ok, phase.roll0)
+            if phase.clear and math.isfinite(cost):
+                low = expert.jaw_clearance([N @ inv for N in phase.clear])
                 cost += 1000.0 * max(0.0, c.jaw_clearance - low)
             if cost < best_cost - 1e-9:
                 best, best_cost, best_roll = G, cost, end_roll
@@ -256,19 +257,19 @@ def test_the_grasp_choice_is_the_one_whole_paths_give(scene, phantoms, bases, ch
     # the planner solves the carrying paths first and only the approaches of the candidates
     # that can carry: the same choice as solving every candidate's whole path
     calls = []
-    choose = ScriptedExpert._choose_grasp
+    choose = GraspPlanner.choose_grasp
 
     def spy(self, arm, s, phase, what):
         result = choose(self, arm, s, phase, what)
         calls.append((self, arm, s, phase, result))
         return result
 
-    monkeypatch.setattr(ScriptedExpert, '_choose_grasp', spy)
+    monkeypatch.setattr(GraspPlanner, 'choose_grasp', spy)
     for phantom, name in all_pairs(phantoms)[::3]:
         pair = phantom.markers[name]
         ScriptedExpert(pair, scene.needle, scene.expert, kinematics=chain).plan(
             start(pair, bases, chain, lying_needle()))
-    assert len(calls) >= 9 and any(phase['start'] is not None for *_, phase, _ in calls)
+    assert len(calls) >= 9 and any(phase.start is not None for *_, phase, _ in calls)
     for expert, arm, s, phase, (G, roll) in calls:
         G_ref, roll_ref = _best_grasp_solving_whole_paths(expert, arm, s, phase)
         assert np.array_equal(G, G_ref) and roll == roll_ref, (arm, s)

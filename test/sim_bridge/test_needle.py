@@ -2,7 +2,8 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry, invert_transform
+from sim_bridge.geometry import invert_transform
+from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry
 
 
 def rot_z(a):

@@ -54,7 +54,7 @@ class JawOverride:
 
     def step(self, obs):
         cmd = self.expert.step(obs)
-        if self.t_fired is None and self.when(self.expert._plan_time):
+        if self.t_fired is None and self.when(self.expert.plan_time):
             self.t_fired = obs.t
         if self.t_fired is None:
             return cmd
@@ -208,7 +208,7 @@ def test_closing_the_jaw_5_mm_beside_the_needle_grasps_nothing(sims):
             T_needle_tool = np.linalg.inv(sim.needle_pose()) @ sim.tool_pose('PSM2')
             p = (T_needle_tool @ np.array([0.0, 0.0, geometry.grasp_depth, 1.0]))[:3]
             closed['d'] = geometry.distance_to_arc(p[None])[0]
-        return expert._plan_time > gate.t + 0.5
+        return expert.plan_time > gate.t + 0.5
 
     events = drive(sim, expert, stop, limit=20.0)
     assert closed['d'] == pytest.approx(0.005, abs=5e-4)

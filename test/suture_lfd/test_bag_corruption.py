@@ -147,7 +147,7 @@ def test_recover_names_the_topics_of_later_chunks_from_the_summary_when_the_firs
 
 
 @pytest.mark.parametrize('damage', ['flip', 'truncate', 'metadata'])
-def test_the_cli_and_the_segmenter_process_refuse_a_damaged_bag_in_one_line(
+def test_the_cli_the_segmenter_and_the_player_refuse_a_damaged_bag_in_one_line(
         clean, tmp_path, launch, damage):
     bag, _ = clean
     data = bytearray((bag / 'clean.mcap').read_bytes())
@@ -170,3 +170,7 @@ def test_the_cli_and_the_segmenter_process_refuse_a_damaged_bag_in_one_line(
     assert proc.popen.wait(120) == 1
     log = proc.log()
     assert str(copy) in log and 'Traceback' not in log
+    player = launch('player', '--ros-args', '-p', f'bag:={copy}')
+    assert player.popen.wait(120) not in (0, None)
+    log = player.log()
+    assert str(copy) in log and 'Traceback' not in log, log

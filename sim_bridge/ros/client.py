@@ -1,0 +1,310 @@
+"""
+A client of the simulator's topics for a node that drives the two PSMs.
+
+:class:`SimClient` lives on a node the caller made (it is not a node itself), so the caller keeps
+its own timers, parameters and topics. It subscribes to what a controller needs and publishes
+what it sends, with the profiles of :mod:`sim_bridge.ros.qos`:
+
+- arms' state: ``<ARM>/measured_cp``, ``<ARM>/measured_js``, ``<ARM>/jaw/measured_js``,
+  ``<ARM>/operating_state``;
+- ground truth: ``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``,
+  ``sim/markers/<pair>/entry|exit`` (of the pairs given to :meth:`SimClient.watch_pairs`) and
+  the scene events ``sim/events`` (grasps and releases are followed in
+  :attr:`SimClient.holders`; every event goes to the ``on_event`` callback);
+- commands: ``<ARM>/state_command`` (:meth:`SimClient.enable_and_home`), ``<ARM>/servo_cp`` and
+  ``<ARM>/jaw/servo_jp`` (:meth:`SimClient.send`, a :class:`sim_bridge.control.Command` in
+  ``world``, sent in the frame the arm reports ``measured_cp`` in), ``sim/target_pair``
+  (:meth:`SimClient.select_pair`).
+
+:meth:`SimClient.observation` assembles a :class:`sim_bridge.control.Observation` from the
+newest messages, so a core controller (scripted expert, demonstrator, executor) runs the same
+way in-process and over ROS. Typical use in a node's timer::
+
+    client = SimClient(node, on_event=self._on_event)
+    client.watch_pairs(['synth1'])
+    ...
+    if client.ready(['synth1']) and client.enable_and_home():
+        command = controller.step(client.observation('synth1'))
+        client.send(command, cv.stamp_from_seconds(command.t))
+
+Frames: ``world``; ``<ARM>_base`` (the frame of ``measured_cp`` unless the arm reports
+``world``); poses 4x4; metres, radians, seconds.
+"""
+
+import time
+
+from crtk_msgs.msg import OperatingState, StringStamped
+from geometry_msgs.msg import PoseStamped
+import numpy as np
+from sensor_msgs.msg import JointState
+from sim_bridge.control import Observation
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
+from sim_bridge.scene.phantom import MarkerPair
+from std_msgs.msg import String
+
+PSMS = ('PSM1', 'PSM2')
+STATE_COMMAND_PERIOD = 2.0  # s of wall time between repeated enable/home commands
+
+
+class SimClient:
+    """
+    The simulator's arms, ground truth and events, as seen from a client node.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node the subscriptions and publishers are made on.
+    arms : sequence of str
+        The PSMs to follow and command.
+    on_event : callable, optional
+        Called as ``on_event(stamp_s, data)`` with every scene event (``data`` the decoded
+        JSON mapping), after :attr:`holders` is updated.
+    on_measured_cp : callable, optional
+        Called as ``on_measured_cp(arm, stamp_s)`` after each ``measured_cp`` is stored.
+
+    Attributes
+    ----------
+    tools : dict of str to tuple
+        Per arm the newest ``measured_cp``: ``(stamp_s, frame_id, T_frame_tool)``.
+    q, jaw, state : dict of str to message
+        Newest ``measured_js``, ``jaw/measured_js`` and ``operating_state`` per arm.
+    bases : dict of str to ndarray (4, 4)
+        ``T_world_base`` per arm.
+    needle : ndarray (4, 4) or None
+        Newest ``T_world_needle``.
+    markers : dict of str to dict
+        Per watched pair, ``{'entry': T_world_marker, 'exit': T_world_marker}`` as received.
+    holders : set of str
+        Arms holding the needle, from the grasp/release/reset events.
+    published : dict of str to int
+        Messages sent per topic name.
+
+    """
+
+    def __init__(self, node, arms=PSMS, *, on_event=None, on_measured_cp=None):
+        self.node = node
+        self.arms = tuple(arms)
+        self.tools, self.q, self.jaw, self.state = {}, {}, {}, {}
+        self.bases, self.markers = {}, {}
+        self.needle = None
+        self.holders = set()
+        self.published = {}
+        self._on_event_cb = on_event
+        self._on_cp_cb = on_measured_cp
+        self._marker_subs = []
+        self._last_state_command = -float('inf')
+        self._commanded_on = None  # arm states when enable/home were last sent
+        pub = node.create_publisher
+        self._servo = {a: pub(PoseStamped, f'{a}/servo_cp', qos.SERVO_STREAM)
+                       for a in self.arms}
+        self._jaw_pub = {a: pub(JointState, f'{a}/jaw/servo_jp', qos.SERVO_STREAM)
+                         for a in self.arms}
+        self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STREAM)
+                         for a in self.arms}
+        self._target = pub(String, 'sim/target_pair', qos.STREAM)
+        sub = node.create_subscription
+        for a in self.arms:
+            sub(PoseStamped, f'{a}/measured_cp', lambda m, a=a: self._on_cp(a, m), qos.STREAM)
+            sub(JointState, f'{a}/measured_js', lambda m, a=a: self.q.__setitem__(a, m),
+                qos.STREAM)
+            sub(JointState, f'{a}/jaw/measured_js', lambda m, a=a: self.jaw.__setitem__(a, m),
+                qos.STREAM)
+            sub(OperatingState, f'{a}/operating_state',
+                lambda m, a=a: self.state.__setitem__(a, m), qos.LATCHED)
+            sub(PoseStamped, f'sim/{a}/base_frame',
+                lambda m, a=a: self.bases.__setitem__(a, cv.matrix_from_pose(m.pose)),
+                qos.LATCHED)
+        sub(PoseStamped, 'sim/needle/measured_cp', self._on_needle, qos.STREAM)
+        sub(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
+
+    # --- inputs -------------------------------------------------------------------------------
+
+    def _on_cp(self, arm, msg):
+        stamp = cv.seconds_from_stamp(msg.header.stamp)
+        self.tools[arm] = (stamp, msg.header.frame_id, cv.matrix_from_pose(msg.pose))
+        if self._on_cp_cb is not None:
+            self._on_cp_cb(arm, stamp)
+
+    def _on_needle(self, msg):
+        self.needle = cv.matrix_from_pose(msg.pose)
+
+    def _on_event(self, msg):
+        try:
+            stamp, data = cv.event_from_message(msg)
+        except ValueError as exc:
+            self.node.get_logger().warning(f'sim/events: {exc}')
+            return
+        kind, arm = data.get('kind'), data.get('arm')
+        if kind == 'grasp' and arm in self.arms:
+            self.holders.add(arm)
+        elif kind == 'release' and arm in self.arms:
+            self.holders.discard(arm)
+        elif kind == 'reset':
+            self.holders.clear()
+        if self._on_event_cb is not None:
+            self._on_event_cb(stamp, data)
+
+    def watch_pairs(self, names):
+        """
+        Follow the entry and exit markers of exactly these pairs, afresh.
+
+        Earlier marker subscriptions are dropped with what they received; the new ones get the
+        markers' latched poses.
+
+        Parameters
+        ----------
+        names : iterable of str
+            Marker pair names (``'synth1'``); empty names are skipped.
+
+        """
+        for s in self._marker_subs:
+            self.node.destroy_subscription(s)
+        self.markers = {}
+        self._marker_subs = []
+        for name in dict.fromkeys(n for n in names if n):
+            self.markers[name] = {}
+            for which in ('entry', 'exit'):
+                self._marker_subs.append(self.node.create_subscription(
+                    PoseStamped, f'sim/markers/{name}/{which}',
+                    lambda m, n=name, w=which: self.markers[n].__setitem__(
+                        w, cv.matrix_from_pose(m.pose)), qos.LATCHED))
+
+    # --- state --------------------------------------------------------------------------------
+
+    def has_pair(self, name):
+        """Return True once both markers of a watched pair have come."""
+        return len(self.markers.get(name, ())) == 2
+
+    def ready(self, pairs=()):
+        """Return True once the arms' state, base frames, needle and pairs' markers came."""
+        return (all(self.has_pair(p) for p in pairs) and self.needle is not None and all(
+            a in self.tools and a in self.bases and a in self.jaw and a in self.state
+            for a in self.arms))
+
+    def homed(self):
+        """Return True when every arm is enabled, homed and not busy."""
+        return all(a in self.state and self.state[a].state == 'ENABLED'
+                   and self.state[a].is_homed and not self.state[a].is_busy for a in self.arms)
+
+    def fault(self):
+        """Return ``'<ARM> is <STATE>'`` for the first arm that is not enabled, else None."""
+        for a in self.arms:
+            s = self.state.get(a)
+            if s is not None and s.state != 'ENABLED':
+                return f'{a} is {s.state}'
+        return None
+
+    def world_tool(self, arm):
+        """Return the arm's newest tool pose ``T_world_tool``."""
+        _, frame, T = self.tools[arm]
+        return T if frame == 'world' else self.bases[arm] @ T
+
+    def marker_pair(self, name):
+        """Return a watched pair as a :class:`sim_bridge.scene.phantom.MarkerPair` (world)."""
+        entry, exit_ = self.markers[name]['entry'], self.markers[name]['exit']
+        n = entry[:3, 2] + exit_[:3, 2]
+        return MarkerPair(name=name, entry=entry[:3, 3].copy(), exit=exit_[:3, 3].copy(),
+                          normal=n / np.linalg.norm(n), entry_normal=entry[:3, 2].copy(),
+                          exit_normal=exit_[:3, 2].copy())
+
+    def observation(self, pair):
+        """
+        Return what a controller sees now, from the newest messages.
+
+        Parameters
+        ----------
+        pair : str
+            The watched pair the controller works on.
+
+        Returns
+        -------
+        sim_bridge.control.Observation
+            Time is the newest ``measured_cp`` stamp of the arms.
+
+        """
+        q = {a: np.asarray(self.q[a].position, dtype=float) for a in self.arms
+             if a in self.q and len(self.q[a].position) >= 6}
+        return Observation(
+            t=max(self.tools[a][0] for a in self.arms),
+            T_world_tool={a: self.world_tool(a) for a in self.arms},
+            jaw={a: float(self.jaw[a].position[0]) if len(self.jaw[a].position) else 0.0
+                 for a in self.arms},
+            T_world_needle=self.needle, holders=tuple(sorted(self.holders)),
+            pair=self.marker_pair(pair), T_world_base=dict(self.bases), q=q or None)
+
+    # --- commands -----------------------------------------------------------------------------
+
+    def _count(self, publisher):
+        topic = publisher.topic_name
+        self.published[topic] = self.published.get(topic, 0) + 1
+
+    def state_command(self, arm, command):
+        """Send a CRTK state command (``'enable'``, ``'home'``, ``'disable'``) to one arm."""
+        msg = StringStamped()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.string = command
+        self._command[arm].publish(msg)
+
+    def enable_and_home(self):
+        """
+        Bring the arms to enabled and homed; return True when they are.
+
+        Sends ``enable`` to an arm that is not enabled and ``home`` to one that is enabled but
+        not homed; again when an arm's state changes, and every :data:`STATE_COMMAND_PERIOD`
+        seconds while they are not.
+        """
+        if self.homed():
+            return True
+        now = time.monotonic()
+        # at once when an arm's state changes (a dVRK arm powers up for a while, then homes in
+        # a motion of seconds), and again every STATE_COMMAND_PERIOD
+        seen = [(s.state, s.is_homed, s.is_busy) for s in (self.state.get(a) for a in self.arms)
+                if s is not None]
+        if seen != self._commanded_on or now - self._last_state_command > STATE_COMMAND_PERIOD:
+            self._last_state_command, self._commanded_on = now, seen
+            for a in self.arms:
+                s = self.state.get(a)
+                if s is None:
+                    continue
+                if s.state != 'ENABLED':
+                    self.state_command(a, 'enable')
+                elif not s.is_homed and not s.is_busy:
+                    self.state_command(a, 'home')
+        return False
+
+    def select_pair(self, name):
+        """Ask the simulator to make ``name`` the target pair (``sim/target_pair``)."""
+        self._target.publish(String(data=name))
+
+    def send(self, command, stamp):
+        """
+        Send a command's tool and jaw targets.
+
+        Parameters
+        ----------
+        command : sim_bridge.control.Command
+            Targets in ``world``; an arm's missing or None target is not sent.
+        stamp : builtin_interfaces.msg.Time
+            Header stamp of the messages.
+
+        Returns
+        -------
+        int
+            Number of ``servo_cp`` messages sent.
+
+        """
+        sent = 0
+        for arm in self.arms:
+            T = command.T_world_tool.get(arm)
+            if T is not None:
+                _, frame, _ = self.tools[arm]
+                T_cmd = T if frame == 'world' else np.linalg.solve(self.bases[arm], T)
+                self._servo[arm].publish(cv.pose_stamped(T_cmd, frame, stamp))
+                self._count(self._servo[arm])
+                sent += 1
+            jaw = command.jaw.get(arm)
+            if jaw is not None:
+                self._jaw_pub[arm].publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
+                self._count(self._jaw_pub[arm])
+        return sent

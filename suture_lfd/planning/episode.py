@@ -1,0 +1,83 @@
+"""
+One throw in-process: start the episode, run a controller until it is done, let it settle.
+
+:func:`start_episode` resets the scene, enables and homes the arms and selects the pair;
+:func:`run_episode` runs the controller and the settling time.
+
+The study's executor throws (:func:`suture_lfd.skill.executor.execute_throw`), the scripted
+demonstrations (:mod:`suture_lfd.demos.scripted_demo`), the benchmarks and the tests run their
+throws with these two functions. A controller has ``reset(obs)``, ``step(obs) -> Command`` and
+``done`` (:mod:`sim_bridge.control`); a recorder wrapping it sees every observation.
+"""
+
+import math
+
+
+def start_episode(sim, pair_name, seed=0):
+    """
+    Reset the scene with ``seed``, enable and home the arms, and select the target pair.
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+        The simulation.
+    pair_name : str
+        Marker pair to suture (``'synth1'``).
+    seed : int
+        Scene seed (needle start).
+
+    Returns
+    -------
+    sim_bridge.scene.phantom.MarkerPair
+        The target pair (``world``).
+
+    """
+    sim.reset(seed=seed)
+    sim.enable_and_home_all()
+    sim.set_target_pair(pair_name)
+    return sim.target_pair
+
+
+def run_episode(sim, controller, control_period, *, stepper=None, timeout=math.inf, chunk=0.5,
+                settle=0.2, always_settle=False, reset=True):
+    """
+    Run ``controller`` on the simulation until it is done (or ``timeout``), then settle.
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+        The simulation, after :func:`start_episode`.
+    controller : object
+        ``step(obs) -> Command``, ``done`` and ``reset(obs)``.
+    control_period : float
+        Seconds of simulation between two commands.
+    stepper : object, optional
+        What the simulation calls each control period instead of ``controller`` (a recorder
+        that forwards to it).
+    timeout : float
+        Longest run (s of simulation time).
+    chunk : float
+        Simulation seconds run between two checks of ``done``.
+    settle : float
+        Seconds run after the controller is done (the scene comes to rest, the score is final).
+    always_settle : bool
+        Settle even after a timeout.
+    reset : bool
+        Call ``controller.reset`` with the first observation first.
+
+    Returns
+    -------
+    float
+        Simulation seconds from the start to the end of the control loop.
+
+    """
+    stepper = controller if stepper is None else stepper
+    t_start = sim.time
+    if reset:
+        controller.reset(sim.observation())
+    while not controller.done and sim.time - t_start < timeout:
+        sim.run(min(chunk, timeout - (sim.time - t_start)), stepper, control_period)
+    elapsed = sim.time - t_start
+    if settle > 0.0 and (always_settle or controller.done):
+        sim.run(settle, stepper, control_period)
+    return elapsed

@@ -1,0 +1,287 @@
+"""
+Grasp choice: which grasp of the needle keeps every pose of a holding phase reachable.
+
+A grasp is an arc parameter along the needle (0 tail, 1 tip) and a jaw roll about the wire
+(:meth:`sim_bridge.scene.needle.NeedleGeometry.grasp_transform`). :class:`GraspPlanner` tries
+every roll (and, with :meth:`GraspPlanner.choose_grasp_along`, nearby arc parameters) and keeps
+the one whose tool path, approach included, is reachable by the arm's closed-form inverse
+kinematics with the smallest wrist angles, without an IK branch switch or a roll past its
+limits, and with the closed jaw kept off the tissue where asked.
+
+Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from sim_bridge.geometry import invert_transform
+from suture_lfd.planning.tracks import backed_off, dense_poses
+
+ARMS = ('PSM1', 'PSM2')
+
+# What decides whether the arms reach a throw, and where a user changes it.
+UNREACHABLE_ADVICE = ('try another needle start (the simulator parameter seed), or bring the '
+                      'pair between the arms: move the phantom (its position and quaternion in '
+                      'the phantom file) or the arm bases (world.arms.<ARM> in world.yaml)')
+
+
+@dataclass(frozen=True, eq=False)
+class GraspPhase:
+    """
+    What a grasp must keep reachable: one arm's holding phase.
+
+    Attributes
+    ----------
+    start : ndarray (4, 4) or None
+        Tool pose the arm comes from to take the grasp (None: it already holds the needle).
+    roll0 : float
+        The arm's roll joint (rad) at ``start``.
+    grasp_at : ndarray (4, 4)
+        Needle pose where the grasp closes.
+    paths : sequence of callable
+        Needle paths carried afterwards (poses of ``sigma`` in [0, 1]).
+    clear : sequence of ndarray (4, 4)
+        Needle poses where the closed jaw must keep ``jaw_clearance`` off the surface plane.
+    bases : dict of str to ndarray (4, 4)
+        ``T_world_base`` per arm.
+
+    """
+
+    start: object
+    roll0: float
+    grasp_at: np.ndarray
+    paths: tuple
+    clear: tuple
+    bases: dict
+
+
+class GraspPlanner:
+    """
+    Choose reachable grasps of the needle for the arms, on one marker pair.
+
+    Parameters
+    ----------
+    pair : sim_bridge.scene.phantom.MarkerPair
+        Target pair (its surface plane keeps the jaw clear).
+    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+        Needle geometry.
+    config : sim_bridge.control.ExpertConfig
+        ``roll_step_deg``, ``approach_distance``, ``jaw_length``, ``jaw_half_width``,
+        ``jaw_clearance``.
+    kinematics : sim_bridge.kinematics.PsmKinematics or dict, optional
+        PSM kinematics (one for both arms or one per arm); default:
+        :func:`sim_bridge.kinematics.psm_kinematics`.
+
+    """
+
+    def __init__(self, pair, needle_geometry, config, kinematics=None):
+        self.pair = pair
+        self.needle = needle_geometry
+        self.config = config
+        if kinematics is None:
+            from sim_bridge.kinematics import psm_kinematics
+            kinematics = psm_kinematics()
+        self.kinematics = (dict(kinematics) if isinstance(kinematics, dict)
+                           else dict.fromkeys(ARMS, kinematics))
+
+    def path_cost(self, arm, T_world_base, roll0, tools):
+        """
+        Return the cost of a dense tool path for an arm whose roll joint starts at ``roll0``.
+
+        The path must be reachable everywhere, must not switch IK branches between samples,
+        and its continuous roll (as an arm servoing along it reaches it) must stay inside the
+        roll limits. Returns ``(largest wrist angle (rad), final roll)``, or ``(inf, None)``.
+        """
+        chain = self.kinematics[arm]
+        T_base_world = invert_transform(T_world_base[arm])
+        Q, ok = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.asarray(tools)))
+        return self.joint_path_cost(chain, Q, ok, roll0)
+
+    @staticmethod
+    def joint_path_cost(chain, Q, ok, roll0):
+        """Return :meth:`path_cost` of a path already solved (joints ``Q``, ``ok`` reachable)."""
+        if not ok.all():
+            return math.inf, None
+        roll = np.unwrap(Q[:, 3])
+        roll += 2.0 * math.pi * round((roll0 - roll[0]) / (2.0 * math.pi))
+        margin = 0.2
+        if roll.max() > chain.upper[3] - margin or roll.min() < chain.lower[3] + margin:
+            return math.inf, None
+        if len(Q) > 1 and np.abs(np.diff(Q[:, [0, 1, 2, 4, 5]], axis=0)).max() > 0.3:
+            return math.inf, None
+        return float(np.abs(Q[:, 4:6]).max()), float(roll[-1])
+
+    def start_roll(self, arm, obs):
+        """Return the roll joint (rad) of ``arm`` in the observation (measured, else by IK)."""
+        q = getattr(obs, 'q', None)
+        if q is not None and arm in q:
+            return float(np.asarray(q[arm])[3])
+        chain = self.kinematics[arm]
+        T = invert_transform(obs.T_world_base[arm]) @ np.asarray(obs.T_world_tool[arm])
+        return float(chain.ik(T)[3])
+
+    def jaw_clearance(self, tools):
+        """Return the lowest height (m) of the closed jaw's outline above the surface plane."""
+        c = self.config
+        L, w = c.jaw_length, c.jaw_half_width
+        outline = np.array([[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, L, 1.0], [w, 0.0, L, 1.0],
+                            [-w, 0.0, L, 1.0], [w, 0.0, 0.0, 1.0], [-w, 0.0, 0.0, 1.0]])
+        pts = np.einsum('nij,kj->nki', np.asarray(tools), outline)[..., :3]
+        return float(((pts - self.pair.midpoint) @ self.pair.normal).min())
+
+    def choose_grasp(self, arm, s, phase, what):
+        """
+        Return the grasp at arc parameter ``s`` that keeps a holding phase reachable.
+
+        Parameters
+        ----------
+        arm : str
+            Arm.
+        s : float
+            Arc parameter of the grasp.
+        phase : GraspPhase
+            What the grasp must keep reachable.
+        what : str
+            Phase name for error messages.
+
+        Returns
+        -------
+        grasp : ndarray, shape (4, 4)
+            ``T_tool_needle``.
+        roll : float
+            Roll joint (rad) at the end of the phase.
+
+        """
+        c = self.config
+        needles = np.array([path(x) for path in phase.paths for x in np.linspace(0.0, 1.0, 12)])
+        best, best_cost, best_roll = None, math.inf, None
+        step = math.radians(c.roll_step_deg)
+        rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
+        # Every candidate's carrying path first, in one batch: a candidate with one unreachable
+        # pose there costs inf whatever its approach. Then the approaches of the others, in one
+        # batch. The IK of a pose does not depend on the other poses of a batch, so this is
+        # the cost of solving every whole path at once.
+        chain = self.kinematics[arm]
+        T_base_world = invert_transform(phase.bases[arm])
+        grasps = [(flip, roll, self.needle.grasp_transform(s, roll=roll, flip=flip))
+                  for flip in (False, True) for roll in rolls]
+        invs = [invert_transform(G) for _, _, G in grasps]
+        carried = (needles[None] @ np.asarray(invs)[:, None]).reshape(-1, 4, 4)
+        Qc, okc = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, carried))
+        n_c = len(needles)
+        alive = [k for k in range(len(grasps)) if okc[k * n_c:(k + 1) * n_c].all()]
+        approach = {}
+        if phase.start is not None and alive:
+            tools, spans, size = [], {}, 0
+            for k in alive:
+                grasp_pose = phase.grasp_at @ invs[k]
+                pre = backed_off(grasp_pose, c.approach_distance)
+                path = dense_poses(phase.start, pre) + dense_poses(pre, grasp_pose)
+                spans[k] = (size, size + len(path))
+                tools += path
+                size += len(path)
+            Qa, oka = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.asarray(tools)))
+            approach = {k: (Qa[a:b], oka[a:b]) for k, (a, b) in spans.items()}
+        for k in alive:
+            G, inv = grasps[k][2], invs[k]
+            Q, ok = Qc[k * n_c:(k + 1) * n_c], okc[k * n_c:(k + 1) * n_c]
+            if k in approach:
+                Q, ok = np.concatenate((approach[k][0], Q)), np.concatenate((approach[k][1], ok))
+            cost, end_roll = self.joint_path_cost(chain, Q, ok, phase.roll0)
+            if phase.clear and math.isfinite(cost):
+                low = self.jaw_clearance([N @ inv for N in phase.clear])
+                cost += 1000.0 * max(0.0, c.jaw_clearance - low)
+            if cost < best_cost - 1e-9:
+                best, best_cost, best_roll = G, cost, end_roll
+        if best is None:
+            raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
+                             f'{what} of pair {self.pair.name}; {UNREACHABLE_ADVICE}')
+        return best, best_roll
+
+    def choose_grasp_along(self, arm, s, span, phase, what, candidates=9):
+        """
+        Return a reachable grasp at arc parameter ``s`` or, failing that, the nearest in ``span``.
+
+        Parameters
+        ----------
+        arm : str
+            Arm.
+        s : float
+            Preferred arc parameter (0 tail, 1 tip).
+        span : tuple of float
+            ``(lo, hi)``: arc parameters the grasp may move to.
+        phase : GraspPhase
+            What the grasp must keep reachable.
+        what : str
+            Phase name for error messages.
+        candidates : int
+            Arc parameters of the span tried besides ``s``.
+
+        Returns
+        -------
+        grasp : ndarray, shape (4, 4)
+            ``T_tool_needle``.
+        roll : float
+            Roll joint (rad) at the end of the phase.
+        s : float
+            Arc parameter of the chosen grasp.
+
+        Raises
+        ------
+        ValueError
+            If no arc parameter of the span gives a reachable grasp (the message names the span).
+
+        """
+        lo, hi = float(span[0]), float(span[1])
+        others = np.linspace(lo, hi, candidates) if hi > lo else np.array([])
+        ordered = [float(s)] + sorted((float(x) for x in others if abs(x - s) > 1e-6),
+                                      key=lambda x: abs(x - s))
+        first = None
+        for x in ordered:
+            try:
+                G, roll = self.choose_grasp(arm, x, phase, what)
+            except ValueError as exc:
+                first = exc if first is None else first
+                continue
+            return G, roll, x
+        raise ValueError(f'{first}; no arc parameter in [{lo:.2f}, {hi:.2f}] is reachable '
+                         f'either') from first
+
+    def held_grasp(self, arm, obs, paths, what):
+        """
+        Return the grasp the arm holds the needle with, checked along the needle paths.
+
+        Parameters
+        ----------
+        arm : str
+            Arm (in ``obs.holders``).
+        obs : sim_bridge.control.Observation
+            Start state.
+        paths : list of callable
+            Needle paths the arm must carry the needle along.
+        what : str
+            Phase name for the error message.
+
+        Returns
+        -------
+        grasp : ndarray, shape (4, 4)
+            Measured ``T_tool_needle``.
+        roll : float
+            Roll joint (rad) at the end of the paths.
+
+        Raises
+        ------
+        ValueError
+            If the paths leave the arm's reach with this grasp.
+
+        """
+        G = invert_transform(obs.T_world_tool[arm]) @ np.array(obs.T_world_needle, dtype=float)
+        _, roll = self.path_cost(
+            arm, obs.T_world_base, self.start_roll(arm, obs),
+            [N @ invert_transform(G) for path in paths
+             for N in (path(x) for x in np.linspace(0.0, 1.0, 12))])
+        if roll is None:
+            raise ValueError(f'{arm} cannot carry the needle it holds through {what} of pair '
+                             f'{self.pair.name}; regrasp it first')
+        return G, roll
