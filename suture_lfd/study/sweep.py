@@ -392,7 +392,8 @@ def run_sweep(args, stream=None):
     """
     Run (or resume) a sweep and write its reports; return the exit status.
 
-    0 done, 1 the engine failed, 2 bad sweep file or options, 130 interrupted.
+    0 done, 1 the engine failed, 2 bad sweep file or options, 130/143 interrupted (SIGINT,
+    SIGTERM).
     """
     import os
 
@@ -440,12 +441,14 @@ def run_sweep(args, stream=None):
                                  workers=workers, progress=progress, initializer=init_worker,
                                  initargs=(settings,))
         except (CodeMismatchError, EngineError) as exc:
+            progress.finish()
             print(f'suture-lfd sweep: error: {exc}', file=sys.stderr, flush=True)
             status = 1
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
+            progress.finish()
             print(f'sweep interrupted: {progress.done}/{total} jobs stored; run the same '
                   'command again to resume', file=stream, flush=True)
-            status = 130
+            status = 128 + getattr(exc, 'signum', 2)  # 130, or 143 for SIGTERM
         finally:
             if session is not None:
                 session.close()
