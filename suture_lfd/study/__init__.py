@@ -85,6 +85,13 @@ def add_arguments(parser):
                         help='execute every throw through the ROS node graph: a simulator and '
                              'an executor node process per throw, a private ROS domain per '
                              'worker (demonstrations stay in-process; ~10x slower per throw)')
+    parser.add_argument('--assessment', choices=('subject', 'cohort', 'off'),
+                        default='subject',
+                        help='learning with skill assessment, reported beside learning from '
+                             'every demonstration: a rejected demonstration is replaced by '
+                             "the subject's own best accepted one (subject, default) or the "
+                             "cohort's best accepted one on that pair (cohort); off: no "
+                             'assessment')
     held_out.add_arguments(parser)
     parser.add_argument('--plan', action='store_true',
                         help='write the configuration (subjects, seeds, jobs) and stop')
@@ -107,7 +114,8 @@ def _code_digest():
     for root in roots:
         for path in sorted(root.rglob('*.py')):
             name = path.relative_to(root).as_posix()
-            if name not in skip:
+            if name not in skip and not name.startswith('assessment/') \
+                    and name != 'study/assessed.py':
                 h.update(name.encode())
                 h.update(path.read_bytes())
     return h.hexdigest()[:16]
@@ -211,6 +219,7 @@ def build_config(args):
         'phantoms': phantoms,
         'methods': methods,
         'method_descriptions': {m: getattr(METHODS[m], 'description', '') for m in methods},
+        'assessment': getattr(args, 'assessment', 'subject'),
         'settings': {k: v for k, v in dataclasses.asdict(settings).items()
                      if k not in ('out', 'cohort_path')},
         'files': files,
@@ -224,7 +233,8 @@ def _hashed(config):
     """Return the configuration that decides the results (not paths or descriptions)."""
     # held-out throws are keyed by their geometry: the fixed-pair results stay shared
     return {k: v for k, v in config.items()
-            if k not in ('cohort_file', 'method_descriptions', 'quick', 'held_out')}
+            if k not in ('cohort_file', 'method_descriptions', 'quick', 'held_out',
+                         'assessment')}
 
 
 def plan_jobs(config):

@@ -439,7 +439,8 @@ def throw_job(job):
         The job's fields plus ``score``, ``i`` .. ``v``, ``failure``, ``time_s`` (simulated
         full-throw time), ``entry_error_mm``, ``exit_error_mm``, ``regeneration`` and, for a
         regeneration, the Table II errors ``<task>_<start|goal|traj>_<mm|deg>`` and
-        ``<task>_exec_traj_mm``.
+        ``<task>_exec_traj_mm``; for a throw executed in-process, ``replay`` (its replay file,
+        relative) and ``replay_bytes`` (that file's size).
 
     """
     if job.get('blocked'):  # stored as an error: done again once the demonstration exists
@@ -454,6 +455,7 @@ def throw_job(job):
                       trajectories=None, **dict.fromkeys(SUBTASKS, False))
         return record
     from suture_lfd.skill.executor import execute_throw
+    from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
 
     path = str(out / job['segments'])
     skill = _skill(path, job['method'], job.get('dmp'))
@@ -461,9 +463,15 @@ def throw_job(job):
     if ros is None:
         sim = (_simulation(job['test_key'], spec=spec) if spec is not None
                else _simulation(job['test_phantom']))
+        sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
-                                timeout=s.timeout, control_period=s.control_period)
+                                timeout=s.timeout, control_period=s.control_period,
+                                observer=sampler)
         markers = sim.phantom.markers
+        # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
+        record['replay'] = replay_name(job)
+        record['replay_bytes'] = sampler.save(out / record['replay'], job['test_pair'],
+                                              outcome.events, outcome.subtask_times)
     else:
         outcome = ros.execute(job, skill)
         markers = ros.markers(job['test_phantom'])
