@@ -19,6 +19,7 @@ NODES = {
     'executor': 'suture_lfd.nodes.executables:executor',
     'teleop': 'suture_lfd.nodes.executables:teleop',
     'mtms': 'suture_lfd.nodes.executables:mtms',
+    'viewer': 'suture_lfd.nodes.executables:viewer',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',

@@ -282,7 +282,7 @@ def role_client(args):
     types = message_types()
     lock = threading.Lock()
     counts = {}
-    log = {'measured_js': [], 'stats': [], 'received': []}
+    log = {'measured_js': [], 'stats': [], 'received': [], 'viewer': []}
 
     def count(name):
         def callback(_msg):
@@ -312,6 +312,11 @@ def role_client(args):
             # total state messages received so far, sampled once per second
             log['received'].append((time.monotonic(), sum(counts.values())))
     node.create_subscription(String, 'sim/stats', stats, state_qos)
+
+    def viewer_stats(msg):
+        with lock:
+            log['viewer'].append((time.monotonic(), json.loads(msg.data)))
+    node.create_subscription(String, 'viewer/stats', viewer_stats, event_qos)
     executor, thread = spin_in_thread(node)
     print('ready', flush=True)
     sys.stdin.readline()
@@ -345,6 +350,22 @@ class Proc:
         reader.join(timeout)
         if not box or box[0].strip() != word:
             raise RuntimeError(f'expected {word!r} from {self.proc.args[-3:]}, got {box}')
+
+    def url(self, timeout):
+        """The page address the viewer prints (``viewer: open URL``)."""
+        box = []
+
+        def read():
+            for line in self.proc.stdout:
+                if line.startswith('viewer: open'):
+                    box.append(line.split('open', 1)[1].strip())
+                    return
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        reader.join(timeout)
+        if not box:
+            raise RuntimeError(f'the viewer printed no URL in {timeout} s')
+        return box[0]
 
     def tell(self, line):
         self.proc.stdin.write(line + '\n')
@@ -470,14 +491,32 @@ def fast_phase(bin_dir, tmp, seconds, arms):
     return float(np.mean([s['achieved'] for s in stats[2:]])) if len(stats) > 2 else float('nan')
 
 
-def live_phase(bin_dir, tmp, seconds, arms):
+def open_browser(url):
+    """A headless Chromium on ``url`` (the browser tests' driver), or None without chromium."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'test' / 'suture_lfd'
+                           / 'viewer'))
+    from browser import Chromium, find_chromium
+    if find_chromium() is None:
+        return None
+    browser = Chromium(find_chromium())
+    browser.open(url)
+    wait_for(lambda: browser.element_center('Clutch') is not None, 300.0, 'the viewer page')
+    return browser
+
+
+def live_phase(bin_dir, tmp, seconds, arms, viewer=False):
     """
     Simulator at real time, the probe streaming servo_cp, a client of ``arms`` ('' = none).
 
-    Returns the measurements over the probe's streaming window.
+    ``viewer``: the viewer node runs too, with a headless Chromium on its page when chromium is
+    installed. Returns the measurements over the probe's streaming window.
     """
-    name = arms.replace(',', '_') or 'none'
+    name = (arms.replace(',', '_') or 'none') + ('_viewer' if viewer else '')
     sim = Proc([str(bin_dir / 'simulator')])
+    view = browser = None
+    if viewer:
+        view = Proc([str(bin_dir / 'viewer'), '--port', '0'])
+        browser = open_browser(view.url(120.0))
     client = Proc.role('client', '--arms', arms, '--out', str(Path(tmp) / f'client_{name}.json'),
                        stdin=True)
     probe = Proc.role('probe', '--target', 'sim', '--seconds', str(seconds),
@@ -486,6 +525,8 @@ def live_phase(bin_dir, tmp, seconds, arms):
         client.expect('ready', 60.0)
         probe.expect('streaming', 90.0)
         pids = {'simulator': sim.pid, 'client': client.pid, 'probe': probe.pid}
+        if view is not None:
+            pids['viewer'] = view.pid
         cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
         wall0 = time.monotonic()
         probe.expect('done', seconds + 30.0)
@@ -497,6 +538,10 @@ def live_phase(bin_dir, tmp, seconds, arms):
     finally:
         probe.stop()
         client.stop()
+        if browser is not None:
+            browser.close()
+        if view is not None:
+            view.stop()
         sim.stop()
     live = read_json(Path(tmp) / f'probe_{name}.json')
     seen = read_json(Path(tmp) / f'client_{name}.json')
@@ -516,12 +561,17 @@ def live_phase(bin_dir, tmp, seconds, arms):
             'errors': live['error'], 'probe_rate': probe_rate, 'probe_jitter': probe_jitter,
             'client_rate': client_rate, 'client_jitter': client_jitter, 'sim_rate': sim_rate,
             'achieved': float(np.mean(achieved)) if achieved else float('nan'),
-            'client_msg_rate': msg_rate, 'expected_rate': expected, 'cpu': cpu}
+            'client_msg_rate': msg_rate, 'expected_rate': expected, 'cpu': cpu,
+            'viewer': [v for t, v in seen['viewer'] if window[0] + 1.0 <= t <= window[1]],
+            'browser': browser is not None}
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='length of each phase (s)')
+    parser.add_argument('--viewer', action='store_true',
+                        help='also run the full-client phase with the viewer connected (its node '
+                             'and a headless Chromium on its page)')
     parser.add_argument('--role', choices=('echo', 'probe', 'client'), help=argparse.SUPPRESS)
     parser.add_argument('--target', choices=('echo', 'sim'), help=argparse.SUPPRESS)
     parser.add_argument('--arms', default=','.join(ARMS), help=argparse.SUPPRESS)
@@ -555,6 +605,11 @@ def main():
     # -- the simulator at real time, probe streaming servo_cp: alone, then with a full client --
     alone = live_phase(bin_dir, tmp, args.seconds, '')
     loaded = live_phase(bin_dir, tmp, args.seconds, ','.join(ARMS))
+    phases = [('probe only (PSM1: servo_cp in, 3 state topics out)', alone),
+              ('probe + a dVRK client of all three arms', loaded)]
+    if args.viewer:
+        phases.append(('probe + the client + the viewer (node and a browser on its page)',
+                       live_phase(bin_dir, tmp, args.seconds, ','.join(ARMS), viewer=True)))
 
     # -- the simulator as fast as it goes --------------------------------------------------------
     flat_out = fast_phase(bin_dir, tmp, args.seconds / 2, '')
@@ -567,8 +622,7 @@ def main():
           f'sustains {dt / wrapped:.1f} x real time without, {dt / full:.1f} x with them')
     print(f'anchor echo RTT (two rclpy processes, 1 kHz): p50 {pct(rtt, 50) * ms:.2f} ms, '
           f'p99 {pct(rtt, 99) * ms:.2f} ms ({len(rtt)} samples, {anchor_lost:.1%} lost)')
-    for title, r in (('probe only (PSM1: servo_cp in, 3 state topics out)', alone),
-                     ('probe + a dVRK client of all three arms', loaded)):
+    for title, r in phases:
         print(f'-- simulator at real_time_factor 1, {title}:')
         if r['errors']:
             print(f'   warning: the simulator rejected goals: {len(r["errors"])} errors, first: '
@@ -597,8 +651,16 @@ def main():
         cpu = r['cpu']
         print(f'   state stamps advance at {r["sim_rate"]:.2f} Hz of simulator clock; CPU (share '
               f'of one core) while streaming: simulator {cpu["simulator"] * 100:.0f} %, client '
-              f'{cpu["client"] * 100:.0f} %, probe {cpu["probe"] * 100:.0f} %; real-time factor '
-              f'achieved {r["achieved"]:.3f} (asked 1.0)')
+              f'{cpu["client"] * 100:.0f} %, probe {cpu["probe"] * 100:.0f} %'
+              + (f', viewer {cpu["viewer"] * 100:.0f} %' if 'viewer' in cpu else '')
+              + f'; real-time factor achieved {r["achieved"]:.3f} (asked 1.0)')
+        if 'viewer' in cpu:
+            frames = [v['frame_rate'] for v in r['viewer']]
+            tf = [v['tf_rate'] for v in r['viewer']]
+            print(f'   the viewer sent {np.mean(frames) if frames else float("nan"):.1f} frames/s '
+                  f'to its page (asked 30; min {min(frames, default=float("nan")):.1f}), took '
+                  f'{np.mean(tf) if tf else float("nan"):.1f} /tf messages/s (published 50), '
+                  f'browser connected: {r["browser"]}')
     print(f'as fast as it goes (real_time_factor 0): {flat_out:.2f} x real time with no state '
           f'subscribers, {flat_out_client:.2f} x with the full client')
     print(f'load average (1 min): {load_before:.1f} before the run, {os.getloadavg()[0]:.1f} '

@@ -46,8 +46,14 @@ say "ROS_DOMAIN_ID=$ROS_DOMAIN_ID, logs in $LOG_DIR"
 start simulator --ros-args "${phantom_args[@]}" -p target_pair:="$pair" \
   -p real_time_factor:=1.0 -p footpedals:=false
 if [ -x "$venv/bin/viewer" ]; then
-  start viewer
-  say "viewer: http://localhost:8080 (over SSH: ssh -L 8080:localhost:8080 <this machine>)"
+  start viewer --ros-args -p phantom:="$phantom"
+  url=''
+  for _ in $(seq 1 60); do
+    url=$(grep -o 'http://[^ ]*' "$LOG_DIR/viewer.log" | head -1 || true)
+    [ -n "$url" ] && break
+    sleep 0.5
+  done
+  say "viewer: ${url:-see $LOG_DIR/viewer.log} (over SSH: ssh -L 8080:localhost:8080 <host>)"
 elif [ "$device" = browser ]; then
   say "the viewer executable is not installed in this checkout: the browser device needs its"
   say "page; use --device gamepad or --device spacemouse, or update and re-run tools/setup.sh"

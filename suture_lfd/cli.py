@@ -1,9 +1,13 @@
 """
-Command line of suture_lfd: ``suture-lfd study`` (the main job), ``info`` and ``bag``.
+Command line of suture_lfd: ``study``, ``sweep``, ``info``, ``assess``, ``bag``, ``view``.
+
+``sweep SWEEP.yaml`` runs a grid of studies as one job set (:mod:`suture_lfd.study.sweep`).
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
 phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
 ``bag recover PATH [--out OUT]`` rebuilds a valid bag from one whose recording was interrupted.
+``view BAG`` and ``view STUDY --throw ROW`` replay a recording in the browser viewer.
+``assess BAG`` scores one demonstration (skill assessment) and writes its table.
 """
 
 import argparse
@@ -48,6 +52,13 @@ def cmd_study(args):
     return study.main(args)
 
 
+def cmd_sweep(args):
+    """Run a grid of studies (seeds x methods x DMP hyper-parameters) and its report."""
+    from suture_lfd.study import sweep
+
+    return sweep.main(args)
+
+
 def cmd_bag_info(args):
     """Print the topics, types, message counts and duration of a bag."""
     from suture_lfd import bags
@@ -74,6 +85,42 @@ def cmd_bag_recover(args):
     return 0
 
 
+def cmd_assess(args):
+    """Score a demonstration bag and write its table of scores."""
+    from pathlib import Path
+
+    from suture_lfd import bags
+    from suture_lfd.assessment.demo_scores import assess_bag, write_score_table
+
+    bag = Path(args.bag)
+    try:
+        row = assess_bag(bag, segments=args.segments, pair=args.pair)
+    except (bags.BagError, ValueError, OSError) as exc:
+        print(f'suture-lfd assess: error: {exc}', file=sys.stderr)
+        return 1
+    out = Path(args.out) if args.out else bag.with_name(bag.name + '.assessment.csv')
+    write_score_table(out, row)
+    width = max(len(k) for k in row)
+    for key, value in row.items():
+        text = f'{value:.4g}' if isinstance(value, float) else str(value)
+        print(f'{key:{width}s}  {text}')
+    print(f'scores: {out}')
+    return 0
+
+
+def cmd_view(args):
+    """Open a bag or a study's throw in the viewer's page and serve it until Ctrl-C."""
+    from suture_lfd.viewer.show import serve_recording
+
+    try:
+        return serve_recording(args.path, throw=args.throw, segments=args.segments,
+                               host=args.host, port=args.port, speed=args.speed,
+                               play=args.play, seconds=args.seconds)
+    except (ValueError, OSError, KeyError) as exc:
+        print(f'suture-lfd view: error: {exc}', file=sys.stderr)
+        return 1
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='suture-lfd', description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -90,6 +137,27 @@ def build_parser():
 
     add_study_arguments(study)
     study.set_defaults(func=cmd_study, seconds=0.5)
+    sweep = sub.add_parser('sweep', help='run a grid of studies (seeds, methods, DMP '
+                                         'hyper-parameters) as one job set',
+                           description='Run the studies of a sweep file as one job set on the '
+                                       'chosen engine and write a sweep report.')
+    from suture_lfd.study.sweep import add_arguments as add_sweep_arguments
+
+    add_sweep_arguments(sweep)
+    sweep.set_defaults(func=cmd_sweep)
+    assess = sub.add_parser(
+        'assess', help='score a demonstration bag (skill assessment)',
+        description='Score one demonstration from its bag (and segment file): task and '
+        'subtask times, path length, economy, smoothness and idle time of each instrument, '
+        'entry/exit accuracy, needle tilt and arc deviation in the tissue, grasps; writes '
+        'the table as CSV.')
+    assess.add_argument('bag', help='demonstration bag directory (holding metadata.yaml)')
+    assess.add_argument('--segments', default=None,
+                        help='its segment file (default: segment the bag here)')
+    assess.add_argument('--pair', default=None, help='pair name when the bag does not say it')
+    assess.add_argument('--out', default=None,
+                        help='CSV table to write (default: BAG.assessment.csv beside the bag)')
+    assess.set_defaults(func=cmd_assess)
     bag = sub.add_parser('bag', help='inspect and recover rosbag2 bags (demonstrations)')
     bag_sub = bag.add_subparsers(dest='bag_command', required=True)
     bag_info = bag_sub.add_parser('info', help='topics, types, counts and duration of a bag')
@@ -102,6 +170,25 @@ def build_parser():
     recover.add_argument('--out', default=None,
                          help='new bag directory (default: PATH-recovered next to PATH)')
     recover.set_defaults(func=cmd_bag_recover)
+    view = sub.add_parser(
+        'view', help='replay a bag, or a throw of a study, in the browser viewer',
+        description='Serve a recorded bag (time slider with the subtasks of its segment file, '
+        'play/pause, speed) or a throw of a study (--throw ROW) in the viewer page; open the '
+        'URL it prints. Ctrl-C stops it.')
+    view.add_argument('path', help='bag directory, or a study folder with --throw')
+    view.add_argument('--throw', default=None, metavar='ROW',
+                      help="row of the study's throws.csv (1 = first throw) or a throw key")
+    view.add_argument('--segments', default=None,
+                      help='segment file to mark on the slider (default: <bag>.segments.npz '
+                           "or the study's segments/<bag>.npz when present)")
+    view.add_argument('--host', default='127.0.0.1',
+                      help='interface to listen on (default 127.0.0.1: this machine only)')
+    view.add_argument('--port', type=int, default=8080, help='TCP port (default 8080)')
+    view.add_argument('--speed', type=float, default=1.0, help='replay speed (default 1)')
+    view.add_argument('--play', action='store_true', help='start playing at once')
+    view.add_argument('--seconds', type=float, default=None,
+                      help='stop serving after this many seconds (default: until Ctrl-C)')
+    view.set_defaults(func=cmd_view)
     return parser
 
 

@@ -21,6 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from suture_lfd import bags
+import yaml
 
 SEGMENTS = Path(__file__).resolve().parent / 'suture_lfd' / 'data' / 'study_S01_synth1.npz'
 LATCHED = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -133,6 +134,8 @@ def test_every_node_stopped_mid_work_holds_reports_and_exits_with_the_signal(
     bag = next((tmp_path / 'bags').iterdir())
     summary = bags.bag_summary(bag)  # closed properly: readable, with the throw's commands
     assert summary.message_count > 0
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['custom_data']['suture_lfd.outcome'] == 'interrupted'
 
     # The player replaying that bag in a loop.
     player = launch('player', '--ros-args', '-p', f'bag:={bag}', '-p', 'loop:=true',

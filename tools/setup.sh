@@ -82,6 +82,16 @@ if ! "$venv/bin/python" -c 'import crtk_msgs.msg, tf2_msgs.msg' 2>/dev/null; the
   need_build_tools
 fi
 
+# --- Chromium, for the viewer's browser tests (headless; Debian's chromium package) ------------
+# Only where apt-get can run unattended (root, or sudo without a password): elsewhere the browser
+# tests say they were skipped because no chromium was found.
+if ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null \
+   && command -v apt-get >/dev/null \
+   && { [ "$(id -u)" = 0 ] || sudo -n true 2>/dev/null; }; then
+  say "installing chromium (headless browser for the viewer's tests)"
+  (apt_install chromium) || say "chromium could not be installed: the viewer's browser tests will be skipped"
+fi
+
 # --- virtual environment and wheels --------------------------------------------------------------
 if [ ! -x "$venv/bin/python" ]; then
   say "creating virtual environment $venv (Python $pyver)"

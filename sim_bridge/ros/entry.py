@@ -99,14 +99,16 @@ def parameter_overrides(ros_args):
 
     Returns
     -------
-    list of str
-        Names, without a ``node_name:`` prefix.
+    list of (str or None, str)
+        ``(node, name)``: the node a ``node:name:=value`` override is for (None: every node),
+        and the parameter's name.
 
     """
     names = []
     for flag, value in zip(ros_args, ros_args[1:]):
         if flag in ('-p', '--param') and ':=' in value:
-            names.append(value.split(':=', 1)[0].rsplit(':', 1)[-1])
+            target, _, name = value.split(':=', 1)[0].rpartition(':')
+            names.append((target or None, name))
     return names
 
 
@@ -329,7 +331,8 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
             _error(name, str(exc))
             return 2
         nodes = [node, *getattr(node, 'companions', ())]
-        unknown = [p for p in parameter_overrides(ros_args) if not node.has_parameter(p)]
+        unknown = [p for target, p in parameter_overrides(ros_args)
+                   if target in (None, node.get_name()) and not node.has_parameter(p)]
         if unknown:
             _error(name, f'unknown parameter {unknown[0]!r}; see {name} --help')
             return 2

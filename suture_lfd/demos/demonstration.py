@@ -8,10 +8,10 @@ tag and version.
 """
 
 from dataclasses import dataclass, fields
-import zipfile
 
 import numpy as np
 from sim_bridge.validation import check_array, check_quaternions, check_times
+from suture_lfd.archive import load_archive, save_archive
 
 FORMAT = 'suture_lfd.demonstration'  # the files' format tag (kept when the module moved)
 FORMAT_VERSION = 1
@@ -153,10 +153,7 @@ class Demonstration:
 
         """
         arrays = {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
-        arrays['format'] = np.array(FORMAT)
-        arrays['format_version'] = np.array(FORMAT_VERSION)
-        with open(path, 'wb') as handle:
-            np.savez(handle, **arrays)
+        save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
     def load(cls, path):
@@ -180,20 +177,7 @@ class Demonstration:
             invalid data; the message names the file.
 
         """
-        try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise ValueError(f'{path}: not a readable demonstration file ({exc})') from exc
-        if not isinstance(data, np.lib.npyio.NpzFile):
-            raise ValueError(f'{path}: not a demonstration file (expected an .npz archive)')
-        with data:
-            arrays = {key: data[key] for key in data.files}
-        if str(arrays.get('format', '')) != FORMAT:
-            raise ValueError(f'{path}: not a demonstration file (missing format tag {FORMAT!r})')
-        version = int(arrays.get('format_version', -1))
-        if version != FORMAT_VERSION:
-            raise ValueError(f'{path}: demonstration format version {version} is not supported '
-                             f'(expected {FORMAT_VERSION})')
+        arrays = load_archive(path, FORMAT, FORMAT_VERSION, 'demonstration file')
         names = [f.name for f in fields(cls)]
         missing = [name for name in names if name not in arrays]
         if missing:

@@ -39,6 +39,7 @@ from suture_lfd.dmp.equations import (
     canonical_phase,
     forcing_term,
     guarded_scale,
+    least_squares_weights,
     linear_recurrence,
     lwr_weights,
     nonlinear_rate,
@@ -56,8 +57,8 @@ __all__ = [
     'FORMAT', 'FORMAT_VERSION', 'MIN_FIT_POINTS', 'ORIENTATION_FORMS',
     'canonical_phase', 'basis_centres', 'basis_widths', 'basis_activations',
     'normalised_features', 'uniform_features', 'forcing_term', 'guarded_scale', 'lwr_weights',
-    'position_forcing_target', 'quaternion_forcing_target', 'nonlinear_rate',
-    'transition_matrices', 'linear_recurrence',
+    'least_squares_weights', 'position_forcing_target', 'quaternion_forcing_target',
+    'nonlinear_rate', 'transition_matrices', 'linear_recurrence',
 ]
 
 

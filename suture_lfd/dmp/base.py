@@ -11,14 +11,16 @@ format tag and version.
 from dataclasses import asdict, dataclass
 import json
 import math
-import zipfile
 
 import numpy as np
 from sim_bridge.configfile import dataclass_from_mapping
 from sim_bridge.validation import check_positive, check_times
+from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.dmp.equations import (
     basis_activations,
     canonical_phase,
+    least_squares_weights,
+    lwr_weights,
     uniform_activations,
     uniform_phase,
 )
@@ -27,6 +29,7 @@ FORMAT = 'suture_lfd.dmp'
 FORMAT_VERSION = 1
 MIN_FIT_POINTS = 5
 ORIENTATION_FORMS = ('ude', 'log')
+REGRESSIONS = ('lwr', 'least_squares')
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,13 @@ class DmpParams:
         ``u'' = -alpha_z beta_z u - alpha_z u' + f_o``; identical for a rotation about a fixed
         axis, and stable when the rotation exceeds 180 degrees about a drifting axis, where
         the Ude form amplifies errors across the axis (see :class:`QuaternionDmp`).
+    regression : {'lwr', 'least_squares'}
+        How the weights are fitted: ``'lwr'`` (the paper) fits each basis function alone
+        (:func:`~suture_lfd.dmp.equations.lwr_weights`); ``'least_squares'`` fits all of them
+        together (:func:`~suture_lfd.dmp.equations.least_squares_weights`), which keeps
+        movements shorter than a basis function's width.
+    ridge : float
+        Relative regularisation of ``'least_squares'``.
 
     """
 
@@ -85,15 +95,20 @@ class DmpParams:
     phase_stop_position: float = 1.0e6
     phase_stop_orientation: float = 100.0
     orientation_form: str = 'ude'
+    regression: str = 'lwr'
+    ridge: float = 1e-8
 
     def __post_init__(self):
         if self.orientation_form not in ORIENTATION_FORMS:
             raise ValueError(f'DmpParams.orientation_form must be one of {ORIENTATION_FORMS}, '
                              f'got {self.orientation_form!r}')
+        if self.regression not in REGRESSIONS:
+            raise ValueError(f'DmpParams.regression must be one of {REGRESSIONS}, '
+                             f'got {self.regression!r}')
         for name in ('alpha_x', 'alpha_y', 'beta_y', 'alpha_z', 'beta_z', 'goal_filter'):
             check_positive(getattr(self, name), f'DmpParams.{name}')
         for name in ('scale_guard', 'scale_guard_floor_m', 'scale_guard_floor_rad',
-                     'phase_stop_position', 'phase_stop_orientation'):
+                     'phase_stop_position', 'phase_stop_orientation', 'ridge'):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'DmpParams.{name} must be a finite number >= 0, got {value!r}')
@@ -144,6 +159,12 @@ class Primitive:
             # derivatives
             return 1.0 / (s.size - 1), uniform_phase(s.size, self.params.alpha_x), duration
         return s, canonical_phase(s, self.params.alpha_x), duration
+
+    def _weights(self, psi, x, targets, scale):
+        """Fit the weights with the regression of the parameters."""
+        if self.params.regression == 'least_squares':
+            return least_squares_weights(psi, x, targets, scale, self.params.ridge)
+        return lwr_weights(psi, x, targets, scale)
 
     def _activations(self, s, x, centres, widths):
         """Basis activations at the phases ``x`` (cached for an evenly spaced ``s``)."""
@@ -258,11 +279,9 @@ class Primitive:
 
         """
         self._check_fitted()
-        arrays = {'format': np.array(FORMAT), 'format_version': np.array(FORMAT_VERSION),
-                  'kind': np.array(self.KIND), 'params': np.array(json.dumps(asdict(self.params)))}
+        arrays = {'kind': np.array(self.KIND), 'params': np.array(json.dumps(asdict(self.params)))}
         arrays.update(self._arrays())
-        with open(path, 'wb') as handle:
-            np.savez(handle, **arrays)
+        save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
     def load(cls, path):
@@ -312,20 +331,7 @@ def read_dmp_file(path):
         All stored arrays.
 
     """
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise ValueError(f'{path}: not a readable DMP file ({exc})') from exc
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ValueError(f'{path}: not a DMP file (expected an .npz archive)')
-    with data:
-        arrays = {key: data[key] for key in data.files}
-    if 'format' not in arrays or str(arrays['format']) != FORMAT:
-        raise ValueError(f'{path}: not a DMP file (missing format tag {FORMAT!r})')
-    version = int(arrays.get('format_version', -1))
-    if version != FORMAT_VERSION:
-        raise ValueError(f'{path}: DMP file format version {version} is not supported '
-                         f'(expected {FORMAT_VERSION})')
+    arrays = load_archive(path, FORMAT, FORMAT_VERSION, 'DMP file')
     try:
         mapping = json.loads(str(arrays['params']))
         kind = str(arrays['kind'])

@@ -340,6 +340,43 @@ def lwr_weights(psi, x, targets, scale):
     return weights / scale
 
 
+def least_squares_weights(psi, x, targets, scale, ridge=1e-8):
+    """
+    Return the weights that fit the whole forcing term at once (ridge least squares).
+
+    With the features ``X_ki = psi_i(x_k) x_k / sum_j psi_j(x_k)`` of the forcing term,
+    ``w = (X^T X + lambda I)^-1 X^T F_d / scale``, ``lambda = ridge * trace(X^T X) / n_bfs``.
+    LWR (:func:`lwr_weights`) fits each basis function on its own, a weighted average of the
+    target under it; where neighbouring bases overlap (the widths ``N^1.5 / (alpha_x c_i)``
+    span two to three centre spacings) it smooths the target, and a movement shorter than
+    that span is lost. The least-squares fit of the same bases keeps it.
+
+    Parameters
+    ----------
+    psi : ndarray, shape (n, n_bfs)
+        Activations ``psi_i(x(t_k))``.
+    x : ndarray, shape (n,)
+        Phase at the samples.
+    targets : ndarray, shape (n, n_dims)
+        Desired forcing term ``F_d`` at the samples.
+    scale : array_like, shape (n_dims,)
+        ``g - y0`` per dimension (1 where guarded).
+    ridge : float
+        Relative regularisation (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (n_bfs, n_dims)
+
+    """
+    X = _normalised(psi, x)
+    A = X.T @ X
+    lam = ridge * float(np.trace(A)) / A.shape[0]
+    A[np.diag_indices_from(A)] += lam
+    weights = np.linalg.lstsq(A, X.T @ targets, rcond=None)[0]
+    return weights / np.asarray(scale, dtype=float)
+
+
 def derivative(Y, s):
     """
     Return ``dY/ds`` by second-order finite differences, second order at the ends too.

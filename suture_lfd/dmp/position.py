@@ -16,7 +16,6 @@ from suture_lfd.dmp.equations import (
     forcing_term,
     guarded_scale,
     linear_recurrence,
-    lwr_weights,
     normalised_features,
     position_forcing_target,
     transition_matrices,
@@ -79,7 +78,7 @@ class PositionDmp(Primitive):
                      np.flatnonzero(degenerate).tolist())
         targets = position_forcing_target(s, Y, goal, p.alpha_y, p.beta_y)
         psi = self._activations(s, x, self._centres, self._widths)
-        self.weights_ = lwr_weights(psi, x, targets, scale)
+        self.weights_ = self._weights(psi, x, targets, scale)
         self.start_, self.goal_, self.degenerate_ = start, goal, degenerate
         self.duration_ = duration
         return self

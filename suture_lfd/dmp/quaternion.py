@@ -29,7 +29,6 @@ from suture_lfd.dmp.equations import (
     input_filters,
     input_response,
     linear_recurrence,
-    lwr_weights,
     nonlinear_rate,
     normalised_features,
     position_forcing_target,
@@ -120,7 +119,7 @@ class QuaternionDmp(Primitive):
         scale, degenerate = guarded_scale(-U[0], np.ptp(U, axis=0), p.scale_guard,
                                           p.scale_guard_floor_rad)
         psi = self._activations(s, x, self._centres, self._widths)
-        self.weights_ = lwr_weights(psi, x, targets, scale)
+        self.weights_ = self._weights(psi, x, targets, scale)
         self.start_, self.goal_, self.degenerate_ = start, goal, degenerate
         self.duration_ = duration
         return self

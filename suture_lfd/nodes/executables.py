@@ -5,6 +5,8 @@ Each is a :class:`sim_bridge.ros.entry.Executable`: ``--help`` is answered befor
 module is imported or ROS is initialised.
 """
 
+import sys
+
 from sim_bridge.ros.entry import Executable
 
 demonstrator = Executable(
@@ -30,3 +32,59 @@ teleop = Executable(
 mtms = Executable(
     'mtms', 'suture_lfd.nodes.mtms:MtmsNode', config_file='mtms.yaml',
     example='mtms --ros-args -p device:=browser')
+_viewer = Executable(
+    'viewer', 'suture_lfd.nodes.viewer:Viewer', config_file='viewer.yaml',
+    example='viewer --host 127.0.0.1 --port 8080 --ros-args -p phantom:=scanned')
+
+
+def _listen_arguments(argv):
+    """
+    Turn ``--host ADDRESS`` and ``--port N`` into the ``host`` and ``port`` parameters.
+
+    Parameters
+    ----------
+    argv : list of str
+        Command-line arguments without the program name.
+
+    Returns
+    -------
+    list of str
+        ``argv`` without them, ``--ros-args -p host:=ADDRESS -p port:=N`` appended.
+
+    """
+    if '--ros-args' in argv:
+        k = argv.index('--ros-args')
+        user, ros = list(argv[:k]), list(argv[k:])
+    else:
+        user, ros = list(argv), []
+    out, params = [], []
+    i = 0
+    while i < len(user):
+        arg = user[i]
+        name, eq, value = arg.partition('=')
+        if name in ('--host', '--port'):
+            if not eq:
+                if i + 1 >= len(user):
+                    raise ValueError(f'{name} needs a value')
+                value = user[i + 1]
+                i += 1
+            params += ['-p', f'{name[2:]}:={value}']
+        else:
+            out.append(arg)
+        i += 1
+    if params:
+        ros += ['--ros-args', *params]
+    return out + ros
+
+
+def viewer(args=None):
+    """Run the viewer node; ``--host ADDRESS`` and ``--port N`` set where its page listens."""
+    argv = list(sys.argv[1:] if args is None else args)
+    if any(a in ('-h', '--help') for a in argv):
+        return _viewer(argv)
+    try:
+        argv = _listen_arguments(argv)
+    except ValueError as exc:
+        print(f'viewer: error: {exc}', file=sys.stderr, flush=True)
+        return 2
+    return _viewer(argv)

@@ -15,7 +15,9 @@ per topic the messages received while recording, carried over into the bag, writ
 numbers (:class:`suture_lfd.bags.losses.PublicationGaps`). ``lost`` is what was missed plus
 what was received but not written, so ``lost: 0`` means the bag holds every message published
 while it was recorded; the bag's ``metadata.yaml`` keeps the per-topic counts (custom data
-``suture_lfd.counts``) and the total (``suture_lfd.lost``).
+``suture_lfd.counts``) and the total (``suture_lfd.lost``). Stopped by SIGINT or SIGTERM while
+recording, the node closes the bag with what it holds and marks it ``suture_lfd.outcome:
+interrupted``.
 """
 
 from dataclasses import dataclass
@@ -163,6 +165,10 @@ class BagSession:
         lost = total['missed'] + (queued if closed else 0)
         return {'bag': str(self.path), **total, 'queued': 0 if closed else queued, 'lost': lost,
                 'topics': per_topic}
+
+    def set_custom_data(self, key, value):
+        """Store a string in the bag's ``metadata.yaml`` ``custom_data`` (written at close)."""
+        self._writer.set_custom_data(key, value)
 
     def close(self):
         """Write what is queued, close the bag; return the counts."""
@@ -377,6 +383,13 @@ class Recorder(Node):
             counts = session.counts()
         status = {'recording': session is not None, **(counts or {})}
         self._status_pub.publish(String(data=json.dumps(status)))
+
+    def on_interrupt(self, signal_name):
+        """Mark the bag being written as ended by a signal (``on_exit`` then closes it)."""
+        if self._session is not None:
+            self._session.set_custom_data('suture_lfd.outcome', 'interrupted')
+            self.get_logger().warning(f'{signal_name} while recording {self._session.path}: '
+                                      'the bag is closed with what it holds, outcome interrupted')
 
     def on_exit(self):
         """Close the bag if one is open (on exit)."""

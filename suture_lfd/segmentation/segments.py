@@ -18,10 +18,10 @@ file and key of anything wrong or missing.
 """
 
 from dataclasses import dataclass, fields
-import zipfile
 
 import numpy as np
 from sim_bridge.validation import check_array, check_quaternions
+from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.dmp import load_dmp_params
@@ -137,10 +137,7 @@ class SegmentFile:
 
         """
         arrays = {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
-        arrays['format'] = np.array(FORMAT)
-        arrays['format_version'] = np.array(FORMAT_VERSION)
-        with open(path, 'wb') as handle:
-            np.savez(handle, **arrays)
+        save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
     def load(cls, path):
@@ -154,26 +151,7 @@ class SegmentFile:
             key or holds invalid data; the message names the file (and the key).
 
         """
-        try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise ValueError(f'{path}: not a readable segment file ({exc})') from exc
-        if not isinstance(data, np.lib.npyio.NpzFile):
-            raise ValueError(f'{path}: not a segment file (expected an .npz archive)')
-        try:
-            with data:
-                arrays = {key: data[key] for key in data.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise ValueError(f'{path}: damaged segment file ({exc})') from exc
-        if 'format' not in arrays or str(arrays['format']) != FORMAT:
-            raise ValueError(f'{path}: not a segment file (key format is not {FORMAT!r})')
-        try:
-            version = int(arrays.get('format_version', -1))
-        except (TypeError, ValueError):
-            version = -1
-        if version != FORMAT_VERSION:
-            raise ValueError(f'{path}: key format_version is {version}; this version reads '
-                             f'segment files of version {FORMAT_VERSION}')
+        arrays = load_archive(path, FORMAT, FORMAT_VERSION, 'segment file')
         values = {}
         for f in fields(cls):
             if f.name not in arrays:

@@ -473,14 +473,17 @@ class ThrowOutcome:
 class _Recorder:
     """Wraps a controller and records the needle pose per subtask label."""
 
-    def __init__(self, controller):
+    def __init__(self, controller, observer=None):
         self.controller = controller
+        self.observer = observer
         self.t0 = None
         self.samples = {}
         self.spans = {}
 
     def step(self, obs):
         cmd = self.controller.step(obs)
+        if self.observer is not None:
+            self.observer()
         if self.t0 is None:
             self.t0 = float(obs.t)
         t = float(obs.t) - self.t0
@@ -514,7 +517,7 @@ def _event_dict(ev):
 
 
 def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, control_period=0.01,
-                  next_pair=None):
+                  next_pair=None, observer=None):
     """
     Execute one throw of a skill on a marker pair of an in-process simulation.
 
@@ -540,6 +543,9 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
         Time (s) between controller steps (a multiple of the physics step).
     next_pair : str, optional
         Pair of the next throw (PSM2 ends above it).
+    observer : callable, optional
+        Called without arguments at every controller step, after the command is chosen (a
+        replay sampler reads the scene then).
 
     Returns
     -------
@@ -561,7 +567,7 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
                              config=config, next_pair=nxt)
-    recorder = _Recorder(executor)
+    recorder = _Recorder(executor, observer)
     t_start = sim.time
     try:
         executor.reset(sim.observation())

@@ -32,14 +32,22 @@ import logging
 import os
 from pathlib import Path
 import shlex
+import signal
 import sys
 import time
 import zlib
 
 import numpy as np
 from suture_lfd.study import held_out
+from suture_lfd.study.engine import (
+    CodeMismatchError,
+    EngineError,
+    open_session,
+    parse_engine,
+    run_stages_on,
+)
 from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
-from suture_lfd.study.runner import Progress, run_stages
+from suture_lfd.study.runner import Progress, pending
 from suture_lfd.study.store import ResultStore, config_hash
 
 _LOG = logging.getLogger(__name__)
@@ -55,7 +63,12 @@ def add_arguments(parser):
     parser.add_argument('--out', default='study', help='report folder (default ./study)')
     parser.add_argument('--workers', type=int, default=None,
                         help='parallel worker processes (default: the number of CPUs; half '
-                             'of them with --via-ros)')
+                             'of them with --via-ros); with --engine dask, the local '
+                             "cluster's workers")
+    parser.add_argument('--engine', default='local',
+                        help='where the jobs run: local (a process pool, default), dask (a '
+                             'local Dask cluster), tcp://HOST:PORT or scheduler-file:PATH (an '
+                             'existing Dask cluster)')
     parser.add_argument('--quick', action='store_true',
                         help=f'small study: {QUICK_SUBJECTS} subjects (one per group), '
                              f'{QUICK_PAIRS} pairs per phantom')
@@ -72,6 +85,13 @@ def add_arguments(parser):
                         help='execute every throw through the ROS node graph: a simulator and '
                              'an executor node process per throw, a private ROS domain per '
                              'worker (demonstrations stay in-process; ~10x slower per throw)')
+    parser.add_argument('--assessment', choices=('subject', 'cohort', 'off'),
+                        default='subject',
+                        help='learning with skill assessment, reported beside learning from '
+                             'every demonstration: a rejected demonstration is replaced by '
+                             "the subject's own best accepted one (subject, default) or the "
+                             "cohort's best accepted one on that pair (cohort); off: no "
+                             'assessment')
     held_out.add_arguments(parser)
     parser.add_argument('--plan', action='store_true',
                         help='write the configuration (subjects, seeds, jobs) and stop')
@@ -94,7 +114,8 @@ def _code_digest():
     for root in roots:
         for path in sorted(root.rglob('*.py')):
             name = path.relative_to(root).as_posix()
-            if name not in skip:
+            if name not in skip and not name.startswith('assessment/') \
+                    and name != 'study/assessed.py':
                 h.update(name.encode())
                 h.update(path.read_bytes())
     return h.hexdigest()[:16]
@@ -198,6 +219,7 @@ def build_config(args):
         'phantoms': phantoms,
         'methods': methods,
         'method_descriptions': {m: getattr(METHODS[m], 'description', '') for m in methods},
+        'assessment': getattr(args, 'assessment', 'subject'),
         'settings': {k: v for k, v in dataclasses.asdict(settings).items()
                      if k not in ('out', 'cohort_path')},
         'files': files,
@@ -211,7 +233,8 @@ def _hashed(config):
     """Return the configuration that decides the results (not paths or descriptions)."""
     # held-out throws are keyed by their geometry: the fixed-pair results stay shared
     return {k: v for k, v in config.items()
-            if k not in ('cohort_file', 'method_descriptions', 'quick', 'held_out')}
+            if k not in ('cohort_file', 'method_descriptions', 'quick', 'held_out',
+                         'assessment')}
 
 
 def plan_jobs(config):
@@ -309,6 +332,7 @@ def run_study(args, stream=None):
     ros = None
     try:
         config = build_config(args)
+        engine = parse_engine(getattr(args, 'engine', 'local'))
         if args.via_ros and not (args.plan or args.report_only):
             from suture_lfd.study.ros import check_executables, study_settings
 
@@ -351,30 +375,44 @@ def run_study(args, stream=None):
         progress = Progress(total, done=done_before, stream=stream)
         ran = 0
         if not args.report_only:
+            session = None
             try:
-                ran += run_stages([demos], run_job, store, workers=workers, progress=progress,
-                                  initializer=init_worker, initargs=(settings,))
+                if engine.kind == 'dask' and pending(demos + held_jobs + throws, store):
+                    session = open_session(engine, workers)
+                    print(f'study: jobs run on the {engine.describe()} '
+                          f'({session.n_workers()} workers)', file=stream, flush=True)
+                where = session or engine
+                ran += run_stages_on(where, [demos], run_job, store, workers=workers,
+                                     progress=progress, initializer=init_worker,
+                                     initargs=(settings,))
                 if held_jobs:  # fewer than the matrix's throws: their figure comes first
-                    ran += run_stages([_attach_demos(held_jobs, store)], run_job, store,
-                                      workers=workers, progress=progress,
-                                      initializer=init_worker, initargs=(settings,))
-                ran += run_stages([_attach_demos(throws, store)], run_job, store,
-                                  workers=workers, progress=progress, initializer=init_worker,
-                                  initargs=(settings, ros))
-            except KeyboardInterrupt:
+                    ran += run_stages_on(where, [_attach_demos(held_jobs, store)], run_job,
+                                         store, workers=workers, progress=progress,
+                                         initializer=init_worker, initargs=(settings,))
+                ran += run_stages_on(where, [_attach_demos(throws, store)], run_job, store,
+                                     workers=workers, progress=progress,
+                                     initializer=init_worker, initargs=(settings, ros))
+            except (CodeMismatchError, EngineError) as exc:
+                progress.finish()
+                print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
+                status = 1
+            except KeyboardInterrupt as exc:
                 progress.finish()
                 ran = progress.done - progress.resumed
                 print(f'study interrupted: {progress.done}/{total} jobs stored in '
                       f'{store.path.name}; run the same command again to resume', file=stream,
                       flush=True)
-                status = 130
+                status = 128 + getattr(exc, 'signum', signal.SIGINT)  # 130, or 143 for SIGTERM
             finally:
+                if session is not None:
+                    session.close()
                 close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
         wall = time.monotonic() - t0
         records = _ordered_records(store, demos + throws)
         held_records = _ordered_records(store, held_jobs)
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())
-    run_info = {'command': command.strip(), 'workers': workers, 'jobs_run': ran,
+    run_info = {'command': command.strip(), 'workers': workers, 'engine': engine.describe(),
+                'jobs_run': ran,
                 'resumed': done_before, 'wall_s': wall, 'rate': ran / wall if wall > 0 else 0.0}
     from suture_lfd.study import report as report_writer  # matplotlib: only when writing
 

@@ -8,7 +8,11 @@ The study's report folder: ``report.md``, CSV files, PNG figures and ``summary.j
 - ``report.md``: every table of the seed paper's evaluation with the paper's value beside ours,
   the calibration targets and residuals, the figures, the configuration and seeds,
 - ``heatmap_<method>.png``, ``task_time_<method>.png``, ``trajectories_<method>.png``,
-- ``summary.json``: the numbers of the tables, machine-readable.
+  ``filmstrip_demo_<method>.png`` and ``filmstrip_throw_<method>.png`` (ECM frames of the
+  Fig. 7 subject's demonstration and of its skill executed on another pair),
+- ``summary.json``: the numbers of the tables, machine-readable,
+- ``assessment.csv`` and ``assessment/``: the skill assessment of every demonstration and the
+  section on learning only from the accepted ones (:mod:`suture_lfd.study.assessed`).
 
 The CSV files and every table depend only on the records (not on wall time), so the same
 configuration gives byte-identical CSV files; wall times appear only in the report's run section.
@@ -16,6 +20,7 @@ configuration gives byte-identical CSV files; wall times appear only in the repo
 
 import csv
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -166,6 +171,65 @@ def _fig7_curves(folder, rows):
     return pick, curves
 
 
+def _goal_note(method, config):
+    """Say how the method fits its weights, and what that does to task iv's goal error."""
+    from suture_lfd.skill import METHODS
+
+    regression = getattr(METHODS.get(method), 'regression', 'lwr')
+    why = ("Task iv's needle centre rests while the needle turns about it and moves only in "
+           'the pull at the end of the subtask; the rollout runs over the demonstrated '
+           'duration, so at t = T the phase is still exp(-alpha_x) = 0.37 (alpha_x = 1) and '
+           'the forcing term still acts.')
+    if regression == 'lwr':
+        return (f'Weights fitted by LWR as in the paper (Table I bases). {why} LWR fits each '
+                'basis function alone, a weighted average of the target under it, and the '
+                'bases of width N^1.5 / (alpha_x c_i) span two to three centre spacings: the '
+                'short pull is smoothed away and the rollout ends short of the goal.')
+    return (f'Weights fitted by least squares over all basis functions (the paper: LWR; same '
+            f'Table I bases, alpha_x, gains and points). {why} The joint fit keeps the short '
+            'pull that LWR smooths away, so the rollout reaches the goal.')
+
+
+def _filmstrips(folder, rows, demo_rows, pick, method):
+    """
+    Draw the filmstrips of the Fig. 7 subject: its demonstration and a throw on another pair.
+
+    Returns the report lines (none when a file is missing or cannot be drawn).
+    """
+    from suture_lfd.viewer.filmstrip import write_filmstrip
+    from suture_lfd.viewer.replay import recording_from_bag
+    from suture_lfd.viewer.throw_replay import recording_from_file
+
+    folder = Path(folder)
+    demo = next((d for d in demo_rows if d['subject'] == pick['subject']
+                 and d['pair'] == pick['train_pair'] and d.get('bag')), None)
+    other = [r for r in rows if r['subject'] == pick['subject']
+             and r['train_pair'] == pick['train_pair'] and r['test_pair'] != pick['train_pair']
+             and r.get('replay') and (folder / r['replay']).is_file()]
+    if demo is None or not (folder / demo['bag']).is_dir() or not other:
+        return []
+    throw = max(other, key=lambda r: (r.get('score') or 0.0,
+                                      r['test_phantom'] == pick['train_phantom']))
+    demo_png = f'filmstrip_demo_{method}.png'
+    throw_png = f'filmstrip_throw_{method}.png'
+    try:
+        write_filmstrip(recording_from_bag(folder / demo['bag']), folder / demo_png,
+                        title=f'demonstration: {demo["subject"]} at {demo["pair"]}')
+        write_filmstrip(recording_from_file(folder / throw['replay']), folder / throw_png,
+                        title=f'learnt at {throw["train_pair"]}, executed at '
+                              f'{throw["test_pair"]} (score {_f(throw["score"], 1)})')
+    except (ValueError, OSError) as exc:
+        logging.getLogger(__name__).warning('filmstrips not drawn: %s', exc)
+        return []
+    return ['#### Seen from the ECM', '',
+            f'The demonstration of {demo["subject"]} at {demo["pair"]}, and the skill learnt '
+            f'from it executed at {throw["test_pair"]} (frames at the subtask starts and the '
+            f'end, rendered offline from the recorded poses; replay it with `suture-lfd view '
+            f'<study folder> --throw throw/{method}/{throw["subject"]}/{throw["train_pair"]}/'
+            f'{throw["test_pair"]}`).', '', f'![demonstration]({demo_png})', '',
+            f'![regeneration on another pair]({throw_png})', '']
+
+
 def summarise(records):
     """
     Return the numbers of every table for every method (JSON-serialisable).
@@ -266,8 +330,9 @@ def write_report(folder, records, config, run_info=None):
         f'error: {len(errors)}.', '',
         'Files: `throws.csv` (one row per executed throw), `demos.csv` (one row per '
         'demonstration), `summary.json` (every number below), PNG figures, `bags/` (the '
-        'demonstrations as rosbag2 bags), `segments/` (their segment files), `results-*.jsonl` '
-        '(the resumable per-job results).', '']
+        'demonstrations as rosbag2 bags), `segments/` (their segment files), `replays/` (what '
+        'the viewer needs to replay each throw: `suture-lfd view <this folder> --throw ROW`, '
+        'ROW a row of `throws.csv`), `results-*.jsonl` (the resumable per-job results).', '']
     for method, s in summary.items():
         rows = tables.throws(records, method)
         gen = tables.generality(rows)
@@ -289,7 +354,7 @@ def write_report(folder, records, config, run_info=None):
                'error = mean distance along the DTW warping path (position: Euclidean, mm; '
                'orientation: rotation angle, deg). The `*_exec_traj_mm` CSV columns give the '
                'same trajectory error for the needle trajectory the simulator actually '
-               'executed.', '', _table2(reg), '',
+               'executed.', '', _table2(reg), '', _goal_note(method, config), '',
                f'Regeneration success (complete throws): **{reg["success"]} / {reg["total"]} '
                f'= {_f(100.0 * reg["rate"], 1)} %** (paper: 76 / 80 = 95 %).', '']
         md += ['### Table III: generality', '',
@@ -321,6 +386,7 @@ def write_report(folder, records, config, run_info=None):
             md += ['### Demonstrated and regenerated needle trajectories (Fig. 7)', '',
                    f'Subject {pick["subject"]} ({pick["group"]}), pair {pick["test_pair"]}.',
                    '', f'![trajectories](trajectories_{method}.png)', '']
+            md += _filmstrips(folder, rows, demo_rows, pick, method)
     if len(summary) > 1:
         md += ['## Methods side by side', '',
                _table(['method', 'generality exp.', 'naive', 'overall', 'regeneration success',
@@ -332,6 +398,17 @@ def write_report(folder, records, config, run_info=None):
                         (_f(100.0 * s['table4']['v'][2] / s['table4']['total'], 1) + ' %')
                         if s['table4']['total'] else '–']
                        for m, s in summary.items()]), '']
+    mode = config.get('assessment', 'subject')
+    if mode != 'off':
+        from suture_lfd.study.assessed import report_section
+
+        lines, assessed = report_section(folder, records, mode)
+        md += lines
+        if assessed:
+            summary_all = json.loads((folder / 'summary.json').read_text())
+            summary_all['skill_assessment'] = _nan_to_none(assessed)
+            (folder / 'summary.json').write_text(
+                json.dumps(summary_all, indent=1, sort_keys=True) + '\n')
     if errors:
         md += ['## Jobs that raised an error', '',
                _table(['job', 'error'], [[r['key'], r['error']] for r in errors[:50]]), '']

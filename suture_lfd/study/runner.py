@@ -138,11 +138,17 @@ def _call(job_fn, job):
     return record
 
 
+class Terminated(KeyboardInterrupt):
+    """A SIGTERM that stops the run, handled as Ctrl-C is (``signum``: the signal)."""
+
+    signum = signal.SIGTERM
+
+
 @contextlib.contextmanager
 def sigterm_as_interrupt():
-    """Turn SIGTERM into a KeyboardInterrupt in this process while the block runs."""
+    """Turn SIGTERM into a KeyboardInterrupt (:class:`Terminated`) while the block runs."""
     def handler(signum, frame):
-        raise KeyboardInterrupt(f'signal {signum}')
+        raise Terminated(f'signal {signum}')
 
     try:
         previous = signal.signal(signal.SIGTERM, handler)

@@ -229,3 +229,21 @@ def test_config_names_a_bad_parameter():
     with pytest.raises(ValueError, match='scale'):
         TeleopConfig(scale=-1.0)
     assert rotation_angle(rotation_from_rotvec([0, 0.5, 0])) == pytest.approx(0.5)
+
+
+def test_the_frame_tree_gives_the_psm_frame_in_the_camera_frame():
+    from suture_lfd.teleop.frames import FrameTree
+    rng = np.random.default_rng(3)
+    T_world_psm_base = pose(random_rotation(rng), rng.normal(size=3))
+    T_world_ecm_base = pose(random_rotation(rng), rng.normal(size=3))
+    T_ecm_base_tip = pose(random_rotation(rng), rng.normal(size=3))
+    tree = FrameTree()
+    tree.set('world', 'PSM1_base', T_world_psm_base)
+    tree.set('world', 'ECM_base', T_world_ecm_base)
+    tree.set('ECM_base', 'ECM', T_ecm_base_tip)
+    expected = np.linalg.inv(T_world_ecm_base @ T_ecm_base_tip) @ T_world_psm_base
+    np.testing.assert_allclose(tree.transform('ECM', 'PSM1_base'), expected, atol=1e-12)
+    np.testing.assert_allclose(tree.rotation('ECM', 'world'),
+                               (T_world_ecm_base @ T_ecm_base_tip)[:3, :3].T, atol=1e-12)
+    assert tree.transform('ECM', 'HRSV') is None and not tree.knows('HRSV')
+    assert tree.knows('world') and tree.knows('ECM')

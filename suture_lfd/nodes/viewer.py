@@ -1,0 +1,249 @@
+"""
+The viewer node: the live scene in a browser page (viser), and the virtual MTMs' browser input.
+
+Run it beside the simulator (``suture-lfd viewer``; ``--host ADDRESS`` and ``--port N`` choose
+where it listens, default ``127.0.0.1:8080``: the page accepts control input, so it is not
+reachable from the network unless asked) and open the URL it prints. The page draws, in
+``world`` (z up, m):
+
+- the PSMs and the ECM as simple shapes (shaft through the RCM, tool-tip axes, the ECM's camera
+  frustum), posed from ``/tf`` (``<ARM>_base -> <ARM>``) and ``/tf_static`` (``world ->
+  <ARM>_base``);
+- the needle (its arc, posed by ``/tf`` ``world -> needle``), the phantom mesh (built from
+  ``config/scene.yaml`` for the ``phantom`` parameter, posed by ``world -> phantom``), the
+  entry/exit markers (``world -> <pair>_entry|exit``);
+- every ``sim/visualization`` marker (LINE_STRIP, SPHERE_LIST; the thread among them);
+- the ECM's left image in its camera frustum when the simulator renders it
+  (``ECM/left/image_raw``, ``camera_rate`` > 0);
+- ``sim/events`` as they happen, in the side panel.
+
+It sends what changed to the page ``frame_rate`` times a second, and publishes
+``viewer/stats`` (std_msgs/String, JSON, every ``stats_period`` s): ``frame_rate`` (frames sent
+per second), ``tf_rate`` (``/tf`` messages per second), ``clients`` (browsers connected) and
+``cameras`` (each browser's view: ``position``, ``wxyz`` in the OpenCV convention, vertical
+``fov`` in rad, ``width`` and ``height`` in px).
+
+Contract with the virtual MTMs (browser input back-end)
+--------------------------------------------------------
+For each MTM named in the parameter ``mtms`` (default ``[MTML, MTMR]``) the page has a 6-DOF
+handle (a transform gizmo that starts at the matching PSM's tool pose: MTMR <-> PSM1,
+MTML <-> PSM2), a gripper slider, and ``Clutch``/``Coag`` buttons with keys ``C``/``V`` (each
+click or key press toggles that pedal). The node publishes what the person does and nothing
+else about teleoperation:
+
+- ``viewer/input/<MTM>/pose`` (geometry_msgs/PoseStamped, frame_id ``world``): the handle's
+  pose, on every change (at the page's rate, >= 30 Hz, while it is dragged);
+- ``viewer/input/<MTM>/gripper`` (std_msgs/Float64): gripper opening angle, rad, 0 ... 1.047
+  (60 deg);
+- ``viewer/input/pedals`` (sensor_msgs/Joy): ``buttons = [clutch, coag]``, 1 = pressed, on every
+  change.
+
+All three are RELIABLE, VOLATILE, depth 10, stamped with the node's clock. Parameters:
+``config/viewer.yaml``.
+"""
+
+from dataclasses import dataclass
+import json
+import time
+
+from crtk_msgs.msg import StringStamped
+from geometry_msgs.msg import PoseStamped
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, Joy
+from sim_bridge.geometry import transform_from_pose
+from sim_bridge.ros import conversions as cv
+from sim_bridge.ros.params import declare_config
+from std_msgs.msg import Float64, String
+from suture_lfd.viewer.assets import load_phantom, needle_arc
+from suture_lfd.viewer.controls import PSM_OF_MTM, MtmControls
+from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, FrameClock, ViewerPage
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
+
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATIC_TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+IMAGE_QOS = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+
+
+@dataclass(frozen=True)
+class ViewerConfig:
+    """
+    Parameters of the viewer node (names as in ``config/viewer.yaml``).
+
+    Attributes
+    ----------
+    host : str
+        Interface the page listens on (``127.0.0.1``: this machine only; ``--host``).
+    port : int
+        TCP port of the page (``--port``; the next free one when it is taken).
+    phantom : str
+        The simulator's ``phantom`` (``synthetic``, ``scanned`` or a mesh file).
+    frame_rate : float
+        Frames sent to the page per second (Hz of wall time).
+    mtms : tuple of str
+        MTMs whose browser input the page hosts (``()``: none).
+    images : bool
+        Subscribe to the ECM's left image (the simulator renders only for subscribers, and
+        only with ``camera_rate`` > 0).
+    stats_period : float
+        Seconds between ``viewer/stats`` messages.
+
+    """
+
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT
+    phantom: str = 'synthetic'
+    frame_rate: float = 30.0
+    mtms: tuple[str, ...] = ('MTML', 'MTMR')
+    images: bool = True
+    stats_period: float = 1.0
+
+    def __post_init__(self):
+        if not self.frame_rate > 0:
+            raise ValueError(f'parameter frame_rate must be > 0 Hz, got {self.frame_rate}')
+        if not 0 <= self.port <= 65535:
+            raise ValueError(f'parameter port must be 0 .. 65535 (0: any free port), '
+                             f'got {self.port}')
+        if not self.stats_period > 0:
+            raise ValueError(f'parameter stats_period must be > 0 s, got {self.stats_period}')
+
+
+def matrix_from_transform(transform):
+    """4x4 matrix of a geometry_msgs/Transform."""
+    t, q = transform.translation, transform.rotation
+    return transform_from_pose((t.x, t.y, t.z, q.x, q.y, q.z, q.w))
+
+
+def rgb_from_image(msg):
+    """``(h, w, 3)`` uint8 of an ``rgb8`` sensor_msgs/Image (None for other encodings)."""
+    if msg.encoding != 'rgb8' or msg.height == 0 or msg.width == 0:
+        return None
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    return data.reshape(msg.height, msg.step)[:, :3 * msg.width].reshape(msg.height, msg.width, 3)
+
+
+class Viewer(Node):
+    """The viewer node (see the module docstring)."""
+
+    def __init__(self):
+        super().__init__('viewer')
+        self.config = declare_config(self, ViewerConfig, 'viewer.yaml', 'viewer')
+        phantom = load_phantom(self.config.phantom)
+        points, diameter = needle_arc()
+        self.page = ViewerPage(points, diameter, host=self.config.host, port=self.config.port)
+        self.page.show_phantom(phantom)
+        self._input = {}
+        for mtm in self.config.mtms:
+            self._input[mtm] = (
+                self.create_publisher(PoseStamped, f'viewer/input/{mtm}/pose', STREAM_QOS),
+                self.create_publisher(Float64, f'viewer/input/{mtm}/gripper', STREAM_QOS))
+        self._pedals = self.create_publisher(Joy, 'viewer/input/pedals', STREAM_QOS)
+        self.controls = None
+        if self.config.mtms:
+            self.controls = self.page.add_panel(MtmControls(
+                self.config.mtms, on_pose=self._publish_pose, on_gripper=self._publish_gripper,
+                on_pedals=self._publish_pedals))
+        self._tf_count = 0
+        self.create_subscription(TFMessage, '/tf', self._on_tf, STREAM_QOS)
+        self.create_subscription(TFMessage, '/tf_static', self._on_tf_static, STATIC_TF_QOS)
+        self.create_subscription(MarkerArray, 'sim/visualization', self._on_markers, STREAM_QOS)
+        self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS_QOS)
+        if self.config.images:
+            self.create_subscription(Image, 'ECM/left/image_raw', self._on_image, IMAGE_QOS)
+        self._stats = self.create_publisher(String, 'viewer/stats', LATCHED_QOS)
+        self.clock = FrameClock()
+        self._tf_mark = (time.monotonic(), 0)
+        self.create_timer(1.0 / self.config.frame_rate, self._render)
+        self.create_timer(self.config.stats_period, self._publish_stats)
+        self.get_logger().info(f'viewer page at {self.page.url}')
+        print(f'viewer: open {self.page.url}', flush=True)
+
+    # --- scene inputs --------------------------------------------------------------------------
+
+    def _on_tf(self, msg):
+        self._tf_count += 1
+        self._store(msg)
+
+    def _on_tf_static(self, msg):
+        self._store(msg)
+
+    def _store(self, msg):
+        scene = self.page.scene
+        for tr in msg.transforms:
+            scene.set_transform(tr.header.frame_id, tr.child_frame_id,
+                                matrix_from_transform(tr.transform))
+
+    def _on_markers(self, msg):
+        scene = self.page.scene
+        for marker in msg.markers:
+            key = f'{marker.ns}/{marker.id}'
+            points = [(p.x, p.y, p.z) for p in marker.points]
+            c = marker.color
+            rgba = (c.r, c.g, c.b, c.a)
+            if marker.type == Marker.LINE_STRIP:
+                scene.set_line_strip(key, points, rgba, marker.scale.x)
+            elif marker.type == Marker.SPHERE_LIST:
+                scene.set_spheres(key, points, rgba, marker.scale.x)
+
+    def _on_event(self, msg):
+        try:
+            _, event = cv.event_from_message(msg)
+        except ValueError as exc:
+            self.get_logger().warning(f'sim/events: {exc}')
+            return
+        self.page.add_event(float(event.get('t', 0.0)), event)
+
+    def _on_image(self, msg):
+        rgb = rgb_from_image(msg)
+        if rgb is not None:
+            self.page.scene.set_image(rgb)
+
+    # --- page ----------------------------------------------------------------------------------
+
+    def _render(self):
+        self.clock.tick(self.page.render())
+        if self.controls is not None:
+            for mtm in self.config.mtms:
+                psm = PSM_OF_MTM.get(mtm)
+                if psm and not self.controls.placed(mtm):
+                    T = self.page.scene.tf.world(psm)
+                    if T is not None:
+                        self.controls.place(mtm, T)
+
+    def _publish_stats(self):
+        now = time.monotonic()
+        t0, n0 = self._tf_mark
+        tf_rate = (self._tf_count - n0) / max(now - t0, 1e-9)
+        self._tf_mark = (now, self._tf_count)
+        stats = {'frame_rate': round(self.clock.rate(), 2), 'tf_rate': round(tf_rate, 2),
+                 'clients': self.page.connected_clients(), 'frames': self.clock.frames,
+                 'cameras': self.page.client_cameras()}
+        self._stats.publish(String(data=json.dumps(stats)))
+
+    # --- browser input -------------------------------------------------------------------------
+
+    def _publish_pose(self, mtm, T):
+        msg = cv.pose_stamped(T, 'world', self.get_clock().now().to_msg())
+        self._input[mtm][0].publish(msg)
+
+    def _publish_gripper(self, mtm, angle):
+        self._input[mtm][1].publish(Float64(data=float(angle)))
+
+    def _publish_pedals(self, clutch, coag):
+        msg = Joy(buttons=[int(clutch), int(coag)])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._pedals.publish(msg)
+
+    def on_exit(self):
+        """Stop the page's server (the shared entry point calls this on the way out)."""
+        self.page.close()
+

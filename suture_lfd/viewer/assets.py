@@ -1,0 +1,62 @@
+"""
+What the viewer draws that no topic carries: the phantom mesh and the needle's arc.
+
+Both come from the package configuration (``config/scene.yaml``), as the simulator builds them,
+so a viewer started with the simulator's ``phantom`` parameter draws the same pad.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+from sim_bridge.scene.phantom import build_phantom
+from sim_bridge.simulation import load_simulation_config
+
+
+def load_phantom(phantom='synthetic', config=None):
+    """
+    Build the phantom the simulator builds for its ``phantom`` parameter.
+
+    Parameters
+    ----------
+    phantom : str
+        A phantom of ``config/scene.yaml`` (``synthetic``, ``scanned``) or an STL/OBJ/PLY file.
+    config : sim_bridge.simulation.SimulationConfig, optional
+        Default: the package's configuration.
+
+    Returns
+    -------
+    sim_bridge.phantom.Phantom
+        Its ``mesh`` is in the ``phantom`` frame, ``T_world_phantom`` places it.
+
+    """
+    scene = (config or load_simulation_config()).scene
+    if str(phantom) in scene.phantoms:
+        return scene.build_phantom(str(phantom))
+    path = Path(phantom)
+    if path.suffix.lower() not in ('.stl', '.obj', '.ply') or not path.is_file():
+        raise ValueError(f'phantom must be one of {sorted(scene.phantoms)} or an existing STL, '
+                         f'OBJ or PLY mesh file, got {phantom!r}')
+    template = scene.phantoms.get('synthetic', next(iter(scene.phantoms.values())))
+    return build_phantom(replace(template, kind='mesh', mesh=str(path), marker_prefix='mesh'),
+                         name=path.stem)
+
+
+def phantom_of_pair(pair):
+    """Return the phantom a marker pair belongs to, from its name (``scan2``: ``scanned``)."""
+    return 'scanned' if str(pair).startswith('scan') else 'synthetic'
+
+
+def needle_arc(config=None, n=32):
+    """
+    Return the needle's wire centre line in the ``needle`` frame and its diameter.
+
+    Returns
+    -------
+    points : ndarray, shape (n, 3)
+        Arc from tail to tip (m).
+    diameter : float
+        Wire diameter (m).
+
+    """
+    needle = (config or load_simulation_config()).scene.needle
+    return needle.arc_points(n), needle.wire_diameter

@@ -1,0 +1,214 @@
+"""
+The viewer's page: a viser server with the scene, an events panel and plug-in panels.
+
+:class:`ViewerPage` owns the :class:`viser.ViserServer` (bound to ``127.0.0.1`` unless told
+otherwise: the page accepts control input) and the :class:`~suture_lfd.viewer.scene.SceneView`.
+Panels that are not the scene (the virtual MTMs' input, the replay controls) plug in through
+:meth:`ViewerPage.add_panel`: a panel is any object with ``attach(page)``; it builds its own
+GUI elements and callbacks and never touches the scene code.
+"""
+
+import json
+import logging
+import threading
+import time
+
+import numpy as np
+from suture_lfd.viewer.scene import SceneView
+import viser
+
+LOG = logging.getLogger(__name__)
+DEFAULT_HOST = '127.0.0.1'
+DEFAULT_PORT = 8080
+EVENT_LINES = 12  # events shown in the side panel, newest first
+NEAR = 0.002  # m, the page camera's near plane (the scene is a few cm across)
+# The page's first view (world, m, rad): front right, above the pad, clear of the ECM's shaft.
+CAMERA_POSITION = (0.09, -0.10, 0.10)
+CAMERA_LOOK_AT = (0.0, 0.0, 0.0)
+CAMERA_FOV = np.radians(45.0)
+
+
+def page_url(host, port):
+    """Return the address a local browser opens for a server bound to ``host``:``port``."""
+    shown = '127.0.0.1' if host in ('0.0.0.0', '', '::') else host
+    if ':' in shown:
+        shown = f'[{shown}]'
+    return f'http://{shown}:{port}/'
+
+
+def format_event(t, event):
+    """One line (markdown) of the events panel: ``"12.34 s **grasp** arm=PSM2"``."""
+    extra = '  '.join(f'{k}={_short(v)}' for k, v in event.items() if k not in ('kind', 't'))
+    return f'{t:.2f} s **{event.get("kind", "?")}** {extra}'.rstrip()
+
+
+def _short(value):
+    if isinstance(value, float):
+        return f'{value:.3g}'
+    if isinstance(value, (list, dict)):
+        text = json.dumps(value)
+        return text if len(text) <= 40 else text[:37] + '...'
+    return str(value)
+
+
+class ViewerPage:
+    """
+    A viser page with the 3-D scene and a side panel of scene events.
+
+    Parameters
+    ----------
+    needle_points : array_like, shape (n, 3)
+        Needle arc in the ``needle`` frame (m).
+    needle_diameter : float
+        Needle wire diameter (m).
+    host : str
+        Interface to bind (``127.0.0.1``: this machine only).
+    port : int
+        TCP port (0: any free port).
+    title : str
+        Title shown in the page's title bar.
+
+    Attributes
+    ----------
+    server : viser.ViserServer
+    scene : SceneView
+    url : str
+        Address to open in a browser on this machine.
+
+    """
+
+    def __init__(self, needle_points, needle_diameter=0.001, host=DEFAULT_HOST,
+                 port=DEFAULT_PORT, title='suture_lfd viewer'):
+        if port == 0:
+            port = _free_port(host)
+        self.server = viser.ViserServer(host=host, port=port, label=title, verbose=False)
+        self.host = host
+        self.port = self.server.get_port()
+        self.url = page_url(host, self.port)
+        self.server.gui.configure_theme(control_width='medium',
+                                        show_logo=False, show_share_button=False,
+                                        titlebar_content=None)
+        self.scene = SceneView(self.server.scene, needle_points, needle_diameter)
+        self.set_camera()
+        self.server.scene.add_grid('/grid', width=0.4, height=0.4, cell_size=0.02,
+                                   section_size=0.1, position=(0.0, 0.0, -0.0005))
+        self._events = []
+        self._events_lock = threading.Lock()
+        self._events_dirty = False
+        with self.server.gui.add_folder('Scene events'):
+            self._events_md = self.server.gui.add_markdown('_no event yet_')
+        self.status = self.server.gui.add_markdown('')
+        self.panels = []
+
+    def show_phantom(self, phantom):
+        """Draw a :class:`sim_bridge.phantom.Phantom` (mesh, colour, marker size)."""
+        self.scene.set_phantom(phantom.mesh.vertices, phantom.mesh.faces,
+                               phantom.T_world_phantom, phantom.rgba)
+        self.scene.set_marker_radius(phantom.marker_radius)
+
+    def set_camera(self, position=CAMERA_POSITION, look_at=CAMERA_LOOK_AT, fov=CAMERA_FOV):
+        """Camera of every page opened from now on (and of the open ones): world, m, rad."""
+        camera = self.server.initial_camera
+        camera.position = tuple(map(float, position))
+        camera.look_at = tuple(map(float, look_at))
+        camera.up = (0.0, 0.0, 1.0)
+        camera.fov = float(fov)
+        camera.near = NEAR
+        for client in self.server.get_clients().values():
+            client.camera.position = tuple(map(float, position))
+            client.camera.look_at = tuple(map(float, look_at))
+            client.camera.up_direction = (0.0, 0.0, 1.0)
+            client.camera.fov = float(fov)
+
+    def add_panel(self, panel):
+        """Plug a panel (an object with ``attach(page)``) into the page; returns the panel."""
+        panel.attach(self)
+        self.panels.append(panel)
+        return panel
+
+    def add_event(self, t, event):
+        """Record a scene event ``(t s, {"kind": ...})`` for the side panel (any thread)."""
+        with self._events_lock:
+            self._events.append(format_event(t, event))
+            del self._events[:-200]
+            self._events_dirty = True
+
+    def clear_events(self):
+        """Empty the events panel (a replay seeking backwards)."""
+        with self._events_lock:
+            self._events = []
+            self._events_dirty = True
+
+    def render(self):
+        """Send what changed (scene and events panel); returns whether the scene changed."""
+        with self._events_lock:
+            text = None
+            if self._events_dirty:
+                lines = self._events[-EVENT_LINES:][::-1]
+                text = '  \n'.join(lines) if lines else '_no event yet_'
+                self._events_dirty = False
+        if text is not None:
+            self._events_md.content = text
+        return self.scene.render()
+
+    def connected_clients(self):
+        """Return the number of browsers connected."""
+        return len(self.server.get_clients())
+
+    def client_cameras(self):
+        """
+        Return the camera of each connected browser (what it reported last).
+
+        Returns
+        -------
+        list of dict
+            ``position`` (m, world), ``wxyz`` (OpenCV convention: +z forward, +y down),
+            ``fov`` (vertical, rad), ``width``, ``height`` (px of the 3-D view).
+
+        """
+        cameras = []
+        for client in self.server.get_clients().values():
+            camera = client.camera
+            try:
+                cameras.append({'position': [float(v) for v in camera.position],
+                                'wxyz': [float(v) for v in camera.wxyz],
+                                'fov': float(camera.fov), 'width': int(camera.image_width),
+                                'height': int(camera.image_height)})
+            except AssertionError:  # no camera message from this browser yet
+                continue
+        return cameras
+
+    def close(self):
+        """Stop the server."""
+        self.server.stop()
+
+
+def _free_port(host):
+    import socket
+    with socket.socket() as sock:
+        sock.bind((host if host not in ('', '::') else '127.0.0.1', 0))
+        return sock.getsockname()[1]
+
+
+class FrameClock:
+    """Counts rendered frames; :meth:`rate` gives frames per second over the last period."""
+
+    def __init__(self):
+        self._t0 = time.monotonic()
+        self._n0 = 0
+        self.frames = 0
+        self.last_rate = 0.0
+
+    def tick(self, rendered):
+        """Count one render call (``rendered``: whether it sent something)."""
+        if rendered:
+            self.frames += 1
+
+    def rate(self):
+        """Frames per second since the previous call."""
+        now = time.monotonic()
+        dt = now - self._t0
+        if dt > 0:
+            self.last_rate = (self.frames - self._n0) / dt
+        self._t0, self._n0 = now, self.frames
+        return self.last_rate

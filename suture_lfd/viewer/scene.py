@@ -1,0 +1,314 @@
+"""
+The 3-D scene of the viewer: arms, needle, thread, phantom, markers, posed from a transform tree.
+
+Frames are those of the simulator's ``/tf`` and ``/tf_static`` (``world`` z up, metres):
+``world -> <ARM>_base`` (the arm's RCM frame), ``<ARM>_base -> <ARM>`` (its ``measured_cp``),
+``world -> needle``, ``world -> phantom``, ``world -> <pair>_entry|exit`` and
+``ECM -> ECM_left|right_optical``. A :class:`SceneView` keeps the newest transform of each
+frame (:meth:`SceneView.set_transform`, cheap, any thread) and sends what changed to the page at
+:meth:`SceneView.render` (the caller's frame rate). The arms are drawn as simple shapes: the
+instrument shaft from 12 cm outside the RCM to the tool tip, the tool-tip axes and, for the ECM,
+its camera frustum (with the left image when one arrives).
+"""
+
+import threading
+
+import numpy as np
+from sim_bridge.geometry import quaternion_from_matrix
+
+WORLD = 'world'
+PSMS = ('PSM1', 'PSM2')
+ARMS = ('PSM1', 'PSM2', 'ECM')
+ARM_COLORS = {'PSM1': (40, 170, 60), 'PSM2': (40, 90, 210), 'ECM': (120, 120, 130)}
+SHAFT_OUTSIDE = 0.12  # m of instrument shaft drawn outside the RCM
+SHAFT_DIAMETER = 0.008  # m (an 8 mm instrument)
+NEEDLE_COLOR = (200, 200, 210)
+MARKER_COLOR = (220, 15, 15)
+PHANTOM_COLOR = (230, 170, 160)
+
+
+def wxyz_from_matrix(T):
+    """Return the viser quaternion ``(w, x, y, z)`` of a 4x4 or 3x3 matrix."""
+    x, y, z, w = quaternion_from_matrix(np.asarray(T, dtype=float)[:3, :3])
+    return (w, x, y, z)
+
+
+def segments_from_strip(points):
+    """Return line segments ``(n - 1, 2, 3)`` joining consecutive points ``(n, 3)``."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(points) < 2:
+        return np.zeros((0, 2, 3))
+    return np.stack((points[:-1], points[1:]), axis=1)
+
+
+def _rgb255(rgba):
+    return tuple(int(round(255 * min(max(float(c), 0.0), 1.0))) for c in rgba[:3])
+
+
+class TransformTree:
+    """
+    Newest transform of each frame relative to its parent; world poses by chaining.
+
+    Thread-safe: subscriptions write, the render loop reads.
+    """
+
+    def __init__(self):
+        self._parent = {}
+        self._lock = threading.Lock()
+        self.version = 0
+
+    def set(self, parent, child, T):
+        """Store ``T_parent_child`` (4x4, m)."""
+        with self._lock:
+            self._parent[child] = (parent, np.asarray(T, dtype=float))
+            self.version += 1
+
+    def has(self, frame):
+        """Whether ``frame`` reaches ``world``."""
+        return self.world(frame) is not None
+
+    def world(self, frame):
+        """``T_world_frame`` (4x4) or None when the chain to ``world`` is incomplete."""
+        T = np.eye(4)
+        seen = 0
+        with self._lock:
+            while frame != WORLD:
+                link = self._parent.get(frame)
+                if link is None or seen > 32:
+                    return None
+                frame, T_parent_child = link
+                T = T_parent_child @ T
+                seen += 1
+        return T
+
+    def frames(self):
+        """Names of the frames stored."""
+        with self._lock:
+            return list(self._parent)
+
+
+class SceneView:
+    """
+    The scene graph of a viser page, posed from a :class:`TransformTree`.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+        ``server.scene`` of the page.
+    needle_points : array_like, shape (n, 3)
+        The needle's arc (wire centre line) in the ``needle`` frame (m).
+    needle_diameter : float
+        Wire diameter (m).
+
+    Attributes
+    ----------
+    tf : TransformTree
+        Transforms to draw; write them with :meth:`set_transform`.
+    frames_rendered : int
+        Calls of :meth:`render` that sent something.
+
+    """
+
+    def __init__(self, scene, needle_points, needle_diameter=0.001):
+        self.scene = scene
+        self.tf = TransformTree()
+        self.frames_rendered = 0
+        self._lock = threading.Lock()
+        self._drawn_version = -1
+        self._markers = {}
+        self._lines = {}
+        self._spheres = {}
+        self._phantom = None
+        self._image = None
+        self._image_version = 0
+        self._image_drawn = 0
+        self._pending_lines = {}
+        self._pending_spheres = {}
+        self._handles = {}
+        self._sent = {}
+        scene.set_up_direction('+z')
+        self.needle = scene.add_line_segments(
+            '/needle', segments_from_strip(needle_points), NEEDLE_COLOR,
+            thickness=max(2.0 * needle_diameter, 0.0015), visible=False)
+        for arm in ARMS:
+            color = ARM_COLORS[arm]
+            self._handles[arm + '/shaft'] = scene.add_line_segments(
+                f'/arms/{arm}/shaft', np.zeros((1, 2, 3)), color,
+                thickness=SHAFT_DIAMETER if arm != 'ECM' else 0.01, visible=False)
+            self._handles[arm + '/tool'] = scene.add_frame(
+                f'/arms/{arm}/tool', axes_length=0.012, axes_radius=0.0012, origin_radius=0.0025,
+                origin_color=color, visible=False)
+        self._frustum = None
+
+    # --- inputs (any thread) -------------------------------------------------------------------
+
+    def set_transform(self, parent, child, T):
+        """Store ``T_parent_child`` (4x4, m); drawn at the next :meth:`render`."""
+        self.tf.set(parent, child, T)
+
+    def set_phantom(self, vertices, faces, T_world_phantom=None, rgba=None):
+        """
+        Draw the phantom mesh (vertices ``(n, 3)`` in the ``phantom`` frame, faces ``(m, 3)``).
+
+        Posed by the ``phantom`` frame of the tree (or ``T_world_phantom`` until it arrives).
+        """
+        color = PHANTOM_COLOR if rgba is None else _rgb255(rgba)
+        if T_world_phantom is not None and not self.tf.has('phantom'):
+            self.tf.set(WORLD, 'phantom', T_world_phantom)
+        self._phantom = self.scene.add_mesh_simple(
+            '/phantom', np.asarray(vertices, np.float32), np.asarray(faces, np.uint32),
+            color=color, flat_shading=False, side='double', visible=False)
+        self._drawn_version = -1
+
+    def set_marker_radius(self, radius):
+        """Radius (m) of the entry/exit marker spheres (from the phantom configuration)."""
+        self._marker_radius = float(radius)
+
+    def set_line_strip(self, key, points, rgba, width):
+        """Draw (or replace) a line strip ``(n, 3)`` in ``world`` (a visualization marker)."""
+        with self._lock:
+            self._pending_lines[key] = (np.asarray(points, float), _rgb255(rgba), float(width))
+
+    def set_spheres(self, key, points, rgba, diameter):
+        """Draw (or replace) spheres at points ``(n, 3)`` in ``world`` (a visualization marker)."""
+        with self._lock:
+            self._pending_spheres[key] = (np.asarray(points, float), _rgb255(rgba),
+                                          float(diameter))
+
+    def set_image(self, rgb):
+        """Show an ECM image ``(h, w, 3)`` uint8 in the ECM's camera frustum."""
+        with self._lock:
+            self._image = np.asarray(rgb, np.uint8)
+            self._image_version += 1
+
+    # --- drawing (one thread) ------------------------------------------------------------------
+
+    def render(self):
+        """
+        Send the poses and shapes that changed since the last call to the page.
+
+        Returns
+        -------
+        bool
+            Whether anything was sent.
+
+        """
+        with self._lock:
+            lines, self._pending_lines = self._pending_lines, {}
+            spheres, self._pending_spheres = self._pending_spheres, {}
+            image = self._image if self._image_version != self._image_drawn else None
+            self._image_drawn = self._image_version
+        version = self.tf.version
+        if version == self._drawn_version and not lines and not spheres and image is None:
+            return False
+        self._drawn_version = version
+        for key, (points, color, width) in lines.items():
+            self._draw_lines(key, points, color, width)
+        for key, (points, color, diameter) in spheres.items():
+            self._draw_spheres(key, points, color, diameter)
+        self._pose('phantom', self._phantom)
+        self._pose('needle', self.needle)
+        self._draw_markers()
+        for arm in ARMS:
+            self._draw_arm(arm)
+        self._draw_camera(image)
+        self.frames_rendered += 1
+        return True
+
+    def _set_pose(self, handle, T):
+        """Pose a node (only what changed is sent)."""
+        last = self._sent.get(id(handle))
+        if last is not None and np.array_equal(last, T):
+            return
+        self._sent[id(handle)] = T.copy()
+        position = tuple(T[:3, 3].tolist())
+        if tuple(handle.position) != position:
+            handle.position = position
+        wxyz = wxyz_from_matrix(T)
+        if not np.array_equal(handle.wxyz, wxyz):
+            handle.wxyz = wxyz
+        if not handle.visible:
+            handle.visible = True
+
+    def _pose(self, frame, handle):
+        if handle is None:
+            return
+        T = self.tf.world(frame)
+        if T is not None:
+            self._set_pose(handle, T)
+
+    def _draw_markers(self):
+        for frame in self.tf.frames():
+            if not (frame.endswith('_entry') or frame.endswith('_exit')):
+                continue
+            T = self.tf.world(frame)
+            if T is None:
+                continue
+            handle = self._markers.get(frame)
+            if handle is None:
+                radius = getattr(self, '_marker_radius', 0.0015)
+                handle = self.scene.add_icosphere(f'/markers/{frame}', radius=radius,
+                                                  color=MARKER_COLOR, subdivisions=2)
+                self._markers[frame] = handle
+            position = tuple(T[:3, 3].tolist())
+            if tuple(handle.position) != position:
+                handle.position = position
+
+    def _draw_arm(self, arm):
+        T_tool = self.tf.world(arm)
+        T_rcm = self.tf.world(f'{arm}_base')
+        if T_tool is None:
+            return
+        self._set_pose(self._handles[arm + '/tool'], T_tool)
+        if T_rcm is None:
+            return
+        tip = T_tool[:3, 3]
+        rcm = T_rcm[:3, 3]
+        axis = tip - rcm
+        length = float(np.linalg.norm(axis))
+        if length < 1e-6:
+            return
+        outside = rcm - axis / length * SHAFT_OUTSIDE
+        shaft = self._handles[arm + '/shaft']
+        points = np.array([[outside, tip]], dtype=np.float32)
+        if not np.array_equal(shaft.points, points):
+            shaft.points = points
+        if not shaft.visible:
+            shaft.visible = True
+
+    def _draw_camera(self, image):
+        T = self.tf.world('ECM_left_optical')
+        if T is None:
+            return
+        if self._frustum is None or image is not None:
+            if self._frustum is not None:
+                self._frustum.remove()
+            aspect = 4.0 / 3.0 if image is None else image.shape[1] / image.shape[0]
+            self._sent.pop(id(self._frustum), None)
+            self._frustum = self.scene.add_camera_frustum(
+                '/arms/ECM/camera', fov=np.radians(60.0), aspect=aspect, scale=0.02,
+                color=ARM_COLORS['ECM'], thickness=0.0006, image=image, format='jpeg')
+        self._set_pose(self._frustum, T)
+
+    def _draw_lines(self, key, points, color, width):
+        handle = self._lines.get(key)
+        segments = segments_from_strip(points).astype(np.float32)
+        if handle is None or handle.thickness != width:
+            if handle is not None:
+                handle.remove()
+            self._lines[key] = self.scene.add_line_segments(
+                f'/visualization/{key}', segments, color, thickness=max(width, 0.0005))
+        else:
+            handle.points = segments
+            handle.colors = np.broadcast_to(np.array(color, np.uint8), segments.shape).copy()
+
+    def _draw_spheres(self, key, points, color, diameter):
+        handle = self._spheres.get(key)
+        if handle is not None and len(handle.points) == len(points):
+            handle.points = points.astype(np.float32)
+            return
+        if handle is not None:
+            handle.remove()
+        self._spheres[key] = self.scene.add_point_cloud(
+            f'/visualization/{key}', points.astype(np.float32), color, point_size=diameter,
+            point_shape='circle', precision='float32')

@@ -1,0 +1,187 @@
+"""
+What a study stores of each executed throw so that the viewer can replay it.
+
+A :class:`ThrowSampler` watches the in-process simulation while a throw executes and keeps, at
+:data:`SAMPLE_RATE` of simulated time, the needle pose and both PSMs' tool poses (``world``) and
+jaw angles; with the scene's fixed frames (arm bases, ECM camera, markers, phantom) and the
+throw's events it is saved as ``replays/<method>_<subject>_<train>_<test>.npz`` of the study
+folder (compressed; format tag :data:`FORMAT`). :func:`recording_from_throw` reads it back as a
+:class:`~suture_lfd.viewer.replay.Recording`.
+"""
+
+import csv
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from sim_bridge.geometry import pose_from_transform, transform_from_pose
+from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
+
+FORMAT = 'suture_lfd.throw_replay'
+FORMAT_VERSION = 1
+SAMPLE_RATE = 20.0  # Hz of simulated time
+PSMS = ('PSM1', 'PSM2')
+
+
+def replay_name(job):
+    """File name (relative to the study folder) of a throw job's replay."""
+    return (f'replays/{job["method"]}_{job["subject"]}_{job["train_pair"]}_'
+            f'{job["test_pair"]}.npz')
+
+
+class ThrowSampler:
+    """
+    Samples a simulation during a throw (call it with the simulation at every control step).
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+    rate : float
+        Samples per second of simulated time.
+
+    """
+
+    def __init__(self, sim, rate=SAMPLE_RATE):
+        self.sim = sim
+        self.period = 1.0 / rate
+        self.rows = []
+        self._next = -np.inf
+
+    def __call__(self, sim=None):
+        sim = self.sim if sim is None else sim
+        t = sim.time
+        if t + 1e-9 < self._next:
+            return
+        self._next = t + self.period
+        row = [t, *pose_from_transform(sim.needle_pose())]
+        for arm in PSMS:
+            row += list(pose_from_transform(sim.tool_pose(arm)))
+            row.append(float(sim.arms[arm].jaw_measured_jp))
+        self.rows.append(row)
+
+    def save(self, path, pair, events=(), subtask_times=None):
+        """
+        Write the replay file (atomically) and return its size in bytes.
+
+        Parameters
+        ----------
+        path : str or Path
+        pair : str
+            Executed marker pair.
+        events : sequence of dict
+            The throw's scene events (``{"kind", "t", ...}``, t in simulated s).
+        subtask_times : dict, optional
+            Subtask -> ``(start, end)`` s.
+
+        """
+        sim = self.sim
+        rows = np.asarray(self.rows, dtype=float).reshape(-1, 1 + 7 + 2 * 8)
+        bases = np.stack([sim.T_world_base(a) for a in ('PSM1', 'PSM2', 'ECM')])
+        markers = dict(sim.marker_poses())
+        spans = np.full((len(SUBTASKS), 2), np.nan)
+        for k, name in enumerate(SUBTASKS):
+            if subtask_times and name in subtask_times:
+                spans[k] = subtask_times[name]
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + '.part.npz')
+        np.savez_compressed(
+            tmp, format=FORMAT, version=FORMAT_VERSION, samples=rows.astype(np.float32),
+            t=rows[:, 0], bases=bases, ecm=sim.camera_pose(),
+            ecm_left=sim.camera.T_tip_left, phantom_pose=sim.phantom_pose(),
+            phantom=sim.phantom.name, pair=pair,
+            marker_names=np.array(list(markers)), marker_poses=np.stack(list(markers.values())),
+            events=json.dumps(list(events)), subtasks=spans)
+        os.replace(tmp, path)
+        return path.stat().st_size
+
+
+def _find_row(study, throw):
+    path = Path(study) / 'throws.csv'
+    if not path.is_file():
+        raise ValueError(f'{path} does not exist: give the folder of a study (its report)')
+    with open(path, newline='') as handle:
+        rows = list(csv.DictReader(handle))
+    if str(throw).isdigit():
+        index = int(throw)
+        if not 1 <= index <= len(rows):
+            raise ValueError(f'{study}/throws.csv has {len(rows)} throws; --throw must be '
+                             f'1 .. {len(rows)}, got {throw}')
+        return rows[index - 1]
+    parts = str(throw).split('/')
+    if len(parts) == 5 and parts[0] == 'throw':
+        _, method, subject, train, test = parts
+        return {'method': method, 'subject': subject, 'train_pair': train, 'test_pair': test}
+    raise ValueError(f'--throw must be a row number of throws.csv or a key '
+                     f'throw/<method>/<subject>/<train>/<test>, got {throw!r}')
+
+
+def recording_from_throw(study, throw):
+    """
+    Read the replay of a study's throw.
+
+    Parameters
+    ----------
+    study : str or Path
+        Study folder (holding ``throws.csv`` and ``replays/``).
+    throw : str or int
+        Row of ``throws.csv`` (1 = the first throw) or ``throw/<method>/<subject>/<train>/<test>``.
+
+    Returns
+    -------
+    Recording
+
+    """
+    row = _find_row(study, throw)
+    path = Path(study) / replay_name(row)
+    if not path.is_file():
+        raise ValueError(f'{path}: no replay of this throw (studies record one per throw since '
+                         'the viewer exists; run the study again to make them)')
+    return recording_from_file(path)
+
+
+def recording_from_file(path):
+    """Read a throw replay file (see :class:`ThrowSampler`) into a Recording."""
+    with np.load(path, allow_pickle=False) as data:
+        if str(data['format']) != FORMAT:
+            raise ValueError(f'{path}: not a throw replay (format {data["format"]!s})')
+        rows = np.asarray(data['samples'], float)
+        t = np.asarray(data['t'], float)
+        t0 = float(t[0]) if len(t) else 0.0
+        tracks = [Track('world', 'needle', t - t0, rows[:, 1:8])]
+        for k, arm in enumerate(PSMS):
+            col = 8 + 8 * k
+            tracks.append(Track('world', arm, t - t0, rows[:, col:col + 7]))
+        bases = data['bases']
+        statics = [('world', f'{arm}_base', bases[k]) for k, arm in
+                   enumerate(('PSM1', 'PSM2', 'ECM'))]
+        statics += [('world', 'ECM', data['ecm']), ('ECM', 'ECM_left_optical', data['ecm_left']),
+                    ('world', 'phantom', data['phantom_pose'])]
+        statics += [('world', name.replace('.', '_'), T)
+                    for name, T in zip(data['marker_names'], data['marker_poses'])]
+        events = sorted(((float(e.get('t', t0)) - t0, e)
+                         for e in json.loads(str(data['events']))), key=lambda r: r[0])
+        spans = data['subtasks']
+        # subtask spans count from the throw's first controller step, the first sample
+        marks = [(float(s), name) for name, (s, _) in zip(SUBTASKS, spans) if np.isfinite(s)]
+        duration = float(t[-1] - t0) if len(t) else 0.0
+        return Recording(tracks=tracks, statics=statics, events=events, duration=duration,
+                         phantom=str(data['phantom']), marks=marks, source=str(path))
+
+
+def world_poses(recording, t, frames=('needle', 'PSM1', 'PSM2', 'ECM')):
+    """World poses (4x4) of ``frames`` in a recording at time ``t`` (missing ones left out)."""
+    from suture_lfd.viewer.scene import TransformTree
+
+    tree = TransformTree()
+    for parent, child, T in recording.statics:
+        tree.set(parent, child, T)
+    for track in recording.tracks:
+        tree.set(track.parent, track.child, transform_from_pose(track.at(t)))
+    out = {}
+    for frame in frames:
+        T = tree.world(frame)
+        if T is not None:
+            out[frame] = T
+    return out
