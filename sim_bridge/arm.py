@@ -856,7 +856,8 @@ class Arm:
         key = q.tobytes()
         memo = self._fk_memo.get(which)
         if memo is None or memo[0] != key:
-            memo = self._fk_memo[which] = (key, self.kinematics.fk(q))
+            # the arm's own joints, finite since every command is checked: no check again
+            memo = self._fk_memo[which] = (key, self.kinematics.fk_unchecked(q.tolist()))
         return memo[1].copy()
 
     @property

@@ -531,6 +531,23 @@ class SerialChain:
         """
         return self._fk_floats(self.check_q(q).tolist())[0]
 
+    def fk_unchecked(self, q):
+        """
+        :meth:`fk` of joint values already known to be valid, without checking them again.
+
+        Parameters
+        ----------
+        q : list of float
+            ``n_joints`` finite joint values (rad / m), e.g. an arm's own measured joints.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+            ``T_base_tip`` (metres), the same floats as :meth:`fk`.
+
+        """
+        return self._fk_floats(q)[0]
+
     def fk_wrist_and_tip(self, q, link):
         """
         Frame of one DH link and the tool tip, for one joint vector.
