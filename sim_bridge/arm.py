@@ -43,6 +43,7 @@ in the RCM frame ``<ARM>_base`` (DH chain and tooltip offset). Units are SI.
 
 from dataclasses import dataclass
 import logging
+import math
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -748,7 +749,7 @@ class Arm:
 
         """
         dt = float(dt)
-        if not (np.isfinite(dt) and dt > 0.0):
+        if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f'step dt must be a positive number of seconds, got {dt}')
         self._time += dt
         now = self._time

@@ -350,7 +350,7 @@ class JointMotion:
         if last is not None and 0.0 < now - last <= stream_gap:
             start = self.target(now)[0]
             # gliding to where the setpoint already is would be a ramp that does not move
-            same = np.array_equal(start, goal)
+            same = start.tolist() == np.asarray(goal).tolist()
             self._ramp = None if same else (start, goal, now, now - last)
         elif last is not None and now == last and self._ramp is not None:
             start, _, t0, interval = self._ramp
@@ -417,7 +417,7 @@ class JointMotion:
         """
         target, velocity = self.target(now)
         if (self.trajectory is None and velocity is None and self._ramp is None
-                and not self.qd.any() and np.array_equal(self.q, target)):
+                and not self.qd.any() and self.q.tolist() == target.tolist()):
             return False  # at rest on its setpoint: nothing moves (the common idle case)
         if exact:
             q = target

@@ -1,10 +1,13 @@
 """
-Command line of suture_lfd: ``study`` (the main job), ``info``, ``assess``, ``bag``, ``view``.
+Command line of suture_lfd: ``study``, ``sweep``, ``info``, ``assess``, ``bag``, ``view``.
+
+``sweep SWEEP.yaml`` runs a grid of studies as one job set (:mod:`suture_lfd.study.sweep`).
 
 ``info`` starts the simulator in-process (no ROS) and reports what it sees: arms, needle,
 phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recorded bag;
 ``bag recover PATH [--out OUT]`` rebuilds a valid bag from one whose recording was interrupted.
 ``view BAG`` and ``view STUDY --throw ROW`` replay a recording in the browser viewer.
+``assess BAG`` scores one demonstration (skill assessment) and writes its table.
 """
 
 import argparse
@@ -47,6 +50,13 @@ def cmd_study(args):
             'the study runner is not available in this version; reporting the scene instead')
         return cmd_info(args)
     return study.main(args)
+
+
+def cmd_sweep(args):
+    """Run a grid of studies (seeds x methods x DMP hyper-parameters) and its report."""
+    from suture_lfd.study import sweep
+
+    return sweep.main(args)
 
 
 def cmd_bag_info(args):
@@ -127,6 +137,14 @@ def build_parser():
 
     add_study_arguments(study)
     study.set_defaults(func=cmd_study, seconds=0.5)
+    sweep = sub.add_parser('sweep', help='run a grid of studies (seeds, methods, DMP '
+                                         'hyper-parameters) as one job set',
+                           description='Run the studies of a sweep file as one job set on the '
+                                       'chosen engine and write a sweep report.')
+    from suture_lfd.study.sweep import add_arguments as add_sweep_arguments
+
+    add_sweep_arguments(sweep)
+    sweep.set_defaults(func=cmd_sweep)
     assess = sub.add_parser(
         'assess', help='score a demonstration bag (skill assessment)',
         description='Score one demonstration from its bag (and segment file): task and '

@@ -268,10 +268,9 @@ class _RcmChain(SerialChain):
             q_ref = self.check_q(q_ref, name='q_ref')
         if self._single is not None:
             q = self._single.solve(T, self.home if q_ref is None else q_ref)
-            if q is not None:
-                q = np.array(q)
-                if max(pose_mismatch(self.fk(q), T)) <= IK_TOLERANCE:
-                    return q
+            # the solver's finite floats need no check_q: their pose straight from the floats
+            if q is not None and max(pose_mismatch(self._fk_floats(q)[0], T)) <= IK_TOLERANCE:
+                return np.array(q)
             # no clean solution on the fast path: the batch solver decides and words the error
         q, status, (pos_err, rot_err) = self._ik_core(T[None], q_ref, checked=True)
         q, status = q[0], int(status[0])

@@ -39,8 +39,15 @@ import zlib
 
 import numpy as np
 from suture_lfd.study import held_out
+from suture_lfd.study.engine import (
+    CodeMismatchError,
+    EngineError,
+    open_session,
+    parse_engine,
+    run_stages_on,
+)
 from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
-from suture_lfd.study.runner import Progress, run_stages
+from suture_lfd.study.runner import Progress, pending
 from suture_lfd.study.store import ResultStore, config_hash
 
 _LOG = logging.getLogger(__name__)
@@ -56,7 +63,12 @@ def add_arguments(parser):
     parser.add_argument('--out', default='study', help='report folder (default ./study)')
     parser.add_argument('--workers', type=int, default=None,
                         help='parallel worker processes (default: the number of CPUs; half '
-                             'of them with --via-ros)')
+                             'of them with --via-ros); with --engine dask, the local '
+                             "cluster's workers")
+    parser.add_argument('--engine', default='local',
+                        help='where the jobs run: local (a process pool, default), dask (a '
+                             'local Dask cluster), tcp://HOST:PORT or scheduler-file:PATH (an '
+                             'existing Dask cluster)')
     parser.add_argument('--quick', action='store_true',
                         help=f'small study: {QUICK_SUBJECTS} subjects (one per group), '
                              f'{QUICK_PAIRS} pairs per phantom')
@@ -320,6 +332,7 @@ def run_study(args, stream=None):
     ros = None
     try:
         config = build_config(args)
+        engine = parse_engine(getattr(args, 'engine', 'local'))
         if args.via_ros and not (args.plan or args.report_only):
             from suture_lfd.study.ros import check_executables, study_settings
 
@@ -362,16 +375,27 @@ def run_study(args, stream=None):
         progress = Progress(total, done=done_before, stream=stream)
         ran = 0
         if not args.report_only:
+            session = None
             try:
-                ran += run_stages([demos], run_job, store, workers=workers, progress=progress,
-                                  initializer=init_worker, initargs=(settings,))
+                if engine.kind == 'dask' and pending(demos + held_jobs + throws, store):
+                    session = open_session(engine, workers)
+                    print(f'study: jobs run on the {engine.describe()} '
+                          f'({session.n_workers()} workers)', file=stream, flush=True)
+                where = session or engine
+                ran += run_stages_on(where, [demos], run_job, store, workers=workers,
+                                     progress=progress, initializer=init_worker,
+                                     initargs=(settings,))
                 if held_jobs:  # fewer than the matrix's throws: their figure comes first
-                    ran += run_stages([_attach_demos(held_jobs, store)], run_job, store,
-                                      workers=workers, progress=progress,
-                                      initializer=init_worker, initargs=(settings,))
-                ran += run_stages([_attach_demos(throws, store)], run_job, store,
-                                  workers=workers, progress=progress, initializer=init_worker,
-                                  initargs=(settings, ros))
+                    ran += run_stages_on(where, [_attach_demos(held_jobs, store)], run_job,
+                                         store, workers=workers, progress=progress,
+                                         initializer=init_worker, initargs=(settings,))
+                ran += run_stages_on(where, [_attach_demos(throws, store)], run_job, store,
+                                     workers=workers, progress=progress,
+                                     initializer=init_worker, initargs=(settings, ros))
+            except (CodeMismatchError, EngineError) as exc:
+                progress.finish()
+                print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
+                status = 1
             except KeyboardInterrupt as exc:
                 progress.finish()
                 ran = progress.done - progress.resumed
@@ -380,12 +404,15 @@ def run_study(args, stream=None):
                       flush=True)
                 status = 128 + getattr(exc, 'signum', signal.SIGINT)  # 130, or 143 for SIGTERM
             finally:
+                if session is not None:
+                    session.close()
                 close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
         wall = time.monotonic() - t0
         records = _ordered_records(store, demos + throws)
         held_records = _ordered_records(store, held_jobs)
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())
-    run_info = {'command': command.strip(), 'workers': workers, 'jobs_run': ran,
+    run_info = {'command': command.strip(), 'workers': workers, 'engine': engine.describe(),
+                'jobs_run': ran,
                 'resumed': done_before, 'wall_s': wall, 'rate': ran / wall if wall > 0 else 0.0}
     from suture_lfd.study import report as report_writer  # matplotlib: only when writing
 

@@ -207,14 +207,18 @@ def _simulation(phantom, step=None, spec=None):
     return sims[phantom, step]
 
 
-def _subject(name):
-    subjects = _state().subjects
-    if subjects is None:
+def _subject(name, seed=None):
+    """Return a subject of the cohort drawn with ``seed`` (default: the settings' seed)."""
+    s = _settings()
+    seed = s.cohort_seed if seed is None else int(seed)
+    state = _state()
+    if state.subjects is None:
+        state.subjects = {}
+    if seed not in state.subjects:
         from suture_lfd.demos.cohort import load_cohort
 
-        s = _settings()
-        subjects = {x.name: x for x in load_cohort(s.cohort_path, seed=s.cohort_seed)}
-        _state().subjects = subjects
+        state.subjects[seed] = {x.name: x for x in load_cohort(s.cohort_path, seed=seed)}
+    subjects = state.subjects[seed]
     if name not in subjects:
         raise ValueError(f'subject {name!r} is not in the cohort ({sorted(subjects)})')
     return subjects[name]
@@ -267,7 +271,7 @@ def demo_job(job):
 
     s = _settings()
     out = Path(s.out)
-    subject = _subject(job['subject'])
+    subject = _subject(job['subject'], job.get('cohort_seed'))
     sim = _simulation(job['phantom'], s.demo_physics_step)
     run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
                             sample_rate=s.sample_rate, command_rate=s.command_rate,
@@ -353,15 +357,31 @@ def _training_from_segments(segments, training_data):
         return TrainingData(pair, needle, timing, segments.source)
 
 
-def _skill(path, method):
+def _skill(path, method, dmp=None):
+    """
+    Return the skill learnt from a segment file by a method (cached per process).
+
+    ``dmp`` (optional): DMP hyper-parameters that differ from ``config/dmp.yaml``, as
+    ``{task: {key: value}}`` (a sweep's cell).
+    """
     skills = _state().skills
-    key = (path, method)
+    overrides = tuple(sorted((task, tuple(sorted(values.items())))
+                             for task, values in (dmp or {}).items()))
+    key = (path, method, overrides)
     if key not in skills:
         from suture_lfd.skill import learn_skill
 
         if len(skills) > 64:
             skills.clear()
-        skills[key] = learn_skill(_training(path), method=method)
+        params = None
+        if overrides:
+            from dataclasses import replace as with_values
+
+            from suture_lfd.dmp import load_dmp_params
+
+            params = {task: with_values(load_dmp_params(task=task), **dmp.get(task, {}))
+                      for task in TASKS}
+        skills[key] = learn_skill(_training(path), method=method, params=params)
     return skills[key]
 
 
@@ -438,7 +458,7 @@ def throw_job(job):
     from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
 
     path = str(out / job['segments'])
-    skill = _skill(path, job['method'])
+    skill = _skill(path, job['method'], job.get('dmp'))
     ros = _state().ros
     if ros is None:
         sim = (_simulation(job['test_key'], spec=spec) if spec is not None

@@ -4,7 +4,8 @@ Filmstrips: a few frames of a recording from the ECM's point of view, rendered o
 The scene of the recording's phantom is built in PyBullet (no GUI), and at each chosen time the
 PSMs are placed at joint values that reach the recorded tool poses (closed-form inverse
 kinematics, each frame starting from the previous solution), the needle at its recorded pose,
-and the ECM's left camera renders the frame (the thread is not drawn: recordings do not hold it).
+and the ECM's left camera renders the frame (recordings do not hold the thread: it is gathered at
+the needle's tail).
 The frames go side by side, each labelled with its time, into one PNG.
 """
 
@@ -106,7 +107,8 @@ def write_filmstrip(recording, path, title='', n_frames=5, sim=None):
     for ax, t, image in zip(np.atleast_1d(axes), times, images):
         ax.imshow(image)
         mark = labels.get(round(t, 6))
-        ax.set_title(f'{t:.1f} s' + (f' ({mark} starts)' if mark else ''), fontsize=7)
+        note = '' if not mark else f' ({mark})' if mark == 'end' else f' ({mark} starts)'
+        ax.set_title(f'{t:.1f} s{note}', fontsize=7)
         ax.axis('off')
     if title:
         fig.suptitle(title, fontsize=8)

@@ -13,7 +13,6 @@ from test_recorder import call, launch_recorder
 TOPICS = ('/loss/PSM1/servo_cp', '/loss/PSM2/servo_cp')
 SECONDS = 10.0
 RATE_HZ = 1000.0
-DEPTH = '1000'   # the nodes' COMMAND_STREAM history (executor, demonstrator)
 
 # A separate publisher process: both topics at 1 kHz, paced on the monotonic clock, with the
 # QoS the nodes stream their commands with; it prints how many messages it published.
@@ -21,12 +20,11 @@ PUBLISHER = textwrap.dedent("""
     import json, sys, time
     import rclpy
     from geometry_msgs.msg import PoseStamped
-    from rclpy.qos import QoSProfile
-    COMMAND_STREAM = QoSProfile(depth=int(sys.argv[4]))
+    from sim_bridge.ros.qos import SERVO_STREAM
     topics, seconds, rate = json.loads(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
     rclpy.init()
     node = rclpy.create_node('loss_source')
-    pubs = [node.create_publisher(PoseStamped, t, COMMAND_STREAM) for t in topics]
+    pubs = [node.create_publisher(PoseStamped, t, SERVO_STREAM) for t in topics]
     deadline = time.monotonic() + 60
     while not all(p.get_subscription_count() for p in pubs) and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -70,8 +68,7 @@ def test_bag_count_plus_reported_losses_is_what_was_published_beside_a_cpu_hog(
     hog = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
     try:
         source = subprocess.run(
-            [sys.executable, '-c', PUBLISHER, json.dumps(TOPICS), str(SECONDS), str(RATE_HZ),
-             DEPTH],
+            [sys.executable, '-c', PUBLISHER, json.dumps(TOPICS), str(SECONDS), str(RATE_HZ)],
             capture_output=True, text=True, timeout=300)
     finally:
         hog.kill()

@@ -1,0 +1,480 @@
+"""
+``suture-lfd sweep SWEEP.yaml``: a grid of studies run as one job set, with a sweep report.
+
+A sweep file names the study design, the seeds, the methods and the DMP hyper-parameters to
+vary (keys of ``config/dmp.yaml``, for both learnt subtasks or one)::
+
+    sweep:
+      design: {quick: true}          # or subjects: 4, pairs: 2, phantoms: [synthetic]
+      seeds: [0, 1]
+      methods: [paper, pair_frame]
+      dmp:
+        n_bfs: [50, 100]             # both tasks (ii and iv)
+        task_iv.alpha_y: [20.0, 25.0]  # one task
+
+The grid is every combination of the ``dmp`` values (a *cell*), each studied with every seed
+and method. Demonstrations depend on the seed only (the DMP hyper-parameters act when a skill
+is learnt from a segment file: the segment file keeps the installed ``n_pts`` and a cell
+resamples it to its own), so every cell of a seed shares that seed's demonstrations: a
+2 x 2 sweep over two seeds records two sets of demonstrations, not eight.
+
+All jobs (every seed's demonstrations, then every cell's throws) run as one job set on the
+chosen ``--engine`` (:mod:`suture_lfd.study.engine`), stored in one resumable
+``results-<hash>.jsonl`` in the sweep folder; an interrupted sweep resumes like a study. The
+folder gets ``seed-<s>/`` (bags, segment files), ``cells/<cell>/seed-<s>/`` (a full study
+report per cell and seed) and ``sweep.md`` / ``sweep.csv`` / ``sweep_<parameter>.png``:
+generality, regeneration success and Table II errors against each swept parameter, mean and
+seed-to-seed spread (standard deviation of the per-seed values).
+"""
+
+import argparse
+import copy
+import csv
+import dataclasses
+import itertools
+import json
+import math
+from pathlib import Path
+import sys
+import time
+
+import numpy as np
+from sim_bridge.configfile import ConfigError, load_yaml
+from suture_lfd.study import _attach_demos, _hashed, build_config, plan_jobs
+from suture_lfd.study.engine import (
+    CodeMismatchError,
+    EngineError,
+    open_session,
+    parse_engine,
+    run_stages_on,
+)
+from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
+from suture_lfd.study.runner import Progress, pending
+from suture_lfd.study.store import ResultStore, config_hash
+
+SWEEP_FORMAT = 1
+TASKS = ('ii', 'iv')
+DESIGN_KEYS = ('quick', 'subjects', 'pairs', 'phantoms', 'cohort')
+#: Columns of ``sweep.csv`` after the cell's parameters: (column, summary path, scale).
+METRICS = (
+    ('generality_experienced', ('generality', 'group_mean', 'experienced')),
+    ('generality_naive', ('generality', 'group_mean', 'naive')),
+    ('generality_overall', ('generality', 'group_mean', 'overall')),
+    ('regeneration_success', ('regeneration', 'success')),
+    ('ii_goal_mm', ('regeneration', 'errors', 'ii/pos/goal', 'mean')),
+    ('ii_traj_mm', ('regeneration', 'errors', 'ii/pos/traj', 'mean')),
+    ('iv_goal_mm', ('regeneration', 'errors', 'iv/pos/goal', 'mean')),
+    ('iv_traj_mm', ('regeneration', 'errors', 'iv/pos/traj', 'mean')),
+    ('ii_goal_deg', ('regeneration', 'errors', 'ii/ori/goal', 'mean')),
+    ('iv_goal_deg', ('regeneration', 'errors', 'iv/ori/goal', 'mean')),
+)
+PLOTTED = ('generality_overall', 'regeneration_success', 'ii_goal_mm', 'iv_goal_mm')
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """
+    A parsed sweep file.
+
+    Attributes
+    ----------
+    design : dict
+        Study options of the design (``quick``, ``subjects``, ``pairs``, ``phantoms``,
+        ``cohort``).
+    seeds : tuple of int
+        Study seeds.
+    methods : tuple of str
+        Methods (empty: every registered one).
+    axes : tuple of (str, tuple)
+        Swept DMP parameters: ``('n_bfs', (50, 100))`` (both tasks) or
+        ``('task_iv.alpha_y', (20.0, 25.0))``, in file order.
+
+    """
+
+    design: dict
+    seeds: tuple
+    methods: tuple
+    axes: tuple
+
+    def cells(self):
+        """Return every cell as ``(name, {parameter: value})``, in grid order."""
+        names = [a for a, _ in self.axes]
+        out = []
+        for values in itertools.product(*(v for _, v in self.axes)):
+            point = dict(zip(names, values))
+            name = ','.join(f'{k}={_text(v)}' for k, v in point.items()) or 'default'
+            out.append((name.replace('/', '_'), point))
+        return out
+
+
+def _text(value):
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def dmp_overrides(point):
+    """Return a cell's DMP values as ``{task: {key: value}}`` (what a throw job carries)."""
+    out = {task: {} for task in TASKS}
+    for name, value in point.items():
+        task, _, key = name.rpartition('.')
+        for t in ([task[len('task_'):]] if task else TASKS):
+            out[t][key] = value
+    return {t: v for t, v in out.items() if v}
+
+
+def load_sweep(path):
+    """
+    Read and check a sweep file.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file, the key and what was expected.
+
+    """
+    from suture_lfd.dmp import DmpParams
+    from suture_lfd.skill import METHODS
+
+    path = str(path)
+    data = load_yaml(path)
+    if not isinstance(data, dict) or not isinstance(data.get('sweep'), dict):
+        raise ConfigError(f'{path}: expected a mapping with the key "sweep"')
+    body = data['sweep']
+    unknown = sorted(set(body) - {'design', 'seeds', 'methods', 'dmp'})
+    if unknown:
+        raise ConfigError(f'{path}: sweep.{unknown[0]}: unknown key (expected design, seeds, '
+                          'methods, dmp)')
+    design = body.get('design') or {}
+    if not isinstance(design, dict) or set(design) - set(DESIGN_KEYS):
+        bad = sorted(set(design) - set(DESIGN_KEYS)) if isinstance(design, dict) else ['']
+        raise ConfigError(f'{path}: sweep.design{"." + bad[0] if bad[0] else ""}: expected a '
+                          f'mapping with keys from {", ".join(DESIGN_KEYS)}')
+    seeds = body.get('seeds', [0])
+    if (not isinstance(seeds, list) or not seeds
+            or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0
+                       for s in seeds)):
+        raise ConfigError(f'{path}: sweep.seeds: expected a non-empty list of integers >= 0, '
+                          f'got {seeds!r}')
+    methods = body.get('methods') or []
+    if not isinstance(methods, list) or any(m not in METHODS for m in methods):
+        raise ConfigError(f'{path}: sweep.methods: expected a list of methods from '
+                          f'{sorted(METHODS)}, got {methods!r}')
+    fields = {f.name: f.type for f in dataclasses.fields(DmpParams)}
+    axes = []
+    for name, values in (body.get('dmp') or {}).items():
+        task, _, key = str(name).rpartition('.')
+        if task not in ('', 'task_ii', 'task_iv') or key not in fields:
+            raise ConfigError(f'{path}: sweep.dmp.{name}: not a DMP hyper-parameter (expected '
+                              f'a key of config/dmp.yaml, {", ".join(fields)}, alone for both '
+                              'tasks or as task_ii.<key> / task_iv.<key>)')
+        if not isinstance(values, list) or not values:
+            raise ConfigError(f'{path}: sweep.dmp.{name}: expected a non-empty list of values, '
+                              f'got {values!r}')
+        axes.append((str(name), tuple(values)))
+    sweep = Sweep(dict(design), tuple(seeds), tuple(methods), tuple(axes))
+    for _, point in sweep.cells():  # every value must make valid parameters
+        try:
+            _check_point(point)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f'{path}: sweep.dmp: {exc}') from exc
+    return sweep
+
+
+def _check_point(point):
+    from suture_lfd.dmp import load_dmp_params
+
+    for task, values in dmp_overrides(point).items():
+        dataclasses.replace(load_dmp_params(task=task), **values)
+
+
+def _study_args(sweep, seed):
+    d = sweep.design
+    phantoms = d.get('phantoms')
+    return argparse.Namespace(
+        seed=int(seed), quick=bool(d.get('quick', False)), subjects=d.get('subjects'),
+        pairs=d.get('pairs'), cohort=d.get('cohort'), via_ros=False,
+        phantoms=','.join(phantoms) if isinstance(phantoms, list) else phantoms,
+        methods=','.join(sweep.methods) if sweep.methods else None)
+
+
+def plan_sweep(sweep):
+    """
+    Return the sweep's configuration and jobs.
+
+    Returns
+    -------
+    config : dict
+        ``studies`` (seed -> study configuration), ``cells`` (name -> parameters), ``axes``.
+    demos, throws : list of dict
+        Study jobs with keys, paths and seeds of the sweep: ``seed-<s>/demo/...`` and
+        ``<cell>/seed-<s>/throw/...``; throws carry their cell's ``dmp`` values.
+
+    """
+    studies, demos, throws = {}, [], []
+    cells = sweep.cells()
+    for seed in sweep.seeds:
+        config = build_config(_study_args(sweep, seed))
+        studies[str(seed)] = config
+        seed_demos, seed_throws = plan_jobs(config)
+        prefix = f'seed-{seed}'
+        for job in seed_demos:
+            demos.append({**job, 'key': f'{prefix}/{job["key"]}', 'cohort_seed': int(seed),
+                          'bag': f'{prefix}/{job["bag"]}',
+                          'segments': f'{prefix}/{job["segments"]}'})
+        for name, point in cells:
+            where = f'cells/{name}/{prefix}'
+            for job in seed_throws:
+                throws.append({
+                    **job, 'key': f'{name}/{prefix}/{job["key"]}', 'cell': name,
+                    'dmp': dmp_overrides(point), 'demo_key': f'{prefix}/{job["demo_key"]}',
+                    'trajectories': (f'{where}/{job["trajectories"]}'
+                                     if job['trajectories'] else None)})
+    config = {'format': SWEEP_FORMAT, 'studies': studies, 'cells': dict(cells),
+              'axes': [[a, list(v)] for a, v in sweep.axes], 'seeds': list(sweep.seeds)}
+    return config, demos, throws
+
+
+def _hashed_sweep(config):
+    return {**config, 'studies': {s: _hashed(c) for s, c in config['studies'].items()}}
+
+
+def _cell_records(records, name, seed):
+    """Return the records of one cell and seed, keyed and pathed as a study's own."""
+    prefix, where = f'seed-{seed}/', f'cells/{name}/seed-{seed}/'
+    out = []
+    for r in records:
+        if r['kind'] == 'demo' and r['key'].startswith(prefix):
+            out.append({**r, 'key': r['key'][len(prefix):]})
+        elif r['kind'] == 'throw' and r.get('cell') == name and \
+                r['key'].startswith(f'{name}/{prefix}'):
+            t = r.get('trajectories')
+            out.append({**r, 'key': r['key'][len(name) + 1 + len(prefix):],
+                        'trajectories': t[len(where):] if t and t.startswith(where) else t})
+    return out
+
+
+def _lookup(summary, path):
+    value = summary
+    for part in path:
+        if not isinstance(value, dict) or part not in value:
+            return float('nan')
+        value = value[part]
+    return float(value) if isinstance(value, (int, float)) else float('nan')
+
+
+def sweep_rows(config, summaries):
+    """
+    Return one row per cell, seed and method: the cell's parameters and its metrics.
+
+    ``summaries``: ``(cell, seed) -> summary.json`` of that study.
+    """
+    rows = []
+    for (name, seed), summary in summaries.items():
+        for method in summary:
+            if not isinstance(summary[method], dict):
+                continue
+            row = {'cell': name, 'seed': int(seed), 'method': method,
+                   **config['cells'][name]}
+            for column, path in METRICS:
+                row[column] = _lookup(summary[method], path)
+            rows.append(row)
+    return rows
+
+
+def spread_table(rows, axis, metric):
+    """
+    Return ``{method: [(value, mean, std, n)]}``: a metric against one swept parameter.
+
+    The per-seed value of a parameter value is the mean over the cells having it (the other
+    parameters marginalised); ``mean`` and ``std`` are over seeds.
+    """
+    out = {}
+    for method in sorted({r['method'] for r in rows}):
+        series = []
+        values = sorted({r[axis] for r in rows if r['method'] == method})
+        for v in values:
+            per_seed = {}
+            for r in rows:
+                if r['method'] == method and r[axis] == v and not math.isnan(r[metric]):
+                    per_seed.setdefault(r['seed'], []).append(r[metric])
+            seeds = [float(np.mean(x)) for x in per_seed.values()]
+            series.append((v, float(np.mean(seeds)) if seeds else float('nan'),
+                           float(np.std(seeds)) if len(seeds) > 1 else 0.0, len(seeds)))
+        out[method] = series
+    return out
+
+
+def write_sweep_report(folder, config, rows, run_info):
+    """Write ``sweep.csv``, ``sweep.md`` and one plot per swept parameter; return sweep.md."""
+    folder = Path(folder)
+    axes = [a for a, _ in config['axes']]
+    columns = ['cell', 'seed', 'method', *axes, *(c for c, _ in METRICS)]
+    with open(folder / 'sweep.csv', 'w', newline='') as f:
+        writer = csv.writer(f, lineterminator='\n')
+        writer.writerow(columns)
+        for r in sorted(rows, key=lambda r: (r['cell'], r['seed'], r['method'])):
+            writer.writerow(['' if isinstance(r[c], float) and math.isnan(r[c])
+                             else (repr(round(r[c], 6)) if isinstance(r[c], float) else r[c])
+                             for c in columns])
+    md = ['# Sweep report', '',
+          f'{len(config["cells"])} cells x {len(config["seeds"])} seeds '
+          f'({", ".join(str(s) for s in config["seeds"])}); '
+          f'engine: {run_info.get("engine", "?")}, {run_info.get("jobs_run", 0)} jobs run in '
+          f'{run_info.get("wall_s", 0.0):.1f} s.', '',
+          'Each value is the mean over seeds (± the standard deviation of the per-seed values) '
+          'of the cells having that parameter value; every cell has a full study report in '
+          '`cells/<cell>/seed-<s>/report.md`.', '']
+    if not axes:
+        axes_shown = ['cell']
+        for r in rows:
+            r.setdefault('cell', 'default')
+    else:
+        axes_shown = axes
+    for axis in axes_shown:
+        md += [f'## {axis}', '']
+        header = f'| {axis} | method | ' + ' | '.join(c for c, _ in METRICS) + ' |'
+        md += [header, '|' + '---|' * (2 + len(METRICS))]
+        tables = {c: spread_table(rows, axis, c) for c, _ in METRICS}
+        for method in sorted({r['method'] for r in rows}):
+            for k, (v, *_rest) in enumerate(tables[METRICS[0][0]][method]):
+                cells = []
+                for c, _ in METRICS:
+                    _, mean, std, n = tables[c][method][k]
+                    cells.append('–' if math.isnan(mean) else
+                                 (f'{mean:.3f} ± {std:.3f}' if n > 1 else f'{mean:.3f}'))
+                md.append(f'| {_text(v)} | {method} | ' + ' | '.join(cells) + ' |')
+        md.append('')
+        if axis != 'cell':
+            png = _plot_axis(folder, axis, {c: tables[c] for c in PLOTTED})
+            md += [f'![{axis}]({png.name})', '']
+    path = folder / 'sweep.md'
+    path.write_text('\n'.join(md) + '\n')
+    return path
+
+
+def _plot_axis(folder, axis, tables):
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, panels = plt.subplots(1, len(tables), figsize=(3.6 * len(tables), 3.2),
+                               squeeze=False)
+    for ax, (metric, table) in zip(panels[0], tables.items()):
+        for method, series in table.items():
+            x = [float(v) for v, *_ in series]
+            y = [m for _, m, _, _ in series]
+            e = [s for _, _, s, _ in series]
+            ax.errorbar(x, y, yerr=e, marker='o', capsize=3, label=method)
+        ax.set_xlabel(axis)
+        ax.set_title(metric, fontsize=9)
+        ax.grid(alpha=0.3)
+    panels[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(folder) / f'sweep_{axis.replace(".", "_")}.png'
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def add_arguments(parser):
+    """Add the options of ``suture-lfd sweep`` to an argparse parser."""
+    parser.add_argument('sweep_file', help='sweep file (YAML, see config/sweep_table1.yaml)')
+    parser.add_argument('--out', default='sweep', help='sweep folder (default ./sweep)')
+    parser.add_argument('--workers', type=int, default=None,
+                        help='worker processes (default: the number of CPUs)')
+    parser.add_argument('--engine', default='local',
+                        help='local (default), dask, tcp://HOST:PORT or scheduler-file:PATH')
+    parser.add_argument('--plan', action='store_true',
+                        help='write the configuration and jobs and stop')
+
+
+def run_sweep(args, stream=None):
+    """
+    Run (or resume) a sweep and write its reports; return the exit status.
+
+    0 done, 1 the engine failed, 2 bad sweep file or options, 130/143 interrupted (SIGINT,
+    SIGTERM).
+    """
+    import os
+
+    stream = stream if stream is not None else sys.stderr
+    t0 = time.monotonic()
+    try:
+        sweep = load_sweep(args.sweep_file)
+        engine = parse_engine(args.engine)
+        config, demos, throws = plan_sweep(sweep)
+    except (ValueError, OSError) as exc:
+        print(f'suture-lfd sweep: error: {exc}', file=sys.stderr)
+        return 2
+    workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    if workers < 1:
+        print(f'suture-lfd sweep: error: --workers must be >= 1, got {workers}', file=sys.stderr)
+        return 2
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    digest = config_hash(_hashed_sweep(config))
+    config['hash'] = digest
+    (out / 'sweep.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
+    total = len(demos) + len(throws)
+    print(f'sweep {digest}: {len(config["cells"])} cells x {len(sweep.seeds)} seeds: '
+          f'{len(demos)} demonstrations + {len(throws)} throws; results in {out}',
+          file=stream, flush=True)
+    if args.plan:
+        (out / 'jobs.json').write_text(json.dumps(demos + throws, indent=1) + '\n')
+        return 0
+    cohort = next(iter(config['studies'].values()))['cohort_file']
+    settings = JobSettings(out=str(out), cohort_path=cohort, cohort_seed=sweep.seeds[0])
+    status, ran = 0, 0
+    with ResultStore(out, digest) as store:
+        done = sum(1 for j in demos + throws
+                   if not store.records.get(j['key'], {'error': 'missing'}).get('error'))
+        progress = Progress(total, done=done, stream=stream)
+        session = None
+        try:
+            if engine.kind == 'dask' and pending(demos + throws, store):
+                session = open_session(engine, workers)
+            where = session or engine
+            ran += run_stages_on(where, [demos], run_job, store, workers=workers,
+                                 progress=progress, initializer=init_worker,
+                                 initargs=(settings,))
+            ran += run_stages_on(where, [_attach_demos(throws, store)], run_job, store,
+                                 workers=workers, progress=progress, initializer=init_worker,
+                                 initargs=(settings,))
+        except (CodeMismatchError, EngineError) as exc:
+            progress.finish()
+            print(f'suture-lfd sweep: error: {exc}', file=sys.stderr, flush=True)
+            status = 1
+        except KeyboardInterrupt as exc:
+            progress.finish()
+            print(f'sweep interrupted: {progress.done}/{total} jobs stored; run the same '
+                  'command again to resume', file=stream, flush=True)
+            status = 128 + getattr(exc, 'signum', 2)  # 130, or 143 for SIGTERM
+        finally:
+            if session is not None:
+                session.close()
+            close_worker()
+        records = list(store.records.values())
+    wall = time.monotonic() - t0
+    run_info = {'engine': engine.describe(), 'jobs_run': ran, 'wall_s': wall,
+                'workers': workers}
+    from suture_lfd.study import report as report_writer
+
+    summaries = {}
+    for name in config['cells']:
+        for seed in sweep.seeds:
+            folder = out / 'cells' / name / f'seed-{seed}'
+            folder.mkdir(parents=True, exist_ok=True)
+            study = copy.deepcopy(config['studies'][str(seed)])
+            study['dmp'] = dmp_overrides(config['cells'][name])
+            cell = _cell_records(records, name, seed)
+            report_writer.write_report(folder, cell, study, run_info)
+            summaries[name, seed] = json.loads((folder / 'summary.json').read_text())
+    path = write_sweep_report(out, config, sweep_rows(config, summaries), run_info)
+    print(f'sweep report: {path} ({len(records)}/{total} jobs; {wall:.1f} s)', file=stream,
+          flush=True)
+    return status
+
+
+def main(args):
+    """Entry point of ``suture-lfd sweep`` (called by :mod:`suture_lfd.cli`)."""
+    return run_sweep(args)

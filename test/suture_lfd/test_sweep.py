@@ -1,0 +1,103 @@
+"""``suture-lfd sweep``: a grid of studies as one job set, with shared demonstrations.
+
+The sweep here is the issue's small one cut to stay affordable on two cores: two values of the
+insertion's N_bfs x two seeds, the ``--quick`` design with one subject and the paper's method
+(2 x 4 demonstrations, 2 x 2 x 16 throws).
+"""
+
+import json
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+from suture_lfd.study.report import read_csv
+from suture_lfd.study.sweep import dmp_overrides, load_sweep
+
+TIMEOUT = 1200
+SWEEP = """\
+sweep:
+  design: {quick: true, subjects: 1}
+  seeds: [0, 1]
+  methods: [paper]
+  dmp:
+    task_ii.n_bfs: [50, 100]
+"""
+
+
+def cli(*args):
+    cmd = [sys.executable, '-m', 'suture_lfd.cli', *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT)
+
+
+@pytest.fixture(scope='module')
+def sweep(tmp_path_factory):
+    root = tmp_path_factory.mktemp('sweep')
+    (root / 'sweep.yaml').write_text(SWEEP)
+    result = cli('sweep', str(root / 'sweep.yaml'), '--out', str(root / 'out'),
+                 '--workers', '2')
+    assert result.returncode == 0, result.stderr[-3000:]
+    return root / 'out', result
+
+
+def test_a_small_sweep_writes_its_report_with_plots_and_a_study_per_cell(sweep):
+    out, result = sweep
+    assert 'sweep report:' in result.stderr
+    rows = read_csv(out / 'sweep.csv')
+    assert {(r['task_ii.n_bfs'], r['seed'], r['method']) for r in rows} == {
+        (n, s, 'paper') for n in ('50', '100') for s in ('0', '1')}
+    for r in rows:
+        assert 0.0 <= float(r['generality_overall']) <= 1.0
+    text = (out / 'sweep.md').read_text()
+    assert '## task_ii.n_bfs' in text and '![task_ii.n_bfs](sweep_task_ii_n_bfs.png)' in text
+    assert (out / 'sweep_task_ii_n_bfs.png').read_bytes()[:4] == b'\x89PNG'
+    for cell in ('task_ii.n_bfs=50', 'task_ii.n_bfs=100'):
+        for seed in (0, 1):
+            folder = out / 'cells' / cell / f'seed-{seed}'
+            assert (folder / 'report.md').exists() and (folder / 'throws.csv').exists()
+            assert len(read_csv(folder / 'throws.csv')) == 16
+
+
+def test_cells_of_a_seed_share_its_demonstrations(sweep):
+    out, _ = sweep
+    (path,) = Path(out).glob('results-*.jsonl')
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    demos = [r['key'] for r in records if r['kind'] == 'demo']
+    assert len(demos) == len(set(demos)) == 2 * 4  # per seed, not per cell
+    throws = [r for r in records if r['kind'] == 'throw']
+    assert len(throws) == 2 * 2 * 16
+    assert {json.dumps(r['dmp'], sort_keys=True) for r in throws} == {
+        '{"ii": {"n_bfs": 50}}', '{"ii": {"n_bfs": 100}}'}
+
+
+def test_the_cell_at_table_i_s_value_is_the_plain_study_of_its_seed(sweep, tmp_path):
+    out, _ = sweep
+    plain = cli('study', '--quick', '--subjects', '1', '--methods', 'paper', '--seed', '1',
+                '--workers', '2', '--out', str(tmp_path / 'plain'))
+    assert plain.returncode == 0, plain.stderr[-3000:]
+    cell = out / 'cells' / 'task_ii.n_bfs=100' / 'seed-1'
+    assert (cell / 'throws.csv').read_bytes() == (tmp_path / 'plain' / 'throws.csv').read_bytes()
+
+
+def test_sweep_values_for_both_tasks_or_one():
+    assert dmp_overrides({'n_bfs': 20}) == {'ii': {'n_bfs': 20}, 'iv': {'n_bfs': 20}}
+    assert dmp_overrides({'task_iv.alpha_y': 20.0}) == {'iv': {'alpha_y': 20.0}}
+
+
+@pytest.mark.parametrize('body, named', [
+    ('sweep:\n  dmp:\n    n_bases: [1, 2]\n', 'sweep.dmp.n_bases'),
+    ('sweep:\n  seeds: [-1]\n', 'sweep.seeds'),
+    ('sweep:\n  methods: [best]\n', 'sweep.methods'),
+    ('sweep:\n  dmp:\n    n_bfs: 5\n', 'sweep.dmp.n_bfs'),
+    ('sweep:\n  dmp:\n    n_bfs: [0]\n', 'sweep.dmp'),
+    ('study: {}\n', '"sweep"'),
+])
+def test_a_bad_sweep_file_names_the_file_and_key(tmp_path, body, named):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(body)
+    with pytest.raises(ValueError, match=named) as info:
+        load_sweep(path)
+    assert str(path) in str(info.value)
+    result = cli('sweep', str(path), '--out', str(tmp_path / 'out'))
+    assert result.returncode == 2 and named in result.stderr
+    assert 'Traceback' not in result.stderr
