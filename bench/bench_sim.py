@@ -31,8 +31,8 @@ TARGET_REALTIME = 100.0
 
 
 def expert_throws(config, pairs, control_period):
-    """Run one whole expert throw per pair; return (simulated s, wall s, scores)."""
-    sim_s = wall_s = 0.0
+    """Run one whole expert throw per pair; return (simulated s, wall s, CPU s, scores)."""
+    sim_s = wall_s = cpu_s = 0.0
     scores = []
     sims = {}
     for name in pairs:
@@ -47,16 +47,17 @@ def expert_throws(config, pairs, control_period):
             sim.attach_needle('PSM2')  # the needle start does not stay on the scanned pad
         expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
                                 kinematics=sim.kinematics['PSM2'])
-        t0, start = sim.time, time.perf_counter()
+        t0, start, cpu = sim.time, time.perf_counter(), time.process_time()
         while not expert.done:
             sim.run(control_period, expert, control_period)
         wall_s += time.perf_counter() - start
+        cpu_s += time.process_time() - cpu
         sim_s += sim.time - t0
         scores.append(sim.score().score)
         sim.pop_events()
     for sim in sims.values():
         sim.close()
-    return sim_s, wall_s, scores
+    return sim_s, wall_s, cpu_s, scores
 
 
 def chain_body(client, chain, base_position):
@@ -81,7 +82,7 @@ def chain_body(client, chain, base_position):
 
 
 def surrol_style_scene(seconds, rng):
-    """Step a SurRoL-like dynamic scene for ``seconds``; return its simulated s per wall s."""
+    """Step a SurRoL-like scene for ``seconds``; return simulated s per wall s and per CPU s."""
     client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
     client.setGravity(0.0, 0.0, -9.81)
     dt = 1.0 / 240.0
@@ -96,7 +97,7 @@ def surrol_style_scene(seconds, rng):
             chain_body(client, ecm, [0.0, -0.12, 0.4])]
     chains = [psm, psm, ecm]
     steps = int(round(seconds / dt))
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     for k in range(steps):
         for (body, n), chain in zip(arms, chains):
             if k % 24 == 0:  # a new joint goal 10 times a second, as an RL action would give
@@ -105,9 +106,9 @@ def surrol_style_scene(seconds, rng):
                 client.setJointMotorControlArray(body, list(range(n)), pybullet.POSITION_CONTROL,
                                                  targetPositions=goal.tolist())
         client.stepSimulation()
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     client.disconnect()
-    return seconds / wall
+    return seconds / wall, seconds / cpu
 
 
 def main():
@@ -118,10 +119,10 @@ def main():
     parser.add_argument('--renders', type=int, default=5)
     args = parser.parse_args()
     config = load_simulation_config()
-    sim_s, wall_s, scores = expert_throws(config, args.pairs, args.control_period)
+    sim_s, wall_s, cpu_s, scores = expert_throws(config, args.pairs, args.control_period)
     sim = Simulation(config)
-    ours = sim_s / wall_s
-    anchor = surrol_style_scene(args.anchor_seconds, np.random.default_rng(0))
+    ours, ours_cpu = sim_s / wall_s, sim_s / cpu_s
+    anchor, anchor_cpu = surrol_style_scene(args.anchor_seconds, np.random.default_rng(0))
 
     chain = sim.kinematics['PSM2']
     rng = np.random.default_rng(1)
@@ -157,6 +158,8 @@ def main():
           f'ours / AMBF {ours / ANCHOR_AMBF_REALTIME:.2f}; target {TARGET_REALTIME:.0f}x: '
           f'{"met" if ours >= TARGET_REALTIME else "NOT met"} '
           f'({ours / TARGET_REALTIME:.3f} of the target)')
+    print(f'per CPU second (robust on a shared machine): ours {ours_cpu:.2f}x, SurRoL-style '
+          f'{anchor_cpu:.1f}x, ratio {ours_cpu / anchor_cpu:.3f}')
     print(f'IK: scalar {ik_scalar:,.0f} solves/s, batch {ik_batch:,.0f} solves/s')
     print(f'stereo render ({cam.width}x{cam.height}, RGB + depth, both eyes, CPU): '
           f'{render_s * 1e3:.0f} ms')
