@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.grasps import GraspPhase
 from suture_lfd.planning.waypoints import RigidPath
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw, learn_skill
 
@@ -99,10 +100,11 @@ def test_a_grasp_nowhere_within_reach_names_the_span(synthetic):
                              config=ExecutorConfig(script=synthetic.config.scene.expert))
     far = np.array(obs.T_world_needle, dtype=float)
     far[:3, 3] += [0.0, 0.0, 2.0]
-    phase = {'start': None, 'roll0': executor._start_roll('PSM1', obs), 'grasp_at': far,
-             'paths': [RigidPath(far, far)], 'clear': (), 'bases': obs.T_world_base}
+    planner = executor.grasps
+    phase = GraspPhase(start=None, roll0=planner.start_roll('PSM1', obs), grasp_at=far,
+                       paths=(RigidPath(far, far),), clear=(), bases=obs.T_world_base)
     with pytest.raises(ValueError, match=r'arc parameter 0\.90.*\[0\.50, 0\.97\]'):
-        executor._choose_grasp_along('PSM1', 0.9, (0.5, 0.97), phase, 'the extraction')
+        planner.choose_grasp_along('PSM1', 0.9, (0.5, 0.97), phase, 'the extraction')
 
 
 def test_a_demonstrated_turn_of_a_hundredth_of_a_degree_is_not_scaled_up(scanned):
