@@ -475,6 +475,8 @@ def throw_job(job):
     else:
         outcome = ros.execute(job, skill)
         markers = ros.markers(job['test_phantom'])
+        # the nodes' throws are not sampled for replay: the record says so in the same fields
+        record['replay'], record['replay_bytes'] = None, 0
     record.update(score=float(outcome.score), failure=outcome.failure,
                   time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
                   exit_error_mm=float(outcome.exit_error_mm),
