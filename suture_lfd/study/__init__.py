@@ -104,8 +104,8 @@ def _file_digest(path):
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-def _code_digest():
-    """Digest of the simulator and LfD sources a throw's result depends on."""
+def code_digest():
+    """Return the digest of the simulator and LfD sources a throw's result depends on."""
     h = hashlib.sha256()
     package = Path(__file__).resolve().parent.parent
     roots = [package, package.parent / 'sim_bridge']
@@ -223,13 +223,13 @@ def build_config(args):
         'settings': {k: v for k, v in dataclasses.asdict(settings).items()
                      if k not in ('out', 'cohort_path')},
         'files': files,
-        'code': _code_digest(),
+        'code': code_digest(),
         **extra,
         **({'held_out': held} if held else {}),
     }
 
 
-def _hashed(config):
+def hashed_config(config):
     """Return the configuration that decides the results (not paths or descriptions)."""
     # held-out throws are keyed by their geometry: the fixed-pair results stay shared
     return {k: v for k, v in config.items()
@@ -285,7 +285,7 @@ def plan_jobs(config):
     return demos, throws
 
 
-def _attach_demos(throws, store):
+def attach_demos(throws, store):
     """
     Fill each throw job with its training demonstration's segment file and time.
 
@@ -343,7 +343,7 @@ def run_study(args, stream=None):
         return 2
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    digest = config_hash(_hashed(config))
+    digest = config_hash(hashed_config(config))
     config['hash'] = digest
     demos, throws = plan_jobs(config)
     held_jobs = held_out.plan_held_out(config, job_seed)
@@ -386,10 +386,10 @@ def run_study(args, stream=None):
                                      progress=progress, initializer=init_worker,
                                      initargs=(settings,))
                 if held_jobs:  # fewer than the matrix's throws: their figure comes first
-                    ran += run_stages_on(where, [_attach_demos(held_jobs, store)], run_job,
+                    ran += run_stages_on(where, [attach_demos(held_jobs, store)], run_job,
                                          store, workers=workers, progress=progress,
                                          initializer=init_worker, initargs=(settings,))
-                ran += run_stages_on(where, [_attach_demos(throws, store)], run_job, store,
+                ran += run_stages_on(where, [attach_demos(throws, store)], run_job, store,
                                      workers=workers, progress=progress,
                                      initializer=init_worker, initargs=(settings, ros))
             except (CodeMismatchError, EngineError) as exc:

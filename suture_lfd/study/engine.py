@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import logging
 import time
 
-from suture_lfd.study.runner import _call, pending, run_stages, sigterm_as_interrupt
+from suture_lfd.study.runner import call_job, pending, run_stages, sigterm_as_interrupt
 
 _LOG = logging.getLogger(__name__)
 
@@ -111,9 +111,9 @@ def parse_engine(text):
 
 def code_digest():
     """Return the digest of the sources a job's result depends on (this process's copy)."""
-    from suture_lfd.study import _code_digest
+    from suture_lfd.study import code_digest as digest
 
-    return _code_digest()
+    return digest()
 
 
 def run_stages_on(engine, stages, job_fn, store, workers=1, progress=None, initializer=None,
@@ -319,7 +319,7 @@ def dask_job(job_fn, job, initializer, initargs, code):
         logging.getLogger('distributed').setLevel(logging.ERROR)
         initializer(*initargs)
         _WORKER['init'] = init
-    record = _call(job_fn, job)
+    record = call_job(job_fn, job)
     record['code'] = mine
     return record
 

@@ -125,7 +125,7 @@ def _ignore_sigint():
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _call(job_fn, job):
+def call_job(job_fn, job):
     """Run one job; an exception becomes a record with ``error`` (the traceback's last line)."""
     t0 = time.perf_counter()
     try:
@@ -213,7 +213,7 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
                 initializer(*initargs)
             for stage in todo:
                 for job in stage:
-                    record = _call(job_fn, job)
+                    record = call_job(job_fn, job)
                     store.add(record)
                     ran += 1
                     if progress is not None:
@@ -248,10 +248,10 @@ def _init_worker(initializer, initargs):
 
 
 class _JobCall:
-    """Picklable ``job -> _call(job_fn, job)``."""
+    """Picklable ``job -> call_job(job_fn, job)``."""
 
     def __init__(self, job_fn):
         self.job_fn = job_fn
 
     def __call__(self, job):
-        return _call(self.job_fn, job)
+        return call_job(self.job_fn, job)

@@ -40,7 +40,7 @@ import time
 
 import numpy as np
 from sim_bridge.configfile import ConfigError, load_yaml
-from suture_lfd.study import _attach_demos, _hashed, build_config, plan_jobs
+from suture_lfd.study import attach_demos, build_config, hashed_config, plan_jobs
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,
@@ -234,7 +234,7 @@ def plan_sweep(sweep):
 
 
 def _hashed_sweep(config):
-    return {**config, 'studies': {s: _hashed(c) for s, c in config['studies'].items()}}
+    return {**config, 'studies': {s: hashed_config(c) for s, c in config['studies'].items()}}
 
 
 def _cell_records(records, name, seed):
@@ -437,7 +437,7 @@ def run_sweep(args, stream=None):
             ran += run_stages_on(where, [demos], run_job, store, workers=workers,
                                  progress=progress, initializer=init_worker,
                                  initargs=(settings,))
-            ran += run_stages_on(where, [_attach_demos(throws, store)], run_job, store,
+            ran += run_stages_on(where, [attach_demos(throws, store)], run_job, store,
                                  workers=workers, progress=progress, initializer=init_worker,
                                  initargs=(settings,))
         except (CodeMismatchError, EngineError) as exc:
