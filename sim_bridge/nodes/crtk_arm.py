@@ -64,6 +64,10 @@ FRAME_WARNING_PERIOD = 5.0
 # source timestamps) after itself, so a client's sequence holds across topics.
 POLLED_COMMANDS = ('servo_jp', 'servo_jr', 'servo_jf', 'servo_cp', 'jaw/servo_jp',
                    'jaw/servo_jf')
+# A stepping round may take a streamed goal before the executor has run a move published
+# earlier (both waiting at once): that move is then older than the goal already applied, and
+# the command sent last wins, so the move is dropped. Moves by the part of the arm they drive.
+MOVES = {'move_jp': 'arm', 'move_jr': 'arm', 'move_cp': 'arm', 'jaw/move_jp': 'jaw'}
 _ZERO6 = np.zeros(6)
 # Smallest step between two operating_state stamps: 1 us, so that clients comparing stamps as
 # float seconds (about 0.24 us resolution at today's epoch) still see them increase.
@@ -187,6 +191,7 @@ class CrtkArm:
         self._lock = lock or nullcontext
         self._polled_group = _Polled() if poll_servo else None
         self._polled = []
+        self._streamed_ns = {'arm': -1, 'jaw': -1}  # newest streamed goal applied, source stamp
         self._node = node
         self._get_arm = get_arm
         self._now_ns = now_ns
@@ -328,16 +333,19 @@ class CrtkArm:
             sub = self._node.create_subscription(msg_type, f'{self.name}/{topic}', callback,
                                                  qos.ARM_COMMANDS,
                                                  callback_group=self._polled_group)
-            self._polled.append(sub)
+            self._polled.append((sub, 'jaw' if topic.startswith('jaw/') else 'arm'))
         else:
             def in_order(msg, info):
                 # streamed commands sent before this one go first, those sent after it (already
                 # waiting too) after it: by the senders' publication stamps
+                sent = info.get('source_timestamp')
                 with self._lock():
-                    later = self.take_commands(before_ns=info.get('source_timestamp'))
-                    callback(msg)
-                    for sub, newer in later:
-                        sub.callback(newer)
+                    later = self.take_commands(before_ns=sent)
+                    part = MOVES.get(topic)
+                    if part is None or sent is None or sent > self._streamed_ns[part]:
+                        callback(msg)
+                    for sub, streamed, newer, stamp in later:
+                        self._handle_streamed(sub, streamed, newer, stamp)
             self._node.create_subscription(msg_type, f'{self.name}/{topic}', in_order,
                                            qos.ARM_COMMANDS)
 
@@ -346,20 +354,27 @@ class CrtkArm:
         Handle the streaming commands (servo_*) received since the last call, in topic order.
 
         With ``before_ns`` only those published before it (source timestamp, ns) are handled;
-        the others are returned as ``(subscription, message)`` for the caller to handle.
+        the others are returned as ``(subscription, part, message, source timestamp)`` for the
+        caller to handle.
         """
         later = []
-        for sub in self._polled:
+        for sub, part in self._polled:
             with sub.handle:
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
             if taken is None:  # depth 1: at most the newest one is waiting
                 continue
-            sent = taken[1].get('source_timestamp') if before_ns is not None else None
-            if sent is not None and sent > before_ns:
-                later.append((sub, taken[0]))
+            sent = taken[1].get('source_timestamp')
+            if before_ns is not None and sent is not None and sent > before_ns:
+                later.append((sub, part, taken[0], sent))
             else:
-                sub.callback(taken[0])
+                self._handle_streamed(sub, part, taken[0], sent)
         return later
+
+    def _handle_streamed(self, sub, part, msg, sent):
+        """Apply a streamed goal of ``part`` and remember its source stamp (ns) for moves."""
+        if sent is not None:
+            self._streamed_ns[part] = max(self._streamed_ns[part], sent)
+        sub.callback(msg)
 
     def _not_simulated(self, topic):
         if topic not in self._warned:

@@ -356,9 +356,11 @@ class ReplayPanel:
                 if not self.playing:
                     continue
                 t = self._t_start + (time.monotonic() - self._t_wall) * self.speed
-                if t >= self.recording.duration:
+                end = t >= self.recording.duration
+                if end:
                     t = self.recording.duration
                     self.playing = False
                     self.play_button.label = 'Play'
-                    self.finished.set()
                 self.seek(t)
+                if end:  # after the seek: a waiter sees the last frame's time
+                    self.finished.set()
