@@ -63,6 +63,11 @@ CLOCK = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 # after a stall must not outrun the measured_cp queued behind it.
 CLOCK_LATEST = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
+# /tf_static: every static transform is published once; a late subscriber (a viewer opened
+# mid-run) must get all of them, so a deep transient-local history, as tf2 itself keeps.
+STATIC_TF = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
 # Camera images: large; a viewer wants the newest frame, and two let one be read while the next
 # arrives.
 IMAGES = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,

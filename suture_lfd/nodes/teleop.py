@@ -71,7 +71,7 @@ class TeleopNode(Node):
             lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), qos.EVENTS)
         if cfg.ecm:
             sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.STREAM)
-        sub(TFMessage, '/tf_static', self._on_tf_static, qos.EVENTS)
+        sub(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
         sub(Joy, cfg.clutch_topic, self._on_clutch, qos.EVENTS)
         if cfg.operator_present_topic:
             sub(Joy, cfg.operator_present_topic, self._on_present, qos.EVENTS)

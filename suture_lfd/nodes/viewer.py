@@ -50,10 +50,10 @@ from crtk_msgs.msg import StringStamped
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, Joy
 from sim_bridge.geometry import transform_from_pose
 from sim_bridge.ros import conversions as cv
+from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Float64, String
 from suture_lfd.viewer.assets import load_phantom, needle_arc
@@ -61,17 +61,6 @@ from suture_lfd.viewer.controls import PSM_OF_MTM, MtmControls
 from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, FrameClock, ViewerPage
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
-
-LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATIC_TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STREAM_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
-EVENTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-IMAGE_QOS = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
 
 
 @dataclass(frozen=True)
@@ -144,22 +133,22 @@ class Viewer(Node):
         self._input = {}
         for mtm in self.config.mtms:
             self._input[mtm] = (
-                self.create_publisher(PoseStamped, f'viewer/input/{mtm}/pose', STREAM_QOS),
-                self.create_publisher(Float64, f'viewer/input/{mtm}/gripper', STREAM_QOS))
-        self._pedals = self.create_publisher(Joy, 'viewer/input/pedals', STREAM_QOS)
+                self.create_publisher(PoseStamped, f'viewer/input/{mtm}/pose', qos.STREAM),
+                self.create_publisher(Float64, f'viewer/input/{mtm}/gripper', qos.STREAM))
+        self._pedals = self.create_publisher(Joy, 'viewer/input/pedals', qos.STREAM)
         self.controls = None
         if self.config.mtms:
             self.controls = self.page.add_panel(MtmControls(
                 self.config.mtms, on_pose=self._publish_pose, on_gripper=self._publish_gripper,
                 on_pedals=self._publish_pedals))
         self._tf_count = 0
-        self.create_subscription(TFMessage, '/tf', self._on_tf, STREAM_QOS)
-        self.create_subscription(TFMessage, '/tf_static', self._on_tf_static, STATIC_TF_QOS)
-        self.create_subscription(MarkerArray, 'sim/visualization', self._on_markers, STREAM_QOS)
-        self.create_subscription(StringStamped, 'sim/events', self._on_event, EVENTS_QOS)
+        self.create_subscription(TFMessage, '/tf', self._on_tf, qos.STREAM)
+        self.create_subscription(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
+        self.create_subscription(MarkerArray, 'sim/visualization', self._on_markers, qos.STREAM)
+        self.create_subscription(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
         if self.config.images:
-            self.create_subscription(Image, 'ECM/left/image_raw', self._on_image, IMAGE_QOS)
-        self._stats = self.create_publisher(String, 'viewer/stats', LATCHED_QOS)
+            self.create_subscription(Image, 'ECM/left/image_raw', self._on_image, qos.IMAGES)
+        self._stats = self.create_publisher(String, 'viewer/stats', qos.LATCHED)
         self.clock = FrameClock()
         self._tf_mark = (time.monotonic(), 0)
         self.create_timer(1.0 / self.config.frame_rate, self._render)
