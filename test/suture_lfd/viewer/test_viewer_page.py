@@ -4,10 +4,13 @@ it, follows an arm, and reports clicks and keys on the viewer's input topics.
 
 Real processes: the simulator and viewer nodes, Chromium driven over its DevTools protocol with
 software GL (offline: the page comes from the viewer on 127.0.0.1). The first screenshot is the
-one the README shows (``doc/viewer.png``).
+one the README shows: run with ``SUTURE_LFD_UPDATE_DOC=1`` to write it to ``doc/viewer.png``
+(otherwise the test leaves the source tree as it found it).
 """
 
+import os
 import re
+import shutil
 import socket
 import threading
 import time
@@ -135,8 +138,9 @@ def test_the_page_shows_the_scene_follows_psm1_and_reports_input(ros, launch, tm
         assert ros.wait_for(markers_drawn, 900, period=1.0), \
             f'red markers not at their projected pixels {uv_markers.round(1).tolist()} ' \
             f'(last screenshot {tmp_path / "loading.png"})'
-        SCREENSHOT.parent.mkdir(exist_ok=True)
-        shot = browser.screenshot(SCREENSHOT)
+        shot = browser.screenshot(tmp_path / 'viewer.png')
+        if os.environ.get('SUTURE_LFD_UPDATE_DOC') == '1':
+            shutil.copyfile(tmp_path / 'viewer.png', SCREENSHOT)
 
         # the phantom: its top surface where the projection puts it, the floor just beyond it
         phantom = load_phantom('synthetic')
