@@ -85,8 +85,7 @@ def test_a_human_style_throw_through_the_virtual_mtms_is_learnt_and_scores_on_sy
     # A live throw runs on the wall clock: now and then the insertion backs the tip out of its
     # puncture ("withdrawn"), as in the pipeline's own live test, and a demonstration's
     # insertion does not carry to the new pair; like a study subject, the operator gets
-    # further throws with other seeds (each attempt succeeds about half the time on a loaded
-    # 2-core machine, so three keep a false failure near one run in eight).
+    # further throws with other seeds.
     failures = []
     for seed in (0, 1, 2):
         log = record_throw(launch, tmp_path / f'demos{seed}', seed)
