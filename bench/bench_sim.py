@@ -29,10 +29,11 @@ import tempfile
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import bullet_client, pybullet
+from sim_bridge.geometry import quaternion_from_matrix
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 
 ANCHOR_SURROL_REALTIME = (18.0, 20.0)
@@ -50,19 +51,16 @@ def expert_throws(config, pairs, control_period):
         if phantom not in sims:
             sims[phantom] = Simulation(config, phantom=phantom)
         sim = sims[phantom]
-        sim.reset(seed=0)
-        sim.enable_and_home_all()
-        sim.set_target_pair(name)
+        start_episode(sim, name, seed=0)
         if phantom == 'scanned':
             sim.attach_needle('PSM2')  # the needle start does not stay on the scanned pad
         expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
                                 kinematics=sim.kinematics['PSM2'])
-        t0, start, cpu = sim.time, time.perf_counter(), time.process_time()
-        while not expert.done:
-            sim.run(control_period, expert, control_period)
+        start, cpu = time.perf_counter(), time.process_time()
+        sim_s += run_episode(sim, expert, control_period, chunk=control_period, settle=0.0,
+                             reset=False)
         wall_s += time.perf_counter() - start
         cpu_s += time.process_time() - cpu
-        sim_s += sim.time - t0
         scores.append(sim.score().score)
         sim.pop_events()
     for sim in sims.values():
@@ -129,7 +127,7 @@ def chain_body(client, chain, base_position):
         linkCollisionShapeIndices=[shape] * n,
         linkVisualShapeIndices=[-1] * n,
         linkPositions=[F[:3, 3].tolist() for F in frames],
-        linkOrientations=[Rotation.from_matrix(F[:3, :3]).as_quat().tolist() for F in frames],
+        linkOrientations=[quaternion_from_matrix(F[:3, :3]).tolist() for F in frames],
         linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n,
         linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
         linkParentIndices=list(range(n)),

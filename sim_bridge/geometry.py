@@ -18,12 +18,13 @@ Conventions (one page, used by every ``suture_lfd`` module):
 import math
 
 import numpy as np
-from sim_bridge.validation import check_array, check_quaternions
+from numpy.typing import ArrayLike
+from sim_bridge.validation import FloatArray, check_array, check_quaternions
 
 _SMALL_ANGLE = 1e-8
 
 
-def quaternion_product(p, q):
+def quaternion_product(p: ArrayLike, q: ArrayLike) -> FloatArray:
     """
     Return the Hamilton product ``p * q`` of quaternions (x, y, z, w).
 
@@ -50,7 +51,7 @@ def quaternion_product(p, q):
     ), axis=-1)
 
 
-def quaternion_conjugate(q):
+def quaternion_conjugate(q: ArrayLike) -> FloatArray:
     """
     Return the conjugate ``(-x, -y, -z, w)``, the inverse of a unit quaternion.
 
@@ -70,7 +71,7 @@ def quaternion_conjugate(q):
     return q
 
 
-def quaternion_log(q):
+def quaternion_log(q: ArrayLike) -> FloatArray:
     """
     Return Ude's quaternion logarithm ``arccos(w) v / |v|`` (rad), without hemisphere flip.
 
@@ -99,7 +100,7 @@ def quaternion_log(q):
     return v * factor[..., None]
 
 
-def quaternion_exp(r):
+def quaternion_exp(r: ArrayLike) -> FloatArray:
     """
     Return the quaternion exponential ``(sin|r| r/|r|, cos|r|)`` of half rotation vectors.
 
@@ -121,7 +122,7 @@ def quaternion_exp(r):
     return np.concatenate((r * sinc[..., None], np.cos(a)[..., None]), axis=-1)
 
 
-def rotvec_from_quaternion(q, shortest=True):
+def rotvec_from_quaternion(q: ArrayLike, shortest: bool = True) -> FloatArray:
     """
     Return the rotation vector ``2 log(q)`` (rad).
 
@@ -146,7 +147,7 @@ def rotvec_from_quaternion(q, shortest=True):
     return 2.0 * quaternion_log(q)
 
 
-def quaternion_from_rotvec(r):
+def quaternion_from_rotvec(r: ArrayLike) -> FloatArray:
     """
     Return the unit quaternion ``exp(r / 2)`` of rotation vectors.
 
@@ -164,7 +165,7 @@ def quaternion_from_rotvec(r):
     return quaternion_exp(0.5 * np.asarray(r, dtype=float))
 
 
-def quaternion_sign_continuous(Q, reference=None):
+def quaternion_sign_continuous(Q: ArrayLike, reference: ArrayLike | None = None) -> FloatArray:
     """
     Return a quaternion sequence with signs chosen so that neighbours have a positive dot.
 
@@ -194,7 +195,8 @@ def quaternion_sign_continuous(Q, reference=None):
     return Q * np.cumprod(flips)[:, None]
 
 
-def quaternion_slerp(q0, q1, t, shortest_path=True):
+def quaternion_slerp(q0: ArrayLike, q1: ArrayLike, t: ArrayLike,
+                     shortest_path: bool = True) -> FloatArray:
     """
     Return the spherical linear interpolation from ``q0`` (t = 0) to ``q1`` (t = 1).
 
@@ -232,7 +234,7 @@ def quaternion_slerp(q0, q1, t, shortest_path=True):
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
-def quaternion_angle(q1, q2):
+def quaternion_angle(q1: ArrayLike, q2: ArrayLike) -> FloatArray:
     """
     Return the rotation angle between two orientations (rad, in [0, pi]).
 
@@ -253,7 +255,7 @@ def quaternion_angle(q1, q2):
     return 2.0 * np.arctan2(np.linalg.norm(d[..., :3], axis=-1), np.abs(d[..., 3]))
 
 
-def quaternion_rotate(q, v):
+def quaternion_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
     """
     Rotate vectors by unit quaternions.
 
@@ -277,7 +279,7 @@ def quaternion_rotate(q, v):
     return v + q[..., 3:4] * t + cross(u, t)
 
 
-def matrix_from_quaternion(q):
+def matrix_from_quaternion(q: ArrayLike) -> FloatArray:
     """
     Return rotation matrices of unit quaternions.
 
@@ -305,7 +307,7 @@ def matrix_from_quaternion(q):
     return R.reshape(q.shape[:-1] + (3, 3))
 
 
-def quaternion_from_matrix(R):
+def quaternion_from_matrix(R: ArrayLike) -> FloatArray:
     """
     Return unit quaternions (x, y, z, w) with ``w >= 0`` from rotation matrices.
 
@@ -344,7 +346,7 @@ def quaternion_from_matrix(R):
     return np.where(q[..., 3:4] < 0.0, -q, q)
 
 
-def _quaternion_from_one_matrix(rows):
+def _quaternion_from_one_matrix(rows: list[list[float]]) -> FloatArray:
     """Return :func:`quaternion_from_matrix` of one matrix (nested lists), in plain floats."""
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
     diag = (r00 - r11 - r22, -r00 + r11 - r22, -r00 - r11 + r22, r00 + r11 + r22)
@@ -363,7 +365,7 @@ def _quaternion_from_one_matrix(rows):
     return np.array([q[0] / n, q[1] / n, q[2] / n, q[3] / n])
 
 
-def transform_from_pose(pose):
+def transform_from_pose(pose: ArrayLike) -> FloatArray:
     """
     Return 4x4 homogeneous matrices from 7-vector poses.
 
@@ -394,7 +396,7 @@ def transform_from_pose(pose):
     return T
 
 
-def pose_from_transform(T):
+def pose_from_transform(T: ArrayLike) -> FloatArray:
     """
     Return 7-vector poses from 4x4 homogeneous matrices.
 
@@ -415,7 +417,7 @@ def pose_from_transform(T):
     return np.concatenate((T[..., :3, 3], quaternion_from_matrix(T[..., :3, :3])), axis=-1)
 
 
-def invert_transform(T):
+def invert_transform(T: ArrayLike) -> FloatArray:
     """
     Return the inverse of rigid transforms, ``T_b_a`` from ``T_a_b``.
 
@@ -445,7 +447,7 @@ def invert_transform(T):
     return out
 
 
-def compose_poses(pose_a_b, pose_b_c):
+def compose_poses(pose_a_b: ArrayLike, pose_b_c: ArrayLike) -> FloatArray:
     """
     Return the composition ``pose_a_c`` of 7-vector poses (``T_a_c = T_a_b T_b_c``).
 
@@ -469,7 +471,7 @@ def compose_poses(pose_a_b, pose_b_c):
                           axis=-1)
 
 
-def invert_pose(pose):
+def invert_pose(pose: ArrayLike) -> FloatArray:
     """
     Return the inverse of 7-vector poses (``pose_b_a`` from ``pose_a_b``).
 
@@ -489,7 +491,7 @@ def invert_pose(pose):
     return np.concatenate((-quaternion_rotate(qi, pose[..., :3]), qi), axis=-1)
 
 
-def skew(v):
+def skew(v: ArrayLike) -> FloatArray:
     """
     Return the cross-product matrices ``[v]x`` of vectors.
 
@@ -510,7 +512,7 @@ def skew(v):
     return np.stack((z, -w, y, w, z, -x, -y, x, z), axis=-1).reshape(v.shape[:-1] + (3, 3))
 
 
-def cross(a, b):
+def cross(a: FloatArray, b: FloatArray) -> FloatArray:
     """
     Return ``a x b`` along the last axis (as ``numpy.cross``, with less overhead).
 
@@ -533,7 +535,7 @@ def cross(a, b):
     return out
 
 
-def so3_left_jacobian_apply(r, w):
+def so3_left_jacobian_apply(r: ArrayLike, w: ArrayLike) -> FloatArray:
     """
     Return ``J_l(r) w``, the world angular velocity of ``exp(r/2)`` moving at ``dr/dt = w``.
 
@@ -564,7 +566,7 @@ def so3_left_jacobian_apply(r, w):
     return w + c1 * rw + c2 * cross(r, rw)
 
 
-def so3_left_jacobian_inverse_apply(r, omega):
+def so3_left_jacobian_inverse_apply(r: ArrayLike, omega: ArrayLike) -> FloatArray:
     """
     Return ``J_l(r)^-1 omega``, the rate of the rotation vector of ``exp(r/2)`` (rad/s).
 
@@ -590,7 +592,7 @@ def so3_left_jacobian_inverse_apply(r, omega):
     return omega - 0.5 * ro + _jinv_coefficient(r)[..., None] * cross(r, ro)
 
 
-def _jinv_coefficient(r):
+def _jinv_coefficient(r: FloatArray) -> FloatArray:
     """Return ``1/a^2 - (1 + cos a)/(2 a sin a)`` with its series near a = 0."""
     a = np.linalg.norm(r, axis=-1)
     small = a < 1e-3

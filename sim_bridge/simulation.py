@@ -13,8 +13,10 @@ One :meth:`Simulation.step` is one fixed physics step (``world.physics_step``, 2
 4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.scene.tissue`) and
 the
    throw scorer takes every event (:mod:`sim_bridge.scene.scoring`);
-5. every ``thread_period`` the thread follows the needle tail; every ``collision_period`` the
-   instrument ends are tested against the tissue (``collision`` events when contact starts).
+5. every ``thread_period`` the thread follows the needle tail (the step is queued and runs when
+   the thread is next read: :meth:`sim_bridge.scene.thread.ThreadChain.follow`); every
+   ``collision_period`` the instrument ends are tested against the tissue (``collision``
+   events when contact starts).
 
 PyBullet holds the arms, needle and thread only for drawing and for the free needle's dynamics;
 their poses are copied into it when an image is rendered (:meth:`Simulation.render`) or when
@@ -352,7 +354,7 @@ class Simulation:
         thread_nodes = self.thread_geometry.rest_points(self.needle_geometry, self._T_needle)
         self.thread = ThreadChain(thread_nodes, self.thread_geometry.radius, cfg.thread)
         for _ in range(int(round(cfg.loop.needle_start.settle_time / cfg.loop.thread_period))):
-            self.thread.step(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
+            self.thread.follow(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
         pairs = list(self.phantom.markers)
         target = cfg.loop.target_pair if cfg.loop.target_pair is not None else pairs[0]
         self.set_target_pair(target)
@@ -483,7 +485,7 @@ class Simulation:
                 self._on_tissue_event(t, ev)
         if self._steps % self._thread_every == 0:
             tail = self._T_needle[:3, :3] @ self.needle_geometry.tail + self._T_needle[:3, 3]
-            self.thread.step(self._thread_every * dt, tail, self.world.support_height)
+            self.thread.follow(self._thread_every * dt, tail, self.world.support_height)
         if self._steps % self._collision_every == 0:
             self._check_contacts(t)
 

@@ -5,12 +5,20 @@ Public functions validate once at the boundary and hand clean float arrays to th
 code; the messages say which argument is wrong and what was expected.
 """
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+"""A float64 array: what every check returns, and what the numerical modules return."""
 
 UNIT_NORM_TOLERANCE = 1e-3
 
 
-def check_array(value, name, *, shape=None, min_rows=None, finite=True):
+def check_array(value: ArrayLike, name: str, *, shape: Sequence[int | None] | None = None,
+                min_rows: int | None = None, finite: bool = True) -> FloatArray:
     """
     Return ``value`` as a float64 array after checking its shape and values.
 
@@ -58,7 +66,7 @@ def check_array(value, name, *, shape=None, min_rows=None, finite=True):
     return array
 
 
-def check_times(T, name='T', *, min_points=2):
+def check_times(T: ArrayLike, name: str = 'T', *, min_points: int = 2) -> FloatArray:
     """
     Return a strictly increasing time vector in seconds.
 
@@ -92,7 +100,8 @@ def check_times(T, name='T', *, min_points=2):
     return T
 
 
-def check_quaternions(Q, name='Q', *, tolerance=UNIT_NORM_TOLERANCE, normalise=True):
+def check_quaternions(Q: ArrayLike, name: str = 'Q', *, tolerance: float = UNIT_NORM_TOLERANCE,
+                      normalise: bool = True) -> FloatArray:
     """
     Return unit quaternions (x, y, z, w), checking that each has norm close to one.
 
@@ -131,11 +140,11 @@ def check_quaternions(Q, name='Q', *, tolerance=UNIT_NORM_TOLERANCE, normalise=T
             f'{name} is not a unit quaternion (norm {norms.reshape(-1)[k]:.6g} at entry {k}); '
             'expected (x, y, z, w) with norm 1')
     if normalise:
-        Q = Q / norms[..., None]
+        return Q / norms[..., None]
     return Q
 
 
-def check_positive(value, name):
+def check_positive(value: Any, name: str) -> float:
     """
     Return ``value`` as a float after checking that it is finite and strictly positive.
 

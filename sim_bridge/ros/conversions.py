@@ -24,8 +24,8 @@ from geometry_msgs.msg import (
 )
 import numpy as np
 from rosgraph_msgs.msg import Clock
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image, JointState
+from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker
@@ -81,7 +81,7 @@ def matrix_from_pose(pose, what='pose'):
     if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
         raise ValueError(f'{what} orientation is not a unit quaternion (norm {norm:.6g})')
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
+    T[:3, :3] = matrix_from_quaternion(q / norm)
     T[:3, 3] = p
     return T
 
@@ -97,33 +97,11 @@ def vector_from_pose(pose):
     return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
 
 
-def quaternion_from_matrix(T):
-    """
-    Return ``(x, y, z, w)`` (floats) of the rotation of a 4x4 (or 3x3) matrix.
-
-    Shepperd's method, choosing the best-conditioned of the four formulas exactly as
-    ``scipy.spatial.transform.Rotation.from_matrix(R).as_quat()`` does for a rotation matrix (so
-    the sign is the same), in plain floats: this runs for every pose the simulator publishes.
-    """
-    (m00, m01, m02, *_), (m10, m11, m12, *_), (m20, m21, m22, *_) = np.asarray(T)[:3].tolist()
-    trace = m00 + m11 + m22
-    if trace >= m00 and trace >= m11 and trace >= m22:
-        q = (m21 - m12, m02 - m20, m10 - m01, 1.0 + trace)
-    elif m00 >= m11 and m00 >= m22:
-        q = (1.0 - trace + 2.0 * m00, m10 + m01, m20 + m02, m21 - m12)
-    elif m11 >= m22:
-        q = (m01 + m10, 1.0 - trace + 2.0 * m11, m21 + m12, m02 - m20)
-    else:
-        q = (m02 + m20, m12 + m21, 1.0 - trace + 2.0 * m22, m10 - m01)
-    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
-
-
 def pose_vector(T):
     """Return ``(x, y, z, qx, qy, qz, qw)`` (floats) of a 4x4 matrix."""
     T = np.asarray(T, dtype=float)
     x, y, z = T[:3, 3].tolist()
-    return (x, y, z, *quaternion_from_matrix(T))
+    return (x, y, z, *quaternion_from_matrix(T[:3, :3]).tolist())
 
 
 def pose_from_matrix(T):
@@ -138,7 +116,7 @@ def fill_pose(pose, T):
     T = np.asarray(T, dtype=float)
     p, o = pose.position, pose.orientation
     p.x, p.y, p.z = T[:3, 3].tolist()
-    o.x, o.y, o.z, o.w = quaternion_from_matrix(T)
+    o.x, o.y, o.z, o.w = quaternion_from_matrix(T[:3, :3]).tolist()
 
 
 def pose_stamped(T, frame_id, stamp):
@@ -159,7 +137,8 @@ def transform_stamped(T, parent, child, stamp):
     msg.child_frame_id = child
     tr = msg.transform
     tr.translation.x, tr.translation.y, tr.translation.z = T[:3, 3].tolist()
-    tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w = quaternion_from_matrix(T)
+    tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w = quaternion_from_matrix(
+        T[:3, :3]).tolist()
     return msg
 
 

@@ -31,8 +31,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import pybullet
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.geometry import invert_transform
+from sim_bridge.geometry import invert_transform, quaternion_from_matrix
 from sim_bridge.paths import config_path
+from sim_bridge.validation import check_positive
 
 # Collision groups (bit masks).
 GROUP_ENVIRONMENT = 1
@@ -165,8 +166,7 @@ class WorldConfig:
     phantom_collision_margin: float = 0.001
 
     def __post_init__(self):
-        if not self.physics_step > 0.0:
-            raise ValueError(f'world physics_step must be > 0 s, got {self.physics_step}')
+        check_positive(self.physics_step, 'world physics_step (s)')
         if self.solver_iterations < 1:
             raise ValueError(
                 f'world solver_iterations must be >= 1, got {self.solver_iterations}')
@@ -191,24 +191,6 @@ def read_world_config(path=None):
     path = config_path('world.yaml') if path is None else path
     data = section(load_yaml(path), 'world', source=str(path))
     return dataclass_from_mapping(WorldConfig, data, source=str(path), prefix='world')
-
-
-def quat_from_matrix(R):
-    """
-    Quaternion ``(x, y, z, w)`` of a rotation matrix.
-
-    Parameters
-    ----------
-    R : array_like, shape (3, 3)
-        Rotation matrix.
-
-    Returns
-    -------
-    list of float
-        ``[x, y, z, w]``.
-
-    """
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat().tolist()
 
 
 def transform_from_bullet(position, quaternion):
@@ -354,11 +336,12 @@ class World:
         T_base = self.T_world_base[name]
         body = c.createMultiBody(
             baseMass=0.0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1,
-            basePosition=T_base[:3, 3].tolist(), baseOrientation=quat_from_matrix(T_base[:3, :3]),
+            basePosition=T_base[:3, 3].tolist(),
+            baseOrientation=quaternion_from_matrix(T_base[:3, :3]).tolist(),
             linkMasses=[0.0] * n_links, linkCollisionShapeIndices=collisions,
             linkVisualShapeIndices=visuals,
             linkPositions=[F[:3, 3].tolist() for F in frames],
-            linkOrientations=[quat_from_matrix(F[:3, :3]) for F in frames],
+            linkOrientations=[quaternion_from_matrix(F[:3, :3]).tolist() for F in frames],
             linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n_links,
             linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
             linkParentIndices=parents, linkJointTypes=types, linkJointAxis=axes)
@@ -440,7 +423,8 @@ class World:
         # collision mesh by the margin puts resting objects on the visible top surface.
         vis, col = self._mesh_shapes(self.phantom.mesh, self.phantom.rgba, (0.0, 0.0, -margin))
         T = self.phantom.T_world_phantom
-        body = c.createMultiBody(0.0, col, vis, T[:3, 3].tolist(), quat_from_matrix(T[:3, :3]))
+        body = c.createMultiBody(0.0, col, vis, T[:3, 3].tolist(),
+                                 quaternion_from_matrix(T[:3, :3]).tolist())
         c.changeDynamics(body, -1, collisionMargin=margin)
         c.setCollisionFilterGroupMask(body, -1, GROUP_ENVIRONMENT, GROUP_NEEDLE)
         return body
@@ -459,7 +443,7 @@ class World:
                 R = Rotation.align_vectors([z], [[0.0, 0.0, 1.0]])[0].as_matrix()
                 centre = point + 0.5 * thick * z
                 bodies[f'{pair.name}.{which}'] = c.createMultiBody(
-                    0.0, -1, vis, centre.tolist(), quat_from_matrix(R))
+                    0.0, -1, vis, centre.tolist(), quaternion_from_matrix(R).tolist())
         return bodies
 
     def _build_needle(self):
@@ -483,7 +467,7 @@ class World:
         self._T_com_needle = invert_transform(self._T_needle_com)
         body = c.createMultiBody(g.mass, col, vis, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0],
                                  baseInertialFramePosition=com.tolist(),
-                                 baseInertialFrameOrientation=quat_from_matrix(axes))
+                                 baseInertialFrameOrientation=quaternion_from_matrix(axes).tolist())
         c.changeDynamics(body, -1, localInertiaDiagonal=moments.tolist(),
                          lateralFriction=cfg.needle_friction, restitution=cfg.needle_restitution,
                          linearDamping=0.0, angularDamping=0.0,
@@ -643,7 +627,7 @@ class World:
         T = np.asarray(T_world_needle, dtype=float) @ self._T_needle_com
         c = self.client
         c.resetBasePositionAndOrientation(self.needle_body, T[:3, 3].tolist(),
-                                          quat_from_matrix(T[:3, :3]))
+                                          quaternion_from_matrix(T[:3, :3]).tolist())
         w = np.asarray(angular_velocity, dtype=float)
         r = T[:3, 3] - np.asarray(T_world_needle, dtype=float)[:3, 3]
         v = np.asarray(linear_velocity, dtype=float) + np.cross(w, r)

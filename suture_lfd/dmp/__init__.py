@@ -19,16 +19,20 @@ Units: positions m, angles rad, time s. Quaternions (x, y, z, w). Poses are 7-ve
 ``(x, y, z, qx, qy, qz, qw)`` in the frame the demonstration was given in.
 """
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.paths import config_path
-from sim_bridge.validation import check_array
+from sim_bridge.validation import FloatArray, check_array
 from suture_lfd.dmp.base import (
     FORMAT,
     FORMAT_VERSION,
     MIN_FIT_POINTS,
     ORIENTATION_FORMS,
     DmpParams,
+    PathLike,
     Primitive,
     read_dmp_file,
 )
@@ -62,7 +66,7 @@ __all__ = [
 ]
 
 
-def load_dmp_params(path=None, task='ii'):
+def load_dmp_params(path: PathLike | None = None, task: str = 'ii') -> DmpParams:
     """
     Read the hyper-parameters of one learned subtask from ``config/dmp.yaml``.
 
@@ -94,7 +98,7 @@ def load_dmp_params(path=None, task='ii'):
                                   source=str(path), prefix=key)
 
 
-def load_dmp(path):
+def load_dmp(path: PathLike) -> Primitive:
     """
     Read any primitive written by ``save``.
 
@@ -131,12 +135,12 @@ class PoseDmp(Primitive):
 
     KIND = 'pose'
 
-    def __init__(self, params=None):
+    def __init__(self, params: DmpParams | None = None) -> None:
         super().__init__(params)
         self.position = PositionDmp(self.params)
         self.orientation = QuaternionDmp(self.params)
 
-    def fit(self, T, P, Q):
+    def fit(self, T: ArrayLike, P: ArrayLike, Q: ArrayLike) -> 'PoseDmp':
         """
         Learn both parts from one pose demonstration.
 
@@ -161,25 +165,28 @@ class PoseDmp(Primitive):
         return self
 
     @property
-    def start_(self):
+    def start_(self) -> FloatArray:
         """ndarray, shape (7,): Demonstrated start pose."""
         self._check_fitted()
         return np.concatenate((self.position.start_, self.orientation.start_))
 
     @property
-    def goal_(self):
+    def goal_(self) -> FloatArray:
         """ndarray, shape (7,): Demonstrated goal pose."""
         self._check_fitted()
         return np.concatenate((self.position.goal_, self.orientation.goal_))
 
     @staticmethod
-    def _split(pose, name):
+    def _split(pose: ArrayLike | None,
+               name: str) -> tuple[FloatArray, FloatArray] | tuple[None, None]:
         if pose is None:
             return None, None
         pose = check_array(pose, name, shape=(7,))
         return pose[:3], pose[3:]
 
-    def rollout(self, start=None, goal=None, n_pts=None, T=None):
+    def rollout(self, start: ArrayLike | None = None, goal: ArrayLike | None = None,
+                n_pts: int | None = None,
+                T: ArrayLike | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
         """
         Generate the pose trajectory from ``start`` to ``goal``.
 
@@ -212,7 +219,8 @@ class PoseDmp(Primitive):
         _, Q = self.orientation.rollout(q0, q1, **grid)
         return T, P, Q
 
-    def reset(self, start=None, goal=None, duration=None):
+    def reset(self, start: ArrayLike | None = None, goal: ArrayLike | None = None,
+              duration: float | None = None) -> 'PoseDmp':
         """
         Start an online execution from ``start`` towards ``goal`` (poses, 7-vectors).
 
@@ -232,7 +240,7 @@ class PoseDmp(Primitive):
         self.position._tau = self.orientation._tau = self._tau
         return self
 
-    def _begin(self, start, goal):
+    def _begin(self, start: ArrayLike | None, goal: ArrayLike | None) -> None:
         p0, q0 = self._split(start, 'start')
         p1, q1 = self._split(goal, 'goal')
         self.position._begin(p0, p1)
@@ -240,7 +248,7 @@ class PoseDmp(Primitive):
         for part in (self.position, self.orientation):
             part._running = True
 
-    def set_goal(self, goal, immediate=False):
+    def set_goal(self, goal: ArrayLike, immediate: bool = False) -> None:
         """
         Switch the goal pose of the online execution (both parts filtered).
 
@@ -258,24 +266,24 @@ class PoseDmp(Primitive):
         self.position.set_goal(p, immediate)
         self.orientation.set_goal(q, immediate)
 
-    def _phase_error(self, measured):
+    def _phase_error(self, measured: ArrayLike) -> float:
         p, q = self._split(measured, 'measured')
         return self.position._phase_error(p) + self.orientation._phase_error(q)
 
-    def _advance(self, h, x0, x1):
+    def _advance(self, h: float, x0: float, x1: float) -> None:
         self.position._advance(h, x0, x1)
         self.orientation._advance(h, x0, x1)
 
-    def _output(self):
+    def _output(self) -> FloatArray:
         return np.concatenate((self.position._output(), self.orientation._output()))
 
-    def _arrays(self):
+    def _arrays(self) -> dict[str, Any]:
         arrays = self.position._arrays()
         arrays.update(self.orientation._arrays())
         return arrays
 
     @classmethod
-    def _from_arrays(cls, params, arrays, path):
+    def _from_arrays(cls, params: DmpParams, arrays: dict[str, Any], path: PathLike) -> 'PoseDmp':
         dmp = cls(params)
         dmp.position = PositionDmp._from_arrays(params, arrays, path)
         dmp.orientation = QuaternionDmp._from_arrays(params, arrays, path)

@@ -11,10 +11,13 @@ format tag and version.
 from dataclasses import asdict, dataclass
 import json
 import math
+import os
+from typing import Any, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.configfile import dataclass_from_mapping
-from sim_bridge.validation import check_positive, check_times
+from sim_bridge.validation import FloatArray, check_positive, check_times
 from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.dmp.equations import (
     basis_activations,
@@ -30,6 +33,9 @@ FORMAT_VERSION = 1
 MIN_FIT_POINTS = 5
 ORIENTATION_FORMS = ('ude', 'log')
 REGRESSIONS = ('lwr', 'least_squares')
+
+PathLike = str | os.PathLike[str]
+"""A file name: a string or a path."""
 
 
 @dataclass(frozen=True)
@@ -98,7 +104,7 @@ class DmpParams:
     regression: str = 'lwr'
     ridge: float = 1e-8
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.orientation_form not in ORIENTATION_FORMS:
             raise ValueError(f'DmpParams.orientation_form must be one of {ORIENTATION_FORMS}, '
                              f'got {self.orientation_form!r}')
@@ -119,7 +125,7 @@ class DmpParams:
 
 
 
-def _uniform_grid(T, name):
+def _uniform_grid(T: ArrayLike, name: str) -> tuple[FloatArray, float]:
     """Return (T, duration) after checking that ``T`` is evenly spaced."""
     T = check_times(T, name)
     steps = np.diff(T)
@@ -129,25 +135,29 @@ def _uniform_grid(T, name):
     return T, float(T[-1] - T[0])
 
 
+P = TypeVar('P', bound='Primitive')
+
+
 class Primitive:
     """Phase, timing, online stepping and file input/output shared by the primitives."""
 
     KIND = ''
 
-    def __init__(self, params=None):
+    def __init__(self, params: DmpParams | None = None) -> None:
         if params is None:
             params = DmpParams()
         if not isinstance(params, DmpParams):
             raise ValueError(f'params must be a DmpParams, got {type(params).__name__}')
         self.params = params
-        self.duration_ = None
+        self.duration_: float | None = None
         self._running = False
         self._x = 1.0
         self._s = 0.0
         self._tau = 1.0
 
     # --- learning --------------------------------------------------------------------------
-    def _fit_time(self, T, n_values, name):
+    def _fit_time(self, T: ArrayLike, n_values: int,
+                  name: str) -> tuple[float | FloatArray, FloatArray, float]:
         T = check_times(T, 'T', min_points=MIN_FIT_POINTS)
         if n_values != T.size:
             raise ValueError(f'{name} must have one row per time in T ({T.size}), got {n_values}')
@@ -160,30 +170,34 @@ class Primitive:
             return 1.0 / (s.size - 1), uniform_phase(s.size, self.params.alpha_x), duration
         return s, canonical_phase(s, self.params.alpha_x), duration
 
-    def _weights(self, psi, x, targets, scale):
+    def _weights(self, psi: FloatArray, x: FloatArray, targets: FloatArray,
+                 scale: ArrayLike) -> FloatArray:
         """Fit the weights with the regression of the parameters."""
         if self.params.regression == 'least_squares':
             return least_squares_weights(psi, x, targets, scale, self.params.ridge)
         return lwr_weights(psi, x, targets, scale)
 
-    def _activations(self, s, x, centres, widths):
+    def _activations(self, s: float | FloatArray, x: FloatArray, centres: FloatArray,
+                     widths: FloatArray) -> FloatArray:
         """Basis activations at the phases ``x`` (cached for an evenly spaced ``s``)."""
         if isinstance(s, float):
             return uniform_activations(x.size, centres.size, self.params.alpha_x)
         return basis_activations(x, centres, widths)
 
     @property
-    def is_fitted(self):
+    def is_fitted(self) -> bool:
         """bool: Whether weights have been learnt or loaded."""
         return self.duration_ is not None
 
-    def _check_fitted(self):
-        if not self.is_fitted:
+    def _check_fitted(self) -> float:
+        """Return the demonstrated duration, s, or raise if nothing was learnt."""
+        if self.duration_ is None:
             raise ValueError(f'this {type(self).__name__} has no weights; call fit() or load()')
+        return self.duration_
 
-    def _time_grid(self, n_pts, T):
+    def _time_grid(self, n_pts: int | None, T: ArrayLike | None) -> tuple[FloatArray, float]:
         """Return (times in s, tau) for a rollout."""
-        self._check_fitted()
+        duration = self._check_fitted()
         if T is not None:
             if n_pts is not None:
                 raise ValueError('give either n_pts or T, not both')
@@ -192,10 +206,11 @@ class Primitive:
         n_pts = self.params.n_pts if n_pts is None else n_pts
         if isinstance(n_pts, bool) or not isinstance(n_pts, (int, np.integer)) or n_pts < 2:
             raise ValueError(f'n_pts must be an integer >= 2, got {n_pts!r}')
-        return np.linspace(0.0, self.duration_, int(n_pts)), self.duration_
+        return np.linspace(0.0, duration, int(n_pts)), duration
 
     # --- online execution --------------------------------------------------------------------
-    def reset(self, start=None, goal=None, duration=None):
+    def reset(self: P, start: ArrayLike | None = None, goal: ArrayLike | None = None,
+              duration: float | None = None) -> P:
         """
         Start an online execution from ``start`` towards ``goal``.
 
@@ -212,8 +227,8 @@ class Primitive:
         self
 
         """
-        self._check_fitted()
-        tau = self.duration_ if duration is None else check_positive(duration, 'duration')
+        demonstrated = self._check_fitted()
+        tau = demonstrated if duration is None else check_positive(duration, 'duration')
         self._begin(start, goal)
         self._tau = tau
         self._x = 1.0
@@ -221,7 +236,7 @@ class Primitive:
         self._running = True
         return self
 
-    def step(self, dt, measured=None):
+    def step(self, dt: float, measured: ArrayLike | None = None) -> FloatArray:
         """
         Advance the online execution by ``dt`` seconds and return the new commanded state.
 
@@ -257,18 +272,45 @@ class Primitive:
         self._s += h
         return self._output()
 
+    # --- what each primitive defines ---------------------------------------------------------
+    def _begin(self, start: ArrayLike | None, goal: ArrayLike | None) -> None:
+        """Set the online state at ``start`` heading for ``goal`` (the demonstrated by default)."""
+        raise NotImplementedError
+
+    def _phase_error(self, measured: ArrayLike) -> float:
+        """Return the weighted squared tracking error that stretches the time constant."""
+        raise NotImplementedError
+
+    def _advance(self, h: float, x0: float, x1: float) -> None:
+        """Integrate the online state over a step ``h`` with the phase going from x0 to x1."""
+        raise NotImplementedError
+
+    def _output(self) -> FloatArray:
+        """Return the commanded state of the online execution."""
+        raise NotImplementedError
+
+    def _arrays(self) -> dict[str, Any]:
+        """Return the arrays :meth:`save` writes."""
+        raise NotImplementedError
+
+    @classmethod
+    def _from_arrays(cls: type[P], params: DmpParams, arrays: dict[str, Any],
+                     path: PathLike) -> P:
+        """Return a primitive of this class from the arrays :meth:`save` wrote."""
+        raise NotImplementedError
+
     @property
-    def phase(self):
+    def phase(self) -> float:
         """float: Canonical phase ``x`` of the online execution (1 at the start)."""
         return self._x
 
     @property
-    def elapsed(self):
+    def elapsed(self) -> float:
         """float: Phase time of the online execution, s (wall time minus pauses)."""
         return self._s * self._tau
 
     # --- files -------------------------------------------------------------------------------
-    def save(self, path):
+    def save(self, path: PathLike) -> None:
         """
         Write the learnt primitive and its hyper-parameters to an ``.npz`` file.
 
@@ -284,7 +326,7 @@ class Primitive:
         save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
-    def load(cls, path):
+    def load(cls: type[P], path: PathLike) -> P:
         """
         Read a primitive written by :meth:`save`.
 
@@ -312,7 +354,7 @@ class Primitive:
         return cls._from_arrays(params, arrays, path)
 
 
-def read_dmp_file(path):
+def read_dmp_file(path: PathLike) -> tuple[str, DmpParams, dict[str, Any]]:
     """
     Return ``(kind, params, arrays)`` of a DMP file, raising ValueError naming ``path``.
 
@@ -341,7 +383,7 @@ def read_dmp_file(path):
     return kind, params, arrays
 
 
-def stored_array(arrays, key, path):
+def stored_array(arrays: dict[str, Any], key: str, path: PathLike) -> FloatArray:
     """Return ``arrays[key]``, or raise a ValueError naming ``path`` and the missing key."""
     if key not in arrays:
         raise ValueError(f'{path}: DMP file lacks the array {key!r}')

@@ -43,17 +43,19 @@ with ``n = J_l(u)^-1 omega - omega`` held over the step.
 from functools import lru_cache
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.linalg import expm
 from scipy.signal import lfilter
 from sim_bridge.geometry import (
     quaternion_conjugate,
     quaternion_log,
     quaternion_product,
-    so3_left_jacobian_apply,
+   so3_left_jacobian_apply,
 )
+from sim_bridge.validation import FloatArray
 
 
-def canonical_phase(s, alpha_x):
+def canonical_phase(s: ArrayLike, alpha_x: float) -> FloatArray:
     """
     Return the phase ``x(s) = exp(-alpha_x s)`` of the canonical system.
 
@@ -73,7 +75,7 @@ def canonical_phase(s, alpha_x):
     return np.exp(-alpha_x * np.asarray(s, dtype=float))
 
 
-def basis_centres(n_bfs, alpha_x):
+def basis_centres(n_bfs: int, alpha_x: float) -> FloatArray:
     """
     Return the basis centres ``c_i = exp(-alpha_x i / (N - 1))``, evenly spaced in time.
 
@@ -93,7 +95,7 @@ def basis_centres(n_bfs, alpha_x):
     return np.exp(-alpha_x * np.linspace(0.0, 1.0, n_bfs))
 
 
-def basis_widths(centres, alpha_x):
+def basis_widths(centres: ArrayLike, alpha_x: float) -> FloatArray:
     """
     Return the widths ``h_i = N^1.5 / (alpha_x c_i)`` (seed paper, eq. for ``f(x)``).
 
@@ -114,7 +116,7 @@ def basis_widths(centres, alpha_x):
     return centres.size ** 1.5 / (alpha_x * centres)
 
 
-def basis_activations(x, centres, widths):
+def basis_activations(x: ArrayLike, centres: FloatArray, widths: FloatArray) -> FloatArray:
     """
     Return the Gaussian activations ``psi_i(x) = exp(-h_i (x - c_i)^2)``.
 
@@ -122,7 +124,7 @@ def basis_activations(x, centres, widths):
     ----------
     x : array_like, shape (n,)
         Phase values.
-    centres, widths : array_like, shape (n_bfs,)
+    centres, widths : ndarray, shape (n_bfs,)
         ``c_i`` and ``h_i``.
 
     Returns
@@ -135,7 +137,7 @@ def basis_activations(x, centres, widths):
     return np.exp(-widths * (x[:, None] - centres) ** 2)
 
 
-def normalised_features(x, centres, widths):
+def normalised_features(x: ArrayLike, centres: FloatArray, widths: FloatArray) -> FloatArray:
     """
     Return ``psi_i(x) x / sum_j psi_j(x)``, the regressors of the forcing term.
 
@@ -143,7 +145,7 @@ def normalised_features(x, centres, widths):
     ----------
     x : array_like, shape (n,)
         Phase values.
-    centres, widths : array_like, shape (n_bfs,)
+    centres, widths : ndarray, shape (n_bfs,)
         ``c_i`` and ``h_i``.
 
     Returns
@@ -156,21 +158,21 @@ def normalised_features(x, centres, widths):
     return _normalised(basis_activations(x, centres, widths), x)
 
 
-def _normalised(psi, x):
+def _normalised(psi: FloatArray, x: FloatArray) -> FloatArray:
     """Return ``psi_i x / sum_j psi_j`` from activations ``psi`` (n, n_bfs) at phases ``x``."""
     total = psi.sum(axis=1, keepdims=True)
     return psi * (x[:, None] / np.where(total > 1e-300, total, 1e-300))
 
 
 @lru_cache(maxsize=32)
-def _uniform_phase(n_pts, alpha_x):
+def _uniform_phase(n_pts: int, alpha_x: float) -> FloatArray:
     x = canonical_phase(np.linspace(0.0, 1.0, n_pts), alpha_x)
     x.flags.writeable = False
     return x
 
 
 @lru_cache(maxsize=32)
-def _uniform_activations(n_pts, n_bfs, alpha_x):
+def _uniform_activations(n_pts: int, n_bfs: int, alpha_x: float) -> FloatArray:
     centres = basis_centres(n_bfs, alpha_x)
     psi = basis_activations(_uniform_phase(n_pts, alpha_x), centres,
                             basis_widths(centres, alpha_x))
@@ -179,14 +181,14 @@ def _uniform_activations(n_pts, n_bfs, alpha_x):
 
 
 @lru_cache(maxsize=32)
-def _uniform_features(n_pts, n_bfs, alpha_x):
+def _uniform_features(n_pts: int, n_bfs: int, alpha_x: float) -> tuple[FloatArray, FloatArray]:
     x = _uniform_phase(n_pts, alpha_x)
     features = _normalised(_uniform_activations(n_pts, n_bfs, alpha_x), x)
     features.flags.writeable = False
     return x, features
 
 
-def uniform_phase(n_pts, alpha_x):
+def uniform_phase(n_pts: int, alpha_x: float) -> FloatArray:
     """
     Return the phase ``x`` on ``n_pts`` evenly spaced samples of ``s`` in [0, 1] (cached).
 
@@ -206,7 +208,7 @@ def uniform_phase(n_pts, alpha_x):
     return _uniform_phase(int(n_pts), float(alpha_x))
 
 
-def uniform_activations(n_pts, n_bfs, alpha_x):
+def uniform_activations(n_pts: int, n_bfs: int, alpha_x: float) -> FloatArray:
     """
     Return the activations ``psi_i`` on ``n_pts`` evenly spaced samples of ``s`` in [0, 1].
 
@@ -230,7 +232,7 @@ def uniform_activations(n_pts, n_bfs, alpha_x):
     return _uniform_activations(int(n_pts), int(n_bfs), float(alpha_x))
 
 
-def uniform_features(n_pts, n_bfs, alpha_x):
+def uniform_features(n_pts: int, n_bfs: int, alpha_x: float) -> tuple[FloatArray, FloatArray]:
     """
     Return phase and forcing features on ``n_pts`` evenly spaced samples of ``s`` in [0, 1].
 
@@ -256,7 +258,7 @@ def uniform_features(n_pts, n_bfs, alpha_x):
     return _uniform_features(int(n_pts), int(n_bfs), float(alpha_x))
 
 
-def forcing_term(features, weights, scale):
+def forcing_term(features: FloatArray, weights: FloatArray, scale: ArrayLike) -> FloatArray:
     """
     Return the forcing term ``f = sum psi_i w_i / sum psi_i * x * scale``.
 
@@ -278,7 +280,8 @@ def forcing_term(features, weights, scale):
     return (features @ weights) * np.asarray(scale, dtype=float)
 
 
-def guarded_scale(offset, spread, guard, floor):
+def guarded_scale(offset: ArrayLike, spread: ArrayLike, guard: float,
+                  floor: float) -> tuple[FloatArray, FloatArray]:
     """
     Return the per-dimension forcing scale and which dimensions are degenerate.
 
@@ -306,7 +309,8 @@ def guarded_scale(offset, spread, guard, floor):
     return np.where(degenerate, 1.0, offset), degenerate
 
 
-def lwr_weights(psi, x, targets, scale):
+def lwr_weights(psi: FloatArray, x: FloatArray, targets: FloatArray,
+                scale: ArrayLike) -> FloatArray:
     """
     Return LWR weights ``w_i = s^T Psi_i F_d / s^T Psi_i s`` with ``s = x * scale``.
 
@@ -340,7 +344,8 @@ def lwr_weights(psi, x, targets, scale):
     return weights / scale
 
 
-def least_squares_weights(psi, x, targets, scale, ridge=1e-8):
+def least_squares_weights(psi: FloatArray, x: FloatArray, targets: FloatArray, scale: ArrayLike,
+                          ridge: float = 1e-8) -> FloatArray:
     """
     Return the weights that fit the whole forcing term at once (ridge least squares).
 
@@ -377,7 +382,7 @@ def least_squares_weights(psi, x, targets, scale, ridge=1e-8):
     return weights / np.asarray(scale, dtype=float)
 
 
-def derivative(Y, s):
+def derivative(Y: FloatArray, s: float | FloatArray) -> FloatArray:
     """
     Return ``dY/ds`` by second-order finite differences, second order at the ends too.
 
@@ -405,7 +410,8 @@ def derivative(Y, s):
     return out
 
 
-def position_forcing_target(s, Y, goal, alpha_y, beta_y):
+def position_forcing_target(s: float | FloatArray, Y: FloatArray, goal: FloatArray, alpha_y: float,
+                            beta_y: float) -> FloatArray:
     """
     Return the desired forcing term ``F_d = y'' - alpha_y (beta_y (g - y) - y')``.
 
@@ -434,7 +440,8 @@ def position_forcing_target(s, Y, goal, alpha_y, beta_y):
     return Ydd - alpha_y * (beta_y * (goal - Y) - Yd)
 
 
-def quaternion_forcing_target(s, Q, goal, alpha_z, beta_z):
+def quaternion_forcing_target(s: float | FloatArray, Q: FloatArray, goal: FloatArray,
+                              alpha_z: float, beta_z: float) -> tuple[FloatArray, FloatArray]:
     """
     Return ``F_d = omega' - alpha_z (beta_z 2 log(g * conj(q)) - omega)`` for a quaternion demo.
 
@@ -467,7 +474,7 @@ def quaternion_forcing_target(s, Q, goal, alpha_z, beta_z):
     return Wd + alpha_z * (beta_z * U + W), U
 
 
-def nonlinear_rate(U, W):
+def nonlinear_rate(U: FloatArray, W: FloatArray) -> FloatArray:
     """
     Return ``n = J_l(u)^-1 omega - omega``, the nonlinear part of ``u' = omega + n``.
 
@@ -511,7 +518,8 @@ def nonlinear_rate(U, W):
 
 
 @lru_cache(maxsize=256)
-def transition_matrices(alpha, beta, h):
+def transition_matrices(alpha: float, beta: float,
+                        h: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """
     Return the exact discretisation of ``[e, v]' = M [e, v] + [a, b]``.
 
@@ -549,7 +557,7 @@ def transition_matrices(alpha, beta, h):
     return out
 
 
-def linear_recurrence(Phi, C, state0):
+def linear_recurrence(Phi: FloatArray, C: FloatArray, state0: FloatArray) -> FloatArray:
     """
     Return the states of ``z_{k+1} = Phi z_k + c_k`` for all k, without a Python loop.
 
@@ -591,7 +599,7 @@ def linear_recurrence(Phi, C, state0):
     return out
 
 
-def input_response(Phi, gain, N):
+def input_response(Phi: FloatArray, gain: FloatArray, N: FloatArray) -> FloatArray:
     """
     Return ``z_1 .. z_n`` of ``z_{k+1} = Phi z_k + gain n_k`` from ``z_0 = 0``.
 
@@ -620,7 +628,8 @@ def input_response(Phi, gain, N):
     return out
 
 
-def input_filters(Phi, gain):
+def input_filters(Phi: FloatArray,
+                  gain: FloatArray) -> tuple[list[float], list[float], list[float]]:
     """
     Return the ``lfilter`` coefficients ``(b_u, b_w, a)`` of :func:`input_response`.
 

@@ -6,10 +6,12 @@ Equations and integration: :mod:`suture_lfd.dmp.equations`. Positions in m, time
 
 import logging
 import math
+from typing import Any
 
 import numpy as np
-from sim_bridge.validation import check_array
-from suture_lfd.dmp.base import Primitive, stored_array
+from numpy.typing import ArrayLike
+from sim_bridge.validation import FloatArray, check_array
+from suture_lfd.dmp.base import DmpParams, PathLike, Primitive, stored_array
 from suture_lfd.dmp.equations import (
     basis_centres,
     basis_widths,
@@ -44,13 +46,16 @@ class PositionDmp(Primitive):
 
     KIND = 'position'
 
-    def __init__(self, params=None):
+    def __init__(self, params: DmpParams | None = None) -> None:
         super().__init__(params)
         c = basis_centres(self.params.n_bfs, self.params.alpha_x)
         self._centres, self._widths = c, basis_widths(c, self.params.alpha_x)
-        self.weights_ = self.start_ = self.goal_ = self.degenerate_ = None
+        self.weights_: FloatArray | None = None
+        self.start_: FloatArray | None = None
+        self.goal_: FloatArray | None = None
+        self.degenerate_: FloatArray | None = None
 
-    def fit(self, T, Y):
+    def fit(self, T: ArrayLike, Y: ArrayLike) -> 'PositionDmp':
         """
         Learn the weights from one demonstration.
 
@@ -84,17 +89,18 @@ class PositionDmp(Primitive):
         return self
 
     @property
-    def n_dims(self):
+    def n_dims(self) -> int:
         """int: Number of position dimensions."""
         self._check_fitted()
         return self.weights_.shape[1]
 
-    def _endpoints(self, start, goal):
+    def _endpoints(self, start: ArrayLike | None,
+                   goal: ArrayLike | None) -> tuple[FloatArray, FloatArray]:
         start = self.start_ if start is None else check_array(start, 'start', shape=(self.n_dims,))
         goal = self.goal_ if goal is None else check_array(goal, 'goal', shape=(self.n_dims,))
         return np.array(start, dtype=float), np.array(goal, dtype=float)
 
-    def scale(self, start, goal):
+    def scale(self, start: FloatArray, goal: FloatArray) -> FloatArray:
         """
         Return the forcing scale ``g - y0`` per dimension (1 in degenerate dimensions).
 
@@ -111,7 +117,9 @@ class PositionDmp(Primitive):
         """
         return np.where(self.degenerate_, 1.0, goal - start)
 
-    def rollout(self, start=None, goal=None, n_pts=None, T=None, return_velocity=False):
+    def rollout(self, start: ArrayLike | None = None, goal: ArrayLike | None = None,
+                n_pts: int | None = None, T: ArrayLike | None = None,
+                return_velocity: bool = False) -> tuple[FloatArray, ...]:
         """
         Generate the whole trajectory from ``start`` to ``goal`` (constant goal, no coupling).
 
@@ -144,7 +152,7 @@ class PositionDmp(Primitive):
             return T, Y, states[1].T / tau
         return T, Y
 
-    def _integrate(self, start, goal, n):
+    def _integrate(self, start: FloatArray, goal: FloatArray, n: int) -> FloatArray:
         """Return the states (2, n_dims, n) of (y - g, y') on n evenly spaced samples."""
         p = self.params
         _, features = uniform_features(n, p.n_bfs, p.alpha_x)
@@ -155,12 +163,12 @@ class PositionDmp(Primitive):
         return linear_recurrence(Phi, C, state0)
 
     # --- online ------------------------------------------------------------------------------
-    def _begin(self, start, goal):
+    def _begin(self, start: ArrayLike | None, goal: ArrayLike | None) -> None:
         start, goal = self._endpoints(start, goal)
         self._y0, self._g, self._G = start, goal.copy(), goal.copy()
         self._y, self._v = start.copy(), np.zeros_like(start)
 
-    def set_goal(self, goal, immediate=False):
+    def set_goal(self, goal: ArrayLike, immediate: bool = False) -> None:
         """
         Switch the goal of the online execution (position, m).
 
@@ -181,15 +189,15 @@ class PositionDmp(Primitive):
         if immediate:
             self._g = self._G.copy()
 
-    def _phase_error(self, measured):
+    def _phase_error(self, measured: ArrayLike) -> float:
         measured = check_array(measured, 'measured', shape=(self.n_dims,))
         return self.params.phase_stop_position * float(np.sum((measured - self._y) ** 2))
 
-    def _forcing_at(self, x, goal):
+    def _forcing_at(self, x: float, goal: FloatArray) -> FloatArray:
         features = normalised_features(np.array([x]), self._centres, self._widths)[0]
         return (features @ self.weights_) * self.scale(self._y0, goal)
 
-    def _advance(self, h, x0, x1):
+    def _advance(self, h: float, x0: float, x1: float) -> None:
         p = self.params
         g0 = self._g
         g1 = self._G + (g0 - self._G) * math.exp(-p.goal_filter * h)
@@ -200,27 +208,28 @@ class PositionDmp(Primitive):
         state = Phi @ np.stack((self._y, self._v)) + B0[:, 1:2] * w0 + B1[:, 1:2] * w1
         self._y, self._v, self._g = state[0], state[1], g1
 
-    def _output(self):
+    def _output(self) -> FloatArray:
         return self._y.copy()
 
     @property
-    def velocity(self):
+    def velocity(self) -> FloatArray:
         """ndarray, shape (n_dims,): Commanded velocity of the online execution, m/s."""
         return self._v / self._tau
 
     @property
-    def goal(self):
+    def goal(self) -> FloatArray:
         """ndarray, shape (n_dims,): Active (filtered) goal of the online execution, m."""
         return self._g.copy()
 
     # --- files -------------------------------------------------------------------------------
-    def _arrays(self, prefix='position.'):
+    def _arrays(self, prefix: str = 'position.') -> dict[str, Any]:
         return {prefix + 'weights': self.weights_, prefix + 'start': self.start_,
                 prefix + 'goal': self.goal_, prefix + 'duration': np.array(self.duration_),
                 prefix + 'degenerate': self.degenerate_}
 
     @classmethod
-    def _from_arrays(cls, params, arrays, path, prefix='position.'):
+    def _from_arrays(cls, params: DmpParams, arrays: dict[str, Any], path: PathLike,
+                     prefix: str = 'position.') -> 'PositionDmp':
         dmp = cls(params)
         dmp.weights_ = stored_array(arrays, prefix + 'weights', path).astype(float)
         dmp.start_ = stored_array(arrays, prefix + 'start', path).astype(float)

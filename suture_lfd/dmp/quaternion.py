@@ -7,8 +7,10 @@ in rad, time in s.
 
 import logging
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.signal import lfilter
 from sim_bridge.geometry import (
     quaternion_angle,
@@ -19,8 +21,8 @@ from sim_bridge.geometry import (
     quaternion_sign_continuous,
     so3_left_jacobian_apply,
 )
-from sim_bridge.validation import check_array, check_quaternions
-from suture_lfd.dmp.base import Primitive, stored_array
+from sim_bridge.validation import FloatArray, check_array, check_quaternions
+from suture_lfd.dmp.base import DmpParams, PathLike, Primitive, stored_array
 from suture_lfd.dmp.equations import (
     basis_centres,
     basis_widths,
@@ -75,14 +77,17 @@ class QuaternionDmp(Primitive):
 
     KIND = 'quaternion'
 
-    def __init__(self, params=None):
+    def __init__(self, params: DmpParams | None = None) -> None:
         super().__init__(params)
         c = basis_centres(self.params.n_bfs_o, self.params.alpha_x)
         self._centres, self._widths = c, basis_widths(c, self.params.alpha_x)
         self._log_form = self.params.orientation_form == 'log'
-        self.weights_ = self.start_ = self.goal_ = self.degenerate_ = None
+        self.weights_: FloatArray | None = None
+        self.start_: FloatArray | None = None
+        self.goal_: FloatArray | None = None
+        self.degenerate_: FloatArray | None = None
 
-    def fit(self, T, Q):
+    def fit(self, T: ArrayLike, Q: ArrayLike) -> 'QuaternionDmp':
         """
         Learn the weights from one demonstration.
 
@@ -124,7 +129,7 @@ class QuaternionDmp(Primitive):
         self.duration_ = duration
         return self
 
-    def align_goal(self, start, goal):
+    def align_goal(self, start: FloatArray, goal: FloatArray) -> FloatArray:
         """
         Return ``goal`` or ``-goal``, whichever turns from ``start`` most like the demonstration.
 
@@ -147,7 +152,8 @@ class QuaternionDmp(Primitive):
         new = quaternion_product(goal, quaternion_conjugate(start))
         return -goal if float(np.dot(demo, new)) < 0.0 else np.array(goal, dtype=float)
 
-    def _endpoints(self, start, goal):
+    def _endpoints(self, start: ArrayLike | None,
+                   goal: ArrayLike | None) -> tuple[FloatArray, FloatArray]:
         self._check_fitted()
         start = self.start_ if start is None else check_quaternions(
             check_array(start, 'start', shape=(4,)), 'start')
@@ -155,7 +161,7 @@ class QuaternionDmp(Primitive):
             check_array(goal, 'goal', shape=(4,)), 'goal')
         return np.array(start, dtype=float), self.align_goal(start, goal)
 
-    def scale(self, start, goal):
+    def scale(self, start: FloatArray, goal: FloatArray) -> FloatArray:
         """
         Return the diagonal of ``D_o = diag(2 log(g * conj(q0)))`` (1 in guarded components).
 
@@ -173,7 +179,9 @@ class QuaternionDmp(Primitive):
         offset = 2.0 * quaternion_log(quaternion_product(goal, quaternion_conjugate(start)))
         return np.where(self.degenerate_, 1.0, offset)
 
-    def rollout(self, start=None, goal=None, n_pts=None, T=None, return_velocity=False):
+    def rollout(self, start: ArrayLike | None = None, goal: ArrayLike | None = None,
+                n_pts: int | None = None, T: ArrayLike | None = None,
+                return_velocity: bool = False) -> tuple[FloatArray, ...]:
         """
         Generate the whole orientation trajectory from ``start`` to ``goal``.
 
@@ -211,7 +219,7 @@ class QuaternionDmp(Primitive):
             return T, Q, W / tau
         return T, Q
 
-    def _divergence(self, start, goal):
+    def _divergence(self, start: FloatArray, goal: FloatArray) -> str:
         """Say why a rollout from ``start`` to ``goal`` diverged (the forcing scale)."""
         demo = self.scale(self.start_, self.goal_)
         new = self.scale(start, goal)
@@ -222,7 +230,8 @@ class QuaternionDmp(Primitive):
                 f'learnt on {np.round(np.degrees(demo), 2).tolist()} deg, {ratio[k]:.0f} times '
                 f'in component {"xyz"[k]} (the D_o scaling of the demonstrated turn)')
 
-    def _integrate(self, start, goal, n):
+    def _integrate(self, start: FloatArray, goal: FloatArray,
+                   n: int) -> tuple[FloatArray, FloatArray]:
         """Return (u, omega), each (n, 3): goal-relative rotation vector and angular velocity."""
         p = self.params
         _, features = uniform_features(n, p.n_bfs_o, p.alpha_x)
@@ -269,12 +278,12 @@ class QuaternionDmp(Primitive):
         return U.T, W.T
 
     # --- online ------------------------------------------------------------------------------
-    def _begin(self, start, goal):
+    def _begin(self, start: ArrayLike | None, goal: ArrayLike | None) -> None:
         start, goal = self._endpoints(start, goal)
         self._q0, self._g, self._G = start, goal.copy(), goal.copy()
         self._q, self._w = start.copy(), np.zeros(3)
 
-    def set_goal(self, goal, immediate=False):
+    def set_goal(self, goal: ArrayLike, immediate: bool = False) -> None:
         """
         Switch the goal of the online execution (unit quaternion x, y, z, w).
 
@@ -296,11 +305,11 @@ class QuaternionDmp(Primitive):
         if immediate:
             self._g = self._G.copy()
 
-    def _phase_error(self, measured):
+    def _phase_error(self, measured: ArrayLike) -> float:
         measured = check_quaternions(check_array(measured, 'measured', shape=(4,)), 'measured')
         return self.params.phase_stop_orientation * float(quaternion_angle(measured, self._q)) ** 2
 
-    def _advance(self, h, x0, x1):
+    def _advance(self, h: float, x0: float, x1: float) -> None:
         p = self.params
         g0 = self._g
         towards = quaternion_product(self._G, quaternion_conjugate(g0))
@@ -318,15 +327,15 @@ class QuaternionDmp(Primitive):
         self._q = quaternion_product(quaternion_exp(0.5 * z[0]), g0)
         self._w, self._g = z[1], g1
 
-    def _forcing_at(self, x, goal):
+    def _forcing_at(self, x: float, goal: FloatArray) -> FloatArray:
         features = normalised_features(np.array([x]), self._centres, self._widths)[0]
         return (features @ self.weights_) * self.scale(self._q0, goal)
 
-    def _output(self):
+    def _output(self) -> FloatArray:
         return self._q.copy()
 
     @property
-    def angular_velocity(self):
+    def angular_velocity(self) -> FloatArray:
         """ndarray, shape (3,): Commanded angular velocity (frame of the quaternions), rad/s."""
         if self._log_form:
             u = 2.0 * quaternion_log(quaternion_product(self._q, quaternion_conjugate(self._g)))
@@ -334,18 +343,19 @@ class QuaternionDmp(Primitive):
         return self._w / self._tau
 
     @property
-    def goal(self):
+    def goal(self) -> FloatArray:
         """ndarray, shape (4,): Active (filtered) goal of the online execution."""
         return self._g.copy()
 
     # --- files -------------------------------------------------------------------------------
-    def _arrays(self, prefix='orientation.'):
+    def _arrays(self, prefix: str = 'orientation.') -> dict[str, Any]:
         return {prefix + 'weights': self.weights_, prefix + 'start': self.start_,
                 prefix + 'goal': self.goal_, prefix + 'duration': np.array(self.duration_),
                 prefix + 'degenerate': self.degenerate_}
 
     @classmethod
-    def _from_arrays(cls, params, arrays, path, prefix='orientation.'):
+    def _from_arrays(cls, params: DmpParams, arrays: dict[str, Any], path: PathLike,
+                     prefix: str = 'orientation.') -> 'QuaternionDmp':
         dmp = cls(params)
         dmp.weights_ = stored_array(arrays, prefix + 'weights', path).astype(float)
         dmp.start_ = stored_array(arrays, prefix + 'start', path).astype(float)

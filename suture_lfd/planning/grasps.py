@@ -21,6 +21,9 @@ from suture_lfd.planning.tracks import backed_off, dense_poses
 ARMS = ('PSM1', 'PSM2')
 
 # What decides whether the arms reach a throw, and where a user changes it.
+PROBE_STRIDE = 6  # carrying poses solved per candidate before its full path: every 6th
+# a candidate left unsolved has a lower bound this far (rad) above the best full cost
+PROBE_MARGIN = 1e-6
 UNREACHABLE_ADVICE = ('try another needle start (the simulator parameter seed), or bring the '
                       'pair between the arms: move the phantom (its position and quaternion in '
                       'the phantom file) or the arm bases (world.arms.<ARM> in world.yaml)')
@@ -155,49 +158,89 @@ class GraspPlanner:
         """
         c = self.config
         needles = np.array([path(x) for path in phase.paths for x in np.linspace(0.0, 1.0, 12)])
-        best, best_cost, best_roll = None, math.inf, None
         step = math.radians(c.roll_step_deg)
         rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
-        # Every candidate's carrying path first, in one batch: a candidate with one unreachable
-        # pose there costs inf whatever its approach. Then the approaches of the others, in one
-        # batch. The IK of a pose does not depend on the other poses of a batch, so this is
-        # the cost of solving every whole path at once.
         chain = self.kinematics[arm]
         T_base_world = invert_transform(phase.bases[arm])
         grasps = [(flip, roll, self.needle.grasp_transform(s, roll=roll, flip=flip))
                   for flip in (False, True) for roll in rolls]
         invs = [invert_transform(G) for _, _, G in grasps]
         carried = (needles[None] @ np.asarray(invs)[:, None]).reshape(-1, 4, 4)
-        Qc, okc = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, carried))
-        n_c = len(needles)
-        alive = [k for k in range(len(grasps)) if okc[k * n_c:(k + 1) * n_c].all()]
-        approach = {}
-        if phase.start is not None and alive:
-            tools, spans, size = [], {}, 0
-            for k in alive:
-                grasp_pose = phase.grasp_at @ invs[k]
-                pre = backed_off(grasp_pose, c.approach_distance)
-                path = dense_poses(phase.start, pre) + dense_poses(pre, grasp_pose)
-                spans[k] = (size, size + len(path))
-                tools += path
-                size += len(path)
-            Qa, oka = chain.ik_batch(np.einsum('ij,njk->nik', T_base_world, np.asarray(tools)))
-            approach = {k: (Qa[a:b], oka[a:b]) for k, (a, b) in spans.items()}
-        for k in alive:
-            G, inv = grasps[k][2], invs[k]
-            Q, ok = Qc[k * n_c:(k + 1) * n_c], okc[k * n_c:(k + 1) * n_c]
-            if k in approach:
-                Q, ok = np.concatenate((approach[k][0], Q)), np.concatenate((approach[k][1], ok))
-            cost, end_roll = self.joint_path_cost(chain, Q, ok, phase.roll0)
-            if phase.clear and math.isfinite(cost):
-                low = self.jaw_clearance([N @ inv for N in phase.clear])
-                cost += 1000.0 * max(0.0, c.jaw_clearance - low)
+        carried = np.einsum('ij,njk->nik', T_base_world, carried)
+        costs = self._candidate_costs(chain, phase, carried, len(needles), invs, T_base_world)
+        best, best_cost, best_roll = None, math.inf, None
+        for k, (cost, end_roll) in sorted(costs.items()):
             if cost < best_cost - 1e-9:
-                best, best_cost, best_roll = G, cost, end_roll
+                best, best_cost, best_roll = grasps[k][2], cost, end_roll
         if best is None:
             raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
                              f'{what} of pair {self.pair.name}; {UNREACHABLE_ADVICE}')
         return best, best_roll
+
+    def _candidate_costs(self, chain, phase, carried, n_c, invs, T_base_world):
+        """
+        Return ``{candidate: (cost, end roll)}`` of the grasp candidates that can be the best.
+
+        A candidate's cost (:meth:`joint_path_cost` of its approach and carrying path, plus the
+        jaw clearance penalty) is at least the largest wrist angle of any of its carrying poses.
+        So every candidate's carrying path is first solved at every :data:`PROBE_STRIDE`-th
+        pose only: a candidate with one unreachable pose there is out, and the wrist angles
+        there bound its cost from below. Then candidates are solved in full (approach
+        included) in the order of their bounds until every candidate left has a bound above
+        the lowest full cost by more than :data:`PROBE_MARGIN`. A candidate left out costs
+        more than the best by more than the choice's tolerance (1e-9) even when the choice
+        passes through every candidate, so the choice is that of solving every candidate in
+        full. The IK of a pose does not depend on the other poses of a batch.
+
+        Parameters
+        ----------
+        chain : sim_bridge.kinematics.PsmKinematics
+        phase : GraspPhase
+        carried : ndarray, shape (K * n_c, 4, 4)
+            Carrying tool poses of the K candidates in the base frame, ``n_c`` each.
+        n_c : int
+            Carrying poses per candidate.
+        invs : list of ndarray (4, 4)
+            ``T_needle_tool`` per candidate.
+        T_base_world : ndarray, shape (4, 4)
+
+        """
+        c = self.config
+        n_k = len(invs)
+        probe = np.arange(0, n_c, PROBE_STRIDE)
+        Qp, okp = chain.ik_batch(carried[(np.arange(n_k)[:, None] * n_c + probe).ravel()])
+        okp = okp.reshape(n_k, -1).all(axis=1)
+        bound = np.abs(Qp[:, 4:6]).reshape(n_k, -1).max(axis=1)
+        order = [k for k in np.argsort(np.where(okp, bound, np.inf), kind='stable') if okp[k]]
+        costs, lowest, done, size = {}, math.inf, 0, 2
+        while done < len(order) and bound[order[done]] <= lowest + PROBE_MARGIN:
+            batch = order[done:done + size]
+            done += len(batch)
+            size *= 2
+            poses, spans = [carried[k * n_c:(k + 1) * n_c] for k in batch], []
+            if phase.start is not None:
+                for k in batch:
+                    grasp_pose = phase.grasp_at @ invs[k]
+                    pre = backed_off(grasp_pose, c.approach_distance)
+                    path = dense_poses(phase.start, pre) + dense_poses(pre, grasp_pose)
+                    spans.append(len(path))
+                    poses.append(np.einsum('ij,njk->nik', T_base_world, np.asarray(path)))
+            Q, ok = chain.ik_batch(np.concatenate(poses))
+            ends = np.cumsum([len(batch) * n_c] + spans)
+            for j, k in enumerate(batch):
+                Qk, okk = Q[j * n_c:(j + 1) * n_c], ok[j * n_c:(j + 1) * n_c]
+                if not okk.all():
+                    continue
+                if spans:
+                    a, b = ends[j], ends[j + 1]
+                    Qk, okk = np.concatenate((Q[a:b], Qk)), np.concatenate((ok[a:b], okk))
+                cost, end_roll = self.joint_path_cost(chain, Qk, okk, phase.roll0)
+                if phase.clear and math.isfinite(cost):
+                    low = self.jaw_clearance([N @ invs[k] for N in phase.clear])
+                    cost += 1000.0 * max(0.0, c.jaw_clearance - low)
+                costs[int(k)] = (cost, end_roll)
+                lowest = min(lowest, cost)
+        return costs
 
     def choose_grasp_along(self, arm, s, span, phase, what, candidates=9):
         """

@@ -13,7 +13,11 @@ speed is linear in time and is extended back to zero.
 Subtasks (seed paper, after Schwaner et al. 2021), cut with the grasp signals:
 
 i    PSM2 picks the needle and brings its tip to the entry: the PSM2 motions before ii.
-ii   PSM2 inserts the needle to the exit: the last PSM2 motion before PSM1 grasps the needle.
+ii   PSM2 inserts the needle to the exit: the last PSM2 motion before PSM1 grasps the needle,
+     and the PSM2 motions before it while the needle tip, at the start of that motion, lies
+     deeper than ``entered_depth`` below the pair's surface (entry marker and normal): a person
+     who pauses during the insertion makes it of several motions, and the insertion starts
+     where the tip was still at the surface.
 iii  PSM1 regrasps: from PSM1's first motion after ii to the moment PSM2 releases the needle.
 iv   PSM1 extracts the needle: PSM1's motions after PSM2 released it, before PSM2 grasps again.
 v    hand-over to PSM2 and move on: from the first motion after iv to the last motion.
@@ -21,7 +25,7 @@ v    hand-over to PSM2 and move on: from the first motion after iv to the last m
 Times in s, positions in m, quaternions (x, y, z, w).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 
 import numpy as np
@@ -29,9 +33,11 @@ from scipy.signal import butter, sosfiltfilt
 from sim_bridge.geometry import (
     quaternion_conjugate,
     quaternion_product,
+    quaternion_rotate,
     quaternion_sign_continuous,
     rotvec_from_quaternion,
 )
+from sim_bridge.scene.needle import NeedleGeometry
 from sim_bridge.validation import check_array, check_quaternions, check_times
 from suture_lfd.demos.demonstration import Demonstration
 
@@ -71,6 +77,12 @@ class SegmentationConfig:
     jaw_closed_rad : float
         Jaw angle below which an arm counts as holding the needle when the recording has no
         grasp flags (all false), rad.
+    entered_depth : float
+        Depth of the needle tip below the pair's surface (m) from which the tip counts as
+        already inserted at the start of a PSM2 motion (subtask ii then starts earlier). The
+        scripted cohort brings the tip to 0.1 mm at the entry; 0.5 mm is five times that.
+    needle : NeedleGeometry
+        The needle whose tip is followed (the demonstration records its pose only).
 
     """
 
@@ -83,6 +95,8 @@ class SegmentationConfig:
     min_rest_s: float = 0.1
     angular_weight_m: float = 0.01
     jaw_closed_rad: float = 0.1
+    entered_depth: float = 0.0005
+    needle: NeedleGeometry = field(default_factory=NeedleGeometry)
 
     def __post_init__(self):
         for name in ('cutoff_hz', 'threshold', 'hysteresis', 'onset_level', 'noise_factor'):
@@ -93,10 +107,14 @@ class SegmentationConfig:
             raise ValueError('SegmentationConfig needs threshold < 1, hysteresis <= 1 and '
                              f'onset_level < 0.25, got {self.threshold}, {self.hysteresis}, '
                              f'{self.onset_level}')
-        for name in ('min_motion_s', 'min_rest_s', 'angular_weight_m', 'jaw_closed_rad'):
+        for name in ('min_motion_s', 'min_rest_s', 'angular_weight_m', 'jaw_closed_rad',
+                     'entered_depth'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'SegmentationConfig.{name} must be >= 0, got {value!r}')
+        if not isinstance(self.needle, NeedleGeometry):
+            raise ValueError('SegmentationConfig.needle must be a NeedleGeometry, got '
+                             f'{type(self.needle).__name__}')
 
 
 @dataclass(frozen=True)
@@ -362,6 +380,14 @@ def _edge(flags, T, after, rising, name, meaning):
     return float(T[change[0]])
 
 
+def _tip_depth(demo, t, config):
+    """Depth (m) of the needle tip below the pair's surface plane at time ``t`` (< 0 above)."""
+    k = _nearest_index(demo.t, t)
+    pose = demo.needle_pose[k]
+    tip = pose[:3] + quaternion_rotate(pose[3:], config.needle.tip)
+    return -float(np.dot(tip - demo.entry, demo.normal))
+
+
 def segment_demonstration(demo, config=None):
     """
     Cut one demonstration into the five suturing subtasks.
@@ -407,8 +433,13 @@ def segment_demonstration(demo, config=None):
     if not inserting:
         raise ValueError('no PSM2 motion before PSM1 grasps the needle: no insertion '
                          '(subtask ii) found')
-    ii = inserting[-1]
-    approach = inserting[:-1]
+    first = len(inserting) - 1
+    while first > 0 and _tip_depth(demo, inserting[first].start_time, config) > \
+            config.entered_depth:
+        first -= 1
+    ii = Segment('motion', inserting[first].start_index, inserting[-1].end_index,
+                 inserting[first].start_time, inserting[-1].end_time)
+    approach = inserting[:first]
     i_start = approach[0] if approach else None
     i_end = approach[-1] if approach else None
     regrasp = [m for m in m1 if ii.end_time <= m.start_time < t_release]

@@ -5,7 +5,9 @@ from sim_bridge.geometry import (
     invert_pose,
     quaternion_from_rotvec,
     quaternion_product,
+    quaternion_rotate,
 )
+from sim_bridge.scene.needle import NeedleGeometry
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.synthetic_throw import minimum_jerk
 from suture_lfd.segmentation import (
@@ -30,8 +32,14 @@ def arm_track(T, start_pose, motions):
     return np.hstack((P, Q))
 
 
-def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4):
-    """A five-subtask demonstration with known boundaries (s), jittered by rng."""
+def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4, split_insertion=False):
+    """
+    A five-subtask demonstration with known boundaries (s), jittered by rng.
+
+    ``split_insertion``: the insertion is two motions with a rest between them, the first
+    pushing the tip 4 mm into the tissue (as a person who pauses while inserting); the pair's
+    surface is then put 0.1 mm above the tip at the start of the insertion.
+    """
     def jitter(value, spread=0.1):
         return value + rng.uniform(-spread, spread)
 
@@ -50,7 +58,12 @@ def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4):
     grasp2 = a1 + 0.2
     b0, b1 = move(psm2, jitter(1.5), (-0.01, 0.02, -0.01), (0.2, 0.0, -0.2), rest=0.5)
     schedule['i'] = (a0, b1)
-    schedule['ii'] = move(psm2, jitter(2.0), (0.003, -0.012, 0.002), (0.0, 0.0, 2.6))
+    if split_insertion:
+        push, _ = move(psm2, 0.8, (0.0, -0.004, -0.004), (0.0, 0.0, 0.5), rest=0.5)
+        schedule['ii'] = (push, move(psm2, jitter(2.0), (0.003, -0.012, 0.002),
+                                     (0.0, 0.0, 2.6))[1])
+    else:
+        schedule['ii'] = move(psm2, jitter(2.0), (0.003, -0.012, 0.002), (0.0, 0.0, 2.6))
     c0, c1 = move(psm1, jitter(1.2), (-0.015, -0.02, -0.01), (0.1, 0.2, 0.0), rest=0.5)
     regrasp, release = c1 + 0.15, c1 + 0.3
     schedule['iii'] = (c0, release)
@@ -79,11 +92,16 @@ def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4):
     needle[k_release:] = compose_poses(pose1[k_release:], grip1)
     grip2 = compose_poses(invert_pose(pose2[k_handover]), needle[k_handover])
     needle[k_handover:] = compose_poses(pose2[k_handover:], grip2)
+    entry = np.zeros(3)
+    if split_insertion:
+        k = np.searchsorted(T, schedule['ii'][0])
+        entry = needle[k, :3] + quaternion_rotate(needle[k, 3:], NeedleGeometry().tip)
+        entry[2] += 0.0001
     demo = Demonstration(
         t=T, psm1_pose=pose1, psm2_pose=pose2,
         psm1_jaw=np.where(holds1, 0.0, 0.6), psm2_jaw=np.where(holds2, 0.0, 0.6),
         needle_pose=needle, psm1_holds=holds1, psm2_holds=holds2,
-        entry=[0.0, 0.0, 0.0], exit=[0.01, 0.0, 0.0], normal=[0.0, 0.0, 1.0], pair='synth1')
+        entry=entry, exit=entry + [0.01, 0.0, 0.0], normal=[0.0, 0.0, 1.0], pair='synth1')
     return demo, schedule
 
 
@@ -100,6 +118,20 @@ def test_segmentation_recovers_the_five_subtask_boundaries_within_50_ms():
             assert abs(subtask.end_time - end) < TOLERANCE_S, (name, subtask, end)
             assert abs(demo.t[subtask.start_index] - subtask.start_time) <= 0.5 / RATE_HZ + 1e-9
     assert worst < TOLERANCE_S
+
+
+def test_an_insertion_paused_with_the_tip_in_the_tissue_starts_where_the_tip_entered():
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        demo, truth = synthetic_demonstration(rng, split_insertion=True)
+        found = segment_demonstration(demo)
+        for name in ('i', 'ii'):
+            start, end = truth[name]
+            assert abs(found[name].start_time - start) < TOLERANCE_S, (name, found[name], start)
+            assert abs(found[name].end_time - end) < TOLERANCE_S, (name, found[name], end)
+        # without the depth rule, the insertion would be its last motion only
+        blind = segment_demonstration(demo, SegmentationConfig(entered_depth=1.0))
+        assert blind['ii'].start_time > truth['ii'][0] + 1.0
 
 
 def test_subtasks_come_in_order_and_do_not_overlap():
