@@ -68,6 +68,7 @@ from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
+from sim_bridge.validation import check_positive
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -159,16 +160,13 @@ class SimulatorConfig:
             raise ValueError(f'parameter real_time_factor must be >= 0 (0: as fast as possible), '
                              f'got {self.real_time_factor}')
         for name in ('rate', 'clock_rate'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f'parameter {name} must be > 0 Hz, got {value}')
+            check_positive(getattr(self, name), f'parameter {name} (Hz)')
         for name in ('tf_rate', 'visualization_rate', 'camera_rate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f'parameter {name} must be >= 0 Hz (0: off), got {value}')
         for name in ('tick', 'max_lag'):
-            if not getattr(self, name) > 0:
-                raise ValueError(f'parameter {name} must be > 0 s, got {getattr(self, name)}')
+            check_positive(getattr(self, name), f'parameter {name} (s)')
         if not (math.isfinite(self.power_up_time) and self.power_up_time >= 0):
             raise ValueError(f'parameter power_up_time must be >= 0 s (0: at once), '
                              f'got {self.power_up_time}')

@@ -13,6 +13,7 @@ All lengths are metres; arrays of points have shape ``(n, 3)`` (or ``(n, 2)`` fo
 
 import numpy as np
 from scipy import ndimage
+from sim_bridge.validation import check_positive
 import trimesh
 
 
@@ -45,8 +46,7 @@ class HeightField:
         if bottom.shape != top.shape:
             raise ValueError(f'height field bottom shape {bottom.shape} differs from top '
                              f'shape {top.shape}')
-        if not spacing > 0.0:
-            raise ValueError(f'height field spacing must be > 0 m, got {spacing}')
+        check_positive(spacing, 'height field spacing (m)')
         if footprint is None:
             footprint = np.ones(top.shape, dtype=bool)
         footprint = np.array(footprint, dtype=bool)
@@ -333,8 +333,7 @@ def rasterize_mesh(mesh, spacing, margin=0.0, chunk=2_000_000):
     HeightField
 
     """
-    if not spacing > 0.0:
-        raise ValueError(f'rasterize_mesh spacing must be > 0 m, got {spacing}')
+    check_positive(spacing, 'rasterize_mesh spacing (m)')
     tris = np.asarray(mesh.triangles, dtype=float)
     if len(tris) == 0:
         raise ValueError('rasterize_mesh: the mesh has no triangles')

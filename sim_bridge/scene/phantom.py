@@ -46,6 +46,7 @@ from sim_bridge.scene.phantom_shapes import (
     scanned_height,
     synthetic_height,
 )
+from sim_bridge.validation import check_positive
 import trimesh
 
 _LOG = logging.getLogger(__name__)
@@ -98,8 +99,7 @@ class WoundConfig:
             raise ValueError(f'wound entry_side must be +1 or -1, got {self.entry_side}')
         if self.n_pairs < 0:
             raise ValueError(f'wound n_pairs must be >= 0, got {self.n_pairs}')
-        if not self.half_width > 0.0:
-            raise ValueError(f'wound half_width must be > 0 m, got {self.half_width}')
+        check_positive(self.half_width, 'wound half_width (m)')
         if self.slit_width < 0.0 or self.slit_depth < 0.0:
             raise ValueError('wound slit_width and slit_depth must be >= 0 m')
 
@@ -208,10 +208,8 @@ class PhantomConfig:
         if not 0.0 < self.resolution <= 0.001:
             raise ValueError(f'phantom resolution must be in (0, 0.001] m, got '
                              f'{self.resolution}')
-        if not self.mesh_resolution > 0.0:
-            raise ValueError('phantom mesh_resolution must be > 0 m')
-        if not self.mesh_scale > 0.0:
-            raise ValueError('phantom mesh_scale must be > 0')
+        check_positive(self.mesh_resolution, 'phantom mesh_resolution (m)')
+        check_positive(self.mesh_scale, 'phantom mesh_scale')
         if abs(np.linalg.norm(self.quaternion) - 1.0) > 1e-6:
             raise ValueError(f'phantom quaternion is not a unit quaternion (norm '
                              f'{np.linalg.norm(self.quaternion):.6g})')

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from sim_bridge.validation import check_positive
 
 # Queued steps run anyway once this many wait (bounds the memory of a thread nobody reads).
 _MAX_QUEUED = 4096
@@ -94,8 +95,7 @@ class ThreadChain:
         lengths = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
         if np.any(lengths <= 0.0):
             raise ValueError('thread nodes must be distinct (a segment has zero length)')
-        if not radius > 0.0:
-            raise ValueError(f'thread radius must be positive, got {radius}')
+        check_positive(radius, 'thread radius (m)')
         self.config = config or ThreadDynamicsConfig()
         self.radius = float(radius)
         self.rest_lengths = lengths

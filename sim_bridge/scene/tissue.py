@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
+from sim_bridge.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -69,8 +70,7 @@ class TissueConfig:
     def __post_init__(self):
         if self.n_arc_points < 2:
             raise ValueError(f'tissue n_arc_points must be >= 2, got {self.n_arc_points}')
-        if not self.trauma_event_threshold > 0.0:
-            raise ValueError('tissue trauma_event_threshold must be > 0 m')
+        check_positive(self.trauma_event_threshold, 'tissue trauma_event_threshold (m)')
         if self.occupancy_margin < 0.0:
             raise ValueError('tissue occupancy_margin must be >= 0')
         if self.withdraw_radius < 0.0:

@@ -33,6 +33,7 @@ from sim_bridge.bullet import pybullet
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.geometry import invert_transform, quaternion_from_matrix
 from sim_bridge.paths import config_path
+from sim_bridge.validation import check_positive
 
 # Collision groups (bit masks).
 GROUP_ENVIRONMENT = 1
@@ -165,8 +166,7 @@ class WorldConfig:
     phantom_collision_margin: float = 0.001
 
     def __post_init__(self):
-        if not self.physics_step > 0.0:
-            raise ValueError(f'world physics_step must be > 0 s, got {self.physics_step}')
+        check_positive(self.physics_step, 'world physics_step (s)')
         if self.solver_iterations < 1:
             raise ValueError(
                 f'world solver_iterations must be >= 1, got {self.solver_iterations}')
