@@ -336,6 +336,7 @@ class Simulation:
             self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
         self._tool_cache = {}
+        self._command_frames = {}
         self._steps = 0
         self._events = []
         self.grasp.reset()
@@ -432,12 +433,14 @@ class Simulation:
         return {name: self.arms[name].jaw_measured_jp for name in PSMS}
 
     def _tool_pose(self, name):
-        """Tool-tip pose in ``world``, computed at most once per step."""
+        """Tool-tip pose in ``world`` (read-only), computed again only when the arm moved."""
+        local = self.arms[name].local_measured_cp_view  # the same array while the arm is still
         cached = self._tool_cache.get(name)
-        if cached is not None and cached[0] == self._steps:
+        if cached is not None and cached[0] is local:
             return cached[1]
-        T = self._T_world_base[name] @ self.arms[name].local_measured_cp
-        self._tool_cache[name] = (self._steps, T)
+        T = self._T_world_base[name] @ local
+        T.flags.writeable = False
+        self._tool_cache[name] = (local, T)
         return T
 
     def _emit(self, kind, **data):
@@ -659,12 +662,20 @@ class Simulation:
                 continue
             arm = self.arms[name]
             T = np.asarray(T, dtype=float)
-            if T.shape == (4, 4) and np.all(np.isfinite(T)):
-                T = arm.base_frame @ self._T_base_world[name] @ T
+            if T.shape == (4, 4) and np.isfinite(T).all():
+                T = self._command_frame(name, arm) @ T
             arm.servo_cp(T)  # the arm rejects malformed goals with an error event
         for name, jaw in (command.jaw or {}).items():
             if jaw is not None:
                 self.arms[name].jaw_servo_jp(jaw)
+
+    def _command_frame(self, name, arm):
+        """``T_ref_world`` of an arm's ``measured_cp`` frame, computed again when it changed."""
+        base = arm.base_frame_view  # read-only, replaced when the arm's base frame is set
+        cached = self._command_frames.get(name)
+        if cached is None or cached[0] is not base:
+            cached = self._command_frames[name] = (base, base @ self._T_base_world[name])
+        return cached[1]
 
     def set_target_pair(self, name):
         """
