@@ -39,6 +39,9 @@ PSM (6 joints) reaches position and orientation, and an unreachable pose is an `
 
 Frames: ``measured_cp = base_frame @ local_measured_cp``, ``local_measured_cp`` being the tool tip
 in the RCM frame ``<ARM>_base`` (DH chain and tooltip offset). Units are SI.
+
+Size: one arm's state machine, commands and per-step motion share its state on the simulator's hot
+path; they stay in one file for speed.
 """
 
 from dataclasses import dataclass

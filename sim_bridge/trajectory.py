@@ -13,6 +13,9 @@ setpoint.
 
 Units: joint positions in rad or m, velocities per second, accelerations per second squared;
 arrays have shape (n,) for n joints.
+
+Size: the trapezoid planner and the limited tracking step share one profile arithmetic on the
+per-step path of every arm, which is kept in one file for speed.
 """
 
 import math

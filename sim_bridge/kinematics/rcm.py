@@ -12,6 +12,9 @@ Every branch is enumerated and the one inside the joint limits closest to a refe
 configuration wins; revolute joints are wrapped by 2*pi towards the reference.
 
 Poses are tool tips in the RCM frame ``<ARM>_base`` (metres, 4x4); joints in rad / m.
+
+Size: the closed-form PSM and ECM solutions share the RCM geometry and the joint-limit handling;
+the per-step solvers stay in one file for speed.
 """
 
 from dataclasses import dataclass

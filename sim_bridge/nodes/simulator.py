@@ -44,6 +44,9 @@ first takes the servo commands that arrived before it, so commands keep their or
 executor rebuilds its wait set of the node's ~150 endpoints at each wake-up, about 0.4 ms of
 Python; stepping from a timer paid that 500 times a second.) Parameters:
 ``config/simulator.yaml``.
+
+Size: one node (its parameters, its stepping round and the services it offers); the per-arm and
+scene topics are in modules of their own.
 """
 
 from dataclasses import dataclass, replace

@@ -30,6 +30,9 @@ nearest marker of that kind. ``marker_name`` names the nearest marker of any pai
 (``'synth2.entry'``).
 
 Everything is in the world frame unless named otherwise; lengths in metres, time in seconds.
+
+Size: one tracker whose per-step state (crossings, depths, trauma) every report reads; it runs on
+the per-step path that is being made faster, and stays one file until that settles.
 """
 
 from dataclasses import dataclass, field

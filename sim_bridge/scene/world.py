@@ -20,6 +20,9 @@ The needle is one rigid body of capsules along its arc; its inertial frame sits 
 centre of mass on its principal axes. Collision groups keep the needle touching only the table
 and the phantom (when it is free and dynamic); arms, thread and markers take part in no contacts.
 The thread's capsules are drawn only (its dynamics are :mod:`sim_bridge.scene.thread`).
+
+Size: every body lives in one PyBullet client whose per-step calls are batched here (the
+simulator's hot path), so the bodies are built and moved in one file.
 """
 
 from dataclasses import dataclass, field

@@ -32,6 +32,9 @@ Demonstration`; a throw that does not score 1.0 is done again with the next atte
 paper's subjects produced usable demonstrations).
 
 Frames: ``world``; poses 4x4 ``T_world_*``; m, rad, s.
+
+Size: the subject's controller and the in-process demonstration it drives share the subject's clock
+and imperfections; it is on the per-step path being made faster, so it stays one file.
 """
 
 from dataclasses import dataclass, replace
