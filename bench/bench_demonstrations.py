@@ -30,7 +30,7 @@ from sim_bridge.simulation import Simulation
 from suture_lfd.demos.cohort import load_cohort
 from suture_lfd.demos.demo_bag import demonstration_from_bag, write_demonstration_bag
 from suture_lfd.demos.demonstrator import DemonstrationError, run_demonstration
-from suture_lfd.planning.episode import start_episode
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.segmentation import SUBTASKS, segment_demonstration
 
@@ -41,12 +41,10 @@ def expert_throw(sim, pair):
     target = start_episode(sim, pair, 0)
     expert = ScriptedExpert(target, sim.needle_geometry, sim.config.scene.expert,
                             kinematics=sim.kinematics['PSM2'])
-    t0, wall = sim.time, time.perf_counter()
-    while not expert.done and sim.time - t0 < 60.0:
-        sim.apply(expert.step(sim.observation()))
-        for _ in range(5):
-            sim.step()
-    return sim.time - t0, time.perf_counter() - wall
+    wall = time.perf_counter()
+    elapsed = run_episode(sim, expert, 5 * sim.dt, timeout=60.0, chunk=5 * sim.dt, settle=0.0,
+                          reset=False)
+    return elapsed, time.perf_counter() - wall
 
 
 def boundary_error(run, seg):

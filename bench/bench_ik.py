@@ -13,8 +13,8 @@ import argparse
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import bullet_client, pybullet
+from sim_bridge.geometry import quaternion_from_matrix
 from sim_bridge.kinematics import psm_kinematics
 
 ANCHOR_PYBULLET_IK_S = 1e-3
@@ -40,7 +40,7 @@ def pybullet_chain(client, chain):
         linkCollisionShapeIndices=[-1] * n,
         linkVisualShapeIndices=[-1] * n,
         linkPositions=[F[:3, 3].tolist() for F in frames],
-        linkOrientations=[Rotation.from_matrix(F[:3, :3]).as_quat().tolist() for F in frames],
+        linkOrientations=[quaternion_from_matrix(F[:3, :3]).tolist() for F in frames],
         linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n,
         linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
         linkParentIndices=list(range(n)),
@@ -80,7 +80,7 @@ def main():
         for j, value in enumerate(start_q):
             client.resetJointState(body, j, value)
         target = T[len(errors)]
-        quat = Rotation.from_matrix(target[:3, :3]).as_quat().tolist()
+        quat = quaternion_from_matrix(target[:3, :3]).tolist()
         t0 = time.perf_counter()
         q_pb = client.calculateInverseKinematics(body, tip, target[:3, 3].tolist(), quat)
         times.append(time.perf_counter() - t0)

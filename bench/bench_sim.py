@@ -12,17 +12,28 @@ with ``stepSimulation`` at 1/240 s. Stated anchors (sim_anchors.md): SurRoL's Py
 runs at about 18-20x real time at 1/240 s steps; the AMBF Surgical Robotics Challenge at 1x.
 Target (issue): >= 100x real time at the default step.
 
-Run: ``.venv/bin/python bench/bench_sim.py``
+Run: ``.venv/bin/python bench/bench_sim.py``; ``--before REF`` (a commit, branch or tag) also
+measures the same throws with the code of REF (a temporary git worktree, run in a subprocess with
+its packages first on ``PYTHONPATH``), alternating with today's code for ``--rounds`` rounds, and
+prints the CPU time per throw before and after side by side (the best round of each: the machine
+may be shared, CPU time is what other processes disturb least).
 """
 
 import argparse
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import bullet_client, pybullet
+from sim_bridge.geometry import quaternion_from_matrix
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 
 ANCHOR_SURROL_REALTIME = (18.0, 20.0)
@@ -40,24 +51,67 @@ def expert_throws(config, pairs, control_period):
         if phantom not in sims:
             sims[phantom] = Simulation(config, phantom=phantom)
         sim = sims[phantom]
-        sim.reset(seed=0)
-        sim.enable_and_home_all()
-        sim.set_target_pair(name)
+        start_episode(sim, name, seed=0)
         if phantom == 'scanned':
             sim.attach_needle('PSM2')  # the needle start does not stay on the scanned pad
         expert = ScriptedExpert(sim.target_pair, sim.needle_geometry, sim.config.scene.expert,
                                 kinematics=sim.kinematics['PSM2'])
-        t0, start, cpu = sim.time, time.perf_counter(), time.process_time()
-        while not expert.done:
-            sim.run(control_period, expert, control_period)
+        start, cpu = time.perf_counter(), time.process_time()
+        sim_s += run_episode(sim, expert, control_period, chunk=control_period, settle=0.0,
+                             reset=False)
         wall_s += time.perf_counter() - start
         cpu_s += time.process_time() - cpu
-        sim_s += sim.time - t0
         scores.append(sim.score().score)
         sim.pop_events()
     for sim in sims.values():
         sim.close()
     return sim_s, wall_s, cpu_s, scores
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def throws_in_subprocess(tree, pairs, control_period):
+    """Run :func:`expert_throws` with the packages of source tree ``tree``; return its results."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(tree)] + [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p]))
+    out = subprocess.run(
+        [sys.executable, __file__, '--throws-json', '--control-period', str(control_period),
+         '--pairs', *pairs], env=env, check=True, capture_output=True, text=True).stdout
+    result = json.loads(out.strip().splitlines()[-1])
+    if Path(result['source']).resolve() != (Path(tree) / 'sim_bridge').resolve():
+        raise RuntimeError(f'the throws ran the code in {result["source"]}, not {tree}')
+    return result
+
+
+def compare_before_after(ref, pairs, control_period, rounds):
+    """
+    Time the throws with the code of ``ref`` and with this tree, alternating, ``rounds`` times.
+
+    Returns
+    -------
+    dict
+        ``'before'`` and ``'after'``: lists of per-round results (simulated s, wall s, CPU s,
+        scores), and ``'ref'``: the commit measured as before.
+
+    """
+    commit = subprocess.run(['git', '-C', str(REPO), 'rev-parse', '--verify', f'{ref}^{{commit}}'],
+                            check=True, capture_output=True, text=True).stdout.strip()
+    scratch = tempfile.mkdtemp(prefix='bench-sim-before-')
+    tree = Path(scratch) / 'tree'
+    subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', str(tree), commit],
+                   check=True, capture_output=True)
+    runs = {'before': [], 'after': [], 'ref': commit}
+    try:
+        for k in range(rounds):
+            order = (('before', tree), ('after', REPO))
+            for label, source in order if k % 2 == 0 else order[::-1]:
+                runs[label].append(throws_in_subprocess(source, pairs, control_period))
+    finally:
+        subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force', str(tree)],
+                       check=False, capture_output=True)
+        os.rmdir(scratch)
+    return runs
 
 
 def chain_body(client, chain, base_position):
@@ -73,7 +127,7 @@ def chain_body(client, chain, base_position):
         linkCollisionShapeIndices=[shape] * n,
         linkVisualShapeIndices=[-1] * n,
         linkPositions=[F[:3, 3].tolist() for F in frames],
-        linkOrientations=[Rotation.from_matrix(F[:3, :3]).as_quat().tolist() for F in frames],
+        linkOrientations=[quaternion_from_matrix(F[:3, :3]).tolist() for F in frames],
         linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n,
         linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n,
         linkParentIndices=list(range(n)),
@@ -117,9 +171,26 @@ def main():
     parser.add_argument('--control-period', type=float, default=0.01)
     parser.add_argument('--anchor-seconds', type=float, default=10.0)
     parser.add_argument('--renders', type=int, default=5)
+    parser.add_argument('--before', metavar='REF',
+                        help='also measure the throws with the code of this git commit/branch')
+    parser.add_argument('--rounds', type=int, default=3,
+                        help='alternating before/after rounds with --before (best one counts)')
+    parser.add_argument('--throws-json', action='store_true', help=argparse.SUPPRESS)
     args = parser.parse_args()
     config = load_simulation_config()
-    sim_s, wall_s, cpu_s, scores = expert_throws(config, args.pairs, args.control_period)
+    if args.throws_json:  # one measurement for --before, in the subprocess
+        sim_s, wall_s, cpu_s, scores = expert_throws(config, args.pairs, args.control_period)
+        import sim_bridge
+        print(json.dumps({'sim_s': sim_s, 'wall_s': wall_s, 'cpu_s': cpu_s, 'scores': scores,
+                          'source': str(Path(sim_bridge.__file__).parent)}))
+        return
+    runs = None
+    if args.before:
+        runs = compare_before_after(args.before, args.pairs, args.control_period, args.rounds)
+        best = min(runs['after'], key=lambda r: r['cpu_s'])
+        sim_s, wall_s, cpu_s, scores = best['sim_s'], best['wall_s'], best['cpu_s'], best['scores']
+    else:
+        sim_s, wall_s, cpu_s, scores = expert_throws(config, args.pairs, args.control_period)
     sim = Simulation(config)
     ours, ours_cpu = sim_s / wall_s, sim_s / cpu_s
     anchor, anchor_cpu = surrol_style_scene(args.anchor_seconds, np.random.default_rng(0))
@@ -160,9 +231,31 @@ def main():
           f'({ours / TARGET_REALTIME:.3f} of the target)')
     print(f'per CPU second (robust on a shared machine): ours {ours_cpu:.2f}x, SurRoL-style '
           f'{anchor_cpu:.1f}x, ratio {ours_cpu / anchor_cpu:.3f}')
+    if runs is not None:
+        print_before_after(runs, len(args.pairs), anchor_cpu)
     print(f'IK: scalar {ik_scalar:,.0f} solves/s, batch {ik_batch:,.0f} solves/s')
     print(f'stereo render ({cam.width}x{cam.height}, RGB + depth, both eyes, CPU): '
           f'{render_s * 1e3:.0f} ms')
+
+
+def print_before_after(runs, n_throws, anchor_cpu):
+    """Print CPU per throw and real time per CPU second, before and after, side by side."""
+    print(f'before = {runs["ref"][:12]}, after = this tree; {len(runs["after"])} alternating '
+          f'rounds, best (least CPU) round of each; the machine may be shared')
+    rows = {}
+    for label in ('before', 'after'):
+        best = min(runs[label], key=lambda r: r['cpu_s'])
+        cpus = sorted(r['cpu_s'] for r in runs[label])
+        rows[label] = (best['cpu_s'] / n_throws, cpus[len(cpus) // 2] / n_throws,
+                       best['sim_s'] / best['cpu_s'], best['scores'])
+    print(f'{"":8}{"CPU s/throw (best)":>20}{"(median)":>10}{"x real time/CPU s":>19}'
+          f'{"/ SurRoL-style":>16}  scores')
+    for label, (best, median, per_cpu, scores) in rows.items():
+        print(f'{label:8}{best:20.3f}{median:10.3f}{per_cpu:19.2f}{per_cpu / anchor_cpu:16.3f}'
+              f'  {scores}')
+    print(f'after / before: CPU per throw {rows["after"][0] / rows["before"][0]:.3f} '
+          f'({rows["before"][0] / rows["after"][0]:.2f}x faster); same scores: '
+          f'{rows["after"][3] == rows["before"][3]}')
 
 
 if __name__ == '__main__':

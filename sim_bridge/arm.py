@@ -39,11 +39,15 @@ PSM (6 joints) reaches position and orientation, and an unreachable pose is an `
 
 Frames: ``measured_cp = base_frame @ local_measured_cp``, ``local_measured_cp`` being the tool tip
 in the RCM frame ``<ARM>_base`` (DH chain and tooltip offset). Units are SI.
+
+Size: one arm's state machine, commands and per-step motion share its state on the simulator's hot
+path; they stay in one file for speed.
 """
 
 from dataclasses import dataclass
 import logging
 import math
+import struct
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -205,9 +209,12 @@ class Arm:
         self._free = False
         self._tool_present = bool(config.tool_present)
         self._ratio = 1.0
-        self._base_frame = np.eye(4)
+        self._base_frame = _read_only(np.eye(4))
+        self._base_is_identity = True
+        self._exact = config.tracking == 'exact'
+        self._pack_joints = struct.Struct(f'{k.n_joints}d').pack  # exact bytes of a joint tuple
         self._ik_memo = None  # (goal and reference bytes, joints) of the last servo_cp IK
-        self._fk_memo = {}  # 'measured' / 'setpoint' -> (joint bytes, tool-tip pose)
+        self._fk_memo = {}  # 'measured' / 'setpoint' -> (joint tuple, read-only tool-tip pose)
         self._reference_frame = f'{self.name}_base'
         self._setpoint_jf = np.zeros(k.n_joints)
         self._time = 0.0
@@ -381,6 +388,10 @@ class Arm:
 
     def _pose_in_rcm(self, pose, command):
         """Validate a Cartesian goal (in the measured_cp frame) and express it in <ARM>_base."""
+        if isinstance(pose, np.ndarray) and pose.dtype == np.float64 and pose.shape == (4, 4):
+            T = check_pose(pose, name=f'{command} goal')  # the common case: a float matrix
+            # in the RCM frame already when the base frame is the identity (solve would copy)
+            return T if self._base_is_identity else np.linalg.solve(self._base_frame, T)
         arr = np.asarray(pose, dtype=float) if _is_numeric(pose) else None
         if arr is None:
             raise ValueError(f'{command} goal must be a 4x4 pose or (x, y, z, qx, qy, qz, qw)')
@@ -460,16 +471,17 @@ class Arm:
             return
         try:
             T = self._pose_in_rcm(pose, 'servo_cp')
-            q_ref = self._arm.setpoint
-            key = (T.tobytes(), q_ref.tobytes())
+            q_ref = self._arm.setpoint_values
+            key = (T.tobytes(), self._pack_joints(*q_ref))
             if self._ik_memo is not None and self._ik_memo[0] == key:
-                q = self._ik_memo[1].copy()  # the same goal from the same setpoint: same answer
+                q = self._ik_memo[1]  # the same goal from the same setpoint: same answer
             elif not self._has_jaw:
-                q = self._ecm_goal(T, q_ref, 'servo_cp', stream=True)
-                self._ik_memo = (key, q.copy())
+                q = tuple(self._ecm_goal(T, np.array(q_ref), 'servo_cp', stream=True).tolist())
+                self._ik_memo = (key, q)
             else:
-                q = self.kinematics.ik(T, q_ref=q_ref)
-                self._ik_memo = (key, q.copy())
+                # the pose is checked and the setpoint finite: no second check in the IK
+                q = self.kinematics.ik_unchecked(T, q_ref)
+                self._ik_memo = (key, q)
         except _OutsideWorkspaceError:
             return
         except UnreachableError as exc:
@@ -631,11 +643,13 @@ class Arm:
             return None
         if not self._ready(command, needs_tool=True):
             return None
+        if isinstance(angle, float) and math.isfinite(angle):  # the common case, a number
+            return self._clip_jaw(command, float(angle), stream=command == 'jaw_servo_jp')
         try:
             value = np.asarray(angle, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             value = np.array([np.nan, np.nan])
-        if value.shape != (1,) or not np.isfinite(value[0]):
+        if value.shape != (1,) or not math.isfinite(value[0]):
             text = f'{self.name}: {command} needs one finite angle (rad), got {angle!r}'
             if command == 'jaw_move_jp':
                 self._reject_move(text)
@@ -659,7 +673,7 @@ class Arm:
             return
         if self._jaw.trajectory is not None:
             self._emit('goal_reached', False)
-        self._jaw.servo(np.array([angle]), self._time, self.config.servo_stream_gap)
+        self._jaw.servo((angle,), self._time, self.config.servo_stream_gap)
         self._set_busy(self._motion_running())
 
     def jaw_move_jp(self, angle):
@@ -675,7 +689,7 @@ class Arm:
         angle = self._jaw_angle('jaw_move_jp', angle)
         if angle is None:
             return
-        self._jaw.move(np.array([angle]), self._time, self._ratio)
+        self._jaw.move((angle,), self._time, self._ratio)
         self._set_busy(True, force=True)
 
     # -- settings ------------------------------------------------------------------------------
@@ -719,7 +733,8 @@ class Arm:
         except ValueError as exc:
             self._message('error', f'{self.name}: {exc}')
             return
-        self._base_frame = T
+        self._base_frame = _read_only(T)
+        self._base_is_identity = bool(np.array_equal(T, np.eye(4)))
         if frame_id:
             self._reference_frame = str(frame_id)
 
@@ -755,29 +770,32 @@ class Arm:
         now = self._time
         if self._powered_at is not None and now >= self._powered_at - 1e-9:
             self._power_on()
+        arm, jaw = self._arm, self._jaw
         if self._state != 'ENABLED':
-            self._arm.qd[:] = 0.0
-            if self._jaw is not None:
-                self._jaw.qd[:] = 0.0
+            arm.stop()
+            if jaw is not None:
+                jaw.stop()
             return
-        exact = self.config.tracking == 'exact'
-        finished = []
-        for part in (self._arm, self._jaw):
-            if part is None:
-                continue
-            if self._free and part is self._arm:
-                part.hold()
-            elif part.advance(now, dt, exact):
-                finished.append(part)
-        for part in finished:
-            if part is self._arm and self._homing:
+        exact = self._exact
+        if self._free:
+            arm.hold()
+            arm_arrived = False
+        else:
+            arm_arrived = arm.advance(now, dt, exact)
+        jaw_arrived = jaw is not None and jaw.advance(now, dt, exact)
+        if arm_arrived:
+            if self._homing:
                 self._homing = False
                 self._homed = True
                 self._busy = self._motion_running()
                 self._emit_state()
             else:
                 self._emit('goal_reached', True)
-        self._set_busy(self._motion_running())
+        if jaw_arrived:
+            self._emit('goal_reached', True)
+        busy = self._motion_running()
+        if busy != self._busy:
+            self._set_busy(busy)
 
     # -- state ---------------------------------------------------------------------------------
 
@@ -807,6 +825,11 @@ class Arm:
         return self._base_frame.copy()
 
     @property
+    def base_frame_view(self):
+        """:attr:`base_frame` without the copy: read-only, the same array until it is set."""
+        return self._base_frame
+
+    @property
     def reference_frame(self):
         """Frame id of ``measured_cp`` / ``setpoint_cp`` (default ``'<ARM>_base'``)."""
         return self._reference_frame
@@ -819,12 +842,12 @@ class Arm:
     @property
     def measured_jp(self):
         """Measured joint positions, shape (n,) (rad / m)."""
-        return self._arm.q.copy()
+        return np.array(self._arm.q_values)
 
     @property
     def measured_jv(self):
         """Measured joint velocities, shape (n,) (rad/s, m/s)."""
-        return self._arm.qd.copy()
+        return np.array(self._arm.qd_values)
 
     @property
     def measured_jf(self):
@@ -834,7 +857,7 @@ class Arm:
     @property
     def setpoint_jp(self):
         """Joint setpoint, shape (n,) (rad / m): servo goal or current trajectory sample."""
-        return self._arm.setpoint.copy()
+        return np.array(self._arm.setpoint_values)
 
     @property
     def setpoint_jf(self):
@@ -844,31 +867,40 @@ class Arm:
     @property
     def local_measured_cp(self):
         """Tool tip in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
-        return self._fk('measured', self._arm.q)
+        return self._fk('measured', self._arm.q_values).copy()
+
+    @property
+    def local_measured_cp_view(self):
+        """
+        :attr:`local_measured_cp` without the copy: a read-only array.
+
+        The same array object as long as the measured joints do not move, so that a caller can
+        keep what it derived from it (the simulation's world pose of the tool) until then.
+        """
+        return self._fk('measured', self._arm.q_values)
 
     @property
     def local_setpoint_cp(self):
         """Tool-tip setpoint in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
-        return self._fk('setpoint', self._arm.setpoint)
+        return self._fk('setpoint', self._arm.setpoint_values).copy()
 
     def _fk(self, which, q):
-        """Forward kinematics of ``q``, computed again only when ``q`` changed (a copy)."""
-        key = q.tobytes()
+        """Forward kinematics of the joint tuple ``q``, computed again only when it moved."""
         memo = self._fk_memo.get(which)
-        if memo is None or memo[0] != key:
+        if memo is None or memo[0] is not q:  # a joint tuple is replaced when the joints move
             # the arm's own joints, finite since every command is checked: no check again
-            memo = self._fk_memo[which] = (key, self.kinematics.fk_unchecked(q.tolist()))
-        return memo[1].copy()
+            memo = self._fk_memo[which] = (q, _read_only(self.kinematics.fk_unchecked(q)))
+        return memo[1]
 
     @property
     def measured_cp(self):
         """Tool tip in :attr:`reference_frame`: ``base_frame @ local_measured_cp``, (4, 4)."""
-        return self._base_frame @ self.local_measured_cp
+        return self._base_frame @ self._fk('measured', self._arm.q_values)
 
     @property
     def setpoint_cp(self):
         """Tool-tip setpoint in :attr:`reference_frame`, shape (4, 4) (metres)."""
-        return self._base_frame @ self.local_setpoint_cp
+        return self._base_frame @ self._fk('setpoint', self._arm.setpoint_values)
 
     @property
     def jacobian_spatial(self):
@@ -906,17 +938,23 @@ class Arm:
     @property
     def jaw_measured_jp(self):
         """Measured jaw angle (rad), PSM only."""
-        return float(self._require_jaw().q[0])
+        return self._require_jaw().q_values[0]
 
     @property
     def jaw_measured_jv(self):
         """Measured jaw velocity (rad/s), PSM only."""
-        return float(self._require_jaw().qd[0])
+        return self._require_jaw().qd_values[0]
 
     @property
     def jaw_setpoint_jp(self):
         """Jaw setpoint (rad), PSM only."""
-        return float(self._require_jaw().setpoint[0])
+        return self._require_jaw().setpoint_values[0]
+
+
+def _read_only(array):
+    """Return ``array`` marked read-only (it is shared, not copied)."""
+    array.flags.writeable = False
+    return array
 
 
 class _OutsideWorkspaceError(Exception):

@@ -13,6 +13,7 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 from dataclasses import dataclass
 
 import numpy as np
+from sim_bridge.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -122,8 +123,7 @@ class ExpertConfig:
     def __post_init__(self):
         for name in ('tool_speed', 'tool_angular_speed', 'tool_acceleration',
                      'tool_angular_acceleration', 'drive_speed', 'speed_scale', 'roll_step_deg'):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f'expert {name} must be > 0, got {getattr(self, name)}')
+            check_positive(getattr(self, name), f'expert {name}')
         if not 0.0 <= self.grasp_s_min <= self.grasp_s_max <= 1.0:
             raise ValueError('expert needs 0 <= grasp_s_min <= grasp_s_max <= 1')
         if self.aim_std < 0.0 or self.tilt_std_deg < 0.0:

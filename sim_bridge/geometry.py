@@ -13,6 +13,9 @@ Conventions (one page, used by every ``suture_lfd`` module):
 - A pose is a 7-vector ``(x, y, z, qx, qy, qz, qw)`` (m, unit quaternion) or a 4x4 homogeneous
   matrix ``T_a_b`` that maps coordinates in frame ``b`` into frame ``a``.
 - Conversions are named ``<target>_from_<source>``.
+
+Size: the conventions are written on one page, for every rotation and transform function beside
+them; each function is short.
 """
 
 import math

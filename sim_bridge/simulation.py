@@ -13,8 +13,10 @@ One :meth:`Simulation.step` is one fixed physics step (``world.physics_step``, 2
 4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.scene.tissue`) and
 the
    throw scorer takes every event (:mod:`sim_bridge.scene.scoring`);
-5. every ``thread_period`` the thread follows the needle tail; every ``collision_period`` the
-   instrument ends are tested against the tissue (``collision`` events when contact starts).
+5. every ``thread_period`` the thread follows the needle tail (the step is queued and runs when
+   the thread is next read: :meth:`sim_bridge.scene.thread.ThreadChain.follow`); every
+   ``collision_period`` the instrument ends are tested against the tissue (``collision``
+   events when contact starts).
 
 PyBullet holds the arms, needle and thread only for drawing and for the free needle's dynamics;
 their poses are copied into it when an image is rendered (:meth:`Simulation.render`) or when
@@ -27,6 +29,9 @@ Events (:class:`SimEvent`, stamped with simulation time): ``grasp``, ``release``
 Frames: ``world`` (z up; phantom at the origin, see ``config/world.yaml``) unless a name says
 otherwise; poses are 4x4 ``T_world_*``; SI units. Time is simulation time in seconds, counted in
 whole physics steps, and the same seed gives bit-identical runs.
+
+Size: one physics step touches every part of the scene in a fixed order; the order is readable in
+one file and the step is the simulator's hot path.
 """
 
 from dataclasses import dataclass, field, replace
@@ -291,6 +296,7 @@ class Simulation:
         # Highest point of the tissue (world z): far above it nothing can touch the tissue.
         self._tissue_top = float(self.phantom.mesh_world().vertices[:, 2].max())
         self._needle_reach = self.needle_geometry.radius + self.needle_geometry.wire_diameter
+        self._needle_tail = self.needle_geometry.tail
         shape = cfg.world.instrument
         self._instrument_reach = shape.jaw_length + shape.shaft_radius
         self._thread_world = client.saveState()
@@ -334,11 +340,13 @@ class Simulation:
             self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
         self._tool_cache = {}
+        self._command_frames = {}
         self._steps = 0
         self._events = []
         self.grasp.reset()
         self.tissue.reset()
         self._contact = dict.fromkeys(PSMS, False)
+        self._contact_checked = dict.fromkeys(PSMS)  # joints and jaw of the last check
         self._collisions = 0
         self._last_score = None
         self._needle_mode = 'resting'
@@ -351,7 +359,7 @@ class Simulation:
         thread_nodes = self.thread_geometry.rest_points(self.needle_geometry, self._T_needle)
         self.thread = ThreadChain(thread_nodes, self.thread_geometry.radius, cfg.thread)
         for _ in range(int(round(cfg.loop.needle_start.settle_time / cfg.loop.thread_period))):
-            self.thread.step(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
+            self.thread.follow(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
         pairs = list(self.phantom.markers)
         target = cfg.loop.target_pair if cfg.loop.target_pair is not None else pairs[0]
         self.set_target_pair(target)
@@ -430,12 +438,14 @@ class Simulation:
         return {name: self.arms[name].jaw_measured_jp for name in PSMS}
 
     def _tool_pose(self, name):
-        """Tool-tip pose in ``world``, computed at most once per step."""
+        """Tool-tip pose in ``world`` (read-only), computed again only when the arm moved."""
+        local = self.arms[name].local_measured_cp_view  # the same array while the arm is still
         cached = self._tool_cache.get(name)
-        if cached is not None and cached[0] == self._steps:
+        if cached is not None and cached[0] is local:
             return cached[1]
-        T = self._T_world_base[name] @ self.arms[name].local_measured_cp
-        self._tool_cache[name] = (self._steps, T)
+        T = self._T_world_base[name] @ local
+        T.flags.writeable = False
+        self._tool_cache[name] = (local, T)
         return T
 
     def _emit(self, kind, **data):
@@ -479,8 +489,8 @@ class Simulation:
             for ev in self.tissue.update(t, self._T_needle):
                 self._on_tissue_event(t, ev)
         if self._steps % self._thread_every == 0:
-            tail = self._T_needle[:3, :3] @ self.needle_geometry.tail + self._T_needle[:3, 3]
-            self.thread.step(self._thread_every * dt, tail, self.world.support_height)
+            tail = self._T_needle[:3, :3] @ self._needle_tail + self._T_needle[:3, 3]
+            self.thread.follow(self._thread_every * dt, tail, self.world.support_height)
         if self._steps % self._collision_every == 0:
             self._check_contacts(t)
 
@@ -619,8 +629,14 @@ class Simulation:
             arm = self.arms[name]
             if self._tool_pose(name)[2, 3] - self._instrument_reach > self._tissue_top:
                 self._contact[name] = False
+                self._contact_checked[name] = None
                 continue
-            points = self.world.instrument_points(name, arm.measured_jp, arm.jaw_measured_jp)
+            q, jaw = arm.measured_jp, arm.jaw_measured_jp
+            checked = (q.tobytes(), jaw)
+            if checked == self._contact_checked[name]:
+                continue  # the instrument has not moved since the last check: same contact
+            self._contact_checked[name] = checked
+            points = self.world.instrument_points(name, q, jaw)
             depth = float(self.phantom.penetration(points).max())
             touching = depth > depth_limit
             if touching and not self._contact[name]:
@@ -657,12 +673,20 @@ class Simulation:
                 continue
             arm = self.arms[name]
             T = np.asarray(T, dtype=float)
-            if T.shape == (4, 4) and np.all(np.isfinite(T)):
-                T = arm.base_frame @ self._T_base_world[name] @ T
+            if T.shape == (4, 4) and np.isfinite(T).all():
+                T = self._command_frame(name, arm) @ T
             arm.servo_cp(T)  # the arm rejects malformed goals with an error event
         for name, jaw in (command.jaw or {}).items():
             if jaw is not None:
                 self.arms[name].jaw_servo_jp(jaw)
+
+    def _command_frame(self, name, arm):
+        """``T_ref_world`` of an arm's ``measured_cp`` frame, computed again when it changed."""
+        base = arm.base_frame_view  # read-only, replaced when the arm's base frame is set
+        cached = self._command_frames.get(name)
+        if cached is None or cached[0] is not base:
+            cached = self._command_frames[name] = (base, base @ self._T_base_world[name])
+        return cached[1]
 
     def set_target_pair(self, name):
         """

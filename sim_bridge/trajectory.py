@@ -13,6 +13,9 @@ setpoint.
 
 Units: joint positions in rad or m, velocities per second, accelerations per second squared;
 arrays have shape (n,) for n joints.
+
+Size: the trapezoid planner and the limited tracking step share one profile arithmetic on the
+per-step path of every arm, which is kept in one file for speed.
 """
 
 import math
@@ -129,6 +132,10 @@ class JointTrajectory:
         self._s1 = np.sign(self._vc - v0)
         self._b2 = np.maximum(self._t1, self.duration - np.abs(self._vc) / a)
         self._s3 = -np.sign(self._vc)
+        # per joint, in plain floats, for sample_values()
+        self._joint_terms = tuple(zip(*(x.tolist() for x in (
+            self.start, v0, self._vc, self.a_limit, self._t1, self._b2, self._s1, self._s3))))
+        self._goal_values = tuple(self.goal.tolist())
 
     def _cruise_velocities(self, distance, T):
         """Bisect the cruise velocity per joint so that the profile of duration T covers it."""
@@ -173,6 +180,38 @@ class JointTrajectory:
         qd = np.where(t <= self._t1, v0 + self._s1 * a * t,
                       np.where(t <= self._b2, vc, vc + self._s3 * a * tau3))
         return q, qd
+
+    def sample_values(self, t: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """
+        :meth:`sample` in plain floats: the same operations joint by joint, the same values.
+
+        Parameters
+        ----------
+        t : float
+            Time since the start (s); clamped to ``[0, duration]``.
+
+        Returns
+        -------
+        q, qd : tuple of float, length n
+            Joint positions (rad / m) and velocities (rad/s, m/s).
+
+        """
+        if t >= self.duration:
+            return self._goal_values, (0.0,) * len(self._goal_values)
+        t = max(float(t), 0.0)
+        q, qd = [], []
+        for start, v0, vc, a, t1, b2, s1, s3 in self._joint_terms:
+            # min(x, y) is "y if y < x else x" and max(x, y) "y if y > x else x", written out
+            tau1 = t1 if t1 < t else t
+            x = t - t1
+            x = 0.0 if 0.0 > x else x
+            tau2 = b2 - t1 if b2 - t1 < x else x
+            x = t - b2
+            tau3 = 0.0 if 0.0 > x else x
+            q.append(start + v0 * tau1 + 0.5 * s1 * a * tau1 * tau1 + vc * tau2
+                     + vc * tau3 + 0.5 * s3 * a * tau3 * tau3)
+            qd.append(v0 + s1 * a * t if t <= t1 else vc if t <= b2 else vc + s3 * a * tau3)
+        return tuple(q), tuple(qd)
 
     def done(self, t):
         """
@@ -239,6 +278,15 @@ def track_step(q, qd, target, v_max, a_max, dt, target_velocity=None):
     return np.where(arrived, target, q_new), qd_new
 
 
+
+
+def _values(x) -> tuple[float, ...]:
+    """Return joint values (array, list or tuple) as a tuple of Python floats."""
+    if isinstance(x, np.ndarray):
+        return tuple(x.astype(float, copy=False).reshape(-1).tolist())
+    return tuple(map(float, x))
+
+
 class JointMotion:
     """
     A joint group (the arm joints or the jaw) following its setpoint within limits.
@@ -246,6 +294,13 @@ class JointMotion:
     Holds the measured state, the setpoint and what drives the setpoint: a
     :class:`JointTrajectory` (``move_*``), a stream of servo setpoints (``servo_*``: the measured
     joints glide from one setpoint to the next over the command interval), or nothing (hold).
+
+    The state is kept as tuples of Python floats (``q_values``, ``qd_values``,
+    ``setpoint_values``): a few joints stepped every physics step cost less that way than
+    through NumPy, with the same operations as the array functions :func:`track_step` and
+    :meth:`JointTrajectory.sample` (bit for bit). A tuple is replaced, never changed, when the
+    joints move, so a caller may keep one and compare it by identity. ``q``, ``qd`` and
+    ``setpoint`` give NumPy copies.
 
     Parameters
     ----------
@@ -258,55 +313,121 @@ class JointMotion:
 
     Attributes
     ----------
-    q, qd : ndarray, shape (n,)
-        Measured position and velocity.
-    setpoint : ndarray, shape (n,)
-        Servo goal, or the trajectory sample at the last :meth:`advance`.
     trajectory : JointTrajectory or None
         The running move.
 
     """
 
     def __init__(self, q0, lower, upper, v_max, a_max):
-        self.q = np.array(q0, dtype=float)
-        self.qd = np.zeros_like(self.q)
-        self.setpoint = self.q.copy()
+        self._q = _values(np.array(q0, dtype=float))
+        n = len(self._q)
+        self._zeros = (0.0,) * n
+        self._qd = self._zeros
+        self._sp = self._q
         self.lower = np.asarray(lower, dtype=float)
         self.upper = np.asarray(upper, dtype=float)
         self.v_max = np.asarray(v_max, dtype=float)
         self.a_max = np.asarray(a_max, dtype=float)
-        self._v_list, self._a_list = self.v_max.tolist(), self.a_max.tolist()
-        self._lower_list, self._upper_list = self.lower.tolist(), self.upper.tolist()
+        self._limits = tuple(zip(self.v_max.tolist(), self.a_max.tolist(), self.lower.tolist(),
+                                 self.upper.tolist(), (-self.v_max).tolist()))
+        self._bounds = tuple(zip(self.lower.tolist(), self.upper.tolist()))
         self.trajectory = None
         self._t0 = 0.0
         self._ramp = None  # (start, goal, start time, interval)
         self._last_servo_time = None
+
+    # -- state -----------------------------------------------------------------------------------
+
+    @property
+    def q(self) -> np.ndarray:
+        """Measured position (rad / m), shape (n,) (a copy)."""
+        return np.array(self._q)
+
+    @q.setter
+    def q(self, value):
+        self._q = _values(value)
+
+    @property
+    def qd(self) -> np.ndarray:
+        """Measured velocity (rad/s, m/s), shape (n,) (a copy)."""
+        return np.array(self._qd)
+
+    @qd.setter
+    def qd(self, value):
+        self._qd = _values(value)
+
+    @property
+    def setpoint(self) -> np.ndarray:
+        """Servo goal, or the trajectory sample at the last :meth:`advance`, shape (n,)."""
+        return np.array(self._sp)
+
+    @setpoint.setter
+    def setpoint(self, value):
+        self._sp = _values(value)
+
+    @property
+    def q_values(self) -> tuple[float, ...]:
+        """Measured position as a tuple of floats (replaced, not changed, when it moves)."""
+        return self._q
+
+    @property
+    def qd_values(self) -> tuple[float, ...]:
+        """Measured velocity as a tuple of floats."""
+        return self._qd
+
+    @property
+    def setpoint_values(self) -> tuple[float, ...]:
+        """Setpoint as a tuple of floats (replaced, not changed, when it moves)."""
+        return self._sp
+
+    # -- tracking --------------------------------------------------------------------------------
 
     def _track(self, target, velocity, dt):
         """
         :func:`track_step`, then the position limits (a joint held at a limit stops), per joint.
 
         The same operations as the array version, joint by joint in plain floats: a few joints
-        are cheaper that way than through a dozen NumPy calls.
+        are cheaper that way than through a dozen NumPy calls. ``target`` and ``velocity``
+        (None: zero) are sequences of floats; returns tuples (q, qd).
         """
-        tv = [0.0] * len(self.q) if velocity is None else np.asarray(velocity, float).tolist()
+        # min(x, y) is "y if y < x else x" and max(x, y) "y if y > x else x", written out
         q_out, qd_out = [], []
-        for q, qd, g, v, a, w, lo, hi in zip(self.q.tolist(), self.qd.tolist(), target.tolist(),
-                                              self._v_list, self._a_list, tv, self._lower_list,
-                                              self._upper_list):
+        tv = self._zeros if velocity is None else velocity
+        sqrt = math.sqrt
+        for q, qd, g, w, (v, a, lo, hi, minus_v) in zip(self._q, self._qd, target, tv,
+                                                          self._limits):
             e = g - q - w * dt
             mag = abs(e)
-            step = min(math.sqrt(2.0 * a * mag), mag / dt)
-            v_des = min(max(w + (step if e > 0.0 else -step if e < 0.0 else 0.0 * step), -v), v)
+            root, ramp = sqrt(2.0 * a * mag), mag / dt
+            step = ramp if ramp < root else root
+            x = w + (step if e > 0.0 else -step if e < 0.0 else 0.0 * step)
+            x = minus_v if minus_v > x else x
+            v_des = v if v < x else x
             dv = a * dt
-            qd_new = qd + min(max(v_des - qd, -dv), dv)
+            x = v_des - qd
+            x = -dv if -dv > x else x
+            qd_new = qd + (dv if dv < x else x)
             q_new = q + qd_new * dt
             if abs(g - q_new) < 1e-12 and abs(qd_new) <= dv:
                 q_new = g
-            clipped = min(max(q_new, lo), hi)
+            x = lo if lo > q_new else q_new
+            clipped = hi if hi < x else x
             q_out.append(clipped)
             qd_out.append(qd_new if clipped == q_new else 0.0)
-        return np.array(q_out), np.array(qd_out)
+        return tuple(q_out), tuple(qd_out)
+
+    def _target(self, now):
+        """:meth:`target` as tuples of floats (the velocity None when standing still)."""
+        if self.trajectory is not None:
+            return self.trajectory.sample_values(now - self._t0)
+        if self._ramp is not None:
+            start, goal, t0, interval = self._ramp
+            s = (now - t0) / interval
+            if s <= 1.0 + 1e-9:
+                m = min(s, 1.0)
+                return (tuple([a + (b - a) * m for a, b in zip(start, goal)]),
+                        tuple([(b - a) / interval for a, b in zip(start, goal)]))
+        return self._sp, None
 
     def target(self, now):
         """
@@ -318,19 +439,13 @@ class JointMotion:
         qd : ndarray, shape (n,) or None
 
         """
-        if self.trajectory is not None:
-            return self.trajectory.sample(now - self._t0)
-        if self._ramp is not None:
-            start, goal, t0, interval = self._ramp
-            s = (now - t0) / interval
-            if s <= 1.0 + 1e-9:
-                return start + (goal - start) * min(s, 1.0), (goal - start) / interval
-        return self.setpoint, None
+        q, qd = self._target(now)
+        return np.array(q), None if qd is None else np.array(qd)
 
     def setpoint_velocity(self, now):
         """Velocity (per s) of the tracked setpoint at time ``now``, shape (n,)."""
-        velocity = self.target(now)[1]
-        return np.zeros_like(self.q) if velocity is None else velocity
+        velocity = self._target(now)[1]
+        return np.zeros(len(self._q)) if velocity is None else np.array(velocity)
 
     def servo(self, goal, now, stream_gap):
         """
@@ -338,7 +453,7 @@ class JointMotion:
 
         Parameters
         ----------
-        goal : ndarray, shape (n,)
+        goal : array_like, shape (n,)
             New setpoint (rad / m), already inside the limits.
         now : float
             Current time (s).
@@ -346,12 +461,12 @@ class JointMotion:
             Commands closer than this (s) to the previous one glide from it over the interval.
 
         """
+        goal = _values(goal)
         last = self._last_servo_time
         if last is not None and 0.0 < now - last <= stream_gap:
-            start = self.target(now)[0]
+            start = self._target(now)[0]
             # gliding to where the setpoint already is would be a ramp that does not move
-            same = start.tolist() == np.asarray(goal).tolist()
-            self._ramp = None if same else (start, goal, now, now - last)
+            self._ramp = None if start == goal else (start, goal, now, now - last)
         elif last is not None and now == last and self._ramp is not None:
             start, _, t0, interval = self._ramp
             self._ramp = (start, goal, t0, interval)
@@ -359,7 +474,7 @@ class JointMotion:
             self._ramp = None
         self._last_servo_time = now
         self.trajectory = None
-        self.setpoint = np.array(goal, dtype=float)
+        self._sp = goal
 
     def move(self, goal, now, ratio):
         """
@@ -367,7 +482,7 @@ class JointMotion:
 
         Parameters
         ----------
-        goal : ndarray, shape (n,)
+        goal : array_like, shape (n,)
             Goal (rad / m), already inside the limits.
         now : float
             Current time (s).
@@ -379,22 +494,32 @@ class JointMotion:
         JointTrajectory
 
         """
-        start, velocity = self.target(now)
-        velocity = np.zeros_like(self.q) if velocity is None else velocity
+        start, velocity = self._target(now)
+        velocity = self._zeros if velocity is None else velocity
         velocity = np.clip(velocity, -self.v_max, self.v_max)
         self.trajectory = JointTrajectory(start, goal, self.v_max, self.a_max, ratio=ratio,
                                           start_velocity=velocity)
         self._t0 = now
         self._ramp = None
-        self.setpoint = self.trajectory.start.copy()
+        self._sp = tuple(self.trajectory.start.tolist())
         return self.trajectory
 
     def hold(self):
         """Stop where the measured joints are: no trajectory, setpoint = measured, at rest."""
         self.trajectory = None
         self._ramp = None
-        self.setpoint = self.q.copy()
-        self.qd = np.zeros_like(self.q)
+        self._sp = self._q
+        self._qd = self._zeros
+
+    def stop(self):
+        """Zero the measured velocity, keeping everything else (an arm without power)."""
+        self._qd = self._zeros
+
+    @property
+    def idle(self) -> bool:
+        """Whether nothing moves: no trajectory, no glide, at rest on the setpoint."""
+        return (self.trajectory is None and self._ramp is None and self._q == self._sp
+                and not any(self._qd))
 
     def advance(self, now, dt, exact=False):
         """
@@ -415,22 +540,25 @@ class JointMotion:
             True when a trajectory arrived during this step.
 
         """
-        target, velocity = self.target(now)
-        if (self.trajectory is None and velocity is None and self._ramp is None
-                and not self.qd.any() and self.q.tolist() == target.tolist()):
-            return False  # at rest on its setpoint: nothing moves (the common idle case)
-        if exact:
-            q = target
-            qd = np.zeros_like(self.q) if velocity is None else np.array(velocity)
-            self.q = np.clip(q, self.lower, self.upper)
-            self.qd = np.where(self.q == q, qd, 0.0)
+        if self.trajectory is None and self._ramp is None:
+            if self._q == self._sp and not any(self._qd):
+                return False  # at rest on its setpoint: nothing moves (the common idle case)
+            target, velocity = self._sp, None
         else:
-            self.q, self.qd = self._track(target, velocity, dt)
-        if self._ramp is not None and now > self._ramp[2] + self._ramp[3] * (1.0 + 1e-9):
+            target, velocity = self._target(now)
+        if exact:
+            clipped = tuple([min(max(v, lo), hi) for v, (lo, hi) in zip(target, self._bounds)])
+            qd = self._zeros if velocity is None else velocity
+            self._qd = tuple([w if c == v else 0.0 for c, v, w in zip(clipped, target, qd)])
+            self._q = clipped
+        else:
+            self._q, self._qd = self._track(target, velocity, dt)
+        ramp = self._ramp
+        if ramp is not None and now > ramp[2] + ramp[3] * (1.0 + 1e-9):
             self._ramp = None
         if self.trajectory is None:
             return False
-        self.setpoint = target.copy()
+        self._sp = target
         if self.trajectory.done(now - self._t0):
             self.trajectory = None
             return True

@@ -5,14 +5,19 @@ One way to write them with their format tag and version, and one way to read the
 names the file and the key in every error.
 """
 
+import os
+from pathlib import Path
 import zipfile
 
 import numpy as np
 
 
-def save_archive(path, arrays, fmt, version):
+def save_archive(path, arrays, fmt, version, *, compressed=False):
     """
     Write ``arrays`` to an ``.npz`` file with the keys ``format`` and ``format_version``.
+
+    The file is written beside ``path`` first and then renamed, so a reader never sees half of
+    it.
 
     Parameters
     ----------
@@ -24,11 +29,16 @@ def save_archive(path, arrays, fmt, version):
         Format tag (``'suture_lfd.segments'``).
     version : int
         Format version.
+    compressed : bool
+        Deflate the arrays (smaller, slower to write).
 
     """
+    path = Path(path)
     arrays = {'format': np.array(fmt), 'format_version': np.array(version), **arrays}
-    with open(path, 'wb') as handle:
-        np.savez(handle, **arrays)
+    tmp = path.with_name(path.name + '.part')
+    with open(tmp, 'wb') as handle:
+        (np.savez_compressed if compressed else np.savez)(handle, **arrays)
+    os.replace(tmp, path)
 
 
 def load_archive(path, fmt, version, what):

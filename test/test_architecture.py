@@ -172,3 +172,35 @@ def test_the_rules_read_relative_imports(tree):
     assert set(violations(tree)) == {
         f'sim_bridge.kinematics.probe imports sim_bridge.ros: {rule}',
         f'sim_bridge.kinematics.probe imports sim_bridge.ros.params: {rule}'}
+
+
+# --- module size ---------------------------------------------------------------------------------
+
+LONG_MODULE = 500  # lines; a longer module says in its docstring why it stays one file
+
+
+def long_modules_without_reason(root):
+    """Return the modules over ``LONG_MODULE`` lines whose docstring has no ``Size:`` sentence."""
+    found = []
+    for name, path in modules(root).items():
+        text = path.read_text()
+        if text.count('\n') <= LONG_MODULE:
+            continue
+        doc = ast.get_docstring(ast.parse(text, filename=str(path))) or ''
+        if 'Size:' not in doc:
+            found.append(f'{name}: {text.count(chr(10))} lines and no "Size:" sentence in its '
+                         'docstring saying why it is one file')
+    return found
+
+
+def test_every_module_over_500_lines_says_why_it_is_one_file():
+    assert long_modules_without_reason(REPO) == []
+
+
+def test_a_long_module_without_a_reason_is_named(tree):
+    body = '\n'.join(f'X{k} = {k}' for k in range(LONG_MODULE + 1))
+    (tree / 'suture_lfd/dmp/long.py').write_text(f'"""A long module."""\n{body}\n')
+    (tree / 'suture_lfd/dmp/long_ok.py').write_text(
+        f'"""\nA long module.\n\nSize: one table of constants.\n"""\n{body}\n')
+    assert [line.split(':')[0] for line in long_modules_without_reason(tree)] == [
+        'suture_lfd.dmp.long']

@@ -13,10 +13,14 @@ dVRK arms) is
     T_base_tip = T_1 * ... * T_n * tooltip_offset.
 
 Units are SI (metres, radians); poses are 4x4 homogeneous matrices ``T_a_b``.
+
+Size: forward kinematics, link frames and Jacobians share the scalar per-link arithmetic of the hot
+path, kept in one file for speed.
 """
 
 from dataclasses import dataclass
 import math
+import struct
 
 import numpy as np
 
@@ -146,7 +150,7 @@ def check_pose(T, name='T', tol=1e-6):
         rows = T.tolist()
         (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = rows
         flat = [v for row in rows for v in row]
-        if (bottom == [0.0, 0.0, 0.0, 1.0] and all(math.isfinite(v) for v in flat)
+        if (bottom == [0.0, 0.0, 0.0, 1.0] and all(map(math.isfinite, flat))
                 and max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
                         abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
                         abs(a * c + d * f + g * i), abs(b * c + e * f + h * i)) <= 1e-12
@@ -221,6 +225,27 @@ def pose_mismatch(Ta, Tb):
 
     """
     (a0, a1, a2, ax), (a3, a4, a5, ay), (a6, a7, a8, az) = Ta[:3].tolist()
+    return pose_mismatch_values((a0, a1, a2, a3, a4, a5, a6, a7, a8, ax, ay, az), Tb)
+
+
+def pose_mismatch_values(a, Tb):
+    """
+    :func:`pose_mismatch` of a pose given as 12 floats and a 4x4 pose.
+
+    Parameters
+    ----------
+    a : sequence of 12 float
+        Rotation rows then translation: ``(r00, r01, r02, r10, .., r22, x, y, z)``.
+    Tb : ndarray, shape (4, 4)
+        Pose.
+
+    Returns
+    -------
+    tuple of float
+        Distance (m) and rotation angle (rad).
+
+    """
+    a0, a1, a2, a3, a4, a5, a6, a7, a8, ax, ay, az = a
     (b0, b1, b2, bx), (b3, b4, b5, by), (b6, b7, b8, bz) = Tb[:3].tolist()
     # D = Ra^T Rb
     d01 = a0 * b1 + a3 * b4 + a6 * b7
@@ -312,6 +337,9 @@ def _link_constant(joint):
     return C
 
 
+_PACK12 = struct.Struct('12d').pack  # the exact bytes of 12 floats
+
+
 def _compose(a, b, c, d, e, f, g, h, i, x, y, z, C):
     """Return ``[R | t] @ C`` for ``R`` = rows (a b c; d e f; g h i), t = (x, y, z), C 3x4 rows."""
     (p, q, r, u), (s, t, w, v), (k, m, n, o) = C
@@ -380,7 +408,8 @@ class SerialChain:
         for arr in (self.lower, self.upper, self.v_max, self.a_max, self.is_revolute, self.home,
                     self.tooltip_offset, self._const):
             arr.flags.writeable = False
-        self._float_chain = self._float_tip = None  # plain-float copies for fk(), made once
+        # plain-float copies for fk(), made once
+        self._float_chain = self._float_tip = self._float_first = None
 
     def __repr__(self):
         return f'{type(self).__name__}({self.name!r}, joints={list(self.joint_names)})'
@@ -572,27 +601,50 @@ class SerialChain:
 
     def _fk_floats(self, q, link=None):
         """Return (tip pose, link frame or None) of ``q`` (list of floats) in plain floats."""
-        if self._float_chain is None:
-            self._float_chain = [
+        tip, kept = self._fk_values(q, link)
+        return _matrix(*tip), None if kept is None else _matrix(*kept)
+
+    def _fk_values(self, q, link=None):
+        """Return the tip (and link ``link``) of ``q`` as 12 floats: rotation rows, translation."""
+        chain = self._float_chain
+        if chain is None:
+            chain = self._float_chain = [
                 (bool(rev), float(t0), float(d0), tuple(map(tuple, C[:3].tolist())))
                 for rev, t0, d0, C in zip(self.is_revolute, self._theta0, self._d0, self._const)]
             self._float_tip = tuple(map(tuple, self.tooltip_offset[:3].tolist()))
+            # identity @ C of the first link, when it is C to the bit (signs of zeros too)
+            (p, q_, r, u), (s, t, w, v), (kk, m, n, o) = chain[0][3]
+            first = _compose(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0,
+                             chain[0][3])
+            plain = (p, q_, r, s, t, w, kk, m, n, u, v, o)
+            self._float_first = first if _PACK12(*first) == _PACK12(*plain) else None
         # plain floats: one pose costs a fraction of the batched NumPy path
         a, b, c, d, e, f, g, h, i = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
         x = y = z = 0.0
         kept = None
-        for k, ((rev, theta0, d0, C), qi) in enumerate(zip(self._float_chain, q), start=1):
-            a, b, c, d, e, f, g, h, i, x, y, z = _compose(a, b, c, d, e, f, g, h, i, x, y, z, C)
+        cos, sin = math.cos, math.sin
+        first = self._float_first
+        for k, ((rev, theta0, d0, C), qi) in enumerate(zip(chain, q), start=1):
+            if k == 1 and first is not None:
+                a, b, c, d, e, f, g, h, i, x, y, z = first  # the product with the identity
+            else:
+                (p, q_, r, u), (s, t, w, v), (kk, m, n, o) = C
+                # [R | t] @ C
+                a, b, c, d, e, f, g, h, i, x, y, z = (
+                    a * p + b * s + c * kk, a * q_ + b * t + c * m, a * r + b * w + c * n,
+                    d * p + e * s + f * kk, d * q_ + e * t + f * m, d * r + e * w + f * n,
+                    g * p + h * s + i * kk, g * q_ + h * t + i * m, g * r + h * w + i * n,
+                    a * u + b * v + c * o + x, d * u + e * v + f * o + y,
+                    g * u + h * v + i * o + z)
             theta, dz = (theta0 + qi, d0) if rev else (theta0, d0 + qi)
-            co, si = math.cos(theta), math.sin(theta)
+            co, si = cos(theta), sin(theta)
             x, y, z = x + c * dz, y + f * dz, z + i * dz
             a, b = a * co + b * si, b * co - a * si
             d, e = d * co + e * si, e * co - d * si
             g, h = g * co + h * si, h * co - g * si
             if k == link:
-                kept = _matrix(a, b, c, d, e, f, g, h, i, x, y, z)
-        tip = _matrix(*_compose(a, b, c, d, e, f, g, h, i, x, y, z, self._float_tip))
-        return tip, kept
+                kept = (a, b, c, d, e, f, g, h, i, x, y, z)
+        return _compose(a, b, c, d, e, f, g, h, i, x, y, z, self._float_tip), kept
 
     def fk_links(self, q):
         """

@@ -17,30 +17,27 @@ import math
 _TWO_PI = 2.0 * math.pi
 
 
-def _mul(A, B):
-    """Return the 3x3 product of row-major nested tuples."""
-    (a, b, c), (d, e, f), (g, h, i) = A
-    (p, q, r), (s, t, u), (v, w, x) = B
-    return ((a * p + b * s + c * v, a * q + b * t + c * w, a * r + b * u + c * x),
-            (d * p + e * s + f * v, d * q + e * t + f * w, d * r + e * u + f * x),
-            (g * p + h * s + i * v, g * q + h * t + i * w, g * r + h * u + i * x))
+def _rz_mul(A, theta, B):
+    """
+    Return ``A @ RotZ(theta) @ B`` for flat row-major 3x3 tuples (9 floats).
+
+    The rotation is applied to ``A`` first, row by row, then the product with ``B`` is formed
+    element by element: the operations of the nested-tuple products this replaces, in order.
+    """
+    a, b, c, d, e, f, g, h, i = A
+    co, si = math.cos(theta), math.sin(theta)
+    a, b = a * co + b * si, b * co - a * si
+    d, e = d * co + e * si, e * co - d * si
+    g, h = g * co + h * si, h * co - g * si
+    p, q, r, s, t, u, v, w, x = B
+    return (a * p + b * s + c * v, a * q + b * t + c * w, a * r + b * u + c * x,
+            d * p + e * s + f * v, d * q + e * t + f * w, d * r + e * u + f * x,
+            g * p + h * s + i * v, g * q + h * t + i * w, g * r + h * u + i * x)
 
 
-def _mul_rz(A, theta):
-    """Return ``A @ RotZ(theta)``."""
-    c, s = math.cos(theta), math.sin(theta)
-    return tuple((r0 * c + r1 * s, r1 * c - r0 * s, r2) for r0, r1, r2 in A)
-
-
-def _tmul(A, v):
-    """Return ``A^T @ v``."""
-    return (A[0][0] * v[0] + A[1][0] * v[1] + A[2][0] * v[2],
-            A[0][1] * v[0] + A[1][1] * v[1] + A[2][1] * v[2],
-            A[0][2] * v[0] + A[1][2] * v[1] + A[2][2] * v[2])
-
-
-def _as_tuple(M):
-    return tuple(tuple(float(x) for x in row) for row in M)
+def _flat(M):
+    """Return a 3x3 matrix as 9 floats, row by row."""
+    return tuple(float(x) for row in M for x in row)
 
 
 class PsmSingleIk:
@@ -67,27 +64,19 @@ class PsmSingleIk:
         self.s5, self.s6 = chain._s5, chain._s6
         self.a6, self.d6 = float(chain._a6), float(chain._d6)
         self.shaft_offset = float(chain._shaft_offset)
-        self.R_pre1 = _as_tuple(chain._R_pre1)
-        self.R_x2 = _as_tuple(chain._R_x2)
-        self.R_x3_z3 = _as_tuple(chain._R_x3_z3)
-        self.R_x5 = _as_tuple(chain._R_x5)
-        self.R_x6 = _as_tuple(chain._R_x6)
+        self.R_pre1 = _flat(chain._R_pre1)
+        self.R_x2 = _flat(chain._R_x2)
+        self.R_x3_z3 = _flat(chain._R_x3_z3)
+        self.R_x5 = _flat(chain._R_x5)
+        self.R_x6 = _flat(chain._R_x6)
         self.tip_inverse = [[float(x) for x in row] for row in chain._tooltip_inverse]
+        # per joint: (wrap it, lowest and highest value counted inside, lower, upper, range)
+        self._joint = [(rev, lo - slack, hi + slack, lo, hi, hi - lo) for rev, lo, hi in
+                       zip(self.revolute, self.lower, self.upper)]
 
     def _wrap(self, j, value, ref):
         """Wrap a revolute joint by 2 pi towards ``ref`` as the batch solver does."""
-        if not self.revolute[j]:
-            return value
-        k = round((ref - value) / _TWO_PI)
-        lo, hi = self.lower[j] - self.slack, self.upper[j] + self.slack
-        best, best_d = None, math.inf
-        for m in (-1.0, 0.0, 1.0):
-            v = value + _TWO_PI * (k + m)
-            if lo <= v <= hi:
-                d = abs(v - ref)
-                if d < best_d:
-                    best, best_d = v, d
-        return value + _TWO_PI * k if best is None else best
+        return _wrap(self._joint[j], value, ref)
 
     def _violation(self, j, v):
         return max(0.0, self.lower[j] - v, v - self.upper[j]) / self.ranges[j]
@@ -109,9 +98,19 @@ class PsmSingleIk:
             Joint values clipped into the limits; None when no branch lies inside the limits
             or the pose is degenerate (the batch solver then decides and words the error).
 
+        Notes
+        -----
+        A branch whose yaw, pitch and insertion alone already cost at least as much as the best
+        branch so far is not finished: the cost only grows with the wrist joints (a sum of
+        squares, rounding is monotone), so it could not win.
+
         """
         Tm = T.tolist()
         ref = [float(x) for x in q_ref]
+        r0, r1, r2, r3, r4, r5 = ref
+        J0, J1, J2, J3, J4, J5 = self._joint
+        theta0 = self.theta0
+        th0, th1, th3, th4, th5 = theta0[0], theta0[1], theta0[3], theta0[4], theta0[5]
         # last-link pose (top three rows): T @ inverse(tooltip offset)
         inv = self.tip_inverse
         R = [[row[0] * inv[0][c] + row[1] * inv[1][c] + row[2] * inv[2][c] + row[3] * inv[3][c]
@@ -126,56 +125,102 @@ class PsmSingleIk:
             return None
         n = (n[0] / n_norm, n[1] / n_norm, n[2] / n_norm)
         slack = self.slack
+        s2, s3, s5, s6, a6 = self.s2, self.s3, self.s5, self.s6, self.a6
+        R_pre1, R_x2, R_x3_z3, R_x5, R_x6 = (self.R_pre1, self.R_x2, self.R_x3_z3, self.R_x5,
+                                             self.R_x6)
+        pa, pb, pc, pd, pe, pf, pg, ph, pi = R_pre1
+        atan2 = math.atan2
         best, best_cost = None, math.inf
         for sx in (1.0, -1.0):
             x5 = (sx * n[0], sx * n[1], sx * n[2])
-            P = (p[0] - self.a6 * x5[0], p[1] - self.a6 * x5[1], p[2] - self.a6 * x5[2])
+            P = (p[0] - a6 * x5[0], p[1] - a6 * x5[1], p[2] - a6 * x5[2])
             r = math.sqrt(P[0] * P[0] + P[1] * P[1] + P[2] * P[2])
             if r < 1e-9:
                 continue
-            u = _tmul(self.R_pre1, (P[0] / r, P[1] / r, P[2] / r))
+            e0, e1, e2 = P[0] / r, P[1] / r, P[2] / r
+            # u = R_pre1^T (P / r)
+            u = (pa * e0 + pd * e1 + pg * e2, pb * e0 + pe * e1 + ph * e2,
+                 pc * e0 + pf * e1 + pi * e2)
+            # z5 = -s6 (x5 x z6)
+            z5 = (-s6 * (x5[1] * z6[2] - x5[2] * z6[1]),
+                  -s6 * (x5[2] * z6[0] - x5[0] * z6[2]),
+                  -s6 * (x5[0] * z6[1] - x5[1] * z6[0]))
             for s_shaft in (1.0, -1.0):
                 q3 = s_shaft * r - self.shaft_offset
-                v3 = self._violation(2, q3)
+                v3 = _violation(J2, q3)
                 if v3 > slack:
                     continue  # insertion outside its range: no branch of this sign is valid
                 up = (s_shaft * u[0], s_shaft * u[1], s_shaft * u[2])
                 rho = math.hypot(up[0], up[1])
                 for b in (1.0, -1.0):
-                    t2 = math.atan2(b * rho, -self.s3 * self.s2 * up[2])
-                    sb = self.s3 * b
+                    t2 = atan2(b * rho, -s3 * s2 * up[2])
+                    sb = s3 * b
                     if rho > 1e-12:
-                        t1 = math.atan2(sb * up[1], sb * up[0])
+                        t1 = atan2(sb * up[1], sb * up[0])
                     else:
-                        t1 = self.theta0[0] + ref[0]
-                    q = [self._wrap(0, t1 - self.theta0[0], ref[0]),
-                         self._wrap(1, t2 - self.theta0[1], ref[1]), q3]
-                    violation = v3 + self._violation(0, q[0]) + self._violation(1, q[1])
+                        t1 = th0 + r0
+                    q0 = _wrap(J0, t1 - th0, r0)
+                    q1 = _wrap(J1, t2 - th1, r1)
+                    violation = v3 + _violation(J0, q0) + _violation(J1, q1)
                     if violation > slack:
                         continue
-                    R3 = _mul(_mul_rz(_mul(_mul_rz(self.R_pre1, t1), self.R_x2), t2),
-                              self.R_x3_z3)
-                    # z5 = -s6 (x5 x z6)
-                    z5 = (-self.s6 * (x5[1] * z6[2] - x5[2] * z6[1]),
-                          -self.s6 * (x5[2] * z6[0] - x5[0] * z6[2]),
-                          -self.s6 * (x5[0] * z6[1] - x5[1] * z6[0]))
-                    w = _tmul(R3, z5)
-                    t4 = math.atan2(self.s5 * w[0], -self.s5 * w[1])
-                    Rpre5 = _mul(_mul_rz(R3, t4), self.R_x5)
-                    v5 = _tmul(Rpre5, x5)
-                    t5 = math.atan2(v5[1], v5[0])
-                    Rpre6 = _mul(_mul_rz(Rpre5, t5), self.R_x6)
-                    v6 = _tmul(Rpre6, x6)
-                    t6 = math.atan2(v6[1], v6[0])
-                    for j, t in ((3, t4), (4, t5), (5, t6)):
-                        value = self._wrap(j, t - self.theta0[j], ref[j])
-                        q.append(value)
-                        violation += self._violation(j, value)
+                    c0 = ((q0 - r0) / J0[5]) ** 2
+                    c1 = ((q1 - r1) / J1[5]) ** 2
+                    c2 = ((q3 - r2) / J2[5]) ** 2
+                    partial = c0 + c1 + c2
+                    if partial >= best_cost:
+                        continue  # cannot win (see Notes)
+                    R3 = _rz_mul(_rz_mul(R_pre1, t1, R_x2), t2, R_x3_z3)
+                    a, b_, c, d, e, f, g, h, i = R3
+                    # w = R3^T z5 (its first two components)
+                    w0 = a * z5[0] + d * z5[1] + g * z5[2]
+                    w1 = b_ * z5[0] + e * z5[1] + h * z5[2]
+                    t4 = atan2(s5 * w0, -s5 * w1)
+                    Rpre5 = _rz_mul(R3, t4, R_x5)
+                    a, b_, c, d, e, f, g, h, i = Rpre5
+                    t5 = atan2(b_ * x5[0] + e * x5[1] + h * x5[2],
+                               a * x5[0] + d * x5[1] + g * x5[2])
+                    a, b_, c, d, e, f, g, h, i = _rz_mul(Rpre5, t5, R_x6)
+                    t6 = atan2(b_ * x6[0] + e * x6[1] + h * x6[2],
+                               a * x6[0] + d * x6[1] + g * x6[2])
+                    q4 = _wrap(J3, t4 - th3, r3)
+                    violation += _violation(J3, q4)
+                    q5 = _wrap(J4, t5 - th4, r4)
+                    violation += _violation(J4, q5)
+                    q6 = _wrap(J5, t6 - th5, r5)
+                    violation += _violation(J5, q6)
                     if violation > slack:
                         continue
-                    cost = sum(((q[j] - ref[j]) / self.ranges[j]) ** 2 for j in range(6))
+                    cost = (partial + ((q4 - r3) / J3[5]) ** 2 + ((q5 - r4) / J4[5]) ** 2
+                            + ((q6 - r5) / J5[5]) ** 2)
                     if cost < best_cost:
-                        best, best_cost = q, cost
+                        best, best_cost = (q0, q1, q3, q4, q5, q6), cost
         if best is None:
             return None
         return [min(max(v, lo), hi) for v, lo, hi in zip(best, self.lower, self.upper)]
+
+
+def _violation(joint, v):
+    """Return how far (in ranges) ``v`` lies outside the limits of ``joint``, 0 inside."""
+    _, _, _, lo, hi, span = joint
+    # max(0.0, lo - v, v - hi), written out: a later argument wins only when greater
+    worst = lo - v
+    worst = worst if worst > 0.0 else 0.0
+    above = v - hi
+    return (above if above > worst else worst) / span
+
+
+def _wrap(joint, value, ref):
+    """Wrap a revolute joint value by 2 pi towards ``ref`` inside its limits (and slack)."""
+    if not joint[0]:
+        return value
+    k = round((ref - value) / _TWO_PI)
+    lo, hi = joint[1], joint[2]
+    best, best_d = None, math.inf
+    for m in (-1.0, 0.0, 1.0):
+        v = value + _TWO_PI * (k + m)
+        if lo <= v <= hi:
+            d = abs(v - ref)
+            if d < best_d:
+                best, best_d = v, d
+    return value + _TWO_PI * k if best is None else best

@@ -12,6 +12,9 @@ Every branch is enumerated and the one inside the joint limits closest to a refe
 configuration wins; revolute joints are wrapped by 2*pi towards the reference.
 
 Poses are tool tips in the RCM frame ``<ARM>_base`` (metres, 4x4); joints in rad / m.
+
+Size: the closed-form PSM and ECM solutions share the RCM geometry and the joint-limit handling;
+the per-step solvers stay in one file for speed.
 """
 
 from dataclasses import dataclass
@@ -22,7 +25,7 @@ from sim_bridge.kinematics.dh_chain import (
     SerialChain,
     check_pose,
     check_poses,
-    pose_mismatch,
+    pose_mismatch_values,
     rotation_angle,
     rotation_x,
     rotation_z,
@@ -266,12 +269,50 @@ class _RcmChain(SerialChain):
         T = check_pose(T)
         if q_ref is not None:
             q_ref = self.check_q(q_ref, name='q_ref')
-        if self._single is not None:
-            q = self._single.solve(T, self.home if q_ref is None else q_ref)
-            # the solver's finite floats need no check_q: their pose straight from the floats
-            if q is not None and max(pose_mismatch(self.fk_unchecked(q), T)) <= IK_TOLERANCE:
-                return np.array(q)
-            # no clean solution on the fast path: the batch solver decides and words the error
+        q = self._ik_single(T, self.home if q_ref is None else q_ref)
+        if q is not None:
+            return np.array(q)
+        return self._ik_worded(T, q_ref)
+
+    def ik_unchecked(self, T, q_ref):
+        """
+        :meth:`ik` of a pose and a reference already known to be valid, without checking them.
+
+        Parameters
+        ----------
+        T : ndarray, shape (4, 4)
+            Tool-tip pose, as :func:`check_pose` returned it (metres).
+        q_ref : sequence of float, length n
+            Finite reference configuration (rad / m), e.g. an arm's own setpoint.
+
+        Returns
+        -------
+        tuple of float
+            The joint values :meth:`ik` gives (rad / m).
+
+        Raises
+        ------
+        UnreachableError
+            As :meth:`ik`.
+
+        """
+        q = self._ik_single(T, q_ref)
+        if q is not None:
+            return tuple(q)
+        return tuple(self._ik_worded(T, np.array(q_ref, dtype=float)).tolist())
+
+    def _ik_single(self, T, q_ref):
+        """Return the single-pose solver's answer when it is clean (list of float), else None."""
+        if self._single is None:
+            return None
+        q = self._single.solve(T, q_ref)
+        # the solver's finite floats need no check_q: their pose straight from the floats
+        if q is not None and max(pose_mismatch_values(self._fk_values(q)[0], T)) <= IK_TOLERANCE:
+            return q
+        return None  # no clean solution here: the batch solver decides and words the error
+
+    def _ik_worded(self, T, q_ref):
+        """Batch-solve one checked pose; return q or raise UnreachableError saying why."""
         q, status, (pos_err, rot_err) = self._ik_core(T[None], q_ref, checked=True)
         q, status = q[0], int(status[0])
         if status == 0:

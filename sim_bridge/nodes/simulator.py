@@ -44,6 +44,9 @@ first takes the servo commands that arrived before it, so commands keep their or
 executor rebuilds its wait set of the node's ~150 endpoints at each wake-up, about 0.4 ms of
 Python; stepping from a timer paid that 500 times a second.) Parameters:
 ``config/simulator.yaml``.
+
+Size: one node (its parameters, its stepping round and the services it offers); the per-arm and
+scene topics are in modules of their own.
 """
 
 from dataclasses import dataclass, replace
@@ -68,6 +71,7 @@ from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
+from sim_bridge.validation import check_positive
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -159,16 +163,13 @@ class SimulatorConfig:
             raise ValueError(f'parameter real_time_factor must be >= 0 (0: as fast as possible), '
                              f'got {self.real_time_factor}')
         for name in ('rate', 'clock_rate'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f'parameter {name} must be > 0 Hz, got {value}')
+            check_positive(getattr(self, name), f'parameter {name} (Hz)')
         for name in ('tf_rate', 'visualization_rate', 'camera_rate'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f'parameter {name} must be >= 0 Hz (0: off), got {value}')
         for name in ('tick', 'max_lag'):
-            if not getattr(self, name) > 0:
-                raise ValueError(f'parameter {name} must be > 0 s, got {getattr(self, name)}')
+            check_positive(getattr(self, name), f'parameter {name} (s)')
         if not (math.isfinite(self.power_up_time) and self.power_up_time >= 0):
             raise ValueError(f'parameter power_up_time must be >= 0 s (0: at once), '
                              f'got {self.power_up_time}')

@@ -24,9 +24,8 @@ from geometry_msgs.msg import (
 )
 import numpy as np
 from rosgraph_msgs.msg import Clock
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image, JointState
-from sim_bridge.geometry import quaternion_from_matrix
+from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker
@@ -82,7 +81,7 @@ def matrix_from_pose(pose, what='pose'):
     if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
         raise ValueError(f'{what} orientation is not a unit quaternion (norm {norm:.6g})')
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
+    T[:3, :3] = matrix_from_quaternion(q / norm)
     T[:3, 3] = p
     return T
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from sim_bridge.geometry import invert_transform
+from sim_bridge.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -62,8 +63,7 @@ class GraspConfig:
                 f'({self.close_angle})')
         if self.jaw_depth is not None and not self.jaw_depth >= 0.0:
             raise ValueError(f'grasp jaw_depth must be >= 0 m, got {self.jaw_depth}')
-        if not self.capture_radius > 0.0:
-            raise ValueError(f'grasp capture_radius must be > 0 m, got {self.capture_radius}')
+        check_positive(self.capture_radius, 'grasp capture_radius (m)')
         if self.wire_samples < 2:
             raise ValueError(f'grasp wire_samples must be >= 2, got {self.wire_samples}')
 

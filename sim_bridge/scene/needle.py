@@ -49,6 +49,7 @@ import math
 
 import numpy as np
 from sim_bridge.geometry import invert_transform
+from sim_bridge.validation import check_positive
 
 
 def _rot_x(angle):
@@ -88,8 +89,7 @@ class NeedleGeometry:
     mass: float = 0.0005
 
     def __post_init__(self):
-        if not self.radius > 0.0:
-            raise ValueError(f'needle radius must be > 0 m, got {self.radius}')
+        check_positive(self.radius, 'needle radius (m)')
         if not 0.0 < self.arc_deg < 360.0:
             raise ValueError(f'needle arc_deg must be in (0, 360), got {self.arc_deg}')
         if not 0.0 < self.wire_diameter < self.radius:
@@ -99,8 +99,7 @@ class NeedleGeometry:
             raise ValueError(f'needle grasp_s must be in [0, 1], got {self.grasp_s}')
         if not self.grasp_depth >= 0.0:
             raise ValueError(f'needle grasp_depth must be >= 0 m, got {self.grasp_depth}')
-        if not self.mass > 0.0:
-            raise ValueError(f'needle mass must be > 0 kg, got {self.mass}')
+        check_positive(self.mass, 'needle mass (kg)')
 
     # ------------------------------------------------------------------ angles and parameters
     @property
@@ -381,9 +380,7 @@ class ThreadGeometry:
     mass: float = 0.0002
 
     def __post_init__(self):
-        if not self.segment_length > 0.0:
-            raise ValueError(
-                f'thread segment_length must be > 0 m, got {self.segment_length}')
+        check_positive(self.segment_length, 'thread segment_length (m)')
         if not 0.0 < self.radius < self.segment_length:
             raise ValueError(
                 f'thread radius must be in (0, segment_length), got {self.radius}')
@@ -393,8 +390,7 @@ class ThreadGeometry:
         if not 0.0 < self.joint_limit_deg <= 180.0:
             raise ValueError(
                 f'thread joint_limit_deg must be in (0, 180], got {self.joint_limit_deg}')
-        if not self.mass > 0.0:
-            raise ValueError(f'thread mass must be > 0 kg, got {self.mass}')
+        check_positive(self.mass, 'thread mass (kg)')
 
     @property
     def n_segments(self):

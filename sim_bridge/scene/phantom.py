@@ -27,20 +27,29 @@ turned and shifted so that the wound's centre on the surface is the origin and t
 along ``x``. Without a wound line or markers, the longest straight line of the mesh's
 flat-enough top surface with room for the markers is the wound
 (:mod:`sim_bridge.scene.mesh_placement`); the log says where it lies in the file.
+
+The configuration is in :mod:`sim_bridge.scene.phantom_config`, the marker pairs in
+:mod:`sim_bridge.scene.markers`; both are importable from here too.
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 import logging
 import math
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from sim_bridge.geometry import invert_transform
 from sim_bridge.scene.heightfield import HeightField, grid_mesh, rasterize_mesh
-from sim_bridge.scene.mesh_placement import WoundSearch, apply_xy, find_wound_line, wound_frame
+from sim_bridge.scene.markers import MarkerPair, place_markers
+from sim_bridge.scene.mesh_placement import apply_xy, find_wound_line, wound_frame
+from sim_bridge.scene.phantom_config import (
+    FRAMES,
+    KINDS,
+    MarkerConfig,
+    PhantomConfig,
+    WoundConfig,
+)
 from sim_bridge.scene.phantom_shapes import (
-    ScannedShape,
     WoundLine,
     breakpoints,
     scanned_height,
@@ -48,256 +57,10 @@ from sim_bridge.scene.phantom_shapes import (
 )
 import trimesh
 
+__all__ = ['FRAMES', 'KINDS', 'MarkerConfig', 'MarkerPair', 'Phantom', 'PhantomConfig',
+           'WoundConfig', 'build_phantom']
+
 _LOG = logging.getLogger(__name__)
-
-KINDS = ('synthetic', 'scanned', 'mesh')
-FRAMES = ('file', 'wound')
-
-
-@dataclass(frozen=True)
-class WoundConfig:
-    """
-    Wound line and the markers placed along it (phantom frame, metres).
-
-    Attributes
-    ----------
-    line : tuple of (x, y)
-        Control points of the wound curve in the phantom's x-y plane (in the file's x-y plane
-        for a mesh with ``frame: wound``); empty for a user mesh: found on its top surface.
-    slit_width : float
-        Width of the slit cut into the generated mesh (0: no slit).
-    slit_depth : float
-        Depth of the slit below the surface.
-    n_pairs : int
-        Number of entry/exit pairs placed along the wound.
-    spacing : float
-        Arc-length distance between neighbouring pairs.
-    half_width : float
-        Distance of entry and exit from the wound line (in x-y).
-    entry_side : int
-        +1: entry on the wound's left (``z x tangent``), -1: on its right.
-    offset : float
-        Arc-length shift of the pair pattern from the wound's middle.
-
-    """
-
-    line: tuple[tuple[float, float], ...] = ((-0.025, 0.0), (0.025, 0.0))
-    slit_width: float = 0.0008
-    slit_depth: float = 0.004
-    n_pairs: int = 4
-    spacing: float = 0.012
-    half_width: float = 0.004
-    entry_side: int = 1
-    offset: float = 0.0
-
-    def __post_init__(self):
-        if len(self.line) == 1:
-            raise ValueError('wound line needs at least two (x, y) points (or none on a user '
-                             'mesh: found on its top surface)')
-        if self.entry_side not in (-1, 1):
-            raise ValueError(f'wound entry_side must be +1 or -1, got {self.entry_side}')
-        if self.n_pairs < 0:
-            raise ValueError(f'wound n_pairs must be >= 0, got {self.n_pairs}')
-        if not self.half_width > 0.0:
-            raise ValueError(f'wound half_width must be > 0 m, got {self.half_width}')
-        if self.slit_width < 0.0 or self.slit_depth < 0.0:
-            raise ValueError('wound slit_width and slit_depth must be >= 0 m')
-
-
-@dataclass(frozen=True)
-class MarkerConfig:
-    """
-    One entry/exit pair given explicitly (x-y in the phantom frame, metres).
-
-    Attributes
-    ----------
-    entry : (x, y)
-        Entry marker; its height is taken from the surface.
-    exit : (x, y)
-        Exit marker.
-
-    """
-
-    entry: tuple[float, float]
-    exit: tuple[float, float]
-
-
-@dataclass(frozen=True)
-class PhantomConfig:
-    """
-    One phantom of the scene.
-
-    Attributes
-    ----------
-    kind : str
-        ``'synthetic'``, ``'scanned'`` or ``'mesh'``.
-    marker_prefix : str
-        Marker pair names are ``<prefix>1 .. <prefix>n`` (``synth``, ``scan``).
-    size : (length, width, thickness)
-        Pad size (m) of generated phantoms.
-    seed : int
-        Seed of the scanned pad's bumps.
-    position : (x, y, z)
-        Phantom frame origin in the world (m).
-    quaternion : (x, y, z, w)
-        Phantom frame orientation in the world.
-    mesh : str or None
-        Mesh file (STL, OBJ, PLY) for kind ``mesh``; relative paths are resolved against the
-        config file's directory.
-    mesh_scale : float
-        Factor applied to the mesh file's coordinates (0.001 for a file in millimetres).
-    resolution : float
-        Grid spacing (m) of the tissue height field.
-    mesh_resolution : float
-        Grid spacing (m) of generated meshes.
-    wound_closing : float
-        Gaps narrower than this (m) are closed in a user mesh's tissue surface.
-    frame : str
-        User mesh only: ``'file'`` (the file's coordinates are the phantom frame) or
-        ``'wound'`` (the phantom frame of the wound: origin on the surface at the wound's
-        centre, ``x`` along it; wound line and markers given in file coordinates).
-    wound_search : WoundSearch
-        How a user mesh without wound line or markers gets one (top band, slope limit).
-    wound : WoundConfig
-        Wound line, slit and marker placement.
-    markers : dict of MarkerConfig or None
-        Explicit marker pairs by name; replaces placement along the wound.
-    shape : ScannedShape
-        Surface shape of the scanned pad.
-    rgba : (r, g, b, a)
-        Pad colour.
-    marker_radius : float
-        Radius (m) of the red marker discs.
-    marker_rgba : (r, g, b, a)
-        Marker colour.
-
-    """
-
-    kind: str = 'synthetic'
-    marker_prefix: str = 'synth'
-    size: tuple[float, float, float] = (0.060, 0.040, 0.010)
-    seed: int = 0
-    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-    mesh: str | None = None
-    mesh_scale: float = 1.0
-    resolution: float = 0.00025
-    mesh_resolution: float = 0.002
-    wound_closing: float = 0.002
-    frame: str = 'file'
-    wound_search: WoundSearch = field(default_factory=WoundSearch)
-    wound: WoundConfig = field(default_factory=WoundConfig)
-    markers: dict[str, MarkerConfig] | None = None
-    shape: ScannedShape = field(default_factory=ScannedShape)
-    rgba: tuple[float, float, float, float] = (0.93, 0.72, 0.68, 1.0)
-    marker_radius: float = 0.0015
-    marker_rgba: tuple[float, float, float, float] = (0.9, 0.05, 0.05, 1.0)
-
-    def __post_init__(self):
-        if self.kind not in KINDS:
-            raise ValueError(f'phantom kind must be one of {KINDS}, got {self.kind!r}')
-        if self.kind == 'mesh' and not self.mesh:
-            raise ValueError("phantom kind 'mesh' needs a mesh file (key 'mesh')")
-        if self.kind != 'mesh' and len(self.wound.line) < 2:
-            raise ValueError(f'phantom kind {self.kind!r} needs a wound line of at least two '
-                             f'(x, y) points (key wound.line)')
-        if self.frame not in FRAMES:
-            raise ValueError(f'phantom frame must be one of {FRAMES}, got {self.frame!r}')
-        if min(self.size) <= 0.0:
-            raise ValueError(f'phantom size must be positive (m), got {self.size}')
-        if not 0.0 < self.resolution <= 0.001:
-            raise ValueError(f'phantom resolution must be in (0, 0.001] m, got '
-                             f'{self.resolution}')
-        if not self.mesh_resolution > 0.0:
-            raise ValueError('phantom mesh_resolution must be > 0 m')
-        if not self.mesh_scale > 0.0:
-            raise ValueError('phantom mesh_scale must be > 0')
-        if abs(np.linalg.norm(self.quaternion) - 1.0) > 1e-6:
-            raise ValueError(f'phantom quaternion is not a unit quaternion (norm '
-                             f'{np.linalg.norm(self.quaternion):.6g})')
-
-    @property
-    def T_world_phantom(self):  # noqa: N802 (the project names poses T_a_b)
-        """Phantom pose in the world, shape (4, 4)."""
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(self.quaternion).as_matrix()
-        T[:3, 3] = self.position
-        return T
-
-
-@dataclass(frozen=True, eq=False)
-class MarkerPair:
-    """
-    An entry/exit marker pair on the phantom surface (world frame, metres).
-
-    Attributes
-    ----------
-    name : str
-        Pair name (``synth1``, ``scan3``).
-    entry, exit : ndarray, shape (3,)
-        Marker centres on the surface.
-    normal : ndarray, shape (3,)
-        Unit mean of the two surface normals (outward, away from the tissue).
-    entry_normal, exit_normal : ndarray, shape (3,)
-        Unit surface normals at the markers.
-    index : int
-        1-based position of the pair along the wound.
-
-    """
-
-    name: str
-    entry: np.ndarray
-    exit: np.ndarray
-    normal: np.ndarray
-    entry_normal: np.ndarray
-    exit_normal: np.ndarray
-    index: int = 0
-
-    @property
-    def midpoint(self):
-        """Midpoint of entry and exit (m), shape (3,)."""
-        return 0.5 * (self.entry + self.exit)
-
-    @property
-    def chord(self):
-        """Entry-to-exit distance (m)."""
-        return float(np.linalg.norm(self.exit - self.entry))
-
-    @property
-    def frame(self):
-        """
-        Pair frame ``T_world_pair`` (4, 4).
-
-        Origin at the midpoint; ``x`` from entry towards exit (made perpendicular to ``z``);
-        ``z`` the mean surface normal; ``y = z x x`` runs along the wound.
-        """
-        z = self.normal
-        x = self.exit - self.entry
-        x = x - np.dot(x, z) * z
-        x /= np.linalg.norm(x)
-        T = np.eye(4)
-        T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-        T[:3, 3] = self.midpoint
-        return T
-
-    def transformed(self, T):
-        """
-        Return this pair with its points and normals mapped by the rigid transform ``T``.
-
-        Parameters
-        ----------
-        T : array_like, shape (4, 4)
-            Transform applied to positions (rotation only for normals).
-
-        Returns
-        -------
-        MarkerPair
-
-        """
-        T = np.asarray(T, dtype=float)
-        R, t = T[:3, :3], T[:3, 3]
-        return MarkerPair(self.name, R @ self.entry + t, R @ self.exit + t, R @ self.normal,
-                          R @ self.entry_normal, R @ self.exit_normal, self.index)
 
 
 class Phantom:
@@ -490,40 +253,6 @@ class Phantom:
 # ---------------------------------------------------------------------- construction
 
 
-def _place_markers(config, surface, wound):
-    prefix = config.marker_prefix
-    pairs = {}
-    if config.markers:
-        items = [(name, np.array(m.entry, float), np.array(m.exit, float))
-                 for name, m in config.markers.items()]
-    else:
-        w = config.wound
-        items = []
-        centre = 0.5 * wound.length + w.offset
-        for k in range(w.n_pairs):
-            s = centre + (k - 0.5 * (w.n_pairs - 1)) * w.spacing
-            if not 0.0 <= s <= wound.length:
-                raise ValueError(
-                    f'phantom {prefix}: marker pair {k + 1} falls off the wound line '
-                    f'(arc length {s:.4f} m of {wound.length:.4f} m); reduce spacing or '
-                    f'n_pairs')
-            c = wound.point(s)
-            left = wound.left(s) * w.half_width * w.entry_side
-            items.append((f'{prefix}{k + 1}', c + left, c - left))
-    for index, (name, e_xy, x_xy) in enumerate(items, start=1):
-        ex = np.vstack([e_xy, x_xy])
-        inside = surface.contains(np.column_stack([ex, surface.height(ex) - 1e-6]))
-        if not inside.all():
-            raise ValueError(f'phantom {prefix}: marker pair {name} lies outside the pad '
-                             f'footprint')
-        pts = surface.surface_point(ex)
-        normals = surface.normal(ex)
-        mean = normals.sum(axis=0)
-        pairs[name] = MarkerPair(name, pts[0], pts[1], mean / np.linalg.norm(mean),
-                                 normals[0], normals[1], index)
-    return pairs
-
-
 def _generated(config):
     length, width, thickness = config.size
     wound = WoundLine(config.wound.line)
@@ -701,7 +430,7 @@ def build_phantom(config, name='phantom', base_dir=None):
                                                                                   base_dir)
     else:
         mesh, surface, wound = _generated(config)
-    markers = _place_markers(config, surface, wound)
+    markers = place_markers(config, surface, wound)
     if placement:
         _LOG.info('phantom %s: %s', name, placement)
     phantom = Phantom(name, config, mesh, surface, wound, markers)

@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
+from sim_bridge.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -58,8 +59,7 @@ class ScannedShape:
         if self.bump_count < 0:
             raise ValueError(f'shape bump_count must be >= 0, got {self.bump_count}')
         for name in ('bump_sigma', 'edge_width'):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f'shape {name} must be > 0 m, got {getattr(self, name)}')
+            check_positive(getattr(self, name), f'shape {name} (m)')
 
 
 def synthetic_height(xy, size):

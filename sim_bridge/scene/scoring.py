@@ -47,6 +47,8 @@ not happen).
 from dataclasses import dataclass
 import math
 
+from sim_bridge.validation import check_positive
+
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 
 
@@ -78,12 +80,10 @@ class ScoringConfig:
     require_handover: bool = True
 
     def __post_init__(self):
-        if not self.marker_tolerance > 0.0:
-            raise ValueError('scoring marker_tolerance must be > 0 m')
+        check_positive(self.marker_tolerance, 'scoring marker_tolerance (m)')
         if not self.reasonable_entry >= self.marker_tolerance:
             raise ValueError('scoring reasonable_entry must be >= marker_tolerance')
-        if not self.trauma_tolerance > 0.0:
-            raise ValueError('scoring trauma_tolerance must be > 0 m')
+        check_positive(self.trauma_tolerance, 'scoring trauma_tolerance (m)')
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,11 @@ constraints) becomes unstable above ~2 ms when a straight thread falls and whips
 per joint at 10 solver iterations and cost ~70 us per 2 ms step, a spherical-joint multibody
 0.3-0.8 ms; this chain costs ~30 us per step. PyBullet still draws the thread as capsules.
 
+Steps queued with :meth:`ThreadChain.follow` run only when the thread is next read (its nodes,
+velocities or speed): a thread that nothing draws or reads, as in a batch run, costs nothing,
+and one that is read gets the very same steps in the same order, so its nodes are the same as
+if every step had run at once.
+
 Frames and units: node positions are in ``world`` metres, shape ``(n + 1, 3)``.
 """
 
@@ -28,6 +33,10 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from sim_bridge.validation import check_positive
+
+# Queued steps run anyway once this many wait (bounds the memory of a thread nobody reads).
+_MAX_QUEUED = 4096
 
 
 @dataclass(frozen=True)
@@ -86,8 +95,7 @@ class ThreadChain:
         lengths = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
         if np.any(lengths <= 0.0):
             raise ValueError('thread nodes must be distinct (a segment has zero length)')
-        if not radius > 0.0:
-            raise ValueError(f'thread radius must be positive, got {radius}')
+        check_positive(radius, 'thread radius (m)')
         self.config = config or ThreadDynamicsConfig()
         self.radius = float(radius)
         self.rest_lengths = lengths
@@ -95,15 +103,18 @@ class ThreadChain:
         self._x = nodes
         self._v = np.zeros_like(nodes)
         self._speed = 0.0
+        self._queued = []
 
     @property
     def nodes(self):
         """Node positions, shape (n + 1, 3), ``world`` (m); a copy."""
+        self.catch_up()
         return self._x.copy()
 
     @property
     def velocities(self):
         """Node velocities, shape (n + 1, 3), ``world`` (m/s); a copy."""
+        self.catch_up()
         return self._v.copy()
 
     @property
@@ -127,10 +138,37 @@ class ThreadChain:
         self._x = nodes
         self._v = np.zeros_like(nodes)
         self._speed = 0.0
+        self._queued = []
+
+    def follow(self, dt, anchor, support=None):
+        """
+        Queue a :meth:`step`; queued steps run, in order, when the thread is next read.
+
+        Parameters
+        ----------
+        dt : float
+            Time step (s), positive.
+        anchor : array_like, shape (3,)
+            Needle tail position in ``world`` (m); kept as given, so pass an array that is
+            not changed afterwards.
+        support : callable, optional
+            As for :meth:`step`; it must give the same heights when the step runs later (a
+            fixed surface).
+
+        """
+        self._queued.append((dt, anchor, support))
+        if len(self._queued) >= _MAX_QUEUED:
+            self.catch_up()
+
+    def catch_up(self):
+        """Run the steps queued by :meth:`follow`."""
+        queued, self._queued = self._queued, []
+        for dt, anchor, support in queued:
+            self.step(dt, anchor, support)
 
     def step(self, dt, anchor, support=None):
         """
-        Advance the chain by ``dt`` seconds with node 0 at ``anchor``.
+        Advance the chain by ``dt`` seconds with node 0 at ``anchor`` (after any queued steps).
 
         Parameters
         ----------
@@ -143,6 +181,8 @@ class ThreadChain:
             metres), vectorised; nodes are kept ``radius`` above it. None means no support.
 
         """
+        if self._queued:
+            self.catch_up()
         cfg = self.config
         x = self._x
         p = x + self._v * (dt * math.exp(-cfg.damping * dt))
@@ -203,4 +243,5 @@ class ThreadChain:
             Maximum node speed (m/s).
 
         """
+        self.catch_up()
         return self._speed

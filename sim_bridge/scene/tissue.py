@@ -30,12 +30,16 @@ nearest marker of that kind. ``marker_name`` names the nearest marker of any pai
 (``'synth2.entry'``).
 
 Everything is in the world frame unless named otherwise; lengths in metres, time in seconds.
+
+Size: one tracker whose per-step state (crossings, depths, trauma) every report reads; it runs on
+the per-step path that is being made faster, and stays one file until that settles.
 """
 
 from dataclasses import dataclass, field
 import math
 
 import numpy as np
+from sim_bridge.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -69,8 +73,7 @@ class TissueConfig:
     def __post_init__(self):
         if self.n_arc_points < 2:
             raise ValueError(f'tissue n_arc_points must be >= 2, got {self.n_arc_points}')
-        if not self.trauma_event_threshold > 0.0:
-            raise ValueError('tissue trauma_event_threshold must be > 0 m')
+        check_positive(self.trauma_event_threshold, 'tissue trauma_event_threshold (m)')
         if self.occupancy_margin < 0.0:
             raise ValueError('tissue occupancy_margin must be >= 0')
         if self.withdraw_radius < 0.0:
@@ -250,6 +253,9 @@ class TissueTracker:
         self._exit_error = math.nan
         self._n_entries = 0
         self._n_exits = 0
+        # (pose bytes, largest occupied deviation or None) of the last update when it changed
+        # nothing but the statistics: the same pose again repeats that update (see update).
+        self._repeat = None
 
     def set_target_pair(self, name):
         """
@@ -265,6 +271,7 @@ class TissueTracker:
             raise ValueError(f'unknown marker pair {name!r}; the phantom has '
                              f'{sorted(self.phantom.markers_phantom)}')
         self._target = name
+        self._repeat = None
 
     @property
     def target_pair(self):
@@ -325,6 +332,19 @@ class TissueTracker:
 
         """
         T = np.asarray(T_world_needle, dtype=float)
+        key = T.tobytes()
+        repeat = self._repeat
+        if repeat is not None and repeat[0] == key:
+            # The needle has not moved since an update that raised no event and released no
+            # puncture: this one finds the same points, crossings and deviations, so it only
+            # adds the occupied deviation to the trauma statistics again.
+            self._t = float(t)
+            now = repeat[1]
+            if now is not None:
+                self._trauma_now = now
+                self._trauma_sum += now
+                self._trauma_n += 1
+            return []
         R = self._R_pw @ T[:3, :3]
         tr = self._R_pw @ T[:3, 3] + self._t_pw
         pts = self._arc @ R.T + tr
@@ -333,6 +353,8 @@ class TissueTracker:
         tip_in = bool(inside[-1])
         self._t = float(t)
         events = []
+        now = None
+        released_any = False
 
         if self._prev_tip is not None and tip_in != self._prev_in:
             p = self._crossing(self._prev_tip, tip)
@@ -378,6 +400,7 @@ class TissueTracker:
             else:
                 self._trauma_now = 0.0
             if released.any():
+                released_any = True
                 self._rebuild_occupied()
 
         any_inside = bool(inside.any())
@@ -393,6 +416,7 @@ class TissueTracker:
                                           dist, name, self._trauma_max))
         self._prev_tip = tip
         self._prev_in = tip_in
+        self._repeat = None if events or released_any else (key, now)
         return events
 
     def _on_entry(self, t, p):

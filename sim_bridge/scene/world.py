@@ -20,6 +20,9 @@ The needle is one rigid body of capsules along its arc; its inertial frame sits 
 centre of mass on its principal axes. Collision groups keep the needle touching only the table
 and the phantom (when it is free and dynamic); arms, thread and markers take part in no contacts.
 The thread's capsules are drawn only (its dynamics are :mod:`sim_bridge.scene.thread`).
+
+Size: every body lives in one PyBullet client whose per-step calls are batched here (the
+simulator's hot path), so the bodies are built and moved in one file.
 """
 
 from dataclasses import dataclass, field
@@ -33,6 +36,7 @@ from sim_bridge.bullet import pybullet
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.geometry import invert_transform, quaternion_from_matrix
 from sim_bridge.paths import config_path
+from sim_bridge.validation import check_positive
 
 # Collision groups (bit masks).
 GROUP_ENVIRONMENT = 1
@@ -165,8 +169,7 @@ class WorldConfig:
     phantom_collision_margin: float = 0.001
 
     def __post_init__(self):
-        if not self.physics_step > 0.0:
-            raise ValueError(f'world physics_step must be > 0 s, got {self.physics_step}')
+        check_positive(self.physics_step, 'world physics_step (s)')
         if self.solver_iterations < 1:
             raise ValueError(
                 f'world solver_iterations must be >= 1, got {self.solver_iterations}')

@@ -32,6 +32,9 @@ Demonstration`; a throw that does not score 1.0 is done again with the next atte
 paper's subjects produced usable demonstrations).
 
 Frames: ``world``; poses 4x4 ``T_world_*``; m, rad, s.
+
+Size: the subject's controller and the in-process demonstration it drives share the subject's clock
+and imperfections; it is on the per-step path being made faster, so it stays one file.
 """
 
 from dataclasses import dataclass, replace
@@ -44,7 +47,7 @@ from sim_bridge.geometry import invert_transform, pose_from_transform
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
-from suture_lfd.planning.episode import start_episode
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
 
@@ -549,23 +552,18 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     return run
 
 
-def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
-               config):
-    scene_seed = int(seed) + 1000 * attempt
-    pair = start_episode(sim, pair_name, scene_seed)
-    sim.pop_events()
-    dem = Demonstrator(subject, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM2'],
-                       rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
-                       expert_config=config)
-    rows = {'t': [], 'psm1': [], 'psm2': [], 'j1': [], 'j2': [], 'needle': [], 'h1': [],
-            'h2': [], 'label': []}
-    events = []
-    t_end = sim.time + timeout
-    sample = 0
-    while True:
-        obs = sim.observation()
-        cmd = dem.step(obs) if sample % per_command == 0 else None
-        sample += 1
+class _Recorder:
+    """Record every sample of a demonstration; ask the subject for a command every few."""
+
+    def __init__(self, demonstrator, per_command):
+        self.demonstrator, self.per_command, self.sample = demonstrator, per_command, 0
+        self.rows = {'t': [], 'psm1': [], 'psm2': [], 'j1': [], 'j2': [], 'needle': [], 'h1': [],
+                     'h2': [], 'label': []}
+
+    def step(self, obs):
+        dem, rows = self.demonstrator, self.rows
+        cmd = dem.step(obs) if self.sample % self.per_command == 0 else None
+        self.sample += 1
         rows['t'].append(obs.t)
         rows['psm1'].append(pose_from_transform(obs.T_world_tool['PSM1']))
         rows['psm2'].append(pose_from_transform(obs.T_world_tool['PSM2']))
@@ -575,17 +573,26 @@ def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeo
         rows['h1'].append('PSM1' in obs.holders)
         rows['h2'].append('PSM2' in obs.holders)
         rows['label'].append(dem.subtask)
-        if dem.done:
-            break
-        if obs.t > t_end:
-            raise DemonstrationError(f'demonstration on {pair_name} did not finish within '
-                                     f'{timeout} s of simulated time (stuck in subtask '
-                                     f'{dem.subtask})')
-        if cmd is not None:
-            sim.apply(cmd)
-        for _ in range(every):
-            sim.step()
-        events += sim.pop_events()
+        return cmd
+
+
+def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
+               config):
+    scene_seed = int(seed) + 1000 * attempt
+    pair = start_episode(sim, pair_name, scene_seed)
+    sim.pop_events()
+    dem = Demonstrator(subject, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM2'],
+                       rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
+                       expert_config=config)
+    recorder = _Recorder(dem, per_command)
+    run_episode(sim, dem, every * sim.dt, stepper=recorder, timeout=timeout, settle=0.0,
+                reset=False, stop_at_done=True)
+    if not dem.done:
+        raise DemonstrationError(f'demonstration on {pair_name} did not finish within '
+                                 f'{timeout} s of simulated time (stuck in subtask '
+                                 f'{dem.subtask})')
+    events = sim.pop_events()
+    rows = recorder.rows
     demo = Demonstration(
         t=np.array(rows['t']), psm1_pose=np.array(rows['psm1']),
         psm2_pose=np.array(rows['psm2']), psm1_jaw=np.array(rows['j1']),

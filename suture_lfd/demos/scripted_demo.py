@@ -17,26 +17,51 @@ from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 
 
-class PausingExpert(ScriptedExpert):
+class PausingExpert:
     """
     Scripted expert that rests ``pause`` seconds at the start of subtasks ii, iii, iv and v.
 
+    It drives a :class:`suture_lfd.planning.expert.ScriptedExpert` and holds that expert's plan
+    clock still during each rest.
+
     Parameters
     ----------
-    pause : float
-        Rest (s) before each of those subtasks.
     *args, **kwargs
         As :class:`suture_lfd.planning.expert.ScriptedExpert`.
+    pause : float
+        Rest (s) before each of those subtasks.
+
+    Attributes
+    ----------
+    expert : suture_lfd.planning.expert.ScriptedExpert
+        The expert whose plan is followed.
 
     """
 
     def __init__(self, *args, pause=0.3, **kwargs):
-        super().__init__(*args, **kwargs)
+        self.expert = ScriptedExpert(*args, **kwargs)
         self.pause = float(pause)
+        self._rests = []
+        self._rest_end = None
+
+    @property
+    def plan_(self):
+        """suture_lfd.planning.plan.Plan or None: The expert's plan (after :meth:`reset`)."""
+        return self.expert.plan_
+
+    @property
+    def done(self):
+        """Whether the plan has run to its end."""
+        return self.expert.done
+
+    @property
+    def plan_time(self):
+        """Plan time (s) of the last command."""
+        return self.expert.plan_time
 
     def reset(self, obs):
         """Plan the throw and start its clock at ``obs.t``."""
-        super().reset(obs)
+        self.expert.reset(obs)
         self._rests = [t for t, name in self.plan_.labels if name in ('ii', 'iii', 'iv', 'v')]
         self._rest_end = None
 
@@ -44,7 +69,7 @@ class PausingExpert(ScriptedExpert):
         """Command for ``obs``; the plan clock stops for ``pause`` at each subtask start."""
         if self.plan_ is None:
             self.reset(obs)
-        clock = self.follower
+        clock = self.expert.follower
         tau = clock.tau(obs.t)
         if self._rest_end is None and self._rests and tau >= self._rests[0]:
             self._rest_end = obs.t + self.pause
@@ -54,7 +79,7 @@ class PausingExpert(ScriptedExpert):
                 clock.offset = obs.t - clock.t0 - clock.plan_time
             else:
                 self._rest_end = None
-        return super().step(obs)
+        return self.expert.step(obs)
 
 
 def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3,

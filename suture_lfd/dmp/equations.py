@@ -38,6 +38,9 @@ exactly (matrix exponential) with the forcing term linear over the step (first-o
 the orientation system is written in the goal-relative rotation vector ``u = 2 log(q * conj(g))``
 where it reads ``u' = omega + n(u, omega)``, ``omega' = -alpha_z beta_z u - alpha_z omega + f_o``
 with ``n = J_l(u)^-1 omega - omega`` held over the step.
+
+Size: the equations of the seed paper on one page, each a short plain function whose docstring
+carries its formula.
 """
 
 from functools import lru_cache

@@ -38,10 +38,13 @@ def start_episode(sim, pair_name, seed=0):
     return sim.target_pair
 
 
-def run_episode(sim, controller, control_period, *, stepper=None, timeout=math.inf, chunk=0.5,
-                settle=0.2, always_settle=False, reset=True):
+def run_episode(sim, controller, control_period, *, stepper=None, until=None, timeout=math.inf,
+                chunk=0.5, settle=0.2, always_settle=False, reset=True, stop_at_done=False):
     """
     Run ``controller`` on the simulation until it is done (or ``timeout``), then settle.
+
+    The commands are applied every ``control_period``; whether to stop is checked every
+    ``chunk`` seconds, or, with ``stop_at_done``, right after each command is computed.
 
     Parameters
     ----------
@@ -53,7 +56,10 @@ def run_episode(sim, controller, control_period, *, stepper=None, timeout=math.i
         Seconds of simulation between two commands.
     stepper : object, optional
         What the simulation calls each control period instead of ``controller`` (a recorder
-        that forwards to it).
+        that forwards to it, a wrapper that alters its commands); its ``step`` may return
+        None (no new command) when ``stop_at_done`` is set.
+    until : callable, optional
+        ``until() -> bool``: stop when it is true (``controller.done`` by default).
     timeout : float
         Longest run (s of simulation time).
     chunk : float
@@ -64,6 +70,10 @@ def run_episode(sim, controller, control_period, *, stepper=None, timeout=math.i
         Settle even after a timeout.
     reset : bool
         Call ``controller.reset`` with the first observation first.
+    stop_at_done : bool
+        Stop at the first observation after which the controller is done (or after which
+        ``timeout`` is passed), without applying its last command or stepping further: a
+        recording that ends on that sample (the demonstrations).
 
     Returns
     -------
@@ -72,12 +82,24 @@ def run_episode(sim, controller, control_period, *, stepper=None, timeout=math.i
 
     """
     stepper = controller if stepper is None else stepper
+    if until is None:
+        def until():
+            return controller.done
     t_start = sim.time
     if reset:
         controller.reset(sim.observation())
-    while not controller.done and sim.time - t_start < timeout:
-        sim.run(min(chunk, timeout - (sim.time - t_start)), stepper, control_period)
+    if stop_at_done:
+        while True:
+            command = stepper.step(sim.observation())
+            if until() or sim.time - t_start > timeout:
+                break
+            if command is not None:
+                sim.apply(command)
+            sim.run(control_period)
+    else:
+        while not until() and sim.time - t_start < timeout:
+            sim.run(min(chunk, timeout - (sim.time - t_start)), stepper, control_period)
     elapsed = sim.time - t_start
-    if settle > 0.0 and (always_settle or controller.done):
+    if settle > 0.0 and (always_settle or until()):
         sim.run(settle, stepper, control_period)
     return elapsed

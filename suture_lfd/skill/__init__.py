@@ -34,12 +34,15 @@ the new pair is a :class:`Method`, registered by name in :data:`METHODS`:
 
 Frames: ``world``; suture frames as in :mod:`suture_lfd.planning.suturing_frames`. Poses are
 7-vectors ``(x, y, z, qx, qy, qz, qw)`` or 4x4 ``T_world_needle``; metres, radians, seconds.
+
+The methods are defined in :mod:`suture_lfd.skill.method`, what a skill is learnt from in
+:mod:`suture_lfd.skill.training`, the executor in :mod:`suture_lfd.skill.executor`.
 """
 
-from dataclasses import asdict, dataclass, field, replace
+
+from dataclasses import asdict, replace
 import functools
 import json
-from pathlib import Path
 
 import numpy as np
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping
@@ -48,272 +51,30 @@ from sim_bridge.validation import check_array
 from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.dmp import DmpParams, PoseDmp, PositionDmp, QuaternionDmp, load_dmp_params
-from suture_lfd.dmp.base import REGRESSIONS
 from suture_lfd.planning.suturing_frames import (
     poses_from_frame,
     poses_in_frame,
-    suture_frame,
     transfer_pose,
 )
-from suture_lfd.planning.throw_geometry import ThrowArc
+from suture_lfd.skill.method import ANCHORS, METHODS, Method, get_method
+from suture_lfd.skill.training import (
+    TASKS,
+    PairGeometry,
+    TrainingData,
+    training_data,
+    training_data_from_demonstration,
+)
 
-TASKS = ('ii', 'iv')
-ANCHORS = ('arc', 'insertion_arc', 'midpoint', 'markers')
+__all__ = ['ANCHORS', 'METHODS', 'SKILL_FORMAT', 'SKILL_FORMAT_VERSION', 'TASKS', 'Method',
+           'PairGeometry', 'ThrowSkill', 'TrainingData', 'default_needle', 'get_method',
+           'learn_skill', 'training_data', 'training_data_from_demonstration']
+
 # Which marker each end of a learnt subtask is anchored to with anchors 'arc': the insertion
 # runs from the tip at the entry to the tip out of the exit; the extraction pulls the needle
 # on from there, the same turn whatever the distance between the markers.
 _ARC_ANCHORS = {'ii': ('entry', 'exit'), 'iv': ('exit', 'exit')}
 SKILL_FORMAT = 'suture_lfd.skill'
 SKILL_FORMAT_VERSION = 1
-
-
-@dataclass(frozen=True)
-class Method:
-    """
-    How a throw skill is learnt and placed on a new pair.
-
-    Attributes
-    ----------
-    name : str
-        Registry name.
-    frame : {'world', 'suture', 'arc'}
-        Coordinates the DMPs are learnt and rolled out in: ``'arc'`` is, per subtask, the
-        needle pose on the pair's needle circle with the tip at the marker the subtask starts
-        from (:meth:`PairGeometry.arc_anchor`; entry for ii, exit for iv), so a pair whose
-        markers are further apart turns the needle on its own circle, not the demonstrated
-        motion's world axes.
-    anchors : {'arc', 'insertion_arc', 'midpoint', 'markers'}
-        ``'arc'``: the insertion's start carried with the needle pose that has the tip at the
-        entry marker on the needle's circle through the pair, its goal and both ends of the
-        extraction with the pose that has the tip at the exit marker
-        (:meth:`PairGeometry.arc_anchor`); ``'insertion_arc'``: the insertion as ``'arc'``,
-        the extraction as ``'midpoint'`` (its goal, out of the tissue, keeps the demonstrated
-        direction from the needle's circle in ``world`` axes, which a ``world`` DMP needs to
-        keep the demonstrated shape: its ``(g - y0)`` scaling is per axis); ``'midpoint'``:
-        start and goal carried rigidly with the pair's suture frame (origin at the midpoint);
-        ``'markers'``: the start carried with a frame at the entry marker, the goal with a
-        frame at the exit marker (both with the suture frame's axes). ``'midpoint'`` and
-        ``'markers'`` keep the demonstrated needle rotation from start to goal, so on a pair
-        whose markers are further apart (or closer) than the demonstrated ones the tip misses
-        them (``'midpoint'``) or the needle is dragged sideways through the tissue
-        (``'markers'``).
-    description : str
-        One line for reports.
-    regression : {'lwr', 'least_squares'}
-        How the DMP weights are fitted (``DmpParams.regression``): ``'lwr'`` as the paper,
-        ``'least_squares'`` all basis functions together. Task iv's needle centre rests while
-        the needle turns about it and moves only in the last sixth of the subtask, when it is
-        pulled clear; LWR's overlapping local averages smooth that pull away and the rollout
-        ends short of the goal (1.7 mm on average at ``t = T``); the least-squares fit of the
-        same Table I bases keeps it (0.05 mm).
-
-    """
-
-    name: str
-    frame: str
-    anchors: str
-    description: str = ''
-    regression: str = 'lwr'
-
-    def __post_init__(self):
-        if self.frame not in ('world', 'suture', 'arc'):
-            raise ValueError(f"method {self.name}: frame must be 'world', 'suture' or 'arc', "
-                             f'got {self.frame!r}')
-        if self.regression not in REGRESSIONS:
-            raise ValueError(f'method {self.name}: regression must be one of {REGRESSIONS}, '
-                             f'got {self.regression!r}')
-        if self.anchors not in ANCHORS:
-            raise ValueError(f'method {self.name}: anchors must be one of {ANCHORS}, '
-                             f'got {self.anchors!r}')
-
-
-METHODS = {
-    'paper': Method('paper', 'world', 'insertion_arc',
-                    'seed paper: needle DMPs in world coordinates, start/goal with the tip at '
-                    'the entry/exit marker of the new pair'),
-    'pair_frame': Method('pair_frame', 'arc', 'arc',
-                         'needle DMPs in the frame of the needle circle through the pair, '
-                         'start/goal with the tip at the entry/exit marker of the new pair, '
-                         'weights fitted by least squares', regression='least_squares'),
-}
-
-
-def get_method(name):
-    """
-    Return the registered :class:`Method` called ``name``.
-
-    Raises
-    ------
-    ValueError
-        If no method has that name (the message lists the registered ones).
-
-    """
-    if isinstance(name, Method):
-        return name
-    if name not in METHODS:
-        raise ValueError(f'unknown skill method {name!r}; expected one of {sorted(METHODS)}')
-    return METHODS[name]
-
-
-@dataclass(frozen=True, eq=False)
-class PairGeometry:
-    """
-    An entry/exit pair as the skill needs it (``world``, metres).
-
-    Attributes
-    ----------
-    name : str
-        Pair name.
-    entry, exit : ndarray, shape (3,)
-        Marker centres.
-    normal : ndarray, shape (3,)
-        Outward surface normal (unit).
-
-    """
-
-    name: str
-    entry: np.ndarray
-    exit: np.ndarray
-    normal: np.ndarray
-
-    @classmethod
-    def of(cls, pair):
-        """Return the geometry of anything with ``name``, ``entry``, ``exit``, ``normal``."""
-        if isinstance(pair, cls):
-            return pair
-        return cls(str(getattr(pair, 'name', '')),
-                   check_array(pair.entry, 'pair entry', shape=(3,)).copy(),
-                   check_array(pair.exit, 'pair exit', shape=(3,)).copy(),
-                   check_array(pair.normal, 'pair normal', shape=(3,)).copy())
-
-    @property
-    def frame(self):
-        """Suture frame ``T_world_suture`` (4, 4)."""
-        return suture_frame(self.entry, self.exit, self.normal)
-
-    def anchor(self, which):
-        """Suture-frame axes with the origin at ``'midpoint'``, ``'entry'`` or ``'exit'``."""
-        T = self.frame
-        if which != 'midpoint':
-            T[:3, 3] = getattr(self, which)
-        return T
-
-    def arc_anchor(self, which, needle):
-        """
-        Needle pose ``T_world_needle`` (4, 4) with the tip at the ``'entry'`` or ``'exit'`` marker.
-
-        The needle lies on its circle through both markers, in the plane of the markers and
-        the surface normal, centre above the surface, turning tip first from entry to exit
-        (:class:`suture_lfd.planning.throw_geometry.ThrowArc`): the pose an ideal throw passes
-        through.
-
-        Parameters
-        ----------
-        which : {'entry', 'exit'}
-            Marker.
-        needle : sim_bridge.scene.needle.NeedleGeometry
-            Needle (radius, arc).
-
-        Raises
-        ------
-        ValueError
-            If the markers are not closer than the needle's diameter.
-
-        """
-        arc = ThrowArc(self, needle)
-        alpha = {'entry': arc.alpha_entry, 'exit': arc.alpha_exit}[which]
-        return arc.T_world_needle(alpha)
-
-
-@dataclass(frozen=True, eq=False)
-class TrainingData:
-    """
-    What a skill is learnt from: the needle trajectories of ii and iv and the pair.
-
-    Attributes
-    ----------
-    pair : PairGeometry
-        Demonstrated pair.
-    needle : dict of str to tuple
-        ``'ii'``, ``'iv'`` -> ``(T (n,), P (n, 3), Q (n, 4))``: times (s), needle positions (m)
-        and quaternions (x, y, z, w) in ``world``.
-    timing : dict of str to tuple of float
-        Subtask ``'i'`` .. ``'v'`` -> ``(start, end)`` times of the demonstration, s.
-    source : str
-        Where the data came from (file name or description).
-
-    """
-
-    pair: PairGeometry
-    needle: dict
-    timing: dict = field(default_factory=dict)
-    source: str = ''
-
-
-def training_data_from_demonstration(demo, segmentation, source=''):
-    """
-    Cut the needle trajectories of ii and iv out of a segmented demonstration.
-
-    Parameters
-    ----------
-    demo : suture_lfd.demos.demonstration.Demonstration
-        The record (needle ground truth in ``world``).
-    segmentation : suture_lfd.segmentation.Segmentation
-        Its five subtasks.
-    source : str
-        Description for messages and reports.
-
-    Returns
-    -------
-    TrainingData
-
-    """
-    needle = {}
-    for task in TASKS:
-        seg = segmentation[task]
-        cut = slice(seg.start_index, seg.end_index + 1)
-        T = demo.t[cut]
-        if T.size < 6:
-            raise ValueError(f'{source or "demonstration"}: subtask {task} has {T.size} samples; '
-                             'at least 6 are needed to learn it')
-        needle[task] = (T.copy(), demo.needle_pose[cut, :3].copy(),
-                        demo.needle_pose[cut, 3:].copy())
-    timing = {s.name: (float(s.start_time), float(s.end_time)) for s in segmentation.subtasks}
-    pair = PairGeometry(demo.pair, demo.entry, demo.exit, demo.normal)
-    return TrainingData(pair, needle, timing, source)
-
-
-def training_data(source):
-    """
-    Return the :class:`TrainingData` held by a segment file (or pass TrainingData through).
-
-    Parameters
-    ----------
-    source : TrainingData, suture_lfd.segmentation.segments.SegmentFile, str or Path
-        Learning input (a path is read with ``SegmentFile.load``).
-
-    Returns
-    -------
-    TrainingData
-
-    """
-    if isinstance(source, TrainingData):
-        return source
-    from suture_lfd.segmentation.segments import SUBTASK_NAMES, SegmentFile
-
-    if isinstance(source, (str, Path)):
-        source = SegmentFile.load(source)
-    if not isinstance(source, SegmentFile):
-        raise ValueError(f'cannot learn a skill from a {type(source).__name__}; give a segment '
-                         'file or TrainingData')
-    needle = {}
-    for task in TASKS:
-        t, poses = source.needle(task)
-        needle[task] = (np.asarray(t, dtype=float), np.asarray(poses[:, :3], dtype=float),
-                        np.asarray(poses[:, 3:], dtype=float))
-    pair = PairGeometry(source.pair, source.entry, source.exit, source.normal)
-    timing = {name: source.times(name) for name in SUBTASK_NAMES}
-    return TrainingData(pair, needle, timing, source.source)
 
 
 def _params_for(params, task):

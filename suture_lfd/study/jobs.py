@@ -25,6 +25,9 @@ throw's skill is executed by the simulator and executor node processes instead
 nodes report. Demonstrations always run in-process.
 
 Units of the records: times s (simulated), position errors mm, orientation errors deg.
+
+Size: the two job kinds share the per-process simulations, the code digest and the attachment of
+demonstrations; they stay together while the per-job code is being made faster.
 """
 
 from dataclasses import dataclass, field, replace

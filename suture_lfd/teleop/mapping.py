@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from sim_bridge.validation import check_positive
 
 DEG = math.pi / 180.0
 
@@ -74,8 +75,7 @@ class GripperToJaw:
         if not self.jaw_max > self.jaw_min:
             raise ValueError(f'jaw_max ({self.jaw_max}) must be > jaw_min ({self.jaw_min})')
         for name in ('jaw_rate', 'jaw_rate_back_from_clutch', 'tolerance_back_from_clutch'):
-            if not getattr(self, name) > 0:
-                raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
+            check_positive(getattr(self, name), name)
 
     @property
     def scale(self):
@@ -160,8 +160,7 @@ class CartesianMap:
     """
 
     def __init__(self, scale=0.2, rotation_locked=False, translation_locked=False):
-        if not scale > 0:
-            raise ValueError(f'scale must be > 0, got {scale}')
+        check_positive(scale, 'scale')
         self.scale = float(scale)
         self.rotation_locked = rotation_locked
         self.translation_locked = translation_locked

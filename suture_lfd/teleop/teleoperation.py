@@ -29,6 +29,7 @@ import math
 from typing import NamedTuple, Optional
 
 import numpy as np
+from sim_bridge.validation import check_positive
 from suture_lfd.teleop.mapping import DEG, CartesianMap, GripperToJaw, JawRamp
 
 SETTING_ARMS = 'SETTING_ARMS'
@@ -108,8 +109,7 @@ class TeleopConfig:
 
     def __post_init__(self):
         for name in ('rate', 'scale', 'command_retry', 'align_period'):
-            if not getattr(self, name) > 0:
-                raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
+            check_positive(getattr(self, name), f'parameter {name}')
         for name in ('orientation_tolerance', 'start_gripper_threshold', 'start_roll_threshold'):
             if getattr(self, name) < 0:
                 raise ValueError(f'parameter {name} must be >= 0, got {getattr(self, name)}')

@@ -19,6 +19,7 @@ import time
 import numpy as np
 from sim_bridge import cdr
 from sim_bridge.geometry import transform_from_pose
+from sim_bridge.validation import check_positive
 from suture_lfd import bags
 from suture_lfd.segmentation.segments import SegmentFile
 from suture_lfd.viewer.assets import phantom_of_pair
@@ -307,9 +308,7 @@ class ReplayPanel:
 
     def set_speed(self, speed):
         """Replay speed (recorded seconds per wall second, > 0)."""
-        speed = float(speed)
-        if not speed > 0:
-            raise ValueError(f'replay speed must be > 0, got {speed}')
+        speed = check_positive(speed, 'replay speed')
         with self._lock:
             if self.playing:
                 self._t_wall = time.monotonic()

@@ -11,15 +11,15 @@ folder (compressed; format tag :data:`FORMAT`). :func:`recording_from_throw` rea
 
 import csv
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 from sim_bridge.geometry import pose_from_transform, transform_from_pose
+from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
 
 FORMAT = 'suture_lfd.throw_replay'
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the version under the key 'format_version' of every archive
 SAMPLE_RATE = 20.0  # Hz of simulated time
 PSMS = ('PSM1', 'PSM2')
 
@@ -104,15 +104,14 @@ class ThrowSampler:
                 spans[k] = subtask_times[name]
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.stem + '.part.npz')
-        np.savez_compressed(
-            tmp, format=FORMAT, version=FORMAT_VERSION, samples=rows.astype(np.float32),
-            t=rows[:, 0], bases=bases, ecm=sim.camera_pose(),
-            ecm_left=sim.camera.T_tip_left, phantom_pose=sim.phantom_pose(),
-            phantom=sim.phantom.name, pair=pair,
-            marker_names=np.array(list(markers)), marker_poses=np.stack(list(markers.values())),
-            events=json.dumps(list(events)), subtasks=spans)
-        os.replace(tmp, path)
+        save_archive(path, {
+            'samples': rows.astype(np.float32), 't': rows[:, 0], 'bases': bases,
+            'ecm': sim.camera_pose(), 'ecm_left': sim.camera.T_tip_left,
+            'phantom_pose': sim.phantom_pose(), 'phantom': np.array(sim.phantom.name),
+            'pair': np.array(pair), 'marker_names': np.array(list(markers)),
+            'marker_poses': np.stack(list(markers.values())),
+            'events': np.array(json.dumps(list(events))), 'subtasks': spans,
+        }, FORMAT, FORMAT_VERSION, compressed=True)
         return path.stat().st_size
 
 
@@ -162,31 +161,29 @@ def recording_from_throw(study, throw):
 
 def recording_from_file(path):
     """Read a throw replay file (see :class:`ThrowSampler`) into a Recording."""
-    with np.load(path, allow_pickle=False) as data:
-        if str(data['format']) != FORMAT:
-            raise ValueError(f'{path}: not a throw replay (format {data["format"]!s})')
-        rows = np.asarray(data['samples'], float)
-        t = np.asarray(data['t'], float)
-        t0 = float(t[0]) if len(t) else 0.0
-        tracks = [Track('world', 'needle', t - t0, rows[:, 1:8])]
-        for k, arm in enumerate(PSMS):
-            col = 8 + 8 * k
-            tracks.append(Track('world', arm, t - t0, rows[:, col:col + 7]))
-        bases = data['bases']
-        statics = [('world', f'{arm}_base', bases[k]) for k, arm in
-                   enumerate(('PSM1', 'PSM2', 'ECM'))]
-        statics += [('world', 'ECM', data['ecm']), ('ECM', 'ECM_left_optical', data['ecm_left']),
-                    ('world', 'phantom', data['phantom_pose'])]
-        statics += [('world', name.replace('.', '_'), T)
-                    for name, T in zip(data['marker_names'], data['marker_poses'])]
-        events = sorted(((float(e.get('t', t0)) - t0, e)
-                         for e in json.loads(str(data['events']))), key=lambda r: r[0])
-        spans = data['subtasks']
-        # subtask spans count from the throw's first controller step, the first sample
-        marks = [(float(s), name) for name, (s, _) in zip(SUBTASKS, spans) if np.isfinite(s)]
-        duration = float(t[-1] - t0) if len(t) else 0.0
-        return Recording(tracks=tracks, statics=statics, events=events, duration=duration,
-                         phantom=str(data['phantom']), marks=marks, source=str(path))
+    data = load_archive(path, FORMAT, FORMAT_VERSION, 'throw replay')
+    rows = np.asarray(data['samples'], float)
+    t = np.asarray(data['t'], float)
+    t0 = float(t[0]) if len(t) else 0.0
+    tracks = [Track('world', 'needle', t - t0, rows[:, 1:8])]
+    for k, arm in enumerate(PSMS):
+        col = 8 + 8 * k
+        tracks.append(Track('world', arm, t - t0, rows[:, col:col + 7]))
+    bases = data['bases']
+    statics = [('world', f'{arm}_base', bases[k]) for k, arm in
+               enumerate(('PSM1', 'PSM2', 'ECM'))]
+    statics += [('world', 'ECM', data['ecm']), ('ECM', 'ECM_left_optical', data['ecm_left']),
+                ('world', 'phantom', data['phantom_pose'])]
+    statics += [('world', name.replace('.', '_'), T)
+                for name, T in zip(data['marker_names'], data['marker_poses'])]
+    events = sorted(((float(e.get('t', t0)) - t0, e)
+                     for e in json.loads(str(data['events']))), key=lambda r: r[0])
+    spans = data['subtasks']
+    # subtask spans count from the throw's first controller step, the first sample
+    marks = [(float(s), name) for name, (s, _) in zip(SUBTASKS, spans) if np.isfinite(s)]
+    duration = float(t[-1] - t0) if len(t) else 0.0
+    return Recording(tracks=tracks, statics=statics, events=events, duration=duration,
+                     phantom=str(data['phantom']), marks=marks, source=str(path))
 
 
 def world_poses(recording, t, frames=('needle', 'PSM1', 'PSM2', 'ECM')):

@@ -72,3 +72,26 @@ def test_bad_nodes_are_rejected_with_the_reason():
         ThreadChain(np.zeros((5, 3)), radius=0.0002)
     with pytest.raises(ValueError, match='NaN'):
         ThreadChain(np.full((5, 3), np.nan), radius=0.0002)
+
+
+def test_queued_steps_run_when_the_thread_is_read_and_give_the_same_nodes():
+    calls = []
+
+    def support(xy):
+        calls.append(len(xy))
+        return np.full(len(xy), 0.099) + 0.002 * np.sin(200.0 * xy[:, 0])
+
+    stepped = ThreadChain(_straight(), radius=0.0002)
+    queued = ThreadChain(_straight(), radius=0.0002)
+    start = stepped.nodes[0]
+    for k in range(300):
+        anchor = start + [0.03 * np.sin(6.0 * k * 0.01), 0.01 * np.cos(4.0 * k * 0.01), 0.0]
+        stepped.step(0.01, anchor, support)
+        before = len(calls)
+        queued.follow(0.01, anchor, support)
+        assert len(calls) == before  # nothing runs until the thread is read
+        if k % 37 == 0:
+            assert np.array_equal(queued.nodes, stepped.nodes)
+    assert np.array_equal(queued.velocities, stepped.velocities)
+    assert queued.max_speed() == stepped.max_speed()
+    assert np.array_equal(queued.nodes, stepped.nodes)

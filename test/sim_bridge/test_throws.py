@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from sim_bridge.control import Command
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 
 CONTROL = 0.01  # s between expert commands (100 Hz servo_cp stream)
@@ -34,9 +35,7 @@ def sims(config):
 
 def start_throw(sim, pair_name, seed=0):
     """Reset the scene, home the arms and aim the scorer at ``pair_name``."""
-    sim.reset(seed=seed)
-    sim.enable_and_home_all()
-    sim.set_target_pair(pair_name)
+    start_episode(sim, pair_name, seed)
     sim.pop_events()
 
 
@@ -64,13 +63,10 @@ class JawOverride:
 
 def drive(sim, controller, stop, limit=40.0):
     """Run the controller at ``CONTROL`` until ``stop()`` or ``limit`` s; return the events."""
-    events = []
-    t0 = sim.time
-    while not stop():
-        assert sim.time - t0 < limit, 'the throw never finished'
-        sim.run(CONTROL, controller, CONTROL)
-        events += sim.pop_events()
-    return events
+    run_episode(sim, controller, CONTROL, until=stop, timeout=limit, chunk=CONTROL, settle=0.0,
+                reset=False)
+    assert stop(), 'the throw never finished'
+    return sim.pop_events()
 
 
 def kinds(events):

@@ -161,3 +161,45 @@ def test_random_rigid_motions_keep_events_consistent(scene, phantoms):
                 on_side = abs(abs(q[0]) - 0.03) < 1e-3 or abs(abs(q[1]) - 0.0225) < 1e-3
                 assert on_top or on_bottom or on_side
                 assert math.isfinite(e.distance_to_marker)
+
+
+def _held(poses, hold):
+    """Every pose of ``poses`` repeated ``hold`` times (a needle that stops now and then)."""
+    return [T for T in poses for _ in range(hold)]
+
+
+def _same_values_other_bytes(T):
+    """The pose with its unused bottom row changed: a tracker cannot take it for the last one."""
+    T = T.copy()
+    T[3, 0] = 1e-300
+    return T
+
+
+def test_a_needle_held_still_counts_as_if_every_update_were_computed(scene, phantoms):
+    phantom = phantoms['synthetic']
+    arc = ThrowArc(phantom.markers['synth1'], scene.needle)
+    mid = 0.5 * (arc.alpha_entry + arc.alpha_exit)
+    poses = [arc.T_world_needle(a) for a in np.linspace(arc.alpha_entry + 0.3, mid, 60)]
+    sideways = arc.plane_normal
+    for k in range(1, 41):  # then it strays sideways inside the tissue (trauma)
+        T = poses[-1].copy()
+        T[:3, 3] += 0.0015 * k / 40 * sideways
+        poses.append(T)
+    poses += [arc.T_world_needle(a) for a in np.linspace(mid, arc.alpha_through - 0.3, 120)]
+    held = _held(poses, 4)
+    recomputed = [T if k % 4 == 0 else _same_values_other_bytes(T) for k, T in enumerate(held)]
+    a = TissueTracker(phantom, scene.needle, scene.tissue)
+    b = TissueTracker(phantom, scene.needle, scene.tissue)
+    for tracker in (a, b):
+        tracker.set_target_pair('synth1')
+    events_a, events_b = drive(a, held), drive(b, recomputed)
+    assert [e.kind for e in events_a] == [e.kind for e in events_b]
+    assert {'entry', 'trauma', 'exit', 'extracted'} <= {e.kind for e in events_a}
+    assert [(e.t, e.deviation, e.distance_to_marker) for e in events_a] == \
+        [(e.t, e.deviation, e.distance_to_marker) for e in events_b]
+    sa, sb = a.state(), b.state()
+    assert a.trauma_mean > 0.0
+    for name in ('t', 'tip_inside', 'inside_fraction', 'in_tissue', 'trauma_current',
+                 'trauma_max', 'trauma_mean', 'entry_error', 'exit_error', 'extracted',
+                 'n_entries', 'n_exits'):
+        assert getattr(sa, name) == getattr(sb, name), name

@@ -55,6 +55,21 @@ def test_random_trajectories_respect_limits_and_arrive_together():
         assert not traj.done(traj.duration * 0.999) and traj.done(traj.duration)
 
 
+def test_sampling_in_plain_floats_gives_the_array_samples_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for case in range(50):
+        n = 6
+        v_max, a_max = rng.uniform(0.1, 3.0, n), rng.uniform(0.1, 3.0, n)
+        v0 = rng.uniform(-1.5, 1.5, n) * v_max if case % 2 else np.zeros(n)
+        traj = JointTrajectory(rng.uniform(-1.0, 1.0, n), rng.uniform(-1.0, 1.0, n), v_max,
+                               a_max, ratio=rng.uniform(0.2, 1.0), start_velocity=v0)
+        for t in np.append(np.linspace(-0.1, traj.duration + 0.1, 97), traj.duration):
+            q, qd = traj.sample(t)
+            q_values, qd_values = traj.sample_values(t)
+            assert np.array(q_values).tobytes() == q.tobytes(), (case, t)
+            assert np.array(qd_values).tobytes() == qd.tobytes(), (case, t)
+
+
 def test_the_slowest_joint_sets_the_duration():
     v_max, a_max = np.array([1.0, 0.1]), np.array([1.0, 0.1])
     traj = JointTrajectory([0.0, 0.0], [0.1, 0.1], v_max, a_max)
@@ -187,7 +202,9 @@ def test_a_motion_tracks_joint_by_joint_exactly_as_track_step_and_the_limits_say
         q, qd = track_step(motion.q, motion.qd, target, v_max, a_max, dt, velocity)
         q_ref = np.clip(q, lower, upper)
         qd_ref = np.where(q_ref == q, qd, 0.0)
-        got_q, got_qd = motion._track(target, velocity, dt)
-        assert got_q.tobytes() == q_ref.tobytes() and got_qd.tobytes() == qd_ref.tobytes(), k
+        got_q, got_qd = motion._track(target.tolist(),
+                                      None if velocity is None else velocity.tolist(), dt)
+        assert np.array(got_q).tobytes() == q_ref.tobytes(), k
+        assert np.array(got_qd).tobytes() == qd_ref.tobytes(), k
         hits += int(np.any(q_ref != q)) + int(np.any(q == target))
     assert hits > 100   # the limits and the exact arrival were exercised

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.planning.episode import start_episode
 from suture_lfd.planning.grasps import GraspPhase
 from suture_lfd.planning.waypoints import RigidPath
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw, learn_skill
@@ -91,9 +92,7 @@ def test_a_hand_over_that_cannot_carry_the_needle_to_the_next_start_still_comple
 
 
 def test_a_grasp_nowhere_within_reach_names_the_span(synthetic):
-    synthetic.reset(0)
-    synthetic.enable_and_home_all()
-    synthetic.set_target_pair('synth1')
+    start_episode(synthetic, 'synth1', 0)
     obs = synthetic.observation()
     executor = ThrowExecutor(_skill('S01_synth1'), synthetic.target_pair,
                              synthetic.needle_geometry, kinematics=synthetic.kinematics['PSM1'],
