@@ -296,6 +296,7 @@ class Simulation:
         # Highest point of the tissue (world z): far above it nothing can touch the tissue.
         self._tissue_top = float(self.phantom.mesh_world().vertices[:, 2].max())
         self._needle_reach = self.needle_geometry.radius + self.needle_geometry.wire_diameter
+        self._needle_tail = self.needle_geometry.tail
         shape = cfg.world.instrument
         self._instrument_reach = shape.jaw_length + shape.shaft_radius
         self._thread_world = client.saveState()
@@ -345,6 +346,7 @@ class Simulation:
         self.grasp.reset()
         self.tissue.reset()
         self._contact = dict.fromkeys(PSMS, False)
+        self._contact_checked = dict.fromkeys(PSMS)  # joints and jaw of the last check
         self._collisions = 0
         self._last_score = None
         self._needle_mode = 'resting'
@@ -487,7 +489,7 @@ class Simulation:
             for ev in self.tissue.update(t, self._T_needle):
                 self._on_tissue_event(t, ev)
         if self._steps % self._thread_every == 0:
-            tail = self._T_needle[:3, :3] @ self.needle_geometry.tail + self._T_needle[:3, 3]
+            tail = self._T_needle[:3, :3] @ self._needle_tail + self._T_needle[:3, 3]
             self.thread.follow(self._thread_every * dt, tail, self.world.support_height)
         if self._steps % self._collision_every == 0:
             self._check_contacts(t)
@@ -627,8 +629,14 @@ class Simulation:
             arm = self.arms[name]
             if self._tool_pose(name)[2, 3] - self._instrument_reach > self._tissue_top:
                 self._contact[name] = False
+                self._contact_checked[name] = None
                 continue
-            points = self.world.instrument_points(name, arm.measured_jp, arm.jaw_measured_jp)
+            q, jaw = arm.measured_jp, arm.jaw_measured_jp
+            checked = (q.tobytes(), jaw)
+            if checked == self._contact_checked[name]:
+                continue  # the instrument has not moved since the last check: same contact
+            self._contact_checked[name] = checked
+            points = self.world.instrument_points(name, q, jaw)
             depth = float(self.phantom.penetration(points).max())
             touching = depth > depth_limit
             if touching and not self._contact[name]:

@@ -150,7 +150,7 @@ def check_pose(T, name='T', tol=1e-6):
         rows = T.tolist()
         (a, b, c, _), (d, e, f, _), (g, h, i, _), bottom = rows
         flat = [v for row in rows for v in row]
-        if (bottom == [0.0, 0.0, 0.0, 1.0] and all(math.isfinite(v) for v in flat)
+        if (bottom == [0.0, 0.0, 0.0, 1.0] and all(map(math.isfinite, flat))
                 and max(abs(a * a + d * d + g * g - 1.0), abs(b * b + e * e + h * h - 1.0),
                         abs(c * c + f * f + i * i - 1.0), abs(a * b + d * e + g * h),
                         abs(a * c + d * f + g * i), abs(b * c + e * f + h * i)) <= 1e-12

@@ -203,7 +203,11 @@ class PsmSingleIk:
 def _violation(joint, v):
     """Return how far (in ranges) ``v`` lies outside the limits of ``joint``, 0 inside."""
     _, _, _, lo, hi, span = joint
-    return max(0.0, lo - v, v - hi) / span
+    # max(0.0, lo - v, v - hi), written out: a later argument wins only when greater
+    worst = lo - v
+    worst = worst if worst > 0.0 else 0.0
+    above = v - hi
+    return (above if above > worst else worst) / span
 
 
 def _wrap(joint, value, ref):

@@ -79,18 +79,20 @@ class HeightField:
         top_in = np.where(footprint, top, -far)
         bottom_in = np.where(footprint, bottom, far)
         self._pnx = self.nx + 2
-        self._porigin = np.array([self.x0 - self.spacing, self.y0 - self.spacing])
-        self._pimax = np.array([self.nx, self.ny], dtype=np.intp)
+        self._porigin = np.array([[self.x0 - self.spacing], [self.y0 - self.spacing]])
+        self._pimax = np.array([[self.nx], [self.ny]], dtype=np.intp)
         self._ptb = np.column_stack([np.pad(top_in, 1, constant_values=-far).ravel(),
                                      np.pad(bottom_in, 1, constant_values=far).ravel()])
-        # Per cell of that grid (by its lower-left node): the (top, bottom) values of the
-        # corners [0, 0] and [1, 0] and the differences [0, 1] - [0, 0] and [1, 1] - [1, 0], so
-        # that one lookup gives what the bilinear blend needs (the same sums as from the nodes).
+        # Per cell of that grid (by its lower-left node), one column: the (top, bottom) values
+        # of the corners [0, 0] and [1, 0] and the differences [0, 1] - [0, 0] and
+        # [1, 1] - [1, 0], so that one lookup gives what the bilinear blend needs (the same sums
+        # as from the nodes), as rows that NumPy walks contiguously.
         tb = self._ptb
         pnx = self._pnx
         n = len(tb) - pnx - 1
-        self._pquad = np.column_stack([tb[:n], tb[1:n + 1] - tb[:n], tb[pnx:pnx + n],
-                                       tb[pnx + 1:pnx + 1 + n] - tb[pnx:pnx + n]])
+        self._pquad = np.ascontiguousarray(np.column_stack([
+            tb[:n], tb[1:n + 1] - tb[:n], tb[pnx:pnx + n],
+            tb[pnx + 1:pnx + 1 + n] - tb[pnx:pnx + n]]).T)
         self._x1 = self.x0 + (self.nx - 1) * self.spacing
         self._y1 = self.y0 + (self.ny - 1) * self.spacing
 
@@ -250,18 +252,21 @@ class HeightField:
         if p.ndim != 2:
             d, inside = self.depth(p.reshape(-1, 3))
             return d.reshape(p.shape[:-1]), inside.reshape(p.shape[:-1])
-        f = (p[:, :2] - self._porigin) * self._inv
+        pt = p.T
+        f = (pt[:2] - self._porigin) * self._inv
         i = f.astype(np.intp)
         np.maximum(i, 0, out=i)
         np.minimum(i, self._pimax, out=i)
         w = f - i
-        q = self._pquad.take(i[:, 1] * self._pnx + i[:, 0], axis=0)
-        tx = w[:, :1]
-        a = q[:, 0:2] + q[:, 2:4] * tx
-        zb = a + (q[:, 4:6] + q[:, 6:8] * tx - a) * w[:, 1:]
-        z = p[:, 2]
-        d = zb[:, 0] - z
-        inside = (d >= 0.0) & (z >= zb[:, 1])
+        idx = i[1] * self._pnx
+        idx += i[0]
+        q = self._pquad.take(idx, axis=1)
+        tx = w[0]
+        a = q[0:2] + q[2:4] * tx
+        zb = a + (q[4:6] + q[6:8] * tx - a) * w[1]
+        z = pt[2]
+        d = zb[0] - z
+        inside = (d >= 0.0) & (z >= zb[1])
         return d, inside
 
     def contains(self, points):

@@ -182,6 +182,18 @@ def test_driving_the_jaws_into_the_pad_reports_one_collision(sim):
     assert sim.score().collisions == 1
 
 
+def test_jaws_held_in_the_pad_touch_once_and_again_after_leaving_it(sim):
+    T = sim.tool_pose('PSM2').copy()
+    for z, seconds in ((0.004, 0.3), (0.004, 0.3), (0.03, 0.5), (0.004, 0.5)):
+        T[:3, 3] = [0.02, 0.0, z]
+        sim.apply(_command('PSM2', T, 0.3))
+        sim.run(seconds)
+    events = [e for e in sim.pop_events() if e.kind == 'collision']
+    assert [e.data['arm'] for e in events] == ['PSM2', 'PSM2']
+    assert events[1].t > events[0].t + 0.5
+    assert sim.score().collisions == 2
+
+
 def test_nan_and_inf_targets_are_rejected_by_the_arm(sim):
     before = sim.arms['PSM2'].setpoint_jp
     bad = sim.tool_pose('PSM2').copy()
