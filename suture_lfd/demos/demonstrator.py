@@ -43,12 +43,13 @@ import math
 
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
-from sim_bridge.geometry import invert_transform, pose_from_transform
+from sim_bridge.geometry import pose_from_transform
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
+from suture_lfd.planning.plan import track_grasps
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
 
 _LOG = logging.getLogger(__name__)
@@ -414,14 +415,7 @@ class Demonstrator:
         dt = min(max(0.0, float(obs.t) - self._t_last), self.max_step)
         self._t_last = float(obs.t)
         self._advance(obs, dt)
-        holders = set(obs.holders)
-        for arm in ARMS:
-            if arm in holders:
-                if arm not in self._grasps:
-                    self._grasps[arm] = (invert_transform(obs.T_world_tool[arm])
-                                         @ np.asarray(obs.T_world_needle, dtype=float))
-            else:
-                self._grasps.pop(arm, None)
+        track_grasps(self._grasps, obs)
         cmd = plan.sample(self._tau, self._grasps)
         tools = {}
         for arm in ARMS:
