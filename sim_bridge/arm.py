@@ -889,7 +889,7 @@ class Arm:
         memo = self._fk_memo.get(which)
         if memo is None or memo[0] is not q:  # a joint tuple is replaced when the joints move
             # the arm's own joints, finite since every command is checked: no check again
-            memo = self._fk_memo[which] = (q, _read_only(self.kinematics.fk_unchecked(q)))
+            memo = self._fk_memo[which] = (q, self.kinematics.fk_unchecked(q, read_only=True))
         return memo[1]
 
     @property

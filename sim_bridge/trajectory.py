@@ -547,7 +547,12 @@ class JointMotion:
         else:
             target, velocity = self._target(now)
         if exact:
-            clipped = tuple([min(max(v, lo), hi) for v, (lo, hi) in zip(target, self._bounds)])
+            # np.clip with array bounds, written out (a bound wins a tie: signs of zeros)
+            out = []
+            for v, (lo, hi) in zip(target, self._bounds):
+                x = v if v > lo else lo
+                out.append(x if x < hi else hi)
+            clipped = tuple(out)
             qd = self._zeros if velocity is None else velocity
             self._qd = tuple([w if c == v else 0.0 for c, v, w in zip(clipped, target, qd)])
             self._q = clipped
