@@ -793,7 +793,9 @@ class Arm:
                 self._emit('goal_reached', True)
         if jaw_arrived:
             self._emit('goal_reached', True)
-        busy = self._motion_running()
+        # _motion_running(), written out
+        busy = self._homing or arm.trajectory is not None or (
+            jaw is not None and jaw.trajectory is not None)
         if busy != self._busy:
             self._set_busy(busy)
 
