@@ -201,9 +201,13 @@ class JointTrajectory:
         t = max(float(t), 0.0)
         q, qd = [], []
         for start, v0, vc, a, t1, b2, s1, s3 in self._joint_terms:
-            tau1 = min(t, t1)
-            tau2 = min(max(t - t1, 0.0), b2 - t1)
-            tau3 = max(t - b2, 0.0)
+            # min(x, y) is "y if y < x else x" and max(x, y) "y if y > x else x", written out
+            tau1 = t1 if t1 < t else t
+            x = t - t1
+            x = 0.0 if 0.0 > x else x
+            tau2 = b2 - t1 if b2 - t1 < x else x
+            x = t - b2
+            tau3 = 0.0 if 0.0 > x else x
             q.append(start + v0 * tau1 + 0.5 * s1 * a * tau1 * tau1 + vc * tau2
                      + vc * tau3 + 0.5 * s3 * a * tau3 * tau3)
             qd.append(v0 + s1 * a * t if t <= t1 else vc if t <= b2 else vc + s3 * a * tau3)
@@ -325,7 +329,7 @@ class JointMotion:
         self.v_max = np.asarray(v_max, dtype=float)
         self.a_max = np.asarray(a_max, dtype=float)
         self._limits = tuple(zip(self.v_max.tolist(), self.a_max.tolist(), self.lower.tolist(),
-                                 self.upper.tolist()))
+                                 self.upper.tolist(), (-self.v_max).tolist()))
         self._bounds = tuple(zip(self.lower.tolist(), self.upper.tolist()))
         self.trajectory = None
         self._t0 = 0.0
@@ -386,19 +390,28 @@ class JointMotion:
         are cheaper that way than through a dozen NumPy calls. ``target`` and ``velocity``
         (None: zero) are sequences of floats; returns tuples (q, qd).
         """
+        # min(x, y) is "y if y < x else x" and max(x, y) "y if y > x else x", written out
         q_out, qd_out = [], []
         tv = self._zeros if velocity is None else velocity
-        for q, qd, g, w, (v, a, lo, hi) in zip(self._q, self._qd, target, tv, self._limits):
+        sqrt = math.sqrt
+        for q, qd, g, w, (v, a, lo, hi, minus_v) in zip(self._q, self._qd, target, tv,
+                                                          self._limits):
             e = g - q - w * dt
             mag = abs(e)
-            step = min(math.sqrt(2.0 * a * mag), mag / dt)
-            v_des = min(max(w + (step if e > 0.0 else -step if e < 0.0 else 0.0 * step), -v), v)
+            root, ramp = sqrt(2.0 * a * mag), mag / dt
+            step = ramp if ramp < root else root
+            x = w + (step if e > 0.0 else -step if e < 0.0 else 0.0 * step)
+            x = minus_v if minus_v > x else x
+            v_des = v if v < x else x
             dv = a * dt
-            qd_new = qd + min(max(v_des - qd, -dv), dv)
+            x = v_des - qd
+            x = -dv if -dv > x else x
+            qd_new = qd + (dv if dv < x else x)
             q_new = q + qd_new * dt
             if abs(g - q_new) < 1e-12 and abs(qd_new) <= dv:
                 q_new = g
-            clipped = min(max(q_new, lo), hi)
+            x = lo if lo > q_new else q_new
+            clipped = hi if hi < x else x
             q_out.append(clipped)
             qd_out.append(qd_new if clipped == q_new else 0.0)
         return tuple(q_out), tuple(qd_out)

@@ -12,12 +12,24 @@ words the error.
 Poses are tool tips in the RCM frame ``<ARM>_base`` (metres); joints in rad / m.
 """
 
+from collections.abc import Iterable, Sequence
 import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # only for the annotations: rcm imports this module
+    from sim_bridge.kinematics.rcm import PsmKinematics
 
 _TWO_PI = 2.0 * math.pi
+# a 3x3 matrix as 9 floats, row by row
+_Flat3 = tuple[float, ...]
+# a joint: (revolute, lowest and highest value counted inside, lower, upper, range)
+_Joint = tuple[bool, float, float, float, float, float]
 
 
-def _rz_mul(A, theta, B):
+def _rz_mul(A: _Flat3, theta: float, B: _Flat3) -> _Flat3:
     """
     Return ``A @ RotZ(theta) @ B`` for flat row-major 3x3 tuples (9 floats).
 
@@ -35,7 +47,7 @@ def _rz_mul(A, theta, B):
             g * p + h * s + i * v, g * q + h * t + i * w, g * r + h * u + i * x)
 
 
-def _flat(M):
+def _flat(M: Iterable[Iterable[float]]) -> _Flat3:
     """Return a 3x3 matrix as 9 floats, row by row."""
     return tuple(float(x) for row in M for x in row)
 
@@ -53,7 +65,7 @@ class PsmSingleIk:
 
     """
 
-    def __init__(self, chain, slack):
+    def __init__(self, chain: 'PsmKinematics', slack: float) -> None:
         self.slack = slack
         self.lower = [float(x) for x in chain.lower]
         self.upper = [float(x) for x in chain.upper]
@@ -74,14 +86,15 @@ class PsmSingleIk:
         self._joint = [(rev, lo - slack, hi + slack, lo, hi, hi - lo) for rev, lo, hi in
                        zip(self.revolute, self.lower, self.upper)]
 
-    def _wrap(self, j, value, ref):
+    def _wrap(self, j: int, value: float, ref: float) -> float:
         """Wrap a revolute joint by 2 pi towards ``ref`` as the batch solver does."""
         return _wrap(self._joint[j], value, ref)
 
-    def _violation(self, j, v):
+    def _violation(self, j: int, v: float) -> float:
         return max(0.0, self.lower[j] - v, v - self.upper[j]) / self.ranges[j]
 
-    def solve(self, T, q_ref):
+    def solve(self, T: NDArray[np.float64],
+              q_ref: Sequence[float] | NDArray[np.float64]) -> list[float] | None:
         """
         Return the joint solution closest to ``q_ref`` inside the limits, or None.
 
@@ -200,13 +213,17 @@ class PsmSingleIk:
         return [min(max(v, lo), hi) for v, lo, hi in zip(best, self.lower, self.upper)]
 
 
-def _violation(joint, v):
+def _violation(joint: _Joint, v: float) -> float:
     """Return how far (in ranges) ``v`` lies outside the limits of ``joint``, 0 inside."""
     _, _, _, lo, hi, span = joint
-    return max(0.0, lo - v, v - hi) / span
+    # max(0.0, lo - v, v - hi), written out: a later argument wins only when greater
+    worst = lo - v
+    worst = worst if worst > 0.0 else 0.0
+    above = v - hi
+    return (above if above > worst else worst) / span
 
 
-def _wrap(joint, value, ref):
+def _wrap(joint: _Joint, value: float, ref: float) -> float:
     """Wrap a revolute joint value by 2 pi towards ``ref`` inside its limits (and slack)."""
     if not joint[0]:
         return value

@@ -109,6 +109,12 @@ class PoseInterpolator:
         self.B = np.array(B, dtype=float)
         self._dp = self.B[:3, 3] - self.A[:3, 3]
         self._w = rotation_log(self.A[:3, :3].T @ self.B[:3, :3])
+        self._still = None
+        if not self._dp.any() and float(np.linalg.norm(self._w)) < 1e-12:
+            # A pose held still: every sigma below 1 gives the pose at sigma 0 (the rotation
+            # vector sigma * w is below rotation_exp's 1e-12 for every sigma <= 1, and
+            # sigma * 0 adds nothing), so it is computed once.
+            self._still = self._at(0.0)
 
     @property
     def distance(self):
@@ -136,6 +142,11 @@ class PoseInterpolator:
         """
         if sigma >= 1.0:
             return self.B.copy()
+        if self._still is not None:
+            return self._still.copy()
+        return self._at(sigma)
+
+    def _at(self, sigma):
         T = np.eye(4)
         T[:3, :3] = self.A[:3, :3] @ rotation_exp(sigma * self._w)
         T[:3, 3] = self.A[:3, 3] + sigma * self._dp
@@ -318,6 +329,7 @@ class NeedleMove(ToolMove):
         self.path = path
         self.grasp = np.array(T_tool_needle, dtype=float)
         self._inv = invert_transform(self.grasp)
+        self._measured = self._measured_inv = None
         self.jaw0 = float(jaw0)
         self.jaw1 = self.jaw0 if jaw1 is None else float(jaw1)
 
@@ -334,7 +346,8 @@ class NeedleMove(ToolMove):
         t : float
             Time (s).
         T_tool_needle : array_like, shape (4, 4), optional
-            Measured grasp to use instead of the planned one.
+            Measured grasp to use instead of the planned one; its inverse is kept for the next
+            call with the same array, so the caller must not change that array in place.
 
         Returns
         -------
@@ -342,5 +355,11 @@ class NeedleMove(ToolMove):
             ``T_world_needle(t) @ inv(T_tool_needle)``.
 
         """
-        inv = self._inv if T_tool_needle is None else invert_transform(T_tool_needle)
+        if T_tool_needle is None:
+            inv = self._inv
+        elif T_tool_needle is self._measured:
+            inv = self._measured_inv  # the same measured grasp as the last call (not changed)
+        else:
+            inv = invert_transform(T_tool_needle)
+            self._measured, self._measured_inv = T_tool_needle, inv
         return self.needle(t) @ inv

@@ -412,7 +412,7 @@ class ThrowExecutor:
             tools = dict(cmd.T_world_tool)
             for arm, T in tools.items():
                 last = self._sent.get(arm)
-                if last is not None and np.array_equal(last, T):
+                if last is not None and (last == T).all():  # both (4, 4)
                     tools[arm] = None
                 else:
                     self._sent[arm] = T

@@ -128,6 +128,8 @@ class WorkerState:
         The cohort's subjects by name, read on first use.
     ros : suture_lfd.study.ros.RosThrows or None
         Node processes executing the throws (None: in-process).
+    dmp_params : dict or None
+        ``config/dmp.yaml``'s DMP parameters per task, read on first use.
 
     """
 
@@ -137,6 +139,7 @@ class WorkerState:
     skills: dict = field(default_factory=dict)
     subjects: dict | None = None
     ros: object = None
+    dmp_params: dict | None = None
 
 
 _worker = None  # this process's WorkerState (a pool worker is initialised once)
@@ -360,6 +363,16 @@ def _training_from_segments(segments, training_data):
         return TrainingData(pair, needle, timing, segments.source)
 
 
+def _dmp_params():
+    """Return ``config/dmp.yaml``'s parameters per task (read once per process)."""
+    state = _state()
+    if state.dmp_params is None:
+        from suture_lfd.dmp import load_dmp_params
+
+        state.dmp_params = {task: load_dmp_params(task=task) for task in TASKS}
+    return state.dmp_params
+
+
 def _skill(path, method, dmp=None):
     """
     Return the skill learnt from a segment file by a method (cached per process).
@@ -376,14 +389,11 @@ def _skill(path, method, dmp=None):
 
         if len(skills) > 64:
             skills.clear()
-        params = None
+        params = _dmp_params()
         if overrides:
             from dataclasses import replace as with_values
 
-            from suture_lfd.dmp import load_dmp_params
-
-            params = {task: with_values(load_dmp_params(task=task), **dmp.get(task, {}))
-                      for task in TASKS}
+            params = {task: with_values(params[task], **dmp.get(task, {})) for task in TASKS}
         skills[key] = learn_skill(_training(path), method=method, params=params)
     return skills[key]
 

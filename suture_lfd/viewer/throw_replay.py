@@ -45,7 +45,7 @@ class ThrowSampler:
     def __init__(self, sim, rate=SAMPLE_RATE):
         self.sim = sim
         self.period = 1.0 / rate
-        self.rows = []
+        self._times, self._poses, self._jaws = [], [], []
         self._next = -np.inf
 
     def __call__(self, sim=None):
@@ -54,11 +54,30 @@ class ThrowSampler:
         if t + 1e-9 < self._next:
             return
         self._next = t + self.period
-        row = [t, *pose_from_transform(sim.needle_pose())]
-        for arm in PSMS:
-            row += list(pose_from_transform(sim.tool_pose(arm)))
-            row.append(float(sim.arms[arm].jaw_measured_jp))
-        self.rows.append(row)
+        # the 4x4 poses are kept and turned into 7-vectors all at once by the rows
+        self._times.append(t)
+        self._poses.append((sim.needle_pose(), *(np.array(sim.tool_pose(arm)) for arm in PSMS)))
+        self._jaws.append([float(sim.arms[arm].jaw_measured_jp) for arm in PSMS])
+
+    @property
+    def rows(self):
+        """
+        The samples so far, shape (n, 24).
+
+        Columns: ``t`` (s), the needle pose (7), then per PSM its tool pose (7) and jaw (rad);
+        poses ``(x, y, z, qx, qy, qz, qw)`` in ``world``.
+        """
+        n = len(self._times)
+        rows = np.empty((n, 1 + 7 + 2 * 8))
+        if n:
+            poses = pose_from_transform(np.asarray(self._poses, dtype=float))  # (n, 3, 7)
+            rows[:, 0] = self._times
+            rows[:, 1:8] = poses[:, 0]
+            for k in range(len(PSMS)):
+                col = 8 + 8 * k
+                rows[:, col:col + 7] = poses[:, 1 + k]
+                rows[:, col + 7] = [jaw[k] for jaw in self._jaws]
+        return rows
 
     def save(self, path, pair, events=(), subtask_times=None):
         """
@@ -76,7 +95,7 @@ class ThrowSampler:
 
         """
         sim = self.sim
-        rows = np.asarray(self.rows, dtype=float).reshape(-1, 1 + 7 + 2 * 8)
+        rows = self.rows
         bases = np.stack([sim.T_world_base(a) for a in ('PSM1', 'PSM2', 'ECM')])
         markers = dict(sim.marker_poses())
         spans = np.full((len(SUBTASKS), 2), np.nan)
