@@ -53,6 +53,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.kinematics import PsmKinematics, UnreachableError, check_pose
 from sim_bridge.trajectory import JointMotion
+from sim_bridge.validation import check_positive
 
 logger = logging.getLogger(__name__)
 
@@ -152,8 +153,7 @@ class ArmConfig:
             raise ValueError(f'throttle_period must be >= 0 s, got {self.throttle_period}')
         if not (np.isfinite(self.power_up_time) and self.power_up_time >= 0.0):
             raise ValueError(f'power_up_time must be >= 0 s, got {self.power_up_time}')
-        if not self.servo_stream_gap > 0.0:
-            raise ValueError(f'servo_stream_gap must be > 0 s, got {self.servo_stream_gap}')
+        check_positive(self.servo_stream_gap, 'servo_stream_gap (s)')
 
 
 class Arm:

@@ -44,6 +44,7 @@ import math
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
 from sim_bridge.geometry import pose_from_transform
+from sim_bridge.validation import check_positive
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
@@ -147,8 +148,9 @@ class Demonstrator:
         else:
             raise ValueError(f'subject must be a Subject or a SkillProfile, got '
                              f'{type(subject).__name__}')
-        if not (lag_tolerance > 0.0 and lag_tolerance_rad > 0.0 and max_step > 0.0):
-            raise ValueError('lag_tolerance, lag_tolerance_rad and max_step must be > 0')
+        for value, name in ((lag_tolerance, 'lag_tolerance (m)'),
+                            (lag_tolerance_rad, 'lag_tolerance_rad'), (max_step, 'max_step (s)')):
+            check_positive(value, name)
         self.max_step = float(max_step)
         if entry_clearance < 0.0:
             raise ValueError(f'entry_clearance must be >= 0 m, got {entry_clearance}')
