@@ -53,6 +53,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.kinematics import PsmKinematics, UnreachableError, check_pose
 from sim_bridge.trajectory import JointMotion
+from sim_bridge.validation import check_positive
 
 logger = logging.getLogger(__name__)
 
@@ -152,8 +153,7 @@ class ArmConfig:
             raise ValueError(f'throttle_period must be >= 0 s, got {self.throttle_period}')
         if not (np.isfinite(self.power_up_time) and self.power_up_time >= 0.0):
             raise ValueError(f'power_up_time must be >= 0 s, got {self.power_up_time}')
-        if not self.servo_stream_gap > 0.0:
-            raise ValueError(f'servo_stream_gap must be > 0 s, got {self.servo_stream_gap}')
+        check_positive(self.servo_stream_gap, 'servo_stream_gap (s)')
 
 
 class Arm:
@@ -793,7 +793,9 @@ class Arm:
                 self._emit('goal_reached', True)
         if jaw_arrived:
             self._emit('goal_reached', True)
-        busy = self._motion_running()
+        # _motion_running(), written out
+        busy = self._homing or arm.trajectory is not None or (
+            jaw is not None and jaw.trajectory is not None)
         if busy != self._busy:
             self._set_busy(busy)
 
@@ -889,7 +891,7 @@ class Arm:
         memo = self._fk_memo.get(which)
         if memo is None or memo[0] is not q:  # a joint tuple is replaced when the joints move
             # the arm's own joints, finite since every command is checked: no check again
-            memo = self._fk_memo[which] = (q, _read_only(self.kinematics.fk_unchecked(q)))
+            memo = self._fk_memo[which] = (q, self.kinematics.fk_unchecked(q, read_only=True))
         return memo[1]
 
     @property

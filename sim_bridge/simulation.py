@@ -47,6 +47,7 @@ from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.paths import config_path
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
+from sim_bridge.scene.markers import marker_frame
 from sim_bridge.scene.phantom import build_phantom
 from sim_bridge.scene.scene_config import SceneConfig, load_scene_config, phantom_from_argument
 from sim_bridge.scene.scoring import ThrowScorer
@@ -831,14 +832,7 @@ class Simulation:
             for which, point, normal, other in (
                     ('entry', pair.entry, pair.entry_normal, pair.exit),
                     ('exit', pair.exit, pair.exit_normal, pair.entry)):
-                z = normal / np.linalg.norm(normal)
-                x = other - point
-                x = x - (x @ z) * z
-                x /= np.linalg.norm(x)
-                T = np.eye(4)
-                T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-                T[:3, 3] = point
-                out[f'{pair.name}.{which}'] = T
+                out[f'{pair.name}.{which}'] = marker_frame(point, normal, other)
         return out
 
     def tool_pose(self, arm):

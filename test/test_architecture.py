@@ -204,3 +204,28 @@ def test_a_long_module_without_a_reason_is_named(tree):
         f'"""\nA long module.\n\nSize: one table of constants.\n"""\n{body}\n')
     assert [line.split(':')[0] for line in long_modules_without_reason(tree)] == [
         'suture_lfd.dmp.long']
+
+
+# --- private names -------------------------------------------------------------------------------
+
+def private_imports(root):
+    """Return every ``from <package module> import _name`` of the tree, one line each."""
+    found = []
+    for name, path in modules(root).items():
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and node.module \
+                    and node.module.split('.')[0] in PACKAGES:
+                found += [f'{name} imports {alias.name} from {node.module}' for alias in node.names
+                          if alias.name.startswith('_') and not alias.name.startswith('__')]
+    return found
+
+
+def test_no_module_imports_a_private_name_of_another():
+    assert private_imports(REPO) == []
+
+
+def test_a_private_import_in_a_temporary_module_is_named(tree):
+    (tree / 'suture_lfd/dmp/probe.py').write_text(
+        'from sim_bridge.geometry import _jinv_coefficient\n')
+    assert private_imports(tree) == [
+        'suture_lfd.dmp.probe imports _jinv_coefficient from sim_bridge.geometry']

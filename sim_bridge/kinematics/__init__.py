@@ -11,8 +11,11 @@ Units are SI (metres, radians); the tool-tip pose is ``T_base_tip`` in the RCM f
 ``<ARM>_base``.
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 import re
+from typing import TypeVar
 
 import numpy as np
 from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
@@ -34,6 +37,8 @@ from sim_bridge.kinematics.rcm import (
     UnreachableError,
 )
 from sim_bridge.paths import config_path
+
+_T = TypeVar('_T')
 
 __all__ = [
     'ArmChainConfig', 'check_joint_vector', 'check_pose', 'check_poses', 'DhJoint',
@@ -90,12 +95,12 @@ class KinematicsConfig:
 # factories reading config/kinematics.yaml
 
 
-def _normalise_tool_name(tool):
+def _normalise_tool_name(tool: str) -> str:
     """Accept dVRK spellings: ``LARGE_NEEDLE_DRIVER:420006[1]`` -> ``..._420006``."""
     return re.sub(r'\[\d+\]$', '', tool.strip()).replace(':', '_')
 
 
-def read_kinematics_config(path=None):
+def read_kinematics_config(path: str | Path | None = None) -> KinematicsConfig:
     """
     Read ``config/kinematics.yaml`` into a :class:`KinematicsConfig`.
 
@@ -114,13 +119,14 @@ def read_kinematics_config(path=None):
     return dataclass_from_mapping(KinematicsConfig, data, source=str(path))
 
 
-def _pick(mapping, key, what, source):
+def _pick(mapping: Mapping[str, _T], key: str, what: str, source: str) -> _T:
     if key not in mapping:
         raise ConfigError(f'{source}: unknown {what} {key!r}; expected one of {sorted(mapping)}')
     return mapping[key]
 
 
-def psm_kinematics(tool=None, path=None, arm=None):
+def psm_kinematics(tool: str | None = None, path: str | Path | None = None,
+                   arm: str | None = None) -> PsmKinematics:
     """
     Build the PSM kinematics for a tool (and, by default, the arm generation it mounts on).
 
@@ -150,7 +156,8 @@ def psm_kinematics(tool=None, path=None, arm=None):
                          tool_type=tool_cfg.tool_type)
 
 
-def ecm_kinematics(generation=None, endoscope=None, path=None):
+def ecm_kinematics(generation: str | None = None, endoscope: str | None = None,
+                   path: str | Path | None = None) -> EcmKinematics:
     """
     Build the ECM kinematics.
 
@@ -182,7 +189,7 @@ def ecm_kinematics(generation=None, endoscope=None, path=None):
                          endoscope_type=f'{arm_cfg.endoscope_prefix}_{endoscope}')
 
 
-def load_kinematics(path=None):
+def load_kinematics(path: str | Path | None = None) -> dict[str, SerialChain]:
     """
     Build the default PSM and ECM kinematics named in the file's ``defaults``.
 

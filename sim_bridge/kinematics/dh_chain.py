@@ -18,11 +18,20 @@ Size: forward kinematics, link frames and Jacobians share the scalar per-link ar
 path, kept in one file for speed.
 """
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 import math
 import struct
+from typing import Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+# a pose's top three rows as nested tuples, and as 12 floats (rotation rows, then translation)
+_Rows = tuple[tuple[float, ...], ...]
+_Pose12 = tuple[float, float, float, float, float, float, float, float, float, float, float,
+                float]
 
 
 @dataclass(frozen=True)
@@ -67,7 +76,7 @@ class DhJoint:
     v_max: float
     a_max: float
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.kind not in ('revolute', 'prismatic'):
             raise ValueError(
                 f'joint {self.name!r}: kind must be revolute or prismatic, got {self.kind!r}')
@@ -80,7 +89,7 @@ class DhJoint:
                 f'got {self.v_max}, {self.a_max}')
 
     @property
-    def is_revolute(self):
+    def is_revolute(self) -> bool:
         """Whether the joint rotates (``q`` in rad) rather than slides (``q`` in m)."""
         return self.kind == 'revolute'
 
@@ -89,7 +98,7 @@ class DhJoint:
 # input checks
 
 
-def check_joint_vector(q, n, name='q'):
+def check_joint_vector(q: ArrayLike, n: int, name: str = 'q') -> FloatArray:
     """
     Return ``q`` as a finite float array of shape (n,), or raise ValueError naming ``name``.
 
@@ -119,7 +128,7 @@ def check_joint_vector(q, n, name='q'):
     return q
 
 
-def check_pose(T, name='T', tol=1e-6):
+def check_pose(T: ArrayLike, name: str = 'T', tol: float = 1e-6) -> FloatArray:
     """
     Validate a homogeneous transform and return it with an exactly orthonormal rotation.
 
@@ -160,7 +169,8 @@ def check_pose(T, name='T', tol=1e-6):
                        name=name, tol=tol, single=True)[0]
 
 
-def check_poses(T, name='T', tol=1e-6, single=False):
+def check_poses(T: ArrayLike, name: str = 'T', tol: float = 1e-6,
+                single: bool = False) -> FloatArray:
     """
     Validate a stack of homogeneous transforms (see :func:`check_pose`).
 
@@ -209,7 +219,7 @@ def check_poses(T, name='T', tol=1e-6, single=False):
     return T
 
 
-def pose_mismatch(Ta, Tb):
+def pose_mismatch(Ta: FloatArray, Tb: FloatArray) -> tuple[float, float]:
     """
     Distance (m) and rotation angle (rad) between two poses, in plain floats.
 
@@ -228,7 +238,7 @@ def pose_mismatch(Ta, Tb):
     return pose_mismatch_values((a0, a1, a2, a3, a4, a5, a6, a7, a8, ax, ay, az), Tb)
 
 
-def pose_mismatch_values(a, Tb):
+def pose_mismatch_values(a: Sequence[float], Tb: FloatArray) -> tuple[float, float]:
     """
     :func:`pose_mismatch` of a pose given as 12 floats and a 4x4 pose.
 
@@ -261,7 +271,7 @@ def pose_mismatch_values(a, Tb):
             math.atan2(s, 0.5 * (trace - 1.0)))
 
 
-def rotation_angle(Ra, Rb):
+def rotation_angle(Ra: ArrayLike, Rb: ArrayLike) -> FloatArray:
     """
     Angle of the rotation ``Ra^T Rb`` (rad), accurate for small and large angles.
 
@@ -287,7 +297,7 @@ def rotation_angle(Ra, Rb):
 # elementary transforms
 
 
-def rotation_x(alpha):
+def rotation_x(alpha: float) -> FloatArray:
     """
     Rotation about x by ``alpha`` (rad).
 
@@ -305,7 +315,7 @@ def rotation_x(alpha):
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
-def rotation_z(theta):
+def rotation_z(theta: float) -> FloatArray:
     """
     Rotations about z by ``theta`` (rad), vectorised.
 
@@ -329,7 +339,7 @@ def rotation_z(theta):
     return R
 
 
-def _link_constant(joint):
+def _link_constant(joint: DhJoint) -> FloatArray:
     """RotX(alpha) * TransX(a), shape (4, 4)."""
     C = np.eye(4)
     C[:3, :3] = rotation_x(joint.alpha)
@@ -340,7 +350,8 @@ def _link_constant(joint):
 _PACK12 = struct.Struct('12d').pack  # the exact bytes of 12 floats
 
 
-def _compose(a, b, c, d, e, f, g, h, i, x, y, z, C):
+def _compose(a: float, b: float, c: float, d: float, e: float, f: float, g: float, h: float,
+             i: float, x: float, y: float, z: float, C: _Rows) -> _Pose12:
     """Return ``[R | t] @ C`` for ``R`` = rows (a b c; d e f; g h i), t = (x, y, z), C 3x4 rows."""
     (p, q, r, u), (s, t, w, v), (k, m, n, o) = C
     return (a * p + b * s + c * k, a * q + b * t + c * m, a * r + b * w + c * n,
@@ -349,9 +360,20 @@ def _compose(a, b, c, d, e, f, g, h, i, x, y, z, C):
             a * u + b * v + c * o + x, d * u + e * v + f * o + y, g * u + h * v + i * o + z)
 
 
-def _matrix(a, b, c, d, e, f, g, h, i, x, y, z):
+def _matrix(a: float, b: float, c: float, d: float, e: float, f: float, g: float, h: float,
+            i: float, x: float, y: float, z: float) -> FloatArray:
     """Return the 4x4 array of rotation rows (a b c; d e f; g h i) and translation (x, y, z)."""
-    return np.array([[a, b, c, x], [d, e, f, y], [g, h, i, z], [0.0, 0.0, 0.0, 1.0]])
+    return np.array((a, b, c, x, d, e, f, y, g, h, i, z, 0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
+
+
+_PACK16 = struct.Struct('16d').pack
+
+
+def _read_only_matrix(a: float, b: float, c: float, d: float, e: float, f: float, g: float,
+                      h: float, i: float, x: float, y: float, z: float) -> FloatArray:
+    """:func:`_matrix` as a read-only array over the packed floats (cheaper to make)."""
+    return np.frombuffer(_PACK16(a, b, c, x, d, e, f, y, g, h, i, z, 0.0, 0.0, 0.0, 1.0)
+                         ).reshape(4, 4)
 
 
 class SerialChain:
@@ -384,7 +406,8 @@ class SerialChain:
 
     """
 
-    def __init__(self, joints, tooltip_offset=None, home=None, name='chain'):
+    def __init__(self, joints: Iterable[DhJoint], tooltip_offset: ArrayLike | None = None,
+                 home: ArrayLike | None = None, name: str = 'chain') -> None:
         self.joints = tuple(joints)
         if not self.joints:
             raise ValueError('a serial chain needs at least one joint')
@@ -408,15 +431,24 @@ class SerialChain:
         for arr in (self.lower, self.upper, self.v_max, self.a_max, self.is_revolute, self.home,
                     self.tooltip_offset, self._const):
             arr.flags.writeable = False
-        # plain-float copies for fk(), made once
-        self._float_chain = self._float_tip = self._float_first = None
+        # plain-float copies for the one-pose forward kinematics
+        self._float_chain = [
+            (bool(rev), float(t0), float(d0), tuple(map(tuple, C[:3].tolist())))
+            for rev, t0, d0, C in zip(self.is_revolute, self._theta0, self._d0, self._const)]
+        self._float_tip: _Rows = tuple(map(tuple, self.tooltip_offset[:3].tolist()))
+        # identity @ C of the first link, when it is C to the bit (signs of zeros too)
+        (p, q, r, u), (s, t, w, v), (k, m, n, o) = self._float_chain[0][3]
+        first = _compose(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0,
+                         self._float_chain[0][3])
+        plain = (p, q, r, s, t, w, k, m, n, u, v, o)
+        self._float_first = first if _PACK12(*first) == _PACK12(*plain) else None
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f'{type(self).__name__}({self.name!r}, joints={list(self.joint_names)})'
 
     # -- joint-space helpers -------------------------------------------------------------------
 
-    def check_q(self, q, name='q'):
+    def check_q(self, q: ArrayLike, name: str = 'q') -> FloatArray:
         """
         Validate a joint vector (shape (n,), finite) and return a float copy.
 
@@ -434,7 +466,7 @@ class SerialChain:
         """
         return check_joint_vector(q, self.n_joints, name=name)
 
-    def clip(self, q):
+    def clip(self, q: ArrayLike) -> FloatArray:
         """
         Clip joint values into the position limits.
 
@@ -456,7 +488,7 @@ class SerialChain:
             raise ValueError('q contains NaN or infinite values')
         return np.clip(q, self.lower, self.upper)
 
-    def within_limits(self, q, tol=0.0):
+    def within_limits(self, q: ArrayLike, tol: float = 0.0) -> bool | NDArray[np.bool_]:
         """
         Whether every joint value lies inside its limits (widened by ``tol``).
 
@@ -478,7 +510,7 @@ class SerialChain:
 
     # -- forward kinematics --------------------------------------------------------------------
 
-    def joint_placements(self):
+    def joint_placements(self) -> FloatArray:
         """
         Return the fixed part of every link transform (the joint frames at ``q = 0``).
 
@@ -494,7 +526,7 @@ class SerialChain:
         """
         return self._link_transforms(np.zeros((1, self.n_joints)))[0]
 
-    def _link_transforms(self, Q):
+    def _link_transforms(self, Q: FloatArray) -> FloatArray:
         """Link transforms T_i(q_i), shape (m, n, 4, 4), for Q of shape (m, n)."""
         theta = self._theta0 + np.where(self.is_revolute, Q, 0.0)
         d = self._d0 + np.where(self.is_revolute, 0.0, Q)
@@ -509,7 +541,7 @@ class SerialChain:
         M[..., 3, 3] = 1.0
         return self._const @ M
 
-    def _check_batch(self, Q, name='Q'):
+    def _check_batch(self, Q: ArrayLike, name: str = 'Q') -> FloatArray:
         try:
             Q = np.array(Q, dtype=float)
         except (TypeError, ValueError) as exc:
@@ -520,7 +552,7 @@ class SerialChain:
             raise ValueError(f'{name} contains NaN or infinite values')
         return Q
 
-    def fk_batch(self, Q):
+    def fk_batch(self, Q: ArrayLike) -> FloatArray:
         """
         Tool-tip poses for many joint vectors.
 
@@ -542,7 +574,7 @@ class SerialChain:
             T = T @ A[:, i]
         return T @ self.tooltip_offset
 
-    def fk(self, q):
+    def fk(self, q: ArrayLike) -> FloatArray:
         """
         Tool-tip pose.
 
@@ -560,14 +592,16 @@ class SerialChain:
         """
         return self._fk_floats(self.check_q(q).tolist())[0]
 
-    def fk_unchecked(self, q):
+    def fk_unchecked(self, q: Sequence[float], read_only: bool = False) -> FloatArray:
         """
         :meth:`fk` of joint values already known to be valid, without checking them again.
 
         Parameters
         ----------
-        q : list of float
+        q : sequence of float
             ``n_joints`` finite joint values (rad / m), e.g. an arm's own measured joints.
+        read_only : bool
+            Return a read-only array (made faster; for a pose that is kept and shared).
 
         Returns
         -------
@@ -575,9 +609,10 @@ class SerialChain:
             ``T_base_tip`` (metres), the same floats as :meth:`fk`.
 
         """
-        return self._fk_floats(q)[0]
+        tip = self._fk_values(q)[0]
+        return _read_only_matrix(*tip) if read_only else _matrix(*tip)
 
-    def fk_wrist_and_tip(self, q, link):
+    def fk_wrist_and_tip(self, q: ArrayLike, link: int) -> tuple[FloatArray, FloatArray]:
         """
         Frame of one DH link and the tool tip, for one joint vector.
 
@@ -596,28 +631,19 @@ class SerialChain:
         """
         if not 1 <= link <= self.n_joints:
             raise ValueError(f'link must be in 1..{self.n_joints}, got {link}')
-        tip, frame = self._fk_floats(self.check_q(q).tolist(), link)
-        return frame, tip
+        tip, frame = self._fk_values(self.check_q(q).tolist(), link)
+        return _matrix(*cast(_Pose12, frame)), _matrix(*tip)
 
-    def _fk_floats(self, q, link=None):
+    def _fk_floats(self, q: Sequence[float],
+                   link: int | None = None) -> tuple[FloatArray, FloatArray | None]:
         """Return (tip pose, link frame or None) of ``q`` (list of floats) in plain floats."""
         tip, kept = self._fk_values(q, link)
         return _matrix(*tip), None if kept is None else _matrix(*kept)
 
-    def _fk_values(self, q, link=None):
+    def _fk_values(self, q: Sequence[float],
+                   link: int | None = None) -> tuple[_Pose12, _Pose12 | None]:
         """Return the tip (and link ``link``) of ``q`` as 12 floats: rotation rows, translation."""
         chain = self._float_chain
-        if chain is None:
-            chain = self._float_chain = [
-                (bool(rev), float(t0), float(d0), tuple(map(tuple, C[:3].tolist())))
-                for rev, t0, d0, C in zip(self.is_revolute, self._theta0, self._d0, self._const)]
-            self._float_tip = tuple(map(tuple, self.tooltip_offset[:3].tolist()))
-            # identity @ C of the first link, when it is C to the bit (signs of zeros too)
-            (p, q_, r, u), (s, t, w, v), (kk, m, n, o) = chain[0][3]
-            first = _compose(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0,
-                             chain[0][3])
-            plain = (p, q_, r, s, t, w, kk, m, n, u, v, o)
-            self._float_first = first if _PACK12(*first) == _PACK12(*plain) else None
         # plain floats: one pose costs a fraction of the batched NumPy path
         a, b, c, d, e, f, g, h, i = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
         x = y = z = 0.0
@@ -646,7 +672,7 @@ class SerialChain:
                 kept = (a, b, c, d, e, f, g, h, i, x, y, z)
         return _compose(a, b, c, d, e, f, g, h, i, x, y, z, self._float_tip), kept
 
-    def fk_links(self, q):
+    def fk_links(self, q: ArrayLike) -> FloatArray:
         """
         Frames of every DH link, without the tooltip offset.
 
@@ -671,7 +697,7 @@ class SerialChain:
             frames[i + 1] = frames[i] @ A[i]
         return frames
 
-    def fk_all(self, q):
+    def fk_all(self, q: ArrayLike) -> FloatArray:
         """
         Frames of every link, ending with the tool tip.
 
@@ -695,7 +721,7 @@ class SerialChain:
         frames[-1] = frames[-1] @ self.tooltip_offset
         return frames
 
-    def jacobian(self, q):
+    def jacobian(self, q: ArrayLike) -> FloatArray:
         """
         Spatial Jacobian of the tool tip in the base frame.
 
@@ -722,7 +748,7 @@ class SerialChain:
         J[:3, ~rev] = z[~rev].T
         return J
 
-    def jacobian_body(self, q):
+    def jacobian_body(self, q: ArrayLike) -> FloatArray:
         """
         Body Jacobian of the tool tip.
 
@@ -746,7 +772,7 @@ class SerialChain:
 # pinocchio model of a chain
 
 
-def pinocchio_model(chain):
+def pinocchio_model(chain: SerialChain) -> tuple[Any, int]:
     """
     Build a pinocchio Model of the chain: one RZ/PZ joint per DH joint plus a tool-tip frame.
 

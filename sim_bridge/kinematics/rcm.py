@@ -17,11 +17,14 @@ Size: the closed-form PSM and ECM solutions share the RCM geometry and the joint
 the per-step solvers stay in one file for speed.
 """
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from sim_bridge.errors import UnreachableError
 from sim_bridge.kinematics.dh_chain import (
+    DhJoint,
     SerialChain,
     check_pose,
     check_poses,
@@ -32,6 +35,7 @@ from sim_bridge.kinematics.dh_chain import (
 )
 from sim_bridge.kinematics.psm_ik import PsmSingleIk
 
+FloatArray = NDArray[np.float64]
 _TWO_PI = 2.0 * np.pi
 _STRUCTURE_TOL = 1e-9
 # Round-trip tolerance of an IK solution (metres and radians).
@@ -62,7 +66,7 @@ class JawLimits:
     a_max: float
 
 
-def _sign_of_right_angle(alpha, what):
+def _sign_of_right_angle(alpha: float, what: str) -> float:
     s = np.sin(alpha)
     if abs(abs(s) - 1.0) > _STRUCTURE_TOL:
         raise ValueError(f'{what}: alpha must be +-pi/2 for the closed-form IK, got {alpha}')
@@ -77,7 +81,7 @@ class _RcmChain(SerialChain):
     joint 3 prismatic with a = 0; joint 4 (roll) revolute about the shaft (alpha = a = 0).
     """
 
-    def _check_rcm_structure(self):
+    def _check_rcm_structure(self) -> None:
         j = self.joints
         kinds = [x.kind for x in j[:4]]
         if kinds != ['revolute', 'revolute', 'prismatic', 'revolute']:
@@ -99,9 +103,11 @@ class _RcmChain(SerialChain):
         self._shaft_offset = self._d0[2] + self._d0[3]
         self._ranges = self.upper - self.lower
         self._tooltip_inverse = np.linalg.inv(self.tooltip_offset)
-        self._single = None  # a one-pose solver in plain floats, where the chain has one
+        # a one-pose solver in plain floats, where the chain has one
+        self._single: PsmSingleIk | None = None
 
-    def _shaft_solutions(self, P, q_ref):
+    def _shaft_solutions(self, P: np.ndarray,
+                         q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
         Yaw, pitch, insertion for a point P on the shaft (the roll-frame origin).
 
@@ -139,7 +145,8 @@ class _RcmChain(SerialChain):
         R3 = self._R_pre1 @ rotation_z(t1) @ self._R_x2 @ rotation_z(t2) @ self._R_x3_z3
         return q123, R3, singular
 
-    def _select(self, cand, q_ref, feasible):
+    def _select(self, cand: np.ndarray, q_ref: np.ndarray,
+                feasible: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
         Wrap revolute joints near q_ref, check limits and pick the closest valid branch.
 
@@ -176,28 +183,30 @@ class _RcmChain(SerialChain):
         q_best = np.take_along_axis(q, best[:, None, None], axis=1)[:, 0]
         in_limits = np.take_along_axis(valid, best[:, None], axis=1)[:, 0]
         q_best = np.where(in_limits[:, None], np.clip(q_best, self.lower, self.upper), q_best)
-        return q_best, in_limits, feasible.any(axis=1)
+        return q_best, in_limits, np.asarray(feasible.any(axis=1))
 
-    def _prepare_ik(self, T, q_ref, checked=False):
-        T = T if checked else check_poses(T)
-        m = T.shape[0]
+    def _prepare_ik(self, T: ArrayLike, q_ref: ArrayLike | None,
+                    checked: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        poses = np.asarray(T) if checked else check_poses(T)
+        m = poses.shape[0]
         if q_ref is None:
-            q_ref = np.broadcast_to(self.home, (m, self.n_joints))
+            ref = np.broadcast_to(self.home, (m, self.n_joints))
         else:
-            q_ref = np.asarray(q_ref, dtype=float)
-            if q_ref.shape == (self.n_joints,):
-                q_ref = np.broadcast_to(q_ref, (m, self.n_joints))
-            if q_ref.shape != (m, self.n_joints) or not np.all(np.isfinite(q_ref)):
+            ref = np.asarray(q_ref, dtype=float)
+            if ref.shape == (self.n_joints,):
+                ref = np.broadcast_to(ref, (m, self.n_joints))
+            if ref.shape != (m, self.n_joints) or not np.all(np.isfinite(ref)):
                 raise ValueError(f'q_ref must be finite with shape ({self.n_joints},) or '
-                                 f'({m}, {self.n_joints}), got shape {q_ref.shape}')
-        T_last = T @ self._tooltip_inverse
-        return T, q_ref, T_last
+                                 f'({m}, {self.n_joints}), got shape {ref.shape}')
+        T_last = poses @ self._tooltip_inverse
+        return poses, ref, T_last
 
-    def _solve(self, T_last, q_ref):
+    def _solve(self, T_last: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Candidates (m, B, n) and feasibility (m, B) for last-link poses T_last (m, 4, 4)."""
         raise NotImplementedError
 
-    def _ik_core(self, T, q_ref, checked=False):
+    def _ik_core(self, T: ArrayLike, q_ref: ArrayLike | None, checked: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """Return q (m, n), status (m,) with 0 ok, 1 singular, 2 limits, 3 pose mismatch."""
         T, q_ref, T_last = self._prepare_ik(T, q_ref, checked)
         cand, feasible = self._solve(T_last, q_ref)
@@ -214,7 +223,8 @@ class _RcmChain(SerialChain):
             pos_err = rot_err = np.zeros(len(q))
         return q, status, (pos_err, rot_err)
 
-    def ik_batch(self, T, q_ref=None):
+    def ik_batch(self, T: ArrayLike,
+                 q_ref: ArrayLike | None = None) -> tuple[FloatArray, NDArray[np.bool_]]:
         """
         Closed-form inverse kinematics for many tool-tip poses.
 
@@ -239,7 +249,7 @@ class _RcmChain(SerialChain):
         ok = status == 0
         return np.where(ok[:, None], q, np.nan), ok
 
-    def ik(self, T, q_ref=None):
+    def ik(self, T: ArrayLike, q_ref: ArrayLike | None = None) -> FloatArray:
         """
         Closed-form inverse kinematics of one tool-tip pose.
 
@@ -274,7 +284,7 @@ class _RcmChain(SerialChain):
             return np.array(q)
         return self._ik_worded(T, q_ref)
 
-    def ik_unchecked(self, T, q_ref):
+    def ik_unchecked(self, T: FloatArray, q_ref: Sequence[float]) -> tuple[float, ...]:
         """
         :meth:`ik` of a pose and a reference already known to be valid, without checking them.
 
@@ -301,7 +311,8 @@ class _RcmChain(SerialChain):
             return tuple(q)
         return tuple(self._ik_worded(T, np.array(q_ref, dtype=float)).tolist())
 
-    def _ik_single(self, T, q_ref):
+    def _ik_single(self, T: FloatArray,
+                   q_ref: Sequence[float] | FloatArray) -> list[float] | None:
         """Return the single-pose solver's answer when it is clean (list of float), else None."""
         if self._single is None:
             return None
@@ -311,10 +322,10 @@ class _RcmChain(SerialChain):
             return q
         return None  # no clean solution here: the batch solver decides and words the error
 
-    def _ik_worded(self, T, q_ref):
+    def _ik_worded(self, T: FloatArray, q_ref: FloatArray | None) -> FloatArray:
         """Batch-solve one checked pose; return q or raise UnreachableError saying why."""
-        q, status, (pos_err, rot_err) = self._ik_core(T[None], q_ref, checked=True)
-        q, status = q[0], int(status[0])
+        Q, codes, (pos_err, rot_err) = self._ik_core(T[None], q_ref, checked=True)
+        q, status = Q[0], int(codes[0])
         if status == 0:
             return q
         p = T[:3, 3]
@@ -336,10 +347,10 @@ class _RcmChain(SerialChain):
             f'{self.name}: pose at {where} cannot be reached: the best solution misses it by '
             f'{pos_err[0]:.3g} m and {rot_err[0]:.3g} rad{self._mismatch_reason()}')
 
-    def _singular_reason(self):
+    def _singular_reason(self) -> str:
         return 'the wrist centre is at the remote centre of motion'
 
-    def _mismatch_reason(self):
+    def _mismatch_reason(self) -> str:
         return ''
 
 
@@ -372,7 +383,8 @@ class PsmKinematics(_RcmChain):
 
     """
 
-    def __init__(self, joints, tooltip_offset, jaw, home=None, name='PSM', tool_type=''):
+    def __init__(self, joints: Iterable[DhJoint], tooltip_offset: ArrayLike, jaw: JawLimits,
+                 home: ArrayLike | None = None, name: str = 'PSM', tool_type: str = '') -> None:
         super().__init__(joints, tooltip_offset, home=home, name=name)
         if self.n_joints != 6:
             raise ValueError(f'{name}: a PSM chain has 6 joints, got {self.n_joints}')
@@ -396,7 +408,7 @@ class PsmKinematics(_RcmChain):
         self.tool_type = tool_type
         self._single = PsmSingleIk(self, _LIMIT_SLACK)
 
-    def clip_jaw(self, angle):
+    def clip_jaw(self, angle: float) -> float:
         """
         Clip a jaw angle (rad) into ``[jaw_lower, jaw_upper]``.
 
@@ -410,14 +422,17 @@ class PsmKinematics(_RcmChain):
         float
 
         """
-        return float(np.clip(angle, self.jaw_lower, self.jaw_upper))
+        # np.clip with scalar bounds, written out: the angle wins a tie, NaN stays NaN
+        x = float(angle)
+        x = self.jaw_lower if x < self.jaw_lower else x
+        return self.jaw_upper if x > self.jaw_upper else x
 
-    def _singular_reason(self):
+    def _singular_reason(self) -> str:
         return ('the tool tip lies on the wrist-yaw axis line through the RCM, or the '
                 'wrist-pitch point is at the RCM (insertion near the shaft offset); move the '
                 'tip off that line')
 
-    def _solve(self, T_last, q_ref):
+    def _solve(self, T_last: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = T_last.shape[0]
         R6 = T_last[:, :3, :3]
         z6 = R6[:, :, 2]
@@ -476,7 +491,9 @@ class EcmKinematics(_RcmChain):
 
     """
 
-    def __init__(self, joints, tooltip_offset, home=None, name='ECM', endoscope_type=''):
+    def __init__(self, joints: Iterable[DhJoint], tooltip_offset: ArrayLike,
+                 home: ArrayLike | None = None, name: str = 'ECM',
+                 endoscope_type: str = '') -> None:
         super().__init__(joints, tooltip_offset, home=home, name=name)
         if self.n_joints != 4:
             raise ValueError(f'{name}: an ECM chain has 4 joints, got {self.n_joints}')
@@ -488,7 +505,8 @@ class EcmKinematics(_RcmChain):
                              f'translation along z only), got {t.tolist()}')
         self._tip_along_shaft = float(t[2])  # roll-frame origin -> camera tip, along the shaft
 
-    def ik_position(self, T, q_ref=None):
+    def ik_position(self, T: ArrayLike,
+                    q_ref: ArrayLike | None = None) -> tuple[FloatArray, bool]:
         """
         Put the camera tip at the position of ``T``, rolled about the shaft towards its rotation.
 
@@ -537,11 +555,11 @@ class EcmKinematics(_RcmChain):
         q, inside, _ = self._select(q, q_ref[None], np.ones((1, 4), dtype=bool))
         return q[0], bool(inside[0])
 
-    def _mismatch_reason(self):
+    def _mismatch_reason(self) -> str:
         return (' (the ECM has 4 joints: the camera axis must point along the line from the RCM '
                 'to the tip)')
 
-    def _solve(self, T_last, q_ref):
+    def _solve(self, T_last: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = T_last.shape[0]
         P = T_last[:, None, :3, 3]  # roll-frame origin is on the shaft
         q123, R3, singular = self._shaft_solutions(P, q_ref)  # (m,1,4,3), (m,1,4,3,3)

@@ -85,6 +85,35 @@ class MarkerPair:
                           R @ self.entry_normal, R @ self.exit_normal, self.index)
 
 
+def marker_frame(point, normal, other):
+    """
+    Return the frame of one marker, ``T_world_marker`` (4, 4).
+
+    Parameters
+    ----------
+    point : ndarray, shape (3,)
+        Marker centre (origin of the frame).
+    normal : ndarray, shape (3,)
+        Surface normal at the marker (``z``; normalised here).
+    other : ndarray, shape (3,)
+        The pair's other marker: ``x`` points towards it, in the plane normal to ``z``.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+        ``x`` towards the other marker, ``y = z x x``, ``z`` the normal.
+
+    """
+    z = normal / np.linalg.norm(normal)
+    x = other - point
+    x = x - (x @ z) * z
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = point
+    return T
+
+
 def place_markers(config, surface, wound):
     """
     Return the marker pairs of a phantom, dropped onto its tissue surface (phantom frame).

@@ -29,13 +29,15 @@ if every step had run at once.
 Frames and units: node positions are in ``world`` metres, shape ``(n + 1, 3)``.
 """
 
+from collections import deque
 from dataclasses import dataclass
 import math
 
 import numpy as np
 from sim_bridge.validation import check_positive
 
-# Queued steps run anyway once this many wait (bounds the memory of a thread nobody reads).
+# Queued steps beyond this many run one by one, oldest first, as new ones come (a thread that
+# nobody reads for long holds bounded memory and never runs a long backlog at once).
 _MAX_QUEUED = 4096
 
 
@@ -103,7 +105,7 @@ class ThreadChain:
         self._x = nodes
         self._v = np.zeros_like(nodes)
         self._speed = 0.0
-        self._queued = []
+        self._queued = deque()
 
     @property
     def nodes(self):
@@ -138,7 +140,7 @@ class ThreadChain:
         self._x = nodes
         self._v = np.zeros_like(nodes)
         self._speed = 0.0
-        self._queued = []
+        self._queued = deque()
 
     def follow(self, dt, anchor, support=None):
         """
@@ -157,14 +159,14 @@ class ThreadChain:
 
         """
         self._queued.append((dt, anchor, support))
-        if len(self._queued) >= _MAX_QUEUED:
-            self.catch_up()
+        if len(self._queued) > _MAX_QUEUED:
+            self._advance(*self._queued.popleft())
 
     def catch_up(self):
-        """Run the steps queued by :meth:`follow`."""
-        queued, self._queued = self._queued, []
-        for dt, anchor, support in queued:
-            self.step(dt, anchor, support)
+        """Run the steps queued by :meth:`follow`, oldest first."""
+        queued = self._queued
+        while queued:
+            self._advance(*queued.popleft())
 
     def step(self, dt, anchor, support=None):
         """
@@ -181,8 +183,10 @@ class ThreadChain:
             metres), vectorised; nodes are kept ``radius`` above it. None means no support.
 
         """
-        if self._queued:
-            self.catch_up()
+        self.catch_up()
+        self._advance(dt, anchor, support)
+
+    def _advance(self, dt, anchor, support):
         cfg = self.config
         x = self._x
         p = x + self._v * (dt * math.exp(-cfg.damping * dt))

@@ -403,8 +403,9 @@ class TissueTracker:
                 released_any = True
                 self._rebuild_occupied()
 
-        any_inside = bool(inside.any())
-        self._inside_fraction = float(np.count_nonzero(inside)) / len(inside)
+        n_inside = int(np.count_nonzero(inside))
+        any_inside = n_inside > 0
+        self._inside_fraction = float(n_inside) / len(inside)
         self._any_inside = any_inside
         if (self._had_exit and not self._extracted and not any_inside and not self._occ_index
                 and not tip_in):

@@ -35,6 +35,7 @@ from sim_bridge.geometry import (
     pose_from_transform,
     transform_from_pose,
 )
+from sim_bridge.scene.markers import marker_frame
 from suture_lfd import bags
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.resampling import resample_quaternions
@@ -117,17 +118,6 @@ def _pose_vector(msg):
     return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
 
 
-def _marker_frame(point, normal, other):
-    z = normal / np.linalg.norm(normal)
-    x = other - point
-    x = x - (x @ z) * z
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = point
-    return T
-
-
 # --- writing ---------------------------------------------------------------------------------
 
 def default_base_frames():
@@ -187,8 +177,8 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
     for name, (entry, exit_, normal) in pairs.items():
         entry, exit_, normal = (np.asarray(v, dtype=float) for v in (entry, exit_, normal))
         topic_in, topic_out = marker_topics(name)
-        put(t0, topic_in, _pose_stamped(store, _marker_frame(entry, normal, exit_), 'world', t0))
-        put(t0, topic_out, _pose_stamped(store, _marker_frame(exit_, normal, entry), 'world',
+        put(t0, topic_in, _pose_stamped(store, marker_frame(entry, normal, exit_), 'world', t0))
+        put(t0, topic_out, _pose_stamped(store, marker_frame(exit_, normal, entry), 'world',
                                          t0))
     put(t0, '/sim/target_pair', store.types[STRING](data=demo.pair))
     put(t0, '/sim/events', _event(store, t0, 'target_pair', pair=demo.pair))

@@ -43,12 +43,14 @@ import math
 
 import numpy as np
 from sim_bridge.control import Command, ExpertConfig
-from sim_bridge.geometry import invert_transform, pose_from_transform
+from sim_bridge.geometry import pose_from_transform
+from sim_bridge.validation import check_positive
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
+from suture_lfd.planning.plan import track_grasps
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
 
 _LOG = logging.getLogger(__name__)
@@ -146,8 +148,9 @@ class Demonstrator:
         else:
             raise ValueError(f'subject must be a Subject or a SkillProfile, got '
                              f'{type(subject).__name__}')
-        if not (lag_tolerance > 0.0 and lag_tolerance_rad > 0.0 and max_step > 0.0):
-            raise ValueError('lag_tolerance, lag_tolerance_rad and max_step must be > 0')
+        for value, name in ((lag_tolerance, 'lag_tolerance (m)'),
+                            (lag_tolerance_rad, 'lag_tolerance_rad'), (max_step, 'max_step (s)')):
+            check_positive(value, name)
         self.max_step = float(max_step)
         if entry_clearance < 0.0:
             raise ValueError(f'entry_clearance must be >= 0 m, got {entry_clearance}')
@@ -414,14 +417,7 @@ class Demonstrator:
         dt = min(max(0.0, float(obs.t) - self._t_last), self.max_step)
         self._t_last = float(obs.t)
         self._advance(obs, dt)
-        holders = set(obs.holders)
-        for arm in ARMS:
-            if arm in holders:
-                if arm not in self._grasps:
-                    self._grasps[arm] = (invert_transform(obs.T_world_tool[arm])
-                                         @ np.asarray(obs.T_world_needle, dtype=float))
-            else:
-                self._grasps.pop(arm, None)
+        track_grasps(self._grasps, obs)
         cmd = plan.sample(self._tau, self._grasps)
         tools = {}
         for arm in ARMS:

@@ -354,6 +354,45 @@ class Primitive:
         return cls._from_arrays(params, arrays, path)
 
 
+class PrimitivePart(Primitive):
+    """
+    A position or quaternion primitive: learnt weights, demonstrated start and goal.
+
+    Attributes (after ``fit`` or ``load``)
+    -------------------------------------
+    weights_ : ndarray, shape (n_bfs, n)
+        Forcing-term weights.
+    start_, goal_ : ndarray
+        Demonstrated start and goal.
+    degenerate_ : ndarray of bool
+        Dimensions learnt unscaled (the scaling guard).
+
+    """
+
+    PREFIX = ''  # key prefix of the part's arrays in a DMP file
+
+    def __init__(self, params: DmpParams | None = None) -> None:
+        super().__init__(params)
+        self.weights_: FloatArray | None = None
+        self.start_: FloatArray | None = None
+        self.goal_: FloatArray | None = None
+        self.degenerate_: FloatArray | None = None
+
+    def _arrays(self, prefix: str | None = None) -> dict[str, Any]:
+        prefix = self.PREFIX if prefix is None else prefix
+        return {prefix + 'weights': self.weights_, prefix + 'start': self.start_,
+                prefix + 'goal': self.goal_, prefix + 'duration': np.array(self.duration_),
+                prefix + 'degenerate': self.degenerate_}
+
+    def _read_arrays(self, arrays: dict[str, Any], path: PathLike, prefix: str) -> None:
+        """Set the learnt attributes from what :meth:`_arrays` stored under ``prefix``."""
+        self.weights_ = stored_array(arrays, prefix + 'weights', path).astype(float)
+        self.start_ = stored_array(arrays, prefix + 'start', path).astype(float)
+        self.goal_ = stored_array(arrays, prefix + 'goal', path).astype(float)
+        self.degenerate_ = stored_array(arrays, prefix + 'degenerate', path).astype(bool)
+        self.duration_ = float(stored_array(arrays, prefix + 'duration', path))
+
+
 def read_dmp_file(path: PathLike) -> tuple[str, DmpParams, dict[str, Any]]:
     """
     Return ``(kind, params, arrays)`` of a DMP file, raising ValueError naming ``path``.

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 from sim_bridge.validation import FloatArray, check_array
-from suture_lfd.dmp.base import DmpParams, PathLike, Primitive, stored_array
+from suture_lfd.dmp.base import DmpParams, PathLike, PrimitivePart
 from suture_lfd.dmp.equations import (
     basis_centres,
     basis_widths,
@@ -27,7 +27,7 @@ from suture_lfd.dmp.equations import (
 LOG = logging.getLogger(__name__)
 
 
-class PositionDmp(Primitive):
+class PositionDmp(PrimitivePart):
     """
     Discrete position DMP (Ijspeert et al. 2013) with ``(g - y0)`` scaling and LWR weights.
 
@@ -45,15 +45,12 @@ class PositionDmp(Primitive):
     """
 
     KIND = 'position'
+    PREFIX = 'position.'
 
     def __init__(self, params: DmpParams | None = None) -> None:
         super().__init__(params)
         c = basis_centres(self.params.n_bfs, self.params.alpha_x)
         self._centres, self._widths = c, basis_widths(c, self.params.alpha_x)
-        self.weights_: FloatArray | None = None
-        self.start_: FloatArray | None = None
-        self.goal_: FloatArray | None = None
-        self.degenerate_: FloatArray | None = None
 
     def fit(self, T: ArrayLike, Y: ArrayLike) -> 'PositionDmp':
         """
@@ -222,20 +219,11 @@ class PositionDmp(Primitive):
         return self._g.copy()
 
     # --- files -------------------------------------------------------------------------------
-    def _arrays(self, prefix: str = 'position.') -> dict[str, Any]:
-        return {prefix + 'weights': self.weights_, prefix + 'start': self.start_,
-                prefix + 'goal': self.goal_, prefix + 'duration': np.array(self.duration_),
-                prefix + 'degenerate': self.degenerate_}
-
     @classmethod
     def _from_arrays(cls, params: DmpParams, arrays: dict[str, Any], path: PathLike,
                      prefix: str = 'position.') -> 'PositionDmp':
         dmp = cls(params)
-        dmp.weights_ = stored_array(arrays, prefix + 'weights', path).astype(float)
-        dmp.start_ = stored_array(arrays, prefix + 'start', path).astype(float)
-        dmp.goal_ = stored_array(arrays, prefix + 'goal', path).astype(float)
-        dmp.degenerate_ = stored_array(arrays, prefix + 'degenerate', path).astype(bool)
-        dmp.duration_ = float(stored_array(arrays, prefix + 'duration', path))
+        dmp._read_arrays(arrays, path, prefix)
         n_dims = dmp.start_.shape[0]
         if dmp.weights_.shape != (params.n_bfs, n_dims) or dmp.goal_.shape != (n_dims,):
             raise ValueError(f'{path}: position weights have shape {dmp.weights_.shape}, '

@@ -22,7 +22,7 @@ from sim_bridge.geometry import (
     so3_left_jacobian_apply,
 )
 from sim_bridge.validation import FloatArray, check_array, check_quaternions
-from suture_lfd.dmp.base import DmpParams, PathLike, Primitive, stored_array
+from suture_lfd.dmp.base import DmpParams, PathLike, PrimitivePart
 from suture_lfd.dmp.equations import (
     basis_centres,
     basis_widths,
@@ -49,7 +49,7 @@ _RELAX_TOLERANCE = 1e-6
 _RELAX_ITERATIONS = 60
 
 
-class QuaternionDmp(Primitive):
+class QuaternionDmp(PrimitivePart):
     """
     Unit-quaternion DMP (Ude et al. 2014) with ``D_o`` scaling, literal log and LWR weights.
 
@@ -76,16 +76,13 @@ class QuaternionDmp(Primitive):
     """
 
     KIND = 'quaternion'
+    PREFIX = 'orientation.'
 
     def __init__(self, params: DmpParams | None = None) -> None:
         super().__init__(params)
         c = basis_centres(self.params.n_bfs_o, self.params.alpha_x)
         self._centres, self._widths = c, basis_widths(c, self.params.alpha_x)
         self._log_form = self.params.orientation_form == 'log'
-        self.weights_: FloatArray | None = None
-        self.start_: FloatArray | None = None
-        self.goal_: FloatArray | None = None
-        self.degenerate_: FloatArray | None = None
 
     def fit(self, T: ArrayLike, Q: ArrayLike) -> 'QuaternionDmp':
         """
@@ -348,20 +345,11 @@ class QuaternionDmp(Primitive):
         return self._g.copy()
 
     # --- files -------------------------------------------------------------------------------
-    def _arrays(self, prefix: str = 'orientation.') -> dict[str, Any]:
-        return {prefix + 'weights': self.weights_, prefix + 'start': self.start_,
-                prefix + 'goal': self.goal_, prefix + 'duration': np.array(self.duration_),
-                prefix + 'degenerate': self.degenerate_}
-
     @classmethod
     def _from_arrays(cls, params: DmpParams, arrays: dict[str, Any], path: PathLike,
                      prefix: str = 'orientation.') -> 'QuaternionDmp':
         dmp = cls(params)
-        dmp.weights_ = stored_array(arrays, prefix + 'weights', path).astype(float)
-        dmp.start_ = stored_array(arrays, prefix + 'start', path).astype(float)
-        dmp.goal_ = stored_array(arrays, prefix + 'goal', path).astype(float)
-        dmp.degenerate_ = stored_array(arrays, prefix + 'degenerate', path).astype(bool)
-        dmp.duration_ = float(stored_array(arrays, prefix + 'duration', path))
+        dmp._read_arrays(arrays, path, prefix)
         if dmp.weights_.shape != (params.n_bfs_o, 3) or dmp.start_.shape != (4,):
             raise ValueError(f'{path}: orientation weights have shape {dmp.weights_.shape}, '
                              f'expected ({params.n_bfs_o}, 3)')

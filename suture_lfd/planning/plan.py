@@ -212,6 +212,33 @@ class Plan:
         return out
 
 
+def track_grasps(grasps, obs, holders=None):
+    """
+    Keep the grasps of the needle in step with the PSMs that hold it in ``obs``.
+
+    An arm that has just grasped the needle gets its grasp ``T_tool_needle`` at the moment it
+    is first seen holding; an arm that no longer holds it loses its grasp.
+
+    Parameters
+    ----------
+    grasps : dict of str to ndarray, shape (4, 4)
+        Arm -> ``T_tool_needle``; updated in place.
+    obs : sim_bridge.control.Observation
+        Current state (``world`` frame).
+    holders : set of str, optional
+        ``set(obs.holders)``, when the caller has it already.
+
+    """
+    holders = set(obs.holders) if holders is None else holders
+    for arm in ARMS:
+        if arm in holders:
+            if arm not in grasps:
+                grasps[arm] = (invert_transform(obs.T_world_tool[arm])
+                               @ np.asarray(obs.T_world_needle, dtype=float))
+        else:
+            grasps.pop(arm, None)
+
+
 class PlanFollower:
     """
     Follow a :class:`Plan` in closed loop: the controller part of the scripted expert.
@@ -296,13 +323,7 @@ class PlanFollower:
                          self._waited)
             self._gate += 1
             self._waited = 0.0
-        for arm in ARMS:
-            if arm in holders:
-                if arm not in self._grasps:
-                    self._grasps[arm] = (invert_transform(obs.T_world_tool[arm])
-                                         @ np.asarray(obs.T_world_needle, dtype=float))
-            else:
-                self._grasps.pop(arm, None)
+        track_grasps(self._grasps, obs, holders)
         self.plan_time = tau
         cmd = plan.sample(tau, self._grasps)
         return Command(t=float(obs.t), T_world_tool=cmd.T_world_tool, jaw=cmd.jaw,

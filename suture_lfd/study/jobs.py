@@ -39,10 +39,14 @@ import shutil
 
 import numpy as np
 from sim_bridge.geometry import quaternion_angle
+from suture_lfd.archive import save_archive
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
 
 _LOG = logging.getLogger(__name__)
+# the demonstrated, rolled-out and executed needle curves of a regeneration throw (Fig. 7)
+TRAJECTORIES_FORMAT = 'suture_lfd.trajectories'
+TRAJECTORIES_FORMAT_VERSION = 1
 TASKS = ('ii', 'iv')
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 
@@ -531,7 +535,6 @@ def throw_job(job):
     if job.get('trajectories'):
         target = out / job['trajectories']
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(target.stem + '.part.npz')
-        np.savez_compressed(tmp, **curves)
-        os.replace(tmp, target)
+        save_archive(target, curves, TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION,
+                     compressed=True)
     return record

@@ -25,6 +25,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from suture_lfd.archive import load_archive
 from suture_lfd.study import figures, tables
 
 THROW_COLUMNS = (
@@ -158,16 +159,18 @@ def _fig7_curves(folder, rows):
     path = Path(folder) / pick['trajectories']
     if not path.exists():
         return None, None
-    with np.load(path) as data:
-        curves = {}
-        for task in tables.TASKS:
-            entry = {}
-            for label, name in (('demonstration', f'demo_{task}'), ('DMP', f'rollout_{task}'),
-                                ('executed', f'exec_{task}')):
-                if name in data.files and data[name].shape[0] > 1:
-                    entry[label] = data[name]
-            if len(entry) > 1:
-                curves[task] = entry
+    from suture_lfd.study.jobs import TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION
+
+    data = load_archive(path, TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION, 'trajectory file')
+    curves = {}
+    for task in tables.TASKS:
+        entry = {}
+        for label, name in (('demonstration', f'demo_{task}'), ('DMP', f'rollout_{task}'),
+                            ('executed', f'exec_{task}')):
+            if name in data and data[name].shape[0] > 1:
+                entry[label] = data[name]
+        if len(entry) > 1:
+            curves[task] = entry
     return pick, curves
 
 

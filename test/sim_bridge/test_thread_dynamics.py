@@ -95,3 +95,25 @@ def test_queued_steps_run_when_the_thread_is_read_and_give_the_same_nodes():
     assert np.array_equal(queued.velocities, stepped.velocities)
     assert queued.max_speed() == stepped.max_speed()
     assert np.array_equal(queued.nodes, stepped.nodes)
+
+
+def test_a_thread_nobody_reads_keeps_a_bounded_queue_running_its_oldest_steps(monkeypatch):
+    from sim_bridge.scene import thread as thread_module
+
+    monkeypatch.setattr(thread_module, '_MAX_QUEUED', 5)
+    calls = []
+
+    def support(xy):
+        calls.append(len(xy))
+        return np.full(len(xy), 0.099)
+
+    stepped = ThreadChain(_straight(), radius=0.0002)
+    queued = ThreadChain(_straight(), radius=0.0002)
+    start = stepped.nodes[0]
+    for k in range(40):
+        anchor = start + [0.02 * np.sin(5.0 * k * 0.01), 0.0, 0.0]
+        stepped.step(0.01, anchor, support)
+        queued.follow(0.01, anchor, support)
+    assert len(calls) == 40 + 35  # beyond five queued steps, one runs per new step
+    assert np.array_equal(queued.nodes, stepped.nodes)
+    assert len(calls) == 80
