@@ -73,7 +73,9 @@ def run(label, design, workers, engine='local', code=None):
         if code is not None:
             env['PYTHONPATH'] = str(code) + os.pathsep + env.get('PYTHONPATH', '')
         cpu0, t0 = _children_cpu(), time.perf_counter()
-        result = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        # ``python -m`` puts the working directory first on sys.path: run in the code's tree
+        result = subprocess.run(cmd, capture_output=True, text=True, env=env,
+                                cwd=str(code if code is not None else REPO))
         wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
         if result.returncode != 0:
             raise SystemExit(f'{label}: the study failed:\n{result.stderr[-2000:]}')
