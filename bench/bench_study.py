@@ -11,18 +11,25 @@ Each row is one whole study run as a user runs it (a subprocess of ``suture-lfd 
 It prints the wall time, jobs per second, CPU seconds per job (the CPU of the study process and
 every worker, from ``getrusage(RUSAGE_CHILDREN)``, divided by the jobs: a measure that a loaded
 machine disturbs far less than wall time), the ratio of ``dask`` to ``local`` wall time (the
-issue's target: within 10 %) and the ratio of CPU per job after/before. The design is a small
-study by default (``--quick``, both methods: 8 demonstrations + 64 throws); ``--full`` runs the
-default design (80 demonstrations + 1,280 throws, both methods): the issue's target is
-``local`` in 180 s on two cores.
+issue's target: within 10 %) and the ratio of CPU per job after/before.
 
-Usage: ``python bench/bench_study.py [--workers 2] [--full] [--before REF] [--engines local dask]``
+Designs: ``--quick`` (the default; both methods: 8 demonstrations + 64 throws); ``--full``, the
+default study (80 demonstrations + 1,280 throws, both methods: the issue's target is ``local`` in
+180 s on two cores); ``--subjects N``, the default study's pairs and methods for N subjects (one
+per group first): the same mix of demonstrations and throws as the default study (16 throws per
+demonstration), so its CPU per job is the default study's, and the default study's wall time is
+estimated from it (``est. full s``: wall time per job times the default study's 1,360 jobs, an
+overestimate by the report and start-up time, which do not grow with the jobs).
+
+Usage: ``python bench/bench_study.py [--workers 2] [--full | --subjects N] [--before REF]
+[--engines local dask]``
 """
 
 import argparse
 import json
 import os
 from pathlib import Path
+import platform
 import resource
 import subprocess
 import sys
@@ -32,7 +39,22 @@ import time
 QUICK = ['--quick']
 FULL = []
 TARGET_FULL_S = 180.0
+FULL_JOBS = 80 + 1280  # demonstrations + throws of the default study
 REPO = Path(__file__).resolve().parents[1]
+
+
+def _machine():
+    """CPU model, cores and load average (the machine may be shared)."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                model = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = ', '.join(f'{x:.2f}' for x in os.getloadavg())
+    return f'{model}, {os.cpu_count()} CPUs, load average {load}'
 
 
 def _children_cpu():
@@ -51,7 +73,9 @@ def run(label, design, workers, engine='local', code=None):
         if code is not None:
             env['PYTHONPATH'] = str(code) + os.pathsep + env.get('PYTHONPATH', '')
         cpu0, t0 = _children_cpu(), time.perf_counter()
-        result = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        # ``python -m`` puts the working directory first on sys.path: run in the code's tree
+        result = subprocess.run(cmd, capture_output=True, text=True, env=env,
+                                cwd=str(code if code is not None else REPO))
         wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
         if result.returncode != 0:
             raise SystemExit(f'{label}: the study failed:\n{result.stderr[-2000:]}')
@@ -66,14 +90,22 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--workers', type=int, default=2)
     parser.add_argument('--engines', nargs='+', default=['local', 'dask'])
-    parser.add_argument('--full', action='store_true',
+    design = parser.add_mutually_exclusive_group()
+    design.add_argument('--full', action='store_true',
                         help='the default design (both methods) instead of --quick')
+    design.add_argument('--subjects', type=int, default=None,
+                        help="the default design for this many subjects (the default study's "
+                             'mix of jobs; estimates its wall time)')
     parser.add_argument('--before', default=None,
                         help='git revision whose code runs the same design (local engine)')
     parser.add_argument('--args', nargs=argparse.REMAINDER, default=[],
                         help='more study options (e.g. --methods paper)')
     args = parser.parse_args()
-    design = (FULL if args.full else QUICK) + args.args
+    if args.subjects is not None:
+        design = ['--subjects', str(args.subjects)] + args.args
+    else:
+        design = (FULL if args.full else QUICK) + args.args
+    machine = _machine()
     rows = [run(e, design, args.workers, engine=e) for e in args.engines]
     if args.before:
         with tempfile.TemporaryDirectory() as tmp:
@@ -85,14 +117,17 @@ def main():
             finally:
                 subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force',
                                 str(tree)], capture_output=True)
-    print(f'design: {" ".join(design) or "default"}, {args.workers} workers, '
-          f'{os.cpu_count()} CPUs')
+    estimate = args.full or args.subjects is not None
+    print(f'design: {" ".join(design) or "default"}, {args.workers} workers')
+    print(f'machine at the start: {machine}')
+    print(f'machine at the end:   {_machine()}')
     print(f'{"run":<22} {"jobs":>5} {"wall s":>8} {"jobs/s":>7} {"CPU s/job":>9} '
-          f'{"real-time x":>11}')
+          f'{"real-time x":>11}' + (f' {"est. full s":>11}' if estimate else ''))
     for r in rows:
         print(f'{r["label"]:<22} {r["jobs"]:>5} {r["wall_s"]:>8.1f} '
               f'{r["jobs"] / r["wall_s"]:>7.2f} {r["cpu_s"] / r["jobs"]:>9.3f} '
               f'{r["simulated_s"] / r["wall_s"]:>11.2f}'
+              + (f' {r["wall_s"] / r["jobs"] * FULL_JOBS:>11.0f}' if estimate else '')
               + (f'  ({r["errors"]} jobs raised errors)' if r['errors'] else ''))
     by = {r['label']: r for r in rows}
     if 'local' in by and 'dask' in by:
@@ -104,9 +139,11 @@ def main():
         print(f'CPU per job, now / before: {a["cpu_s"] / a["jobs"]:.3f} / '
               f'{b["cpu_s"] / b["jobs"]:.3f} s = '
               f'{(a["cpu_s"] / a["jobs"]) / (b["cpu_s"] / b["jobs"]):.3f}')
-    if args.full and 'local' in by:
-        print(f'default study on the local engine: {by["local"]["wall_s"]:.0f} s '
-              f'({by["local"]["wall_s"] / TARGET_FULL_S:.2f}x the {TARGET_FULL_S:.0f} s target)')
+    if estimate and 'local' in by:
+        full = by['local']['wall_s'] / by['local']['jobs'] * FULL_JOBS
+        how = 'measured' if args.full else f'estimated from {by["local"]["jobs"]} jobs'
+        print(f'default study on the local engine: {full:.0f} s ({how}; '
+              f'{full / TARGET_FULL_S:.2f}x the {TARGET_FULL_S:.0f} s target)')
     print('real-time x: simulated throw seconds per wall second (the paper ran its throws in a '
           'real-time simulator: 1.0)')
 

@@ -382,20 +382,26 @@ class JointMotion:
 
     # -- tracking --------------------------------------------------------------------------------
 
-    def _track(self, target, velocity, dt):
+    def _track(self, target, velocity, dt, glide=None):
         """
         :func:`track_step`, then the position limits (a joint held at a limit stops), per joint.
 
         The same operations as the array version, joint by joint in plain floats: a few joints
         are cheaper that way than through a dozen NumPy calls. ``target`` and ``velocity``
-        (None: zero) are sequences of floats; returns tuples (q, qd).
+        (None: zero) are sequences of floats; returns tuples (q, qd). With ``glide = (m,
+        interval)`` they are the start and goal of a servo glide instead, and each joint tracks
+        ``start + (goal - start) * m`` at ``(goal - start) / interval`` (what :meth:`target`
+        gives), formed in the same loop.
         """
         # min(x, y) is "y if y < x else x" and max(x, y) "y if y > x else x", written out
         q_out, qd_out = [], []
         tv = self._zeros if velocity is None else velocity
+        m, interval = glide if glide is not None else (0.0, 0.0)
         sqrt = math.sqrt
         for q, qd, g, w, (v, a, lo, hi, minus_v) in zip(self._q, self._qd, target, tv,
                                                           self._limits):
+            if glide is not None:
+                g, w = g + (w - g) * m, (w - g) / interval  # from (start, goal)
             e = g - q - w * dt
             mag = abs(e)
             root, ramp = sqrt(2.0 * a * mag), mag / dt
@@ -540,14 +546,30 @@ class JointMotion:
             True when a trajectory arrived during this step.
 
         """
-        if self.trajectory is None and self._ramp is None:
+        ramp = self._ramp
+        if self.trajectory is None and ramp is None:
             if self._q == self._sp and not any(self._qd):
                 return False  # at rest on its setpoint: nothing moves (the common idle case)
             target, velocity = self._sp, None
+        elif ramp is not None and not exact and self.trajectory is None:
+            start, goal, t0, interval = ramp  # a servo glide: its setpoint formed while tracking
+            s = (now - t0) / interval
+            if s <= 1.0 + 1e-9:
+                self._q, self._qd = self._track(start, goal, dt, (min(s, 1.0), interval))
+            else:
+                self._q, self._qd = self._track(self._sp, None, dt)
+            if now > t0 + interval * (1.0 + 1e-9):
+                self._ramp = None
+            return False
         else:
             target, velocity = self._target(now)
         if exact:
-            clipped = tuple([min(max(v, lo), hi) for v, (lo, hi) in zip(target, self._bounds)])
+            # np.clip with array bounds, written out (a bound wins a tie: signs of zeros)
+            out = []
+            for v, (lo, hi) in zip(target, self._bounds):
+                x = v if v > lo else lo
+                out.append(x if x < hi else hi)
+            clipped = tuple(out)
             qd = self._zeros if velocity is None else velocity
             self._qd = tuple([w if c == v else 0.0 for c, v, w in zip(clipped, target, qd)])
             self._q = clipped

@@ -363,7 +363,17 @@ def _compose(a: float, b: float, c: float, d: float, e: float, f: float, g: floa
 def _matrix(a: float, b: float, c: float, d: float, e: float, f: float, g: float, h: float,
             i: float, x: float, y: float, z: float) -> FloatArray:
     """Return the 4x4 array of rotation rows (a b c; d e f; g h i) and translation (x, y, z)."""
-    return np.array([[a, b, c, x], [d, e, f, y], [g, h, i, z], [0.0, 0.0, 0.0, 1.0]])
+    return np.array((a, b, c, x, d, e, f, y, g, h, i, z, 0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
+
+
+_PACK16 = struct.Struct('16d').pack
+
+
+def _read_only_matrix(a: float, b: float, c: float, d: float, e: float, f: float, g: float,
+                      h: float, i: float, x: float, y: float, z: float) -> FloatArray:
+    """:func:`_matrix` as a read-only array over the packed floats (cheaper to make)."""
+    return np.frombuffer(_PACK16(a, b, c, x, d, e, f, y, g, h, i, z, 0.0, 0.0, 0.0, 1.0)
+                         ).reshape(4, 4)
 
 
 class SerialChain:
@@ -582,14 +592,16 @@ class SerialChain:
         """
         return self._fk_floats(self.check_q(q).tolist())[0]
 
-    def fk_unchecked(self, q: Sequence[float]) -> FloatArray:
+    def fk_unchecked(self, q: Sequence[float], read_only: bool = False) -> FloatArray:
         """
         :meth:`fk` of joint values already known to be valid, without checking them again.
 
         Parameters
         ----------
-        q : list of float
+        q : sequence of float
             ``n_joints`` finite joint values (rad / m), e.g. an arm's own measured joints.
+        read_only : bool
+            Return a read-only array (made faster; for a pose that is kept and shared).
 
         Returns
         -------
@@ -597,7 +609,8 @@ class SerialChain:
             ``T_base_tip`` (metres), the same floats as :meth:`fk`.
 
         """
-        return self._fk_floats(q)[0]
+        tip = self._fk_values(q)[0]
+        return _read_only_matrix(*tip) if read_only else _matrix(*tip)
 
     def fk_wrist_and_tip(self, q: ArrayLike, link: int) -> tuple[FloatArray, FloatArray]:
         """

@@ -82,6 +82,8 @@ class PsmSingleIk:
         self.R_x5 = _flat(chain._R_x5)
         self.R_x6 = _flat(chain._R_x6)
         self.tip_inverse = [[float(x) for x in row] for row in chain._tooltip_inverse]
+        # its columns 0 (x axis), 2 (z axis) and 3 (translation)
+        self._tip_columns = tuple(tuple(row[c] for row in self.tip_inverse) for c in (0, 2, 3))
         # per joint: (wrap it, lowest and highest value counted inside, lower, upper, range)
         self._joint = [(rev, lo - slack, hi + slack, lo, hi, hi - lo) for rev, lo, hi in
                        zip(self.revolute, self.lower, self.upper)]
@@ -124,13 +126,17 @@ class PsmSingleIk:
         J0, J1, J2, J3, J4, J5 = self._joint
         theta0 = self.theta0
         th0, th1, th3, th4, th5 = theta0[0], theta0[1], theta0[3], theta0[4], theta0[5]
-        # last-link pose (top three rows): T @ inverse(tooltip offset)
-        inv = self.tip_inverse
-        R = [[row[0] * inv[0][c] + row[1] * inv[1][c] + row[2] * inv[2][c] + row[3] * inv[3][c]
-              for c in range(4)] for row in Tm[:3]]
-        z6 = (R[0][2], R[1][2], R[2][2])
-        x6 = (R[0][0], R[1][0], R[2][0])
-        p = (R[0][3] - self.d6 * z6[0], R[1][3] - self.d6 * z6[1], R[2][3] - self.d6 * z6[2])
+        # last-link pose (top three rows): T @ inverse(tooltip offset); its columns x, z, t
+        (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = Tm[:3]
+        (x0, x1, x2, x3), (z0, z1, z2, z3), (p0, p1, p2, p3) = self._tip_columns
+        x6 = (a0 * x0 + a1 * x1 + a2 * x2 + a3 * x3, b0 * x0 + b1 * x1 + b2 * x2 + b3 * x3,
+              c0 * x0 + c1 * x1 + c2 * x2 + c3 * x3)
+        z6 = (a0 * z0 + a1 * z1 + a2 * z2 + a3 * z3, b0 * z0 + b1 * z1 + b2 * z2 + b3 * z3,
+              c0 * z0 + c1 * z1 + c2 * z2 + c3 * z3)
+        d6 = self.d6
+        p = (a0 * p0 + a1 * p1 + a2 * p2 + a3 * p3 - d6 * z6[0],
+             b0 * p0 + b1 * p1 + b2 * p2 + b3 * p3 - d6 * z6[1],
+             c0 * p0 + c1 * p1 + c2 * p2 + c3 * p3 - d6 * z6[2])
         pz = p[0] * z6[0] + p[1] * z6[1] + p[2] * z6[2]
         n = (p[0] - pz * z6[0], p[1] - pz * z6[1], p[2] - pz * z6[2])
         n_norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])

@@ -422,7 +422,10 @@ class PsmKinematics(_RcmChain):
         float
 
         """
-        return float(np.clip(angle, self.jaw_lower, self.jaw_upper))
+        # np.clip with scalar bounds, written out: the angle wins a tie, NaN stays NaN
+        x = float(angle)
+        x = self.jaw_lower if x < self.jaw_lower else x
+        return self.jaw_upper if x > self.jaw_upper else x
 
     def _singular_reason(self) -> str:
         return ('the tool tip lies on the wrist-yaw axis line through the RCM, or the '

@@ -85,11 +85,11 @@ def rotation_exp(w):
 
     """
     w = np.asarray(w, dtype=float)
-    angle = float(np.linalg.norm(w))
+    angle = math.sqrt(w.dot(w))  # numpy.linalg.norm of a vector, without its checks
     if angle < 1e-12:
         return np.eye(3)
-    k = w / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    k0, k1, k2 = (w / angle).tolist()
+    K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 

@@ -134,6 +134,9 @@ class WorkerState:
         Node processes executing the throws (None: in-process).
     dmp_params : dict or None
         ``config/dmp.yaml``'s DMP parameters per task, read on first use.
+    base_frames : dict or None
+        ``config/world.yaml``'s ``T_world_base`` of the PSMs (the demonstration bags' arm
+        bases), read on first use.
 
     """
 
@@ -144,6 +147,7 @@ class WorkerState:
     subjects: dict | None = None
     ros: object = None
     dmp_params: dict | None = None
+    base_frames: dict | None = None
 
 
 _worker = None  # this process's WorkerState (a pool worker is initialised once)
@@ -311,13 +315,20 @@ def demo_job(job):
 def _through_bag(demo, bag, pair):
     """Write the demonstration as the recorder would and read it back as the segmenter does."""
     try:
-        from suture_lfd.demos.demo_bag import demonstration_from_bag, write_demonstration_bag
+        from suture_lfd.demos.demo_bag import (
+            default_base_frames,
+            demonstration_from_bag,
+            write_demonstration_bag,
+        )
     except ImportError:  # the bag codec of demonstrations is not in this version
         return None
     if bag.exists():
         shutil.rmtree(bag)  # left by a run killed while writing it
     bag.parent.mkdir(parents=True, exist_ok=True)
-    write_demonstration_bag(bag, demo)
+    state = _state()
+    if state.base_frames is None:  # config/world.yaml's arm bases, read once per process
+        state.base_frames = default_base_frames()
+    write_demonstration_bag(bag, demo, base_frames=state.base_frames)
     return demonstration_from_bag(bag, pair=pair)
 
 

@@ -17,6 +17,7 @@ into the same :class:`KeyboardInterrupt`).
 import contextlib
 import logging
 import multiprocessing
+import os
 import shutil
 import signal
 import sys
@@ -220,7 +221,8 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
                         progress.advance(job['key'])
             return ran
         ctx = multiprocessing.get_context('spawn')
-        pool = ctx.Pool(workers, initializer=_init_worker, initargs=(initializer, initargs))
+        with _one_blas_thread():
+            pool = ctx.Pool(workers, initializer=_init_worker, initargs=(initializer, initargs))
         try:
             for stage in todo:
                 if not stage:
@@ -238,6 +240,29 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
         finally:
             pool.join()
     return ran
+
+
+# Thread counts of the BLAS libraries, read when NumPy loads them in a worker process.
+_BLAS_THREADS = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS')
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """
+    Start worker processes with one BLAS thread each, as Dask starts its workers.
+
+    The workers already keep every core busy; a job's few larger linear-algebra calls (the
+    least-squares fit of a DMP) split over threads cost several times their CPU on a loaded
+    machine, and give the same results. A thread count the user set is kept.
+    """
+    added = [name for name in _BLAS_THREADS if name not in os.environ]
+    for name in added:
+        os.environ[name] = '1'
+    try:
+        yield
+    finally:
+        for name in added:
+            os.environ.pop(name, None)
 
 
 def _init_worker(initializer, initargs):

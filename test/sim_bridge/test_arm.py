@@ -404,6 +404,21 @@ def test_jaw_and_arm_moves_run_concurrently_under_one_busy_flag(psm_chain):
     assert arm.setpoint_jp[2] == pytest.approx(0.17)
 
 
+def test_a_still_arm_keeps_its_tool_pose_and_a_moving_one_gets_a_new_one(psm_chain):
+    """The shared pose is what the simulation keys its world pose on: same object, same joints."""
+    arm = ready_psm(psm_chain)
+    still = arm.local_measured_cp_view
+    run(arm, 0.1)
+    assert arm.local_measured_cp_view is still and not still.flags.writeable
+    np.testing.assert_array_equal(still, psm_chain.fk(arm.measured_jp))
+    goal = arm.measured_jp + np.array([0.01, -0.01, 0.002, 0.02, 0.0, 0.0])
+    arm.servo_jp(goal)
+    arm.step(DT)
+    moved = arm.local_measured_cp_view
+    assert moved is not still
+    assert moved.tobytes() == psm_chain.fk(arm.measured_jp).tobytes()
+
+
 def test_jaw_servo_and_clipping(psm_chain):
     arm = ready_psm(psm_chain)
     arm.jaw_servo_jp(-1.0)

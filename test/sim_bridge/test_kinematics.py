@@ -210,6 +210,28 @@ def test_one_pose_ik_picks_the_batch_solution_for_any_reference(psm, psm_classic
         assert fast >= 1900
 
 
+def test_the_unchecked_paths_give_the_checked_answers_bit_for_bit(psm, ecm):
+    """What an arm calls on its own (already checked) joints and goals is fk / ik, unchecked."""
+    rng = np.random.default_rng(12)
+    for chain in (psm, ecm):
+        for q in random_q(chain, rng, 200):
+            shared = chain.fk_unchecked(tuple(q.tolist()), read_only=True)
+            assert not shared.flags.writeable
+            assert shared.tobytes() == chain.fk(q).tobytes()
+            assert chain.fk_unchecked(q.tolist()).tobytes() == chain.fk(q).tobytes()
+    Q = random_q(psm, rng, 300)
+    refs = Q + rng.normal(0.0, 0.05, Q.shape)
+    refs[::3] = random_q(psm, rng, 100)  # far references too
+    for q, ref in zip(Q, np.clip(refs, psm.lower, psm.upper)):
+        T = psm.fk(q)
+        unchecked = psm.ik_unchecked(T, tuple(ref.tolist()))
+        assert np.array(unchecked).tobytes() == psm.ik(T, q_ref=ref).tobytes()
+    outside = psm.fk(np.array([0.1, 0.2, 0.1, 0.2, 0.1, 0.1]))
+    outside[:3, 3] *= 10.0  # far beyond the insertion range
+    with pytest.raises(UnreachableError, match='joint limits'):
+        psm.ik_unchecked(outside, tuple(psm.home.tolist()))
+
+
 def test_ik_wraps_roll_towards_the_reference(psm):
     q = np.array([0.1, 0.2, 0.1, 2.5, 0.3, 0.2])
     T = psm.fk(q)

@@ -208,3 +208,13 @@ def test_a_motion_tracks_joint_by_joint_exactly_as_track_step_and_the_limits_say
         assert np.array(got_qd).tobytes() == qd_ref.tobytes(), k
         hits += int(np.any(q_ref != q)) + int(np.any(q == target))
     assert hits > 100   # the limits and the exact arrival were exercised
+
+
+def test_exact_tracking_clips_as_numpy_does_down_to_the_sign_of_zero():
+    lower, upper = np.array([0.0, -1.0, -0.5]), np.array([1.0, -0.0, 0.5])
+    motion = JointMotion([0.5, -0.5, 0.0], lower, upper, [1.0] * 3, [1.0] * 3)
+    for goal in ([-0.0, 0.0, 0.2], [-0.3, 2.0, -0.7], [0.0, -0.0, 0.5], [1.5, -1.5, 0.1]):
+        motion.servo(np.array(goal), 0.0, stream_gap=0.1)
+        motion.advance(0.002, 0.002, exact=True)
+        expected = np.clip(np.array(goal), lower, upper)
+        assert motion.q.tobytes() == expected.tobytes(), goal
