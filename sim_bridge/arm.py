@@ -215,6 +215,7 @@ class Arm:
         self._pack_joints = struct.Struct(f'{k.n_joints}d').pack  # exact bytes of a joint tuple
         self._ik_memo = None  # (goal and reference bytes, joints) of the last servo_cp IK
         self._fk_memo = {}  # 'measured' / 'setpoint' -> (joint tuple, read-only tool-tip pose)
+        self._jacobian_memo = {}  # 'spatial' / 'body' -> (joint tuple, read-only Jacobian)
         self._reference_frame = f'{self.name}_base'
         self._setpoint_jf = np.zeros(k.n_joints)
         self._time = 0.0
@@ -907,12 +908,22 @@ class Arm:
     @property
     def jacobian_spatial(self):
         """Spatial Jacobian at the measured joints, shape (6, n): ``[v; w]`` in ``<ARM>_base``."""
-        return self.kinematics.jacobian(self._arm.q)
+        return self._jacobian('spatial').copy()
 
     @property
     def jacobian_body(self):
         """Body Jacobian at the measured joints, shape (6, n): ``[v; w]`` in the tip frame."""
-        return self.kinematics.jacobian_body(self._arm.q)
+        return self._jacobian('body').copy()
+
+    def _jacobian(self, which):
+        """Jacobian at the measured joints (read-only), computed again only when they moved."""
+        q = self._arm.q_values
+        memo = self._jacobian_memo.get(which)
+        if memo is None or memo[0] is not q:
+            J = (self.kinematics.jacobian(np.array(q)) if which == 'spatial'
+                 else self.kinematics.jacobian_body(np.array(q)))
+            memo = self._jacobian_memo[which] = (q, _read_only(J))
+        return memo[1]
 
     @property
     def measured_cv(self):
@@ -923,14 +934,14 @@ class Arm:
         rotates the body twist by the ``measured_cp`` rotation.
 
         """
-        twist = self.kinematics.jacobian(self._arm.q) @ self._arm.qd
+        twist = self._jacobian('spatial') @ np.array(self._arm.qd_values)
         R = self._base_frame[:3, :3]
         return np.concatenate([R @ twist[:3], R @ twist[3:]])
 
     @property
     def local_measured_cv(self):
         """Body twist of the tool tip, shape (6,): ``[v; w]`` in the tool-tip frame."""
-        return self.kinematics.jacobian_body(self._arm.q) @ self._arm.qd
+        return self._jacobian('body') @ np.array(self._arm.qd_values)
 
     def _require_jaw(self):
         if not self._has_jaw:

@@ -751,7 +751,9 @@ class Simulation:
         Returns
         -------
         sim_bridge.control.Observation
-            Tool poses and jaws of both PSMs, needle pose, holders, target pair, arm bases.
+            Tool poses and jaws of both PSMs, needle pose, holders, target pair, arm bases. The
+            tool poses are read-only arrays shared with the simulation (kept until an arm
+            moves): copy one to change it.
 
         """
         return Observation(t=self.time,
@@ -847,9 +849,10 @@ class Simulation:
         Returns
         -------
         ndarray, shape (4, 4)
+            A copy (the observation's poses are shared, read-only arrays).
 
         """
-        return self._tool_pose(arm)
+        return self._tool_pose(arm).copy()
 
     # ------------------------------------------------------------------ drawing
     def sync_world(self):
@@ -863,8 +866,8 @@ class Simulation:
         world.set_thread_points(self.thread.nodes)
 
     def camera_pose(self):
-        """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4)."""
-        return self._tool_pose('ECM')
+        """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4) (a copy)."""
+        return self._tool_pose('ECM').copy()
 
     def render(self):
         """

@@ -26,6 +26,7 @@ from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from sim_bridge.validation import check_positive
 
 FloatArray = NDArray[np.float64]
 # a pose's top three rows as nested tuples, and as 12 floats (rotation rows, then translation)
@@ -83,10 +84,8 @@ class DhJoint:
         if not self.lower < self.upper:
             raise ValueError(
                 f'joint {self.name!r}: lower limit {self.lower} must be below upper {self.upper}')
-        if not (self.v_max > 0.0 and self.a_max > 0.0):
-            raise ValueError(
-                f'joint {self.name!r}: v_max and a_max must be positive, '
-                f'got {self.v_max}, {self.a_max}')
+        check_positive(self.v_max, f'joint {self.name!r}: v_max')
+        check_positive(self.a_max, f'joint {self.name!r}: a_max')
 
     @property
     def is_revolute(self) -> bool:
@@ -643,31 +642,46 @@ class SerialChain:
     def _fk_values(self, q: Sequence[float],
                    link: int | None = None) -> tuple[_Pose12, _Pose12 | None]:
         """Return the tip (and link ``link``) of ``q`` as 12 floats: rotation rows, translation."""
-        chain = self._float_chain
         # plain floats: one pose costs a fraction of the batched NumPy path
-        a, b, c, d, e, f, g, h, i = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-        x = y = z = 0.0
-        kept = None
         cos, sin = math.cos, math.sin
+        links = zip(self._float_chain, q)
         first = self._float_first
-        for k, ((rev, theta0, d0, C), qi) in enumerate(zip(chain, q), start=1):
-            if k == 1 and first is not None:
-                a, b, c, d, e, f, g, h, i, x, y, z = first  # the product with the identity
+        if first is not None:  # the first link's product with the identity, formed once
+            (rev, theta0, d0, _), qi = next(links)
+            a, b, c, d, e, f, g, h, i, x, y, z = first
+            if rev:
+                theta, dz = theta0 + qi, d0
             else:
-                (p, q_, r, u), (s, t, w, v), (kk, m, n, o) = C
-                # [R | t] @ C
-                a, b, c, d, e, f, g, h, i, x, y, z = (
-                    a * p + b * s + c * kk, a * q_ + b * t + c * m, a * r + b * w + c * n,
-                    d * p + e * s + f * kk, d * q_ + e * t + f * m, d * r + e * w + f * n,
-                    g * p + h * s + i * kk, g * q_ + h * t + i * m, g * r + h * w + i * n,
-                    a * u + b * v + c * o + x, d * u + e * v + f * o + y,
-                    g * u + h * v + i * o + z)
-            theta, dz = (theta0 + qi, d0) if rev else (theta0, d0 + qi)
+                theta, dz = theta0, d0 + qi
             co, si = cos(theta), sin(theta)
             x, y, z = x + c * dz, y + f * dz, z + i * dz
             a, b = a * co + b * si, b * co - a * si
             d, e = d * co + e * si, e * co - d * si
             g, h = g * co + h * si, h * co - g * si
+            k = 1
+        else:
+            a, b, c, d, e, f, g, h, i = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+            x = y = z = 0.0
+            k = 0
+        kept = (a, b, c, d, e, f, g, h, i, x, y, z) if link == 1 and k == 1 else None
+        for (rev, theta0, d0, ((p, q_, r, u), (s, t, w, v), (kk, m, n, o))), qi in links:
+            # [R | t] @ C, then the joint's RotZ(theta) TransZ(dz)
+            a, b, c, d, e, f, g, h, i, x, y, z = (
+                a * p + b * s + c * kk, a * q_ + b * t + c * m, a * r + b * w + c * n,
+                d * p + e * s + f * kk, d * q_ + e * t + f * m, d * r + e * w + f * n,
+                g * p + h * s + i * kk, g * q_ + h * t + i * m, g * r + h * w + i * n,
+                a * u + b * v + c * o + x, d * u + e * v + f * o + y,
+                g * u + h * v + i * o + z)
+            if rev:
+                theta, dz = theta0 + qi, d0
+            else:
+                theta, dz = theta0, d0 + qi
+            co, si = cos(theta), sin(theta)
+            x, y, z = x + c * dz, y + f * dz, z + i * dz
+            a, b = a * co + b * si, b * co - a * si
+            d, e = d * co + e * si, e * co - d * si
+            g, h = g * co + h * si, h * co - g * si
+            k += 1
             if k == link:
                 kept = (a, b, c, d, e, f, g, h, i, x, y, z)
         return _compose(a, b, c, d, e, f, g, h, i, x, y, z, self._float_tip), kept

@@ -93,7 +93,8 @@ class ArmSnapshot:
 
     Same values as the :class:`sim_bridge.arm.Arm` properties of the same names, but one forward
     kinematics per joint vector and one Jacobian for all the topics of a state publication
-    (instead of one or more per topic).
+    (instead of one or more per topic); the arm keeps its poses and Jacobians from one publication
+    to the next while it does not move, so an arm at rest costs no kinematics at all.
     """
 
     def __init__(self, arm):
@@ -115,11 +116,11 @@ class ArmSnapshot:
 
     @cached_property
     def local_measured_cp(self):
-        return self.kinematics.fk(self.measured_jp)
+        return self.arm.local_measured_cp  # kept by the arm while it does not move
 
     @cached_property
     def local_setpoint_cp(self):
-        return self.kinematics.fk(self.setpoint_jp)
+        return self.arm.local_setpoint_cp
 
     @cached_property
     def measured_cp(self):
@@ -131,12 +132,11 @@ class ArmSnapshot:
 
     @cached_property
     def jacobian_spatial(self):
-        return self.kinematics.jacobian(self.measured_jp)
+        return self.arm.jacobian_spatial  # kept by the arm while it does not move
 
     @cached_property
     def jacobian_body(self):
-        J, Rt = self.jacobian_spatial, self.local_measured_cp[:3, :3].T
-        return np.vstack([Rt @ J[:3], Rt @ J[3:]])
+        return self.arm.jacobian_body
 
     @cached_property
     def measured_cv(self):

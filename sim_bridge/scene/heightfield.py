@@ -11,6 +11,8 @@ top-surface grid back into a closed, watertight triangle mesh.
 All lengths are metres; arrays of points have shape ``(n, 3)`` (or ``(n, 2)`` for x-y).
 """
 
+import math
+
 import numpy as np
 from scipy import ndimage
 from sim_bridge.validation import check_positive
@@ -268,6 +270,44 @@ class HeightField:
         d = zb[0] - z
         inside = (d >= 0.0) & (z >= zb[1])
         return d, inside
+
+    def top_bound(self, radius):
+        """
+        Return a bound of the top surface :meth:`depth` sees within ``radius`` of a point.
+
+        Parameters
+        ----------
+        radius : float
+            Horizontal distance (m) the bound must cover.
+
+        Returns
+        -------
+        callable
+            ``bound(x, y) -> float``: no point within ``radius`` (in x-y) of ``(x, y)`` lies
+            below the top surface unless its z is at most this value (m), up to rounding.
+            Within the grid and its ring, :meth:`depth` blends the four grid values around a
+            point, so the bound is the largest grid value within ``radius`` plus two cells of
+            the nearest grid node; ``inf`` where the disc reaches beyond the ring (there
+            :meth:`depth` extrapolates).
+
+        """
+        reach = int(np.ceil(radius * self._inv)) + 3
+        grid = self._ptb[:, 0].reshape(self.ny + 2, self._pnx)
+        flat = ndimage.maximum_filter(grid, size=2 * reach + 1, mode='nearest').ravel().tolist()
+        x0, y0 = float(self._porigin[0, 0]), float(self._porigin[1, 0])
+        inv, pnx, last_i, last_j = self._inv, self._pnx, self.nx + 1, self.ny + 1
+        keep = radius + 0.5 * self.spacing  # from the ring's outer edge
+        x_lo, x_hi = x0 + keep, x0 + last_i * self.spacing - keep
+        y_lo, y_hi = y0 + keep, y0 + last_j * self.spacing - keep
+
+        def bound(x, y):
+            if not (x_lo <= x <= x_hi and y_lo <= y <= y_hi):
+                return math.inf
+            i = min(max(round((x - x0) * inv), 0), last_i)
+            j = min(max(round((y - y0) * inv), 0), last_j)
+            return flat[j * pnx + i]
+
+        return bound
 
     def contains(self, points):
         """

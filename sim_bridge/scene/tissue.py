@@ -41,6 +41,9 @@ import math
 import numpy as np
 from sim_bridge.validation import check_positive
 
+# Margin (m) of the test that the needle is wholly above the tissue: far above rounding.
+_CLEARANCE = 1e-7
+
 
 @dataclass(frozen=True)
 class TissueConfig:
@@ -219,6 +222,11 @@ class TissueTracker:
         self._s_mid = math.pi - 0.5 * needle_geometry.arc
         self._inv_arc = 1.0 / needle_geometry.arc
         self._lam = np.linspace(0.0, 1.0, self.config.crossing_samples + 1)
+        # What tells cheaply that the whole needle is above the tissue (see _clear_of_tissue).
+        self._top_near = self._surface.top_bound(self._radius)
+        self._R_pw_rows = self._R_pw.tolist()
+        self._t_pw_list = self._t_pw.tolist()
+        self._arc_span = (math.pi - needle_geometry.arc, math.pi)
         self._markers = {}
         for pair in phantom.markers_phantom.values():
             self._markers[f'{pair.name}.entry'] = pair.entry
@@ -308,6 +316,41 @@ class TissueTracker:
             return p
         return 0.5 * (seg[k] + seg[k + 1])
 
+    def _tip_at(self, prev):
+        """Return the tip (phantom frame) of the last update, worked out again from its pose."""
+        if not isinstance(prev, bytes):
+            return prev
+        T = np.frombuffer(prev).reshape(4, 4)
+        R = self._R_pw @ T[:3, :3]
+        tr = self._R_pw @ T[:3, 3] + self._t_pw
+        return (self._arc @ R.T + tr)[-1]  # as update computes it
+
+    def _clear_of_tissue(self, T):
+        """
+        Whether every sampled needle point of the pose ``T`` is above the tissue's top surface.
+
+        A conservative test in plain floats: the lowest point of the needle's arc (phantom
+        frame) against :meth:`HeightField.top_bound` around the arc centre, with a margin far
+        larger than any rounding, so that True means :meth:`update` would find no point
+        inside.
+        """
+        m = T.tolist()
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = self._R_pw_rows
+        tx, ty, tz = self._t_pw_list
+        x, y, z = m[0][3], m[1][3], m[2][3]
+        cx = a0 * x + a1 * y + a2 * z + tx
+        cy = b0 * x + b1 * y + b2 * z + ty
+        cz = c0 * x + c1 * y + c2 * z + tz
+        # z of the arc point at polar angle phi: cz + radius * (A cos(phi) + B sin(phi))
+        A = c0 * m[0][0] + c1 * m[1][0] + c2 * m[2][0]
+        B = c0 * m[0][1] + c1 * m[1][1] + c2 * m[2][1]
+        start, end = self._arc_span
+        lowest = min(A * math.cos(start) + B * math.sin(start), -A)  # the tip and the tail
+        rho = math.hypot(A, B)
+        if (math.atan2(B, A) + math.pi - start) % (2.0 * math.pi) <= end - start:
+            lowest = -rho  # the circle's lowest point lies on the arc
+        return cz + self._radius * lowest - _CLEARANCE > self._top_near(cx, cy)
+
     def _rebuild_occupied(self):
         self._occ_index = [i for i, p in enumerate(self.punctures) if p.occupied]
         self._occupied = (np.array([self.punctures[i].point for i in self._occ_index])
@@ -345,6 +388,16 @@ class TissueTracker:
                 self._trauma_sum += now
                 self._trauma_n += 1
             return []
+        if (not self._occ_index and not self._prev_in and not self._any_inside
+                and T.shape == (4, 4) and T.flags.c_contiguous and self._clear_of_tissue(T)):
+            # Outside before and wholly above the tissue now: no crossing, nothing inside, no
+            # puncture to follow, and the extraction test sees what the last update saw. The
+            # tip is worked out from the pose only if the next update needs it (a crossing).
+            self._t = float(t)
+            self._inside_fraction = 0.0
+            self._prev_tip = key
+            self._repeat = (key, None)
+            return []
         R = self._R_pw @ T[:3, :3]
         tr = self._R_pw @ T[:3, 3] + self._t_pw
         pts = self._arc @ R.T + tr
@@ -357,7 +410,7 @@ class TissueTracker:
         released_any = False
 
         if self._prev_tip is not None and tip_in != self._prev_in:
-            p = self._crossing(self._prev_tip, tip)
+            p = self._crossing(self._tip_at(self._prev_tip), tip)
             if tip_in:
                 events.append(self._on_entry(t, p))
             else:

@@ -631,10 +631,13 @@ class World:
         c = self.client
         c.resetBasePositionAndOrientation(self.needle_body, T[:3, 3].tolist(),
                                           quaternion_from_matrix(T[:3, :3]).tolist())
-        w = np.asarray(angular_velocity, dtype=float)
-        r = T[:3, 3] - np.asarray(T_world_needle, dtype=float)[:3, 3]
-        v = np.asarray(linear_velocity, dtype=float) + np.cross(w, r)
-        c.resetBaseVelocity(self.needle_body, v.tolist(), w.tolist())
+        wx, wy, wz = (float(x) for x in angular_velocity)
+        rx, ry, rz = (T[:3, 3] - np.asarray(T_world_needle, dtype=float)[:3, 3]).tolist()
+        vx, vy, vz = (float(x) for x in linear_velocity)
+        # v + w x r, written out (the products and differences np.cross forms)
+        c.resetBaseVelocity(self.needle_body,
+                            [vx + (wy * rz - wz * ry), vy + (wz * rx - wx * rz),
+                             vz + (wx * ry - wy * rx)], [wx, wy, wz])
 
     def needle_pose(self):
         """

@@ -203,3 +203,44 @@ def test_a_needle_held_still_counts_as_if_every_update_were_computed(scene, phan
                  'trauma_max', 'trauma_mean', 'entry_error', 'exit_error', 'extracted',
                  'n_entries', 'n_exits'):
         assert getattr(sa, name) == getattr(sb, name), name
+
+
+def _recording(test, results):
+    def recorded(T):
+        results.append(test(T))
+        return results[-1]
+    return recorded
+
+
+def test_a_needle_wholly_above_the_tissue_is_followed_as_if_every_update_were_computed(
+        scene, phantoms):
+    for phantom, name in all_pairs(phantoms):
+        arc = ThrowArc(phantom.markers[name], scene.needle)
+        normal = phantom.markers[name].entry_normal
+        start = arc.T_world_needle(arc.alpha_entry + 0.3)
+        poses = []
+        for k in range(200):  # lowered onto the tissue from 2 cm above, then the throw
+            T = start.copy()
+            T[:3, 3] += (0.02 * (1.0 - k / 199)) * normal
+            poses.append(T)
+        poses += list(rotation_through(arc, n=600))
+        for k in range(1, 200):  # and lifted away
+            T = poses[-1].copy()
+            T[2, 3] += 0.0001 * k
+            poses.append(T)
+        fast = TissueTracker(phantom, scene.needle, scene.tissue)
+        full = TissueTracker(phantom, scene.needle, scene.tissue)
+        full._clear_of_tissue = lambda T: False
+        clear = []
+        fast._clear_of_tissue = _recording(fast._clear_of_tissue, clear)
+        for tracker in (fast, full):
+            tracker.set_target_pair(name)
+        events_fast, events_full = drive(fast, poses), drive(full, poses)
+        assert sum(clear) > 150, name  # most of the approach and the lift took the short way
+        assert [e.kind for e in events_fast][:3] == ['entry', 'exit', 'extracted'], name
+        assert [(e.kind, e.t, e.point.tolist(), e.distance_to_marker) for e in events_fast] == \
+            [(e.kind, e.t, e.point.tolist(), e.distance_to_marker) for e in events_full]
+        a, b = fast.state(), full.state()
+        for field_name in ('t', 'tip_inside', 'inside_fraction', 'in_tissue', 'trauma_max',
+                           'trauma_mean', 'entry_error', 'exit_error', 'extracted'):
+            assert getattr(a, field_name) == getattr(b, field_name), (name, field_name)
