@@ -129,13 +129,26 @@ class Plan:
         Command
 
         """
+        return Command(float(t), *self.targets(t, grasps))
+
+    def targets(self, t, grasps=None):
+        """
+        Return the targets of :meth:`sample` at plan time ``t`` (s), without a Command.
+
+        Returns
+        -------
+        tools : dict of str to ndarray (4, 4)
+        jaws : dict of str to float
+        subtask : str
+
+        """
         grasps = grasps or {}
         tools, jaws = {}, {}
         for arm in self.segments:
             seg = self.segment_at(arm, t)
             tools[arm] = seg.tool(t, grasps.get(arm) if seg.carries_needle else None)
             jaws[arm] = seg.jaw(t)
-        return Command(t=float(t), T_world_tool=tools, jaw=jaws, subtask=self.label(t))
+        return tools, jaws, self.label(t)
 
     def needle(self, t):
         """
@@ -325,6 +338,4 @@ class PlanFollower:
             self._waited = 0.0
         track_grasps(self._grasps, obs, holders)
         self.plan_time = tau
-        cmd = plan.sample(tau, self._grasps)
-        return Command(t=float(obs.t), T_world_tool=cmd.T_world_tool, jaw=cmd.jaw,
-                       subtask=cmd.subtask)
+        return Command(float(obs.t), *plan.targets(tau, self._grasps))

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 import math
 
 import numpy as np
-from sim_bridge.control import Command, ExpertConfig
+from sim_bridge.control import ExpertConfig
 from sim_bridge.geometry import matrix_from_quaternion, pose_from_transform
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.grasps import GraspPlanner
@@ -409,14 +409,13 @@ class ThrowExecutor:
                     follower.offset += dt * (1.0 - 1.0 / slow)
         cmd = follower.step(obs)
         if not cfg.resend_unchanged:
-            tools = dict(cmd.T_world_tool)
+            tools = cmd.T_world_tool  # the follower's new dict, this command's own
             for arm, T in tools.items():
                 last = self._sent.get(arm)
                 if last is not None and (last == T).all():  # both (4, 4)
                     tools[arm] = None
                 else:
                     self._sent[arm] = T
-            cmd = Command(t=cmd.t, T_world_tool=tools, jaw=cmd.jaw, subtask=cmd.subtask)
         return cmd
 
 
