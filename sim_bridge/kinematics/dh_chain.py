@@ -26,6 +26,7 @@ from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from sim_bridge.validation import check_positive
 
 FloatArray = NDArray[np.float64]
 # a pose's top three rows as nested tuples, and as 12 floats (rotation rows, then translation)
@@ -83,10 +84,8 @@ class DhJoint:
         if not self.lower < self.upper:
             raise ValueError(
                 f'joint {self.name!r}: lower limit {self.lower} must be below upper {self.upper}')
-        if not (self.v_max > 0.0 and self.a_max > 0.0):
-            raise ValueError(
-                f'joint {self.name!r}: v_max and a_max must be positive, '
-                f'got {self.v_max}, {self.a_max}')
+        check_positive(self.v_max, f'joint {self.name!r}: v_max')
+        check_positive(self.a_max, f'joint {self.name!r}: a_max')
 
     @property
     def is_revolute(self) -> bool:

@@ -12,6 +12,7 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians.
 """
 
 from dataclasses import dataclass
+import functools
 import math
 
 import numpy as np
@@ -57,6 +58,24 @@ class GraspPhase:
     paths: tuple
     clear: tuple
     bases: dict
+
+
+@functools.lru_cache(maxsize=256)
+def _grasp_candidates(needle, s, step):
+    """
+    Return the candidate grasps at arc parameter ``s`` and their inverses (read-only arrays).
+
+    Every jaw roll ``step`` apart (smallest roll first), unflipped then flipped, as
+    :meth:`sim_bridge.scene.needle.NeedleGeometry.grasp_transform` gives them; kept for the
+    next throws of the process (the same pair gives the same arc parameters).
+    """
+    rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
+    grasps = tuple(needle.grasp_transform(s, roll=roll, flip=flip)
+                   for flip in (False, True) for roll in rolls)
+    invs = tuple(invert_transform(G) for G in grasps)
+    for T in grasps + invs:
+        T.setflags(write=False)
+    return grasps, invs
 
 
 class GraspPlanner:
@@ -158,24 +177,20 @@ class GraspPlanner:
         """
         c = self.config
         needles = np.array([path(x) for path in phase.paths for x in np.linspace(0.0, 1.0, 12)])
-        step = math.radians(c.roll_step_deg)
-        rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
         chain = self.kinematics[arm]
         T_base_world = invert_transform(phase.bases[arm])
-        grasps = [(flip, roll, self.needle.grasp_transform(s, roll=roll, flip=flip))
-                  for flip in (False, True) for roll in rolls]
-        invs = [invert_transform(G) for _, _, G in grasps]
+        grasps, invs = _grasp_candidates(self.needle, float(s), math.radians(c.roll_step_deg))
         carried = (needles[None] @ np.asarray(invs)[:, None]).reshape(-1, 4, 4)
         carried = np.einsum('ij,njk->nik', T_base_world, carried)
         costs = self._candidate_costs(chain, phase, carried, len(needles), invs, T_base_world)
         best, best_cost, best_roll = None, math.inf, None
         for k, (cost, end_roll) in sorted(costs.items()):
             if cost < best_cost - 1e-9:
-                best, best_cost, best_roll = grasps[k][2], cost, end_roll
+                best, best_cost, best_roll = grasps[k], cost, end_roll
         if best is None:
             raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
                              f'{what} of pair {self.pair.name}; {UNREACHABLE_ADVICE}')
-        return best, best_roll
+        return best.copy(), best_roll
 
     def _candidate_costs(self, chain, phase, carried, n_c, invs, T_base_world):
         """

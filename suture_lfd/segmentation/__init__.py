@@ -38,7 +38,7 @@ from sim_bridge.geometry import (
     rotvec_from_quaternion,
 )
 from sim_bridge.scene.needle import NeedleGeometry
-from sim_bridge.validation import check_array, check_quaternions, check_times
+from sim_bridge.validation import check_array, check_positive, check_quaternions, check_times
 from suture_lfd.demos.demonstration import Demonstration
 
 SUBTASKS = (
@@ -100,9 +100,7 @@ class SegmentationConfig:
 
     def __post_init__(self):
         for name in ('cutoff_hz', 'threshold', 'hysteresis', 'onset_level', 'noise_factor'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'SegmentationConfig.{name} must be positive, got {value!r}')
+            check_positive(getattr(self, name), f'SegmentationConfig.{name}')
         if self.threshold >= 1.0 or self.hysteresis > 1.0 or self.onset_level >= 0.25:
             raise ValueError('SegmentationConfig needs threshold < 1, hysteresis <= 1 and '
                              f'onset_level < 0.25, got {self.threshold}, {self.hysteresis}, '
