@@ -39,6 +39,7 @@ from suture_lfd.planning.expert import ScriptedExpert
 ANCHOR_SURROL_REALTIME = (18.0, 20.0)
 ANCHOR_AMBF_REALTIME = 1.0
 TARGET_REALTIME = 100.0
+TARGET_RATIO = 0.3  # ours / SurRoL-style scene, full throws at the default step (per CPU second)
 
 
 def expert_throws(config, pairs, control_period):
@@ -256,6 +257,9 @@ def print_before_after(runs, n_throws, anchor_cpu):
     print(f'after / before: CPU per throw {rows["after"][0] / rows["before"][0]:.3f} '
           f'({rows["before"][0] / rows["after"][0]:.2f}x faster); same scores: '
           f'{rows["after"][3] == rows["before"][3]}')
+    ratio = rows['after'][2] / anchor_cpu
+    print(f'ratio target {TARGET_RATIO} (per CPU second): {ratio:.3f}, '
+          f'{"met" if ratio >= TARGET_RATIO else "NOT met"}')
 
 
 if __name__ == '__main__':
