@@ -195,7 +195,7 @@ class ThrowSkill:
         return (transfer_pose(start, self.pair.anchor('entry'), pair.anchor('entry')),
                 transfer_pose(goal, self.pair.anchor('exit'), pair.anchor('exit')))
 
-    def rollout(self, task, pair, start=None, goal=None, n_pts=None, needle=None):
+    def rollout(self, task, pair, start=None, goal=None, n_pts=None, needle=None, targets=None):
         """
         Regenerate a task's needle trajectory on a pair (``world``).
 
@@ -214,6 +214,8 @@ class ThrowSkill:
             Samples over the demonstrated duration (Table I's ``N_pts`` by default).
         needle : sim_bridge.scene.needle.NeedleGeometry, optional
             Needle of the throw, as :meth:`start_goal`.
+        targets : tuple of ndarray, optional
+            ``start_goal(task, pair, needle)`` when the caller has it already.
 
         Returns
         -------
@@ -226,7 +228,7 @@ class ThrowSkill:
 
         """
         pair = PairGeometry.of(pair)
-        s0, g0 = self.start_goal(task, pair, needle=needle)
+        s0, g0 = self.start_goal(task, pair, needle=needle) if targets is None else targets
         start = s0 if start is None else _pose7(start, 'start')
         goal = g0 if goal is None else _pose7(goal, 'goal')
         if np.dot(start[3:], s0[3:]) < 0.0:

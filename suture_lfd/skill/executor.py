@@ -278,7 +278,8 @@ class ThrowExecutor:
 
         # ii from the DMP: start/goal on this pair, rollout in world.
         start2, goal2 = skill.start_goal('ii', pair, needle=g)
-        T2, P2, Q2 = skill.rollout('ii', pair, start=start2, goal=goal2, needle=g)
+        T2, P2, Q2 = skill.rollout('ii', pair, start=start2, goal=goal2, needle=g,
+                                   targets=(start2, goal2))
         # The demonstrated insertion starts with the tip barely in the tissue; pressed a little
         # deeper, the rollout's own small deviations from the demonstration cannot lift the tip
         # back out through its puncture. The press fades out over the first part of the
@@ -291,7 +292,7 @@ class ThrowExecutor:
         N_ins = R2[-1]
         start4, goal4 = skill.start_goal('iv', pair, needle=g)
         T4, P4, Q4 = skill.rollout('iv', pair, start=pose_from_transform(N_ins), goal=goal4,
-                                   needle=g)
+                                   needle=g, targets=(start4, goal4))
         R4 = _transforms(P4, Q4)
         N_lift = R4[-1]
         self.rollouts = {'ii': (T2, P2, Q2), 'iv': (T4, P4, Q4)}
