@@ -56,9 +56,10 @@ def rotation_log(R):
 
     """
     R = np.asarray(R, dtype=float)
-    c = max(-1.0, min(1.0, 0.5 * (np.trace(R) - 1.0)))
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    c = max(-1.0, min(1.0, 0.5 * (r00 + r11 + r22 - 1.0)))  # the trace summed as numpy does
     angle = math.acos(c)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    w = np.array([r21 - r12, r02 - r20, r10 - r01])
     if angle < 1e-9:
         return 0.5 * w
     if math.pi - angle < 1e-6:
