@@ -75,8 +75,8 @@ class HeightField:
         self._inv = 1.0 / self.spacing
         # Containment grid: one ring of nodes around the grid, and every node outside the
         # footprint, get a top far below and a bottom far above any point, so that a single
-        # bilinear lookup (which then extrapolates to huge values off the grid) decides
-        # inside/outside without bounds or footprint tests.
+        # bilinear lookup (its weights held in [0, 1] off the grid) decides inside/outside
+        # without bounds or footprint tests.
         far = 1.0e3
         top_in = np.where(footprint, top, -far)
         bottom_in = np.where(footprint, bottom, far)
@@ -245,7 +245,8 @@ class HeightField:
         -------
         depth : ndarray, shape (n,)
             ``top(x, y) - z`` (m); positive below the top surface. Only meaningful where
-            ``inside`` or near the surface; far outside the footprint it is hugely negative.
+            ``inside`` or near the surface; more than a grid cell outside the footprint (on
+            any side, corners included) it is about -1000 m.
         inside : ndarray of bool, shape (n,)
             Within the footprint and between the bottom and top surfaces.
 
@@ -260,6 +261,9 @@ class HeightField:
         np.maximum(i, 0, out=i)
         np.minimum(i, self._pimax, out=i)
         w = f - i
+        # beyond the ring the blend would extrapolate, and off two sides at once (a corner) its
+        # cross term turns the far-below top into one far above: hold the ring's values there
+        np.clip(w, 0.0, 1.0, out=w)
         idx = i[1] * self._pnx
         idx += i[0]
         q = self._pquad.take(idx, axis=1)

@@ -52,3 +52,21 @@ def test_no_point_above_the_top_bound_near_a_point_is_inside():
     assert finite > 100
     # close to the bound the surface is really there: the bound is not far too high
     assert bound(0.0, 0.0) <= hf.top.max() and bound(0.0, 0.0) >= hf.top[30, 40]
+
+
+def test_points_off_the_grid_are_outside_on_every_side_and_corner():
+    top = np.full((20, 30), 0.002)
+    hf = HeightField(0.0, 0.0, 0.001, top, top - 0.01, np.ones((20, 30), bool))
+    x1, y1 = 0.029, 0.019
+    rng = np.random.default_rng(3)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            if dx == dy == 0:
+                continue
+            # 2 to 40 mm beyond the sides (both sides at a corner), at the pad's height
+            off = rng.uniform(0.002, 0.04, size=(200, 2))
+            x = np.where(dx < 0, -off[:, 0], np.where(dx > 0, x1 + off[:, 0], 0.015))
+            y = np.where(dy < 0, -off[:, 1], np.where(dy > 0, y1 + off[:, 1], 0.010))
+            depth, inside = hf.depth(np.column_stack([x, y, np.full(200, -0.001)]))
+            assert not inside.any(), (dx, dy)
+            assert (depth < -1.0).all(), (dx, dy, depth.max())
