@@ -71,11 +71,6 @@ class EngineSpec:
     address: str | None = None
     scheduler_file: str | None = None
 
-    @property
-    def existing_cluster(self):
-        """True when the jobs go to a cluster this process did not start."""
-        return self.address is not None or self.scheduler_file is not None
-
     def describe(self):
         """Return a short text for progress lines and the report."""
         if self.address:
