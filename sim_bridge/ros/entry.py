@@ -42,6 +42,7 @@ import textwrap
 
 from sim_bridge.configfile import load_yaml
 from sim_bridge.paths import config_path
+from sim_bridge.ros.dds import use_project_profile
 
 HELP_FLAGS = ('-h', '--help')
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -323,6 +324,7 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
 
     context = rclpy.utilities.get_default_context()
     nodes, node, executor = [], None, None
+    use_project_profile()  # before the participant exists (sim_bridge.ros.dds)
     try:
         rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
         try:
