@@ -36,8 +36,9 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sim_bridge.kinematics import SerialChain
+from sim_bridge.kinematics import SerialChain, ecm_kinematics, psm_kinematics
 from sim_bridge.scene.world import ECM_LINKS, PSM_LINKS, InstrumentShape
+from sim_bridge.simulation import ARMS, PSMS, SimulationConfig, load_simulation_config
 
 # Smaller magnitudes are written as 0: a cos(pi/2) of 6e-17 is rounding, not geometry.
 _ZERO = 1e-12
@@ -329,3 +330,34 @@ def _jaws(w: _UrdfWriter, arm: str, chain: SerialChain, shape: InstrumentShape,
                 limits=(ends[0], ends[1], 0.5 * velocity), mimic=('jaw', multiplier))
         centre = (0.0, side * 0.5 * shape.jaw_thickness, 0.5 * shape.jaw_length)
         w.visual(link, f'{arm}_jaw', _pose(centre), 'box', size=size)
+
+
+def simulation_urdfs(config: SimulationConfig | None = None,
+                     parent: str | None = None) -> dict[str, str]:
+    """
+    URDF of every arm of the simulator as a configuration builds it.
+
+    Parameters
+    ----------
+    config : SimulationConfig, optional
+        Default: ``config/world.yaml`` and ``config/scene.yaml``
+        (:func:`sim_bridge.simulation.load_simulation_config`).
+    parent : str, optional
+        ``'world'`` attaches each arm's ``<ARM>_base`` to ``world`` where the configuration
+        places it; default: each URDF's root is ``<ARM>_base``.
+
+    Returns
+    -------
+    dict of str to str
+        ``{'PSM1': urdf, 'PSM2': urdf, 'ECM': urdf}``.
+
+    """
+    if parent not in (None, 'world'):
+        raise ValueError(f"parent must be 'world' or None, got {parent!r}")
+    cfg = config or load_simulation_config()
+    psm = psm_kinematics(cfg.psm_tool) if cfg.psm_tool else psm_kinematics()
+    ecm = ecm_kinematics()
+    placements = cfg.world.arms
+    return {arm: arm_urdf(arm, psm if arm in PSMS else ecm, cfg.world.instrument, parent=parent,
+                          T_parent_base=None if parent is None else placements[arm].T)
+            for arm in ARMS}
