@@ -36,7 +36,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sim_bridge.kinematics import SerialChain, ecm_kinematics, psm_kinematics
+from sim_bridge.kinematics import PsmKinematics, SerialChain, ecm_kinematics, psm_kinematics
 from sim_bridge.scene.world import ECM_LINKS, PSM_LINKS, InstrumentShape
 from sim_bridge.simulation import ARMS, PSMS, SimulationConfig, load_simulation_config
 
@@ -51,7 +51,7 @@ _SIM_TO_URDF = {'tip': 'tool_tip', 'jaw_a': 'jaw_1', 'jaw_b': 'jaw_2'}
 
 def is_psm(chain: SerialChain) -> bool:
     """
-    Whether a chain is a PSM (it has a jaw), as the simulator tells its arms apart.
+    Whether a chain is a PSM's (it has a jaw).
 
     Parameters
     ----------
@@ -62,7 +62,7 @@ def is_psm(chain: SerialChain) -> bool:
     bool
 
     """
-    return hasattr(chain, 'jaw_lower')
+    return isinstance(chain, PsmKinematics)
 
 
 def base_frame(arm: str) -> str:
@@ -163,8 +163,8 @@ def _number(v: float) -> str:
     return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
 
 
-def _numbers(values: Sequence[float]) -> str:
-    return ' '.join(_number(v) for v in values)
+def _numbers(values: ArrayLike) -> str:
+    return ' '.join(_number(v) for v in np.ravel(values))
 
 
 def _origin(parent: ET.Element, T: ArrayLike) -> None:
@@ -174,7 +174,7 @@ def _origin(parent: ET.Element, T: ArrayLike) -> None:
                   rpy=_numbers(rpy_from_matrix(T[:3, :3])))
 
 
-def _pose(xyz: Sequence[float], rpy: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+def _pose(xyz: ArrayLike, rpy: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """4x4 pose of a translation and URDF angles."""
     roll, pitch, yaw = rpy
     cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch),
@@ -222,7 +222,7 @@ class _UrdfWriter:
     def visual(link: ET.Element, material: str, T: ArrayLike, shape: str, **size: str) -> None:
         visual = ET.SubElement(link, 'visual')
         _origin(visual, T)
-        ET.SubElement(ET.SubElement(visual, 'geometry'), shape, **size)
+        ET.SubElement(ET.SubElement(visual, 'geometry'), shape, attrib=dict(size))
         ET.SubElement(visual, 'material', name=material)
 
     def capsule(self, link: ET.Element, material: str, centre: Sequence[float], along: str,
@@ -272,10 +272,8 @@ def arm_urdf(arm: str, chain: SerialChain, shape: InstrumentShape | None = None,
     if T_parent_base is not None and parent is None:
         raise ValueError('T_parent_base needs parent, the frame it is given in')
     shape = shape or InstrumentShape()
-    psm = is_psm(chain)
-    materials = {'shaft': shape.shaft_rgba, 'wrist': shape.wrist_rgba, 'jaw': shape.jaw_rgba}
-    if not psm:
-        materials = {'endoscope': shape.endoscope_rgba}
+    materials = ({'shaft': shape.shaft_rgba, 'wrist': shape.wrist_rgba, 'jaw': shape.jaw_rgba}
+                 if is_psm(chain) else {'endoscope': shape.endoscope_rgba})
     w = _UrdfWriter(arm, {f'{arm}_{m}': rgba for m, rgba in materials.items()})
     root = base_frame(arm)
     if parent is not None:
@@ -299,7 +297,7 @@ def arm_urdf(arm: str, chain: SerialChain, shape: InstrumentShape | None = None,
     w.joint('tool_tip', 'fixed', previous, tip, chain.tooltip_offset)
     names = list(chain.joint_names)
     roll = links[names[3]]
-    if psm:
+    if isinstance(chain, PsmKinematics):
         r = shape.wrist_radius
         w.capsule(roll, f'{arm}_shaft', (0.0, 0.0, -0.5 * shape.shaft_length - r), 'z',
                   shape.shaft_radius, shape.shaft_length)
@@ -313,7 +311,7 @@ def arm_urdf(arm: str, chain: SerialChain, shape: InstrumentShape | None = None,
     return w.text()
 
 
-def _jaws(w: _UrdfWriter, arm: str, chain: SerialChain, shape: InstrumentShape,
+def _jaws(w: _UrdfWriter, arm: str, chain: PsmKinematics, shape: InstrumentShape,
           tip: str) -> None:
     """Add the jaw joint and its two mimicking halves, hinged about the tool tip's ``x``."""
     lower, upper = chain.jaw_lower, chain.jaw_upper
