@@ -16,11 +16,14 @@ from sensor_msgs.msg import JointState
 from sim_bridge.robot_model import simulation_urdfs
 from sim_bridge.ros import conversions as cv
 from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 ARMS = ('PSM1', 'PSM2', 'ECM')
 # what robot_state_publisher offers and RViz's RobotModel display asks for
 DESCRIPTION = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATIC_TF = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.VOLATILE)
 
@@ -41,6 +44,8 @@ def test_each_arm_offers_its_urdf_and_joint_states_that_fit_it(ros, launch):
     node = ros.node('robot_model_probe')
     lock = threading.Lock()
     got = {}
+    static = []
+    node.create_subscription(TFMessage, '/tf_static', static.append, STATIC_TF)
     for arm in ARMS:  # subscribed after the simulator started: a late joiner, as RViz is
         node.create_subscription(String, f'/{arm}/robot_description',
                                  lambda m, a=arm: got.setdefault(a, []).append(m.data),
@@ -49,6 +54,11 @@ def test_each_arm_offers_its_urdf_and_joint_states_that_fit_it(ros, launch):
     # the topic carries the models `suture-lfd urdf` writes, once per arm
     assert {arm: texts[0] for arm, texts in got.items()} == simulation_urdfs()
     assert all(len(texts) == 1 for texts in got.values())
+    # each model's root is a frame the simulator puts on /tf_static: RViz places the arms in it
+    roots = {ET.fromstring(text[0]).find('link').get('name') for text in got.values()}
+    assert roots == {f'{arm}_base' for arm in ARMS}
+    assert ros.wait_for(lambda: roots <= {t.child_frame_id for m in static for t in m.transforms},
+                        30.0)
     for arm in ARMS:
         infos = node.get_publishers_info_by_topic(f'/{arm}/robot_description')
         assert [(i.node_name, i.topic_type, i.qos_profile.durability.name) for i in infos] == [
