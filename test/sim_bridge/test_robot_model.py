@@ -22,6 +22,7 @@ from sim_bridge.robot_model import (
     is_psm,
     link_name,
     rpy_from_matrix,
+    simulation_urdfs,
     simulator_link_names,
 )
 from sim_bridge.simulation import Simulation
@@ -237,6 +238,12 @@ def test_the_command_line_writes_the_models_the_simulator_uses(tmp_path):
                                        T_parent_base=sim.T_world_base('ECM'))
     finally:
         sim.close()
-    done = subprocess.run([*cli, 'urdf', '--arm', 'PSM3'], capture_output=True, text=True,
-                          timeout=120, env=env)
-    assert done.returncode == 2 and 'PSM3' in done.stderr
+    done = subprocess.run([*cli, 'urdf', '--arm', 'all', '--out', str(tmp_path / 'models')],
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 0, done.stderr
+    assert {p.name: p.read_text() for p in (tmp_path / 'models').iterdir()} == {
+        f'{arm}.urdf': text for arm, text in simulation_urdfs().items()}
+    for bad, word in ((['--arm', 'PSM3'], 'PSM3'), (['--arm', 'all'], '--out FOLDER')):
+        done = subprocess.run([*cli, 'urdf', *bad], capture_output=True, text=True,
+                              timeout=120, env=env)
+        assert done.returncode == 2 and word in done.stderr, done.stderr
