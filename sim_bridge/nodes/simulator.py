@@ -298,9 +298,9 @@ class Simulator(_QuietEndpoints, Node):
                                    lock=self.locked, stamp_floor_ns=wall)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
-        self.robot_descriptions = RobotDescriptions(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
         self.create_service(Trigger, 'sim/reset', self._on_reset)
+        self.robot_descriptions = RobotDescriptions(self, self.sim)
 
         stamp = self.stamp()
         self._clock_pub.publish(cv.clock_message(stamp))
