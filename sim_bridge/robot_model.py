@@ -20,10 +20,11 @@ Names, as the dVRK's models and topics use them:
   so ``joint_state_publisher`` and ``robot_state_publisher`` take the arm's topics as they are;
 - ``<ARM>_tool_tip_link`` hangs on a fixed joint ``tool_tip`` carrying the tooltip offset: its
   frame is the ``measured_cp`` frame (unlike dvrk_model's drawn tip 10.2 mm along the jaws);
-- a PSM's jaw: joint ``jaw`` (link ``<ARM>_jaw_link``, no geometry) and the two halves
-  ``jaw_1`` / ``jaw_2`` (links ``<ARM>_jaw_1_link`` / ``<ARM>_jaw_2_link``) mimicking it
-  x(+0.5) / x(-0.5), all hinged about the tool tip's ``x`` axis (the wrist-yaw axis), as the
-  simulator turns its ``jaw_a`` / ``jaw_b`` links.
+- a PSM's jaw as dvrk_model has it: joint ``jaw`` (link ``<ARM>_jaw_link``, no geometry) and
+  the two halves ``jaw_1`` / ``jaw_2`` (links ``<ARM>_jaw_1_link`` / ``<ARM>_jaw_2_link``)
+  mimicking it x(+0.5) / x(-0.5), all children of ``<ARM>_wrist_yaw_link`` turning about its
+  ``z``, the wrist-yaw axis (the tool tip's ``-x``): ``jaw_1`` / ``jaw_2`` turn as the
+  simulator's ``jaw_b`` / ``jaw_a`` links (:func:`simulator_link_frames`).
 
 Visual geometry is the simulator's own (``InstrumentShape``: the instrument shaft, the wrist
 clevis, the jaws, the endoscope), capsules written as a cylinder with a sphere at each end.
@@ -46,7 +47,7 @@ _ZERO = 1e-12
 _EFFORT = 0.0
 
 # The simulator's PyBullet link names (``World.link_index``) that are not DH joint names.
-_SIM_TO_URDF = {'tip': 'tool_tip', 'jaw_a': 'jaw_1', 'jaw_b': 'jaw_2'}
+_SIM_TO_URDF = {'tip': 'tool_tip', 'jaw_a': 'jaw_2', 'jaw_b': 'jaw_1'}
 
 
 def is_psm(chain: SerialChain) -> bool:
@@ -102,7 +103,7 @@ def link_name(arm: str, link: str) -> str:
     return f'{arm}_{link}_link'
 
 
-def simulator_link_names(arm: str, chain: SerialChain) -> dict[str, str]:
+def simulator_link_frames(arm: str, chain: SerialChain) -> dict[str, tuple[str, np.ndarray]]:
     """
     Map every PyBullet link the simulator builds for an arm to its URDF link.
 
@@ -115,13 +116,18 @@ def simulator_link_names(arm: str, chain: SerialChain) -> dict[str, str]:
 
     Returns
     -------
-    dict of str to str
-        ``World.link_index`` names (``'yaw'`` ... ``'tip'``, ``'jaw_a'``, ``'jaw_b'``) to URDF
-        link names; the frames are the same.
+    dict of str to (str, ndarray of shape (4, 4))
+        ``World.link_index`` names (``'yaw'`` ... ``'tip'``, ``'jaw_a'``, ``'jaw_b'``) to the URDF
+        link and the pose of the simulator's link frame in it: the identity, except for the jaw
+        halves (hinged on the wrist-yaw link in the URDF, on the tool tip in the simulator), where
+        it is the tooltip offset's rotation.
 
     """
     names = PSM_LINKS if is_psm(chain) else ECM_LINKS
-    return {n: link_name(arm, _SIM_TO_URDF.get(n, n)) for n in names}
+    rotation = np.array(chain.tooltip_offset, dtype=float)
+    rotation[:3, 3] = 0.0
+    return {n: (link_name(arm, _SIM_TO_URDF.get(n, n)),
+                rotation if n in ('jaw_a', 'jaw_b') else np.eye(4)) for n in names}
 
 
 def rpy_from_matrix(R: ArrayLike) -> tuple[float, float, float]:
@@ -200,7 +206,7 @@ class _UrdfWriter:
         return ET.SubElement(self.robot, 'link', name=name)
 
     def joint(self, name: str, kind: str, parent: str, child: str, T: ArrayLike,
-              axis: Sequence[float] | None = None,
+              axis: ArrayLike | None = None,
               limits: tuple[float, float, float] | None = None,
               mimic: tuple[str, float] | None = None) -> ET.Element:
         joint = ET.SubElement(self.robot, 'joint', name=name, type=kind)
@@ -303,7 +309,7 @@ def arm_urdf(arm: str, chain: SerialChain, shape: InstrumentShape | None = None,
                   shape.shaft_radius, shape.shaft_length)
         a6 = chain.joints[5].a
         w.capsule(links[names[4]], f'{arm}_wrist', (0.5 * a6, 0.0, 0.0), 'x', r, abs(a6))
-        _jaws(w, arm, chain, shape, tip)
+        _jaws(w, arm, chain, shape)
     else:
         w.capsule(roll, f'{arm}_endoscope',
                   (0.0, 0.0, -0.5 * shape.endoscope_length - shape.endoscope_radius
@@ -311,23 +317,31 @@ def arm_urdf(arm: str, chain: SerialChain, shape: InstrumentShape | None = None,
     return w.text()
 
 
-def _jaws(w: _UrdfWriter, arm: str, chain: PsmKinematics, shape: InstrumentShape,
-          tip: str) -> None:
-    """Add the jaw joint and its two mimicking halves, hinged about the tool tip's ``x``."""
+def _jaws(w: _UrdfWriter, arm: str, chain: PsmKinematics, shape: InstrumentShape) -> None:
+    """Add the jaw joint and its two mimicking halves on the wrist-yaw link, about its ``z``."""
     lower, upper = chain.jaw_lower, chain.jaw_upper
     velocity = chain.jaw_v_max
-    x_axis = (1.0, 0.0, 0.0)
+    wrist = link_name(arm, chain.joint_names[-1])
+    offset = np.array(chain.tooltip_offset, dtype=float)
+    # the hinge: the tool tip's point, turning about the tool tip's -x (the wrist-yaw z axis
+    # for the dVRK's tooltip offset), as the simulator's jaws do
+    hinge = np.eye(4)
+    hinge[:3, 3] = offset[:3, 3]
+    axis = -offset[:3, 0]
     w.link(link_name(arm, 'jaw'))
-    w.joint('jaw', 'revolute', tip, link_name(arm, 'jaw'), np.eye(4), axis=x_axis,
+    w.joint('jaw', 'revolute', wrist, link_name(arm, 'jaw'), hinge, axis=axis,
             limits=(lower, upper, velocity))
     size = _numbers((shape.jaw_width, shape.jaw_thickness, shape.jaw_length))
-    for half, multiplier, side in (('jaw_1', 0.5, -1.0), ('jaw_2', -0.5, 1.0)):
+    rotation = offset.copy()
+    rotation[:3, 3] = 0.0
+    # jaw_1 turns by -jaw/2 about the tool tip's x, as the simulator's jaw_b (box on tool +y)
+    for half, multiplier, side in (('jaw_1', 0.5, 1.0), ('jaw_2', -0.5, -1.0)):
         link = w.link(link_name(arm, half))
         ends = sorted((multiplier * lower, multiplier * upper))
-        w.joint(half, 'revolute', tip, link_name(arm, half), np.eye(4), axis=x_axis,
+        w.joint(half, 'revolute', wrist, link_name(arm, half), hinge, axis=axis,
                 limits=(ends[0], ends[1], 0.5 * velocity), mimic=('jaw', multiplier))
         centre = (0.0, side * 0.5 * shape.jaw_thickness, 0.5 * shape.jaw_length)
-        w.visual(link, f'{arm}_jaw', _pose(centre), 'box', size=size)
+        w.visual(link, f'{arm}_jaw', rotation @ _pose(centre), 'box', size=size)
 
 
 def simulation_urdfs(config: SimulationConfig | None = None,

@@ -23,7 +23,7 @@ from sim_bridge.robot_model import (
     link_name,
     rpy_from_matrix,
     simulation_urdfs,
-    simulator_link_names,
+    simulator_link_frames,
 )
 from sim_bridge.simulation import Simulation
 
@@ -69,10 +69,14 @@ def expected_frames(arm, chain, q, jaw):
     out = {link_name(arm, name): frames[i + 1] for i, name in enumerate(chain.joint_names)}
     tip = chain.fk(q)
     out[link_name(arm, 'tool_tip')] = tip
-    if jaw is not None:  # the simulator turns its jaw links by +-jaw/2 about tool x
-        out[link_name(arm, 'jaw')] = tip @ rot_x(jaw)
-        out[link_name(arm, 'jaw_1')] = tip @ rot_x(0.5 * jaw)
-        out[link_name(arm, 'jaw_2')] = tip @ rot_x(-0.5 * jaw)
+    if jaw is not None:
+        # the simulator turns its jaw links by -+jaw/2 about tool x (jaw_b, jaw_a); the URDF's
+        # jaw links hang on the wrist-yaw link, rotated back by the tooltip offset's rotation
+        back = np.eye(4)
+        back[:3, :3] = chain.tooltip_offset[:3, :3].T
+        out[link_name(arm, 'jaw')] = tip @ rot_x(-jaw) @ back
+        out[link_name(arm, 'jaw_1')] = tip @ rot_x(-0.5 * jaw) @ back
+        out[link_name(arm, 'jaw_2')] = tip @ rot_x(0.5 * jaw) @ back
     out[base_frame(arm)] = np.eye(4)
     return out
 
@@ -125,15 +129,15 @@ def test_the_urdf_links_are_the_simulators_pybullet_links():
                 arm_urdf(arm, chain, sim.config.world.instrument, parent='world',
                          T_parent_base=sim.T_world_base(arm)), mimic=True)
             data = model.createData()
-            names = simulator_link_names(arm, chain)
-            assert set(names) == set(sim.world.link_index[arm])
+            links = simulator_link_frames(arm, chain)
+            assert set(links) == set(sim.world.link_index[arm])
             Q, jaws = random_joints(chain, np.random.default_rng(2), 200)
             for q, jaw in zip(Q, jaws):
                 sim.world.set_arm_joints(arm, q, jaw)
                 poses = sim.world.link_poses(arm)
                 pin.framesForwardKinematics(model, data, pin_configuration(model, chain, q, jaw))
-                for sim_name, urdf_name in names.items():
-                    got = data.oMf[model.getFrameId(urdf_name)].homogeneous
+                for sim_name, (urdf_name, T_link_sim) in links.items():
+                    got = data.oMf[model.getFrameId(urdf_name)].homogeneous @ T_link_sim
                     want = poses[sim.world.link_index[arm][sim_name]]
                     # PyBullet keeps link poses to about 3e-8 m and 5e-7 in rotation
                     # (the DH chain itself differs from it by as much)
@@ -158,6 +162,7 @@ def test_joint_and_link_names_are_the_dvrks(key):
         mimic = {n: (j.find('mimic').get('joint'), float(j.find('mimic').get('multiplier')))
                  for n, j in joints.items() if j.find('mimic') is not None}
         assert mimic == {'jaw_1': ('jaw', 0.5), 'jaw_2': ('jaw', -0.5)}
+        assert {joints[n].find('parent').get('link') for n in mimic} == {f'{arm}_wrist_yaw_link'}
         limits = joints['jaw'].find('limit')
         assert (float(limits.get('lower')), float(limits.get('upper'))) == (
             chain.jaw_lower, chain.jaw_upper)
@@ -186,6 +191,22 @@ def test_check_urdf_rejects_a_broken_model(tmp_path):
         '<parent link="PSM1_roll_link" />', '<parent link="PSM1_nowhere_link" />'))
     done = subprocess.run([program, str(path)], capture_output=True, text=True, timeout=60)
     assert done.returncode != 0
+
+
+def test_the_jaw_halves_turn_about_the_wrist_yaw_axis_as_dvrk_models_do():
+    # dvrk_model (tip_006): jaw_1 / jaw_2 turn by +jaw/2 / -jaw/2 about the wrist-yaw link's z
+    chain = psm_kinematics()
+    model = pin.buildModelFromXML(arm_urdf('PSM1', chain), mimic=True)
+    data = model.createData()
+    Q, jaws = random_joints(chain, np.random.default_rng(3), 100)
+    for q, jaw in zip(Q, jaws):
+        pin.framesForwardKinematics(model, data, pin_configuration(model, chain, q, jaw))
+        wrist = chain.fk_links(q)[-1]
+        for name, angle in (('jaw_1', 0.5 * jaw), ('jaw_2', -0.5 * jaw)):
+            want = wrist.copy()
+            want[:3, :3] = wrist[:3, :3] @ Rotation.from_rotvec([0.0, 0.0, angle]).as_matrix()
+            got = data.oMf[model.getFrameId(f'PSM1_{name}_link')].homogeneous
+            assert np.abs(got - want).max() < TOL
 
 
 def test_a_parent_frame_places_the_base():
