@@ -525,6 +525,19 @@ class Arm:
             q = clipped
         return q
 
+    def reject_goal(self, command, text):
+        """
+        Refuse a Cartesian goal its sender placed in a frame the arm's owner does not know.
+
+        A ``warning`` (throttled per command); a ``move_cp`` also gets its busy pulse, closed by
+        ``goal_reached`` false, so a client waiting for the move ends. The arm holds its goal.
+        """
+        self._message('warning', text, throttle_key=(command, 'frame'))
+        if command.startswith('move'):
+            self._set_busy(True, force=True)
+            self._emit('goal_reached', False)
+            self._set_busy(self._motion_running())
+
     def _reject_move(self, text):
         """Error, then a busy pulse closed by goal_reached(False), the arm holding its goal."""
         self._message('error', text)

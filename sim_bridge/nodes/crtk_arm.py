@@ -31,7 +31,8 @@ quantities in the tool-tip frame ``<ARM>``. SI units. ``servo_cp`` and ``move_cp
 by their ``frame_id``: ``""`` or the reference frame; ``ECM_view`` (the dVRK simulators' view
 frame: ``ECM`` turned half a turn about its z axis, x left, y up) while the reference frame is
 ``ECM``; ``<ARM>_base``; ``world``. A goal in any other frame is rejected with a ``warning``
-(every 5 s per frame; a ``move_cp`` also ends with ``goal_reached`` false).
+(throttled as the arm's other warnings; a ``move_cp`` also gets a busy pulse ending with
+``goal_reached`` false).
 
 On a patient cart the set-up joints' topics tell a client where the arm's base is (the
 simulated cart has no set-up joints to move, so their ``measured_js`` is empty):
@@ -45,8 +46,6 @@ and reports problems as ``error``/``warning`` events, which this face publishes.
 
 from contextlib import nullcontext
 from functools import cached_property
-import math
-import time
 
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
@@ -62,9 +61,6 @@ from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 CRTK_VERSION = '1.1.0'
-# A Cartesian command stamped in a frame other than the arm's reference frame is warned about
-# at most this often (s) per topic and frame: a 1 kHz stream must not flood the warning topic.
-FRAME_WARNING_PERIOD = 5.0
 # Streaming commands (up to 1 kHz from a teleoperation client): taken by the simulator right
 # before each stepping round (:meth:`CrtkArm.take_commands`) instead of waking the executor for
 # every message; like the dVRK, which applies servo goals in its control loop. Any other command
@@ -323,7 +319,6 @@ class CrtkArm:
             lambda req, resp: self._srv_fk(req, resp, local=True))
         srv(QueryInverseKinematics, f'{name}/inverse_kinematics', self._srv_ik)
         self._warned = set()
-        self._frame_warned = {}   # (topic, frame_id) -> monotonic time of its last warning
 
     def _cartesian(self, topic, apply):
         """
@@ -346,34 +341,21 @@ class CrtkArm:
             elif frame == VIEW_FRAME and reference == 'ECM':
                 convert, local = _T_ECM_VIEW, False
             else:
-                self._reject_frame(topic, frame, reference)
+                frames = [repr(reference), repr(self.base_frame_id)]
+                if reference == 'ECM':
+                    frames.append(repr(VIEW_FRAME))
+                if self._T_base_world is not None:
+                    frames.append(repr(WORLD))
+                arm.reject_goal(topic, f'{self.name}: {topic} stamped in frame {frame!r} '
+                                       f'ignored: send it in {", ".join(frames)} or with an '
+                                       f"empty frame_id (the arm's reference frame)")
                 return
             try:
                 T = cv.matrix_from_pose(msg.pose, what=f'{topic} pose')
-            except ValueError as exc:
-                self._publish_text('error', f'{self.name}: {exc}')
-                if topic == 'move_cp':
-                    self._events['goal_reached'].publish(Bool(data=False))
-                return
-            apply(arm, convert @ T, local)
+            except ValueError:
+                T = None  # the arm names what is wrong with the goal
+            apply(arm, cv.vector_from_pose(msg.pose) if T is None else convert @ T, local)
         return handler
-
-    def _reject_frame(self, topic, frame, reference):
-        """Say (at most every FRAME_WARNING_PERIOD s per frame) that a goal's frame is unknown."""
-        if topic == 'move_cp':
-            self._events['goal_reached'].publish(Bool(data=False))
-        now = time.monotonic()
-        if now - self._frame_warned.get((topic, frame), -math.inf) < FRAME_WARNING_PERIOD:
-            return
-        self._frame_warned[(topic, frame)] = now
-        frames = [repr(reference), repr(self.base_frame_id)]
-        if reference == 'ECM':
-            frames.append(repr(VIEW_FRAME))
-        if self._T_base_world is not None:
-            frames.append(repr(WORLD))
-        self._publish_text('warning', f'{self.name}: {topic} stamped in frame {frame!r} '
-                                      f'ignored: send it in {", ".join(frames)} or with an '
-                                      f"empty frame_id (the arm's reference frame)")
 
     @property
     def base_frame_id(self):
