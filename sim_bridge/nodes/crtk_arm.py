@@ -16,11 +16,20 @@ cisst-ros):
   ``endoscope_type`` (ECM); operating_state stamps are non-zero, strictly increasing and, when
   the simulator clock stands for the wall clock, never behind it (crtk clients compare them
   with their own ``now()``);
-- commands (RELIABLE, VOLATILE, depth 1): ``state_command``, ``servo_jp``, ``servo_jr``,
-  ``servo_jf``, ``servo_cp``, ``move_jp``, ``move_jr``, ``move_cp``, ``hold``, ``free``,
-  ``spatial/servo_cf``, ``body/servo_cf``, ``body/set_cf_orientation_absolute``,
-  ``use_gravity_compensation``, ``trajectory_j/set_ratio``, ``set_base_frame``; PSMs add
-  ``jaw/servo_jp``, ``jaw/move_jp``, ``jaw/servo_jf`` and ``emulate_tool_present``;
+- streamed commands (RELIABLE, VOLATILE, depth 1: a new servo goal replaces the last):
+  ``servo_jp``, ``servo_jr``, ``servo_jf``, ``servo_cp``; PSMs add ``jaw/servo_jp`` and
+  ``jaw/servo_jf``;
+- queued commands (RELIABLE, VOLATILE, depth 100: an ordered queue, a burst is never dropped):
+  ``move_jp``, ``move_jr``, ``move_cp``, ``hold``, ``free``, ``spatial/servo_cf``,
+  ``body/servo_cf``, ``body/set_cf_orientation_absolute``, ``use_gravity_compensation``,
+  ``trajectory_j/set_ratio``, ``set_base_frame``; PSMs add ``jaw/move_jp`` and
+  ``emulate_tool_present``; a latched publisher's goal arrives once matched, like on the dVRK;
+- ``state_command``: a volatile and a transient-local reader (:mod:`sim_bridge.ros.intake`), so
+  that a command that a latched publisher (crtk) sends before discovery has matched it still
+  arrives, once, in order, and one written before the simulator started (an earlier client's,
+  replayed to a restarted simulator) is dropped with a ``warning``. (A transient-local reader on
+  ``move_*`` as well would make every volatile ``move_*`` publisher, crtk's included, warn of
+  incompatible QoS; a move is sent after the client has seen the arm's state anyway.)
 - services: ``operating_state``, ``crtk_version``, ``forward_kinematics``,
   ``local/forward_kinematics``, ``inverse_kinematics``.
 
@@ -39,9 +48,15 @@ simulated cart has no set-up joints to move, so their ``measured_js`` is empty):
 ``SUJ/<ARM>/measured_cp`` and ``SUJ/<ARM>/local/measured_cp`` (``T_world_<ARM>_base``, frame
 ``world``, child ``<ARM>_base``) and ``SUJ/<ARM>/measured_js``, at the state rate.
 
+Joint commands carry their JointState names to the arm, which maps them by name in any order
+(none, or numeric names: by position) and rejects an unknown name with an ``error``.
+
 Every command is handed to :class:`sim_bridge.arm.Arm` unchanged; the arm validates it (NaN,
 infinite values, non-unit quaternions, wrong vector lengths, joint limits, reachability, readiness)
 and reports problems as ``error``/``warning`` events, which this face publishes.
+
+Size: one arm's endpoints, the order in which its commands are applied and its state
+publication are one table of topics; split, each part would need the others' tables.
 """
 
 from contextlib import nullcontext
@@ -57,6 +72,7 @@ from sim_bridge import cdr
 from sim_bridge.kinematics import UnreachableError
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
+from sim_bridge.ros.intake import CommandIntake
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -209,6 +225,7 @@ class CrtkArm:
         self._lock = lock or nullcontext
         self._polled_group = _Polled() if poll_servo else None
         self._polled = []
+        self.intakes = {}  # topic -> CommandIntake (sim_bridge.ros.intake)
         self._streamed_ns = {'arm': -1, 'jaw': -1}  # newest streamed goal applied, source stamp
         self._node = node
         self._get_arm = get_arm
@@ -282,11 +299,11 @@ class CrtkArm:
 
         sub = self._subscribe
         sub('state_command', StringStamped, lambda a, m: a.state_command(m.string))
-        sub('servo_jp', JointState, lambda a, m: a.servo_jp(cv.raw_positions(m)))
-        sub('servo_jr', JointState, lambda a, m: a.servo_jr(cv.raw_positions(m)))
-        sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m)))
-        sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m)))
-        sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m)))
+        sub('servo_jp', JointState, lambda a, m: a.servo_jp(cv.raw_positions(m), m.name))
+        sub('servo_jr', JointState, lambda a, m: a.servo_jr(cv.raw_positions(m), m.name))
+        sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m), m.name))
+        sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m), m.name))
+        sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m), m.name))
         sub('servo_cp', PoseStamped,
             self._cartesian('servo_cp', lambda a, v, local: a.servo_cp(v, local=local)))
         sub('move_cp', PoseStamped,
@@ -301,8 +318,10 @@ class CrtkArm:
         sub('body/set_cf_orientation_absolute', Bool, lambda a, m: None)
         sub('use_gravity_compensation', Bool, lambda a, m: None)
         if self._has_jaw:
-            sub('jaw/servo_jp', JointState, lambda a, m: a.jaw_servo_jp(cv.raw_positions(m)))
-            sub('jaw/move_jp', JointState, lambda a, m: a.jaw_move_jp(cv.raw_positions(m)))
+            sub('jaw/servo_jp', JointState,
+                lambda a, m: a.jaw_servo_jp(cv.raw_positions(m), m.name))
+            sub('jaw/move_jp', JointState,
+                lambda a, m: a.jaw_move_jp(cv.raw_positions(m), m.name))
             sub('jaw/servo_jf', JointState, lambda a, m: None)
             sub('emulate_tool_present', Bool, lambda a, m: a.emulate_tool_present(m.data))
 
@@ -379,10 +398,9 @@ class CrtkArm:
                                                  callback_group=self._polled_group)
             self._polled.append((sub, 'jaw' if topic.startswith('jaw/') else 'arm'))
         else:
-            def in_order(msg, info):
+            def in_order(msg, sent):
                 # streamed commands sent before this one go first, those sent after it (already
                 # waiting too) after it: by the senders' publication stamps
-                sent = info.get('source_timestamp')
                 with self._lock():
                     later = self.take_commands(before_ns=sent)
                     part = MOVES.get(topic)
@@ -390,8 +408,22 @@ class CrtkArm:
                         callback(msg)
                     for sub, streamed, newer, stamp in later:
                         self._handle_streamed(sub, streamed, newer, stamp)
-            self._node.create_subscription(msg_type, f'{self.name}/{topic}', in_order,
-                                           qos.ARM_COMMANDS)
+            if topic == 'state_command':
+                self.intakes[topic] = CommandIntake(
+                    self._node, msg_type, f'{self.name}/{topic}', in_order,
+                    on_stale=lambda msg, age: self._stale(topic, msg, age))
+            else:
+                self._node.create_subscription(
+                    msg_type, f'{self.name}/{topic}',
+                    lambda msg, info: in_order(msg, info.get('source_timestamp')),
+                    qos.QUEUED_COMMANDS)
+
+    def _stale(self, topic, msg, age):
+        """Warn that a latched command written before the simulator started was dropped."""
+        what = f' {msg.string!r}' if hasattr(msg, 'string') else ''
+        self._publish_text('warning', f'{self.name}: ignored a latched {topic}{what} written '
+                                      f'{age:.1f} s before the simulator started (left by an '
+                                      'earlier client or run); send it again')
 
     def take_commands(self, before_ns=None):
         """

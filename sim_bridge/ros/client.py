@@ -110,7 +110,7 @@ class SimClient:
                        for a in self.arms}
         self._jaw_pub = {a: pub(JointState, f'{a}/jaw/servo_jp', qos.SERVO_STREAM)
                          for a in self.arms}
-        self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STREAM)
+        self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STATE_COMMAND)
                          for a in self.arms}
         self._target = pub(String, 'sim/target_pair', qos.STREAM)
         sub = node.create_subscription

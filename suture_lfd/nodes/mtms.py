@@ -12,7 +12,8 @@ Per MTM (namespace = its name), what a dVRK teleoperation client uses:
   view, origin at the camera; :mod:`suture_lfd.teleop.virtual_mtm`), ``measured_cv``
   (TwistStamped), ``gripper/measured_js`` (JointState ``gripper``, rad), every ``1/rate`` s;
   ``goal_reached`` (Bool), ``error``/``warning``/``status`` (String) events;
-- subscribed: ``state_command`` (crtk_msgs/StringStamped), ``move_cp`` (PoseStamped; ``is_busy``
+- subscribed: ``state_command`` (crtk_msgs/StringStamped; latched and volatile publishers
+  alike, :mod:`sim_bridge.ros.intake`), ``move_cp`` (PoseStamped, queued; ``is_busy``
   true until the MTM is there, then ``goal_reached``), ``lock_orientation``
   (geometry_msgs/Quaternion), ``unlock_orientation`` (std_msgs/Empty),
   ``use_gravity_compensation`` (std_msgs/Bool), ``body/servo_cf`` (WrenchStamped: accepted and
@@ -43,6 +44,7 @@ from sensor_msgs.msg import JointState, Joy
 from sim_bridge.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
+from sim_bridge.ros.intake import CommandIntake
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Float64, String
 from suture_lfd.nodes import executables
@@ -155,6 +157,7 @@ class MtmsNode(Node):
         self._has_pose = {}
         self._last_cp = {}
         self._busy = {}
+        self._intakes = {}
         for name in cfg.mtms:
             T0 = np.eye(4)
             T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
@@ -175,10 +178,14 @@ class MtmsNode(Node):
                 'status': pub(String, f'{name}/status', qos.EVENTS),
             }
             sub = self.create_subscription
-            sub(StringStamped, f'{name}/state_command',
-                lambda m, n=name: self._on_state_command(n, m), qos.STREAM)
+            # a latched state_command (crtk's, sent before discovery) arrives once, in order;
+            # one written before this node started is dropped (sim_bridge.ros.intake)
+            self._intakes[name] = CommandIntake(
+                self, StringStamped, f'{name}/state_command',
+                lambda m, sent, n=name: self._on_state_command(n, m),
+                on_stale=lambda m, age, n=name: self._on_stale_command(n, m, age))
             sub(PoseStamped, f'{name}/move_cp', lambda m, n=name: self._on_move_cp(n, m),
-                qos.STREAM)
+                qos.QUEUED_COMMANDS)
             sub(Quaternion, f'{name}/lock_orientation',
                 lambda m, n=name: self._on_lock(n, m), qos.LATCHED)
             sub(Empty, f'{name}/unlock_orientation',
@@ -229,6 +236,13 @@ class MtmsNode(Node):
             self._pubs[name]['warning'].publish(String(data=problem))
             self.get_logger().warning(problem)
         self._publish_state(name)
+
+    def _on_stale_command(self, name, msg, age):
+        text = (f'{name}: ignored a latched state_command {msg.string!r} written {age:.1f} s '
+                'before the virtual MTMs started (left by an earlier client or run); send it '
+                'again')
+        self._pubs[name]['warning'].publish(String(data=text))
+        self.get_logger().warning(text)
 
     def _reject(self, name, text):
         self._pubs[name]['error'].publish(String(data=text))
