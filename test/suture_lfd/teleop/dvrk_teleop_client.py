@@ -295,6 +295,7 @@ def main(mtm_name, psm_name):
         return 0
     finally:
         executor.shutdown(timeout_sec=1.0)
+        spinner.join(2.0)
         node.destroy_node()
         rclpy.try_shutdown()
 
