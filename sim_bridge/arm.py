@@ -395,12 +395,16 @@ class Arm:
                           throttle_key=(command, 'clipped') if stream else None)
         return clipped
 
-    def _pose_in_rcm(self, pose, command):
-        """Validate a Cartesian goal (in the measured_cp frame) and express it in <ARM>_base."""
+    def _pose_in_rcm(self, pose, command, local=False):
+        """
+        Validate a Cartesian goal and express it in <ARM>_base.
+
+        The goal is in the measured_cp frame, or in ``<ARM>_base`` already when ``local``.
+        """
         if isinstance(pose, np.ndarray) and pose.dtype == np.float64 and pose.shape == (4, 4):
             T = check_pose(pose, name=f'{command} goal')  # the common case: a float matrix
             # in the RCM frame already when the base frame is the identity (solve would copy)
-            return T if self._base_is_identity else np.linalg.solve(self._base_frame, T)
+            return T if local or self._base_is_identity else np.linalg.solve(self._base_frame, T)
         arr = np.asarray(pose, dtype=float) if _is_numeric(pose) else None
         if arr is None:
             raise ValueError(f'{command} goal must be a 4x4 pose or (x, y, z, qx, qy, qz, qw)')
@@ -416,7 +420,7 @@ class Arm:
             T[:3, 3] = arr[:3]
         else:
             T = check_pose(arr, name=f'{command} goal')
-        return np.linalg.solve(self._base_frame, T)
+        return T if local else np.linalg.solve(self._base_frame, T)
 
     # -- arm commands --------------------------------------------------------------------------
 
@@ -472,7 +476,7 @@ class Arm:
             return
         self._servo_arm(self._clip_arm('servo_jr', self._arm.setpoint + dq, stream=True))
 
-    def servo_cp(self, pose):
+    def servo_cp(self, pose, local=False):
         """
         Set a Cartesian setpoint: closed-form IK near the current setpoint.
 
@@ -481,12 +485,14 @@ class Arm:
         pose : array_like, shape (4, 4) or (7,)
             Tool-tip goal in the ``measured_cp`` frame (``base_frame`` applied), as a matrix or as
             ``(x, y, z, qx, qy, qz, qw)`` (metres, unit quaternion).
+        local : bool
+            The goal is in the RCM frame ``<ARM>_base`` (as ``local_measured_cp``) instead.
 
         """
         if not self._ready('servo_cp', needs_tool=True):
             return
         try:
-            T = self._pose_in_rcm(pose, 'servo_cp')
+            T = self._pose_in_rcm(pose, 'servo_cp', local)
             q_ref = self._arm.setpoint_values
             key = (T.tobytes(), self._pack_joints(*q_ref))
             if self._ik_memo is not None and self._ik_memo[0] == key:
@@ -533,6 +539,19 @@ class Arm:
                           f'({", ".join(names)} limited)', throttle_key=throttle)
             q = clipped
         return q
+
+    def reject_goal(self, command, text):
+        """
+        Refuse a Cartesian goal its sender placed in a frame the arm's owner does not know.
+
+        A ``warning`` (throttled per command); a ``move_cp`` also gets its busy pulse, closed by
+        ``goal_reached`` false, so a client waiting for the move ends. The arm holds its goal.
+        """
+        self._message('warning', text, throttle_key=(command, 'frame'))
+        if command.startswith('move'):
+            self._set_busy(True, force=True)
+            self._emit('goal_reached', False)
+            self._set_busy(self._motion_running())
 
     def _reject_move(self, text):
         """Error, then a busy pulse closed by goal_reached(False), the arm holding its goal."""
@@ -591,7 +610,7 @@ class Arm:
         goal = self._arm.target(self._time)[0] + dq
         self._move_arm(self._clip_arm('move_jr', goal, stream=False))
 
-    def move_cp(self, pose):
+    def move_cp(self, pose, local=False):
         """
         Start a joint trajectory to the IK solution of a Cartesian goal (not a straight line).
 
@@ -599,6 +618,8 @@ class Arm:
         ----------
         pose : array_like, shape (4, 4) or (7,)
             Tool-tip goal in the ``measured_cp`` frame, matrix or ``(x, y, z, qx, qy, qz, qw)``.
+        local : bool
+            The goal is in the RCM frame ``<ARM>_base`` instead.
 
         Notes
         -----
@@ -608,7 +629,7 @@ class Arm:
         if not self._ready('move_cp', needs_tool=True):
             return
         try:
-            T = self._pose_in_rcm(pose, 'move_cp')
+            T = self._pose_in_rcm(pose, 'move_cp', local)
             q_ref = self._arm.target(self._time)[0]
             if self._has_jaw:
                 q = self.kinematics.ik(T, q_ref=q_ref)
