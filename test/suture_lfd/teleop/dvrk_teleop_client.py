@@ -274,7 +274,12 @@ def main(mtm_name, psm_name):
     node = rclpy.create_node('dvrk_python_teleoperation')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
+    def spin():
+        try:
+            executor.spin()
+        except ExternalShutdownException:   # SIGINT shut the context down: the end
+            pass
+    spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
     script = None
     try:
