@@ -16,7 +16,8 @@ Method
    :class:`sim_bridge.scene.needle.NeedleGeometry`) are projected into both images with the
    camera model and the pose is moved until they lie on the centre lines
    (:func:`scipy.optimize.least_squares`, a soft-L1 loss so that the hidden parts of the arc
-   pull little). Arc points inside an instrument's jaws (``tools``) are left out.
+   pull little). Arc points whose pixels fall on an instrument (``tools``: jaws, wrist,
+   shaft, from the arm's kinematics) are left out in that image.
 4. **Trust.** A point is *seen* when it lies on needle pixels in an image. The residual is the
    RMS distance (pixels) of the points seen in both images from the centre line, the visible
    share the fraction of arc points seen in both. An estimate is ``found`` only when enough of
@@ -70,8 +71,10 @@ class TrackerConfig:
     partial_below : float
         Visible share under which an estimate is flagged ``partial``.
     jaw_length, jaw_radius : float
-        An instrument's jaws (m): a capsule from the tool-tip origin along tool ``z``; arc
-        points inside it are hidden.
+        An instrument's jaws (m): a capsule from the tool-tip origin along tool ``z``.
+    shaft_length, shaft_radius : float
+        Its wrist and shaft (m): a capsule from the tool-tip origin back along ``-z``. Arc
+        points whose pixels fall on either are hidden in that image.
     profile_half_length, profile_step : float
         Reach and sampling step (pixels) of the search for the wire's edges across the arc.
     refine_iterations : int
@@ -103,6 +106,8 @@ class TrackerConfig:
     partial_below: float = 0.85
     jaw_length: float = 0.0105
     jaw_radius: float = 0.0025
+    shaft_length: float = 0.06
+    shaft_radius: float = 0.005
     profile_half_length: float = 12.0
     profile_step: float = 0.5
     refine_iterations: int = 30
@@ -119,7 +124,7 @@ class TrackerConfig:
         if self.n_points < 8:
             raise ValueError(f'tracker n_points must be >= 8, got {self.n_points}')
         for name in ('loss_scale', 'seen_distance', 'max_residual', 'jaw_length',
-                     'jaw_radius'):
+                     'jaw_radius', 'shaft_length', 'shaft_radius'):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f'tracker {name} must be > 0, got {getattr(self, name)}')
         if not 0.0 < self.min_visible <= 1.0:
@@ -327,9 +332,9 @@ def _kabsch(model, data):
     return T
 
 
-def jaw_segment(T_camera_tool, config=None):
+def tool_capsules(T_camera_tool, config=None):
     """
-    Return the jaws of an instrument as a capsule: its two end points (m, camera frame) and radius.
+    Return an instrument's jaws and its wrist and shaft as capsules (camera frame).
 
     Parameters
     ----------
@@ -339,23 +344,42 @@ def jaw_segment(T_camera_tool, config=None):
 
     Returns
     -------
-    tuple
-        ``(start (3,), end (3,), radius)``.
+    list of tuple
+        ``(start (3,), end (3,), radius)`` (m): the jaws from the hinge along tool ``z``, the
+        wrist and shaft back along ``-z``.
 
     """
     config = config or TrackerConfig()
     T = np.asarray(T_camera_tool, dtype=float)
-    start = T[:3, 3]
-    return start, start + config.jaw_length * T[:3, 2], config.jaw_radius
+    hinge, z = T[:3, 3], T[:3, 2]
+    return [(hinge, hinge + config.jaw_length * z, config.jaw_radius),
+            (hinge, hinge - config.shaft_length * z, config.shaft_radius)]
 
 
-def _hidden_by(points, segments):
-    """Points (n, 3) inside any capsule ``(a, b, radius)``."""
-    hidden = np.zeros(len(points), bool)
-    for a, b, radius in segments:
-        ab = b - a
-        t = np.clip((points - a) @ ab / max(ab @ ab, 1e-18), 0.0, 1.0)
-        hidden |= np.linalg.norm(points - (a + t[:, None] * ab), axis=1) < radius
+def _hidden_in_images(points, capsules, stereo):
+    """
+    Return the arc points (n, 3) whose pixel falls on an instrument's, per image (2, n) bool.
+
+    An arc point is taken as hidden where its pixel lies within a capsule's projected outline
+    and the capsule is nearer the camera there.
+    """
+    hidden = np.zeros((2, len(points)), bool)
+    if not capsules:
+        return hidden
+    uv = stereo.project(points)
+    for a, b, radius in capsules:
+        if a[2] <= 1e-3 or b[2] <= 1e-3:
+            continue
+        ends = stereo.project(np.array([a, b]))
+        r_px = radius * stereo.fx / min(a[2], b[2])
+        for side in (0, 1):
+            p0, p1 = ends[side]
+            d = p1 - p0
+            t = np.clip((uv[side] - p0) @ d / max(d @ d, 1e-12), 0.0, 1.0)
+            near = np.linalg.norm(uv[side] - (p0 + t[:, None] * d), axis=1) < r_px
+            # (the depth along the axis, interpolated in the image: close enough for this)
+            in_front = a[2] + t * (b[2] - a[2]) - radius < points[:, 2]
+            hidden[side] |= near & in_front
     return hidden
 
 
@@ -411,7 +435,7 @@ class NeedleTracker:
         return np.where(np.isnan(r), _OUT_OF_VIEW, r)
 
     def _fit(self, T0, stereo, fields, hidden):
-        keep = ~hidden
+        keep = ~hidden.any(axis=0)
         if keep.sum() < 4:
             return T0
         result = least_squares(self._residuals, np.zeros(6), args=(T0, stereo, fields, keep),
@@ -464,10 +488,10 @@ class NeedleTracker:
             profile = np.nan_to_num(profile, nan=0.0)
             edges, valid = _runs(profile[:n], steps, c.profile_step)
             wide = edges[1] - edges[0]
-            valid &= ~hidden & (wide >= 0.5 * width) & (wide <= 1.6 * width + 1.0)
+            valid &= ~hidden[side] & (wide >= 0.5 * width) & (wide <= 1.6 * width + 1.0)
             offset = np.where(valid, 0.5 * (edges[0] + edges[1]), 0.0)
             ends, ends_valid = _runs(profile[n:], steps, c.profile_step, closed=False)
-            ends_valid &= ~hidden[[0, n - 1]] & (np.abs(ends[1]) <= c.end_gate)
+            ends_valid &= ~hidden[side, [0, n - 1]] & (np.abs(ends[1]) <= c.end_gate)
             # an end that runs into the thread (tied to the tail) is hidden, not seen
             beyond = (origin[n:, None, :] + (ends[1][:, None, None] + _BEYOND[None, :, None])
                       * dirs[n:, None, :])
@@ -619,8 +643,8 @@ class NeedleTracker:
             Where the needle is thought to be (``T_camera_needle``): the tool pose times the
             grasp while held, the last estimate while it lies free; None: detect it.
         tools : sequence of array_like, shape (4, 4)
-            Tool-tip poses (camera frame) of the instruments near the needle: the arc inside
-            their jaws is not looked for.
+            Tool-tip poses (camera frame) of the instruments near the needle: the arc where
+            their jaws, wrist or shaft cover it in an image is not looked for there.
         support_normal : array_like, shape (3,), optional
             Normal (camera frame) of the surface a free needle lies on, e.g.
             :attr:`suture_lfd.perception.markers.MarkerDetections.normal`: of the poses that
@@ -641,7 +665,7 @@ class NeedleTracker:
         left = check_image(left, stereo, 'left')
         right = check_image(right, stereo, 'right')
         fields = (_Field(left, c.blur), _Field(right, c.blur))
-        segments = [jaw_segment(_pose(T, 'tool pose'), c) for T in tools]
+        capsules = [k for T in tools for k in tool_capsules(_pose(T, 'tool pose'), c)]
         if support_normal is not None:
             support_normal = np.asarray(support_normal, dtype=float).reshape(3)
             support_normal = support_normal / np.linalg.norm(support_normal)
@@ -655,15 +679,15 @@ class NeedleTracker:
                                                                 'images')
             # each detection and its mirror: the images tell them apart by a fraction of a
             # pixel only
-            none = np.zeros(len(self._model), bool)
+            none = np.zeros((2, len(self._model)), bool)
             starts = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
                       for T0 in starts]
             starts += [_mirror(T) for T in starts]
         candidates = []
         for T in starts:
-            hidden = _hidden_by(self._model @ T[:3, :3].T + T[:3, 3], segments)
+            hidden = _hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
             T = self._refine(T, stereo, fields, hidden)
-            hidden = _hidden_by(self._model @ T[:3, :3].T + T[:3, 3], segments)
+            hidden = _hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
             residual, share, share_l, share_r = self._score(T, stereo, fields, hidden)
             trusted = share >= c.min_visible and residual <= c.max_residual
             # the closest fit, a hidden tenth of the arc counting as 0.2 px
