@@ -1,9 +1,10 @@
 """
 Rendered scenes with their ground truth, and the errors that measure perception against it.
 
-This module is the examiner, not the examinee: it drives a :class:`sim_bridge.simulation.Simulation`
-to put the needle somewhere (lying free, held by PSM2 in a varied grasp, partly inserted along a
-pair's needle arc, held by both arms as in a regrasp), renders the ECM's pair and keeps the truth
+This module is the examiner, not the examinee: it drives a
+:class:`sim_bridge.simulation.Simulation` to put the needle somewhere (lying free, held by PSM2
+in a varied grasp, partly inserted along a pair's needle arc, held by both arms as in a regrasp),
+renders the ECM's pair and keeps the truth
 beside the images. Perception (:mod:`suture_lfd.perception.markers`,
 :mod:`suture_lfd.perception.needle`) gets only the images, the ``camera_info`` model and, for a
 held needle, the tool poses the arms report (kinematics) and a grasp.
@@ -20,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.control import Command
 from sim_bridge.geometry import invert_transform
-from sim_bridge.simulation import load_simulation_config, Simulation
+from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.perception.stereo import stereo_from_camera_info
 from suture_lfd.planning.throw_geometry import ThrowArc
 
@@ -51,6 +52,9 @@ class RenderedScene:
         True ``T_tool_needle`` of each holding arm.
     entries, exits : ndarray, shape (n, 3)
         True marker positions (camera frame), pair ``i`` in row ``i`` along the wound.
+    history : tuple of RenderedScene
+        Earlier frames of the same grasp, the needle held in the air (for
+        :func:`suture_lfd.perception.grasp.estimate_grasp`).
 
     """
 
@@ -64,6 +68,7 @@ class RenderedScene:
     grasps: dict
     entries: np.ndarray
     exits: np.ndarray
+    history: tuple = ()
 
     @property
     def stereo(self):
@@ -152,7 +157,7 @@ class SceneMaker:
         sim.pop_events()
 
     def _reachable(self, arm, T_world_needle, s_range, rng):
-        """A tool pose (world) grasping the needle in ``s_range`` that the arm reaches."""
+        """Return a tool pose (world) grasping the needle in ``s_range`` that the arm reaches."""
         sim = self.sim
         chain = sim.kinematics[arm]
         T_base_world = invert_transform(sim.T_world_base(arm))
@@ -179,7 +184,7 @@ class SceneMaker:
         sim.run(0.01)
 
     def _free_needle_pose(self, rng):
-        """A needle in the air above the pad, its plane turned towards the camera."""
+        """Return a needle pose in the air above the pad, its plane turned towards the camera."""
         sim = self.sim
         T_world_camera = sim.camera_pose()
         centre = np.array([rng.uniform(-0.012, 0.016), rng.uniform(-0.012, 0.006),
@@ -201,7 +206,24 @@ class SceneMaker:
         lowered = points - np.array([0.0, 0.0, margin])
         return float(self.sim.phantom.penetration(lowered).max()) == 0.0
 
-    def scene(self, kind, rng):
+    def _grasp_history(self, G, n, rng):
+        """``n`` frames of PSM2 holding the needle with grasp ``G`` in the air (or None)."""
+        frames = []
+        for _ in range(8 * n):
+            if len(frames) == n:
+                break
+            T_needle = self._free_needle_pose(rng)
+            if not self._above_tissue(T_needle):
+                continue
+            T_tool = T_needle @ invert_transform(G)
+            T_base_world = invert_transform(self.sim.T_world_base('PSM2'))
+            _, ok = self.sim.kinematics['PSM2'].ik_batch((T_base_world @ T_tool)[None])
+            if ok[0]:
+                self._hold('PSM2', T_tool, G)
+                frames.append(self._render('held'))
+        return tuple(frames) if len(frames) == n else None
+
+    def scene(self, kind, rng, grasp_frames=0):
         """
         Place the needle as ``kind`` wants and render the pair.
 
@@ -210,6 +232,9 @@ class SceneMaker:
         kind : str
             One of :data:`KINDS`.
         rng : numpy.random.Generator
+        grasp_frames : int
+            Also render this many earlier frames of PSM2's grasp, the needle in the air
+            (``held``, ``inserted`` and ``handover``): :attr:`RenderedScene.history`.
 
         Returns
         -------
@@ -244,9 +269,15 @@ class SceneMaker:
             if grasp is None:
                 return None
             holders['PSM2'] = grasp
+        history = ()
+        if grasp_frames and holders:
+            history = self._grasp_history(holders['PSM2'][1], grasp_frames, rng)
+            if history is None:
+                return None
+            self.sim.attach_needle('PSM2', holders['PSM2'][1])
         for arm, (T_tool, G) in holders.items():
             self._hold(arm, T_tool, G)
-        return self._render(kind)
+        return replace(self._render(kind), history=history)
 
     def _render(self, kind):
         sim = self.sim
