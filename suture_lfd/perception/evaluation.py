@@ -216,6 +216,9 @@ class SceneMaker:
             if not self._above_tissue(T_needle):
                 continue
             T_tool = T_needle @ invert_transform(G)
+            to_camera = _unit(self.sim.camera_pose()[:3, 3] - T_needle[:3, 3])
+            if -T_tool[:3, 2] @ to_camera > 0.6:
+                continue  # the shaft between the camera and the needle
             T_base_world = invert_transform(self.sim.T_world_base('PSM2'))
             _, ok = self.sim.kinematics['PSM2'].ik_batch((T_base_world @ T_tool)[None])
             if ok[0]:

@@ -107,7 +107,7 @@ class TrackerConfig:
     jaw_length: float = 0.0105
     jaw_radius: float = 0.0025
     shaft_length: float = 0.06
-    shaft_radius: float = 0.005
+    shaft_radius: float = 0.0045
     profile_half_length: float = 12.0
     profile_step: float = 0.5
     refine_iterations: int = 30
@@ -371,15 +371,15 @@ def _hidden_in_images(points, capsules, stereo):
         if a[2] <= 1e-3 or b[2] <= 1e-3:
             continue
         ends = stereo.project(np.array([a, b]))
-        r_px = radius * stereo.fx / min(a[2], b[2])
         for side in (0, 1):
             p0, p1 = ends[side]
             d = p1 - p0
             t = np.clip((uv[side] - p0) @ d / max(d @ d, 1e-12), 0.0, 1.0)
-            near = np.linalg.norm(uv[side] - (p0 + t[:, None] * d), axis=1) < r_px
-            # (the depth along the axis, interpolated in the image: close enough for this)
-            in_front = a[2] + t * (b[2] - a[2]) - radius < points[:, 2]
-            hidden[side] |= near & in_front
+            # the depth along the axis, interpolated in the image: close enough for this
+            depth = a[2] + t * (b[2] - a[2])
+            near = (np.linalg.norm(uv[side] - (p0 + t[:, None] * d), axis=1)
+                    < radius * stereo.fx / depth)
+            hidden[side] |= near & (depth - radius < points[:, 2])
     return hidden
 
 
