@@ -14,13 +14,13 @@ import cv2
 import numpy as np
 import pytest
 from suture_lfd.perception import (
+    NeedleTracker,
     detect_markers,
     estimate_grasp,
-    NeedleTracker,
     needle_prior,
     stereo_from_camera_info,
 )
-from suture_lfd.perception.evaluation import needle_errors, perturbed, SceneMaker
+from suture_lfd.perception.evaluation import SceneMaker, needle_errors, perturbed
 
 
 def on_disk(scene, tmp_path):
