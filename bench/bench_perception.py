@@ -98,7 +98,7 @@ def marker_errors(markers, scene):
         if None not in nearest:
             pairs += 1
             right += nearest[0] < n and nearest[1] == nearest[0] + n
-    return errors, len(errors) / (2 * n), right / max(pairs, 1)
+    return errors, min(len(errors), 2 * n) / (2 * n), right / max(pairs, 1)
 
 
 def med(values, q=50):

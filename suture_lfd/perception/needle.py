@@ -122,7 +122,7 @@ class TrackerConfig:
     refine_iterations: int = 30
     huber: float = 1.0
     max_support_tilt: float = math.radians(35.0)
-    ambiguity: float = 0.08
+    ambiguity: float = 0.15
     ambiguity_distance: float = 0.001
     end_gate: float = 5.0
     end_weight: float = 4.0
