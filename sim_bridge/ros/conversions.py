@@ -306,16 +306,20 @@ def image_message(rgb, frame_id, stamp):
     stamp : builtin_interfaces/Time
 
     """
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-    height, width = rgb.shape[:2]
+    return _image(np.ascontiguousarray(rgb, dtype=np.uint8), 'rgb8', frame_id, stamp)
+
+
+def _image(array, encoding, frame_id, stamp):
+    """Return a ``sensor_msgs/Image`` of a C-contiguous array (rows of ``strides[0]`` bytes)."""
+    height, width = array.shape[:2]
     msg = Image()
     msg.header.frame_id = frame_id
     msg.header.stamp = stamp
     msg.height, msg.width = int(height), int(width)
-    msg.encoding = 'rgb8'
+    msg.encoding = encoding
     msg.is_bigendian = 0
-    msg.step = int(3 * width)
-    msg.data = rgb.tobytes()
+    msg.step = int(array.strides[0])
+    msg.data = array.tobytes()
     return msg
 
 
@@ -332,17 +336,7 @@ def depth_message(depth, frame_id, stamp):
     stamp : builtin_interfaces/Time
 
     """
-    depth = np.ascontiguousarray(depth, dtype='<f4')
-    height, width = depth.shape
-    msg = Image()
-    msg.header.frame_id = frame_id
-    msg.header.stamp = stamp
-    msg.height, msg.width = int(height), int(width)
-    msg.encoding = '32FC1'
-    msg.is_bigendian = 0
-    msg.step = int(4 * width)
-    msg.data = depth.tobytes()
-    return msg
+    return _image(np.ascontiguousarray(depth, dtype='<f4'), '32FC1', frame_id, stamp)
 
 
 def rgb_from_image(msg, width=None, height=None):
