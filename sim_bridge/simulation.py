@@ -290,6 +290,7 @@ class Simulation:
         self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
                            self.thread_geometry, client)
         self.camera = StereoCamera(cfg.camera, client)
+        self.camera.make_shiny(self.world.needle_body)
         self._dt = cfg.world.physics_step
         self._thread_every = _needs_steps(cfg.loop.thread_period, self._dt, 'thread_period')
         self._collision_every = _needs_steps(cfg.loop.collision_period, self._dt,

@@ -109,7 +109,12 @@ class SimulatorConfig:
         State publishing rate (Hz of simulation time); the dVRK publishes at 100 Hz.
     tf_rate, visualization_rate, camera_rate : float
         Rates (Hz of simulation time) of ``/tf``, ``sim/visualization`` and the stereo images;
-        0 = off.
+        0 = off. The pair is rendered only while someone subscribes to it.
+    camera_width, camera_height : int
+        Image size (pixels) of the stereo pair; 0: ``world.yaml``'s (the field of view is
+        kept).
+    camera_depth : bool
+        Also publish each eye's metric depth (``ECM/<eye>/depth``, 32FC1, m).
     clock_start : float
         Simulator clock (s) when the simulation starts; < 0: the wall clock at start-up.
     tick : float
@@ -154,6 +159,9 @@ class SimulatorConfig:
     tf_rate: float = 50.0
     visualization_rate: float = 10.0
     camera_rate: float = 0.0
+    camera_width: int = 0
+    camera_height: int = 0
+    camera_depth: bool = False
     clock_start: float = -1.0
     tick: float = 0.002
     max_lag: float = 0.25
@@ -179,6 +187,10 @@ class SimulatorConfig:
                 raise ValueError(f'parameter {name} must be >= 0 Hz (0: off), got {value}')
         for name in ('tick', 'max_lag'):
             check_positive(getattr(self, name), f'parameter {name} (s)')
+        for name in ('camera_width', 'camera_height'):
+            if getattr(self, name) < 0:
+                raise ValueError(f"parameter {name} must be >= 0 pixels (0: world.yaml's), "
+                                 f'got {getattr(self, name)}')
         if not (math.isfinite(self.power_up_time) and self.power_up_time >= 0):
             raise ValueError(f'parameter power_up_time must be >= 0 s (0: at once), '
                              f'got {self.power_up_time}')
@@ -262,7 +274,10 @@ class Simulator(_QuietEndpoints, Node):
             sim_config,
             arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present,
                         power_up_time=float(cfg.power_up_time)),
-            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None), **rest)
+            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None),
+            camera=replace(sim_config.camera, depth=cfg.camera_depth,
+                           width=cfg.camera_width or sim_config.camera.width,
+                           height=cfg.camera_height or sim_config.camera.height), **rest)
         self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
                               phantom=cfg.phantom)
         self._resets = 0
@@ -311,7 +326,7 @@ class Simulator(_QuietEndpoints, Node):
                                    lock=self.locked, stamp_floor_ns=wall,
                                    T_world_base=self.sim.T_world_base(name), suj=cart)
                      for name in ARMS}
-        self.scene = SceneTopics(self, self.sim)
+        self.scene = SceneTopics(self, self.sim, depth=cfg.camera_depth)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
         self.create_service(Trigger, 'sim/reset', self._on_reset)
         self.robot_descriptions = RobotDescriptions(self, self.sim)

@@ -319,6 +319,32 @@ def image_message(rgb, frame_id, stamp):
     return msg
 
 
+def depth_message(depth, frame_id, stamp):
+    """
+    Return a ``sensor_msgs/Image`` (``32FC1``, metres) of a metric depth image.
+
+    Parameters
+    ----------
+    depth : ndarray, shape (height, width)
+        Camera-frame ``z`` (m) per pixel, row 0 at the top; ``inf`` where nothing is seen.
+    frame_id : str
+        Optical frame of the camera.
+    stamp : builtin_interfaces/Time
+
+    """
+    depth = np.ascontiguousarray(depth, dtype='<f4')
+    height, width = depth.shape
+    msg = Image()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.height, msg.width = int(height), int(width)
+    msg.encoding = '32FC1'
+    msg.is_bigendian = 0
+    msg.step = int(4 * width)
+    msg.data = depth.tobytes()
+    return msg
+
+
 def camera_info_message(info, frame_id, stamp):
     """
     Return a ``sensor_msgs/CameraInfo`` of a :class:`sim_bridge.scene.camera.CameraInfo`.
