@@ -162,9 +162,20 @@ class TeleopScript:
                 next_at = time.monotonic()
 
     def step(self):
-        # run_all_states: every getter, every cycle
+        # run_all_states: every getter, every cycle (all of them asked, so that the errors name
+        # every stale topic; the first one stops the cycle as it stops the script)
+        stale = []
+        for arm, topic in ((self.mtm, 'measured_cp'), (self.mtm, 'setpoint_cp'),
+                           (self.psm, 'setpoint_cp')):
+            try:
+                arm.cp[topic].get()
+            except DataAgeError as exc:
+                stale.append(exc)
+        for exc in stale[1:]:
+            say('ERROR', exc)
+        if stale:
+            raise stale[0]
         self.mtm_cp = self.mtm.pose('measured_cp')
-        self.mtm.pose('setpoint_cp')
         self.psm_cp = self.psm.pose('setpoint_cp')
         getattr(self, f'_{self.state.lower()}')()
 
@@ -295,6 +306,7 @@ def main(mtm_name, psm_name):
         return 0
     finally:
         executor.shutdown(timeout_sec=1.0)
+        spinner.join(2.0)
         node.destroy_node()
         rclpy.try_shutdown()
 
