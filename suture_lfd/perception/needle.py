@@ -16,7 +16,8 @@ Method
    :class:`sim_bridge.scene.needle.NeedleGeometry`) are projected into both images with the
    camera model and the pose is moved until they lie on the centre lines
    (:func:`scipy.optimize.least_squares`, a soft-L1 loss so that the hidden parts of the arc
-   pull little). Arc points inside an instrument's jaws (``tools``) are left out.
+   pull little). Arc points whose pixels fall on an instrument (``tools``: jaws, wrist,
+   shaft, from the arm's kinematics) are left out in that image.
 4. **Trust.** A point is *seen* when it lies on needle pixels in an image. The residual is the
    RMS distance (pixels) of the points seen in both images from the centre line, the visible
    share the fraction of arc points seen in both. An estimate is ``found`` only when enough of
@@ -25,6 +26,10 @@ Method
 5. **Which end is the tip.** The arc is symmetric: turned half a turn about its middle radius,
    tail and tip swap with the same image. Without a prior, the end nearer the thread's pixels is
    the tail; with one, the pose nearer the prior is kept.
+
+Size: one tracker whose detection, fit and trust measures share the arc's model and its
+projections; what the images say about a wire is in :mod:`suture_lfd.perception.wire_images`,
+the pose helpers in :mod:`suture_lfd.perception.arc_poses`.
 
 Frames: ``pose_camera`` is ``T_camera_needle`` (4, 4) in the camera (left optical) frame of
 :mod:`suture_lfd.perception.stereo`; the needle frame is :mod:`sim_bridge.scene.needle`'s (origin
@@ -38,13 +43,18 @@ import math
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 from sim_bridge.scene.needle import NeedleGeometry
-from suture_lfd.perception.images import check_image, metal_mask, thread_mask
+from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
+from suture_lfd.perception.images import check_image
+from suture_lfd.perception.wire_images import (
+    WireImage,
+    hidden_in_images,
+    runs,
+    sample,
+    tool_capsules,
+)
 
 _OUT_OF_VIEW = 30.0  # cost (pixels) of an arc point outside an image
-_CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
-_RIDGE = np.ones((3, 3), np.uint8)
 _BEYOND = np.arange(0.5, 4.6, 1.0)  # pixels past a wire's end where the thread is looked for
 
 
@@ -70,8 +80,10 @@ class TrackerConfig:
     partial_below : float
         Visible share under which an estimate is flagged ``partial``.
     jaw_length, jaw_radius : float
-        An instrument's jaws (m): a capsule from the tool-tip origin along tool ``z``; arc
-        points inside it are hidden.
+        An instrument's jaws (m): a capsule from the tool-tip origin along tool ``z``.
+    shaft_length, shaft_radius : float
+        Its wrist and shaft (m): a capsule from the tool-tip origin back along ``-z``. Arc
+        points whose pixels fall on either are hidden in that image.
     profile_half_length, profile_step : float
         Reach and sampling step (pixels) of the search for the wire's edges across the arc.
     refine_iterations : int
@@ -103,6 +115,8 @@ class TrackerConfig:
     partial_below: float = 0.85
     jaw_length: float = 0.0105
     jaw_radius: float = 0.0025
+    shaft_length: float = 0.06
+    shaft_radius: float = 0.0045
     profile_half_length: float = 12.0
     profile_step: float = 0.5
     refine_iterations: int = 30
@@ -119,7 +133,7 @@ class TrackerConfig:
         if self.n_points < 8:
             raise ValueError(f'tracker n_points must be >= 8, got {self.n_points}')
         for name in ('loss_scale', 'seen_distance', 'max_residual', 'jaw_length',
-                     'jaw_radius'):
+                     'jaw_radius', 'shaft_length', 'shaft_radius'):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f'tracker {name} must be > 0, got {getattr(self, name)}')
         if not 0.0 < self.min_visible <= 1.0:
@@ -171,194 +185,6 @@ class NeedleEstimate:
         return p @ self.pose_camera[:3, :3].T + self.pose_camera[:3, 3]
 
 
-class _Field:
-    """One image's needle pixels, and (on demand) the fields the detection needs."""
-
-    def __init__(self, rgb, blur):
-        self.rgb = rgb
-        self._blur = blur
-        # a closing fills the renderer's one-pixel cracks along the thin wire
-        self.mask = cv2.morphologyEx(metal_mask(rgb), cv2.MORPH_CLOSE, _CLOSE)
-        self.soft = (self.mask > 0).astype(np.float32)
-        self._cost = self._d_out = self._thread = self._thread_soft = None
-
-    @property
-    def d_out(self):
-        """Distance (pixels) to the nearest needle pixel (0 on them)."""
-        if self._d_out is None:
-            self._d_out = cv2.distanceTransform(cv2.bitwise_not(self.mask), cv2.DIST_L2, 5)
-        return self._d_out
-
-    @property
-    def cost(self):
-        """Distance (pixels, blurred) to the centre line of the needle pixels."""
-        if self._cost is None:
-            d_in = cv2.distanceTransform(self.mask, cv2.DIST_L2, 5)
-            # centre line: needle pixels farthest from the background among their neighbours
-            ridge = (self.mask > 0) & (d_in >= cv2.dilate(d_in, _RIDGE))
-            centre = cv2.distanceTransform(np.where(ridge, 0, 255).astype(np.uint8),
-                                           cv2.DIST_L2, 5)
-            self._cost = (cv2.GaussianBlur(centre, (0, 0), self._blur) if self._blur > 0.0
-                          else centre)
-        return self._cost
-
-    @property
-    def thread_soft(self):
-        """Thread pixels as 0.0 / 1.0 (float32)."""
-        if self._thread_soft is None:
-            self._thread_soft = (self.thread > 0).astype(np.float32)
-        return self._thread_soft
-
-    @property
-    def thread(self):
-        """Thread pixels (uint8, 255)."""
-        if self._thread is None:
-            self._thread = thread_mask(self.rgb)
-        return self._thread
-
-
-def _sample(image, uv):
-    """Bilinear samples of a float image at pixels ``uv`` (n, 2); NaN outside."""
-    h, w = image.shape
-    u, v = uv[:, 0], uv[:, 1]
-    inside = (u >= 0.0) & (v >= 0.0) & (u <= w - 1.001) & (v <= h - 1.001)
-    u = np.where(inside, u, 0.0)
-    v = np.where(inside, v, 0.0)
-    u0 = u.astype(np.intp)
-    v0 = v.astype(np.intp)
-    a, b = u - u0, v - v0
-    f = (image[v0, u0] * (1 - a) * (1 - b) + image[v0, u0 + 1] * a * (1 - b)
-         + image[v0 + 1, u0] * (1 - a) * b + image[v0 + 1, u0 + 1] * a * b)
-    return np.where(inside, f, np.nan)
-
-
-def _runs(profile, steps, step, closed=True):
-    """
-    Edges (sub-pixel) of the run of needle samples through or nearest each profile's middle.
-
-    Parameters
-    ----------
-    profile : ndarray, shape (n, m)
-        Mask values (0-1) sampled across the arc at offsets ``steps`` (m,).
-    steps : ndarray, shape (m,)
-    step : float
-        Spacing of ``steps``.
-
-    Returns
-    -------
-    edges : ndarray, shape (2, n)
-        Offsets of the run's two 0.5 crossings.
-    valid : ndarray, shape (n,)
-        A run that ends inside the profile on both sides (``closed``), or on the far side.
-
-    """
-    n, m = profile.shape
-    inside = profile >= 0.5
-    idx = np.arange(m)
-    middle = m // 2
-    dist = np.where(inside, np.abs(idx - middle), m + 1)
-    j = np.argmin(dist, axis=1)
-    any_inside = dist[np.arange(n), j] <= m
-    outside = ~inside
-    lo_out = np.where(outside & (idx[None, :] < j[:, None]), idx[None, :], -1).max(axis=1)
-    hi_out = np.where(outside & (idx[None, :] > j[:, None]), idx[None, :], m).min(axis=1)
-    valid = any_inside & (hi_out <= m - 1)
-    if closed:
-        valid &= lo_out >= 0
-    lo_out = np.clip(lo_out, 0, m - 2)
-    hi_out = np.clip(hi_out, 1, m - 1)
-    rows = np.arange(n)
-    p0, p1 = profile[rows, lo_out], profile[rows, lo_out + 1]
-    q0, q1 = profile[rows, hi_out - 1], profile[rows, hi_out]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        a = steps[lo_out] + np.clip((0.5 - p0) / (p1 - p0), 0.0, 1.0) * step
-        b = steps[hi_out - 1] + np.clip((q0 - 0.5) / (q0 - q1), 0.0, 1.0) * step
-    return np.array([a, b]), valid
-
-
-def _rotvec_matrix(w):
-    """Rotation matrix of a rotation vector (rad), Rodrigues' formula in scalars."""
-    theta = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    if theta < 1e-12:
-        return np.eye(3)
-    k = w / theta
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(theta) * K + (1.0 - math.cos(theta)) * (K @ K)
-
-
-def _flip(geometry):
-    """``T`` (4, 4) turning the arc half a turn about its middle radius (tail <-> tip)."""
-    phi = geometry.angle_at(0.5)
-    axis = np.array([math.cos(phi), math.sin(phi), 0.0])
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(math.pi * axis).as_matrix()
-    return T
-
-
-def _mirror(T):
-    """
-    Return the pose whose arc projects almost alike: the plane reflected about the line of sight.
-
-    A circle and its reflection in the plane through the line of sight to its centre and its
-    own normal cast the same outline under weak perspective; the arc is kept where it is
-    (its middle point stays on its ray).
-    """
-    centre = T[:3, 3]
-    ray = centre / np.linalg.norm(centre)
-    normal = T[:3, 2]
-    mirrored = 2.0 * (normal @ ray) * ray - normal  # normal turned half a turn about the ray
-    R = Rotation.align_vectors([mirrored], [normal])[0].as_matrix()
-    M = np.eye(4)
-    M[:3, :3] = R @ T[:3, :3]
-    M[:3, 3] = centre
-    return M
-
-
-def _kabsch(model, data):
-    """Rigid ``T`` (4, 4) taking model points (n, 3) onto data points (n, 3)."""
-    mc, dc = model.mean(axis=0), data.mean(axis=0)
-    H = (model - mc).T @ (data - dc)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = dc - R @ mc
-    return T
-
-
-def jaw_segment(T_camera_tool, config=None):
-    """
-    Return the jaws of an instrument as a capsule: its two end points (m, camera frame) and radius.
-
-    Parameters
-    ----------
-    T_camera_tool : array_like, shape (4, 4)
-        Tool-tip pose (``measured_cp`` carried into the camera frame).
-    config : TrackerConfig, optional
-
-    Returns
-    -------
-    tuple
-        ``(start (3,), end (3,), radius)``.
-
-    """
-    config = config or TrackerConfig()
-    T = np.asarray(T_camera_tool, dtype=float)
-    start = T[:3, 3]
-    return start, start + config.jaw_length * T[:3, 2], config.jaw_radius
-
-
-def _hidden_by(points, segments):
-    """Points (n, 3) inside any capsule ``(a, b, radius)``."""
-    hidden = np.zeros(len(points), bool)
-    for a, b, radius in segments:
-        ab = b - a
-        t = np.clip((points - a) @ ab / max(ab @ ab, 1e-18), 0.0, 1.0)
-        hidden |= np.linalg.norm(points - (a + t[:, None] * ab), axis=1) < radius
-    return hidden
-
-
 class NeedleTracker:
     """
     Needle pose from a rectified stereo pair, with a residual and visibility.
@@ -382,7 +208,7 @@ class NeedleTracker:
         self.geometry = geometry or NeedleGeometry()
         self.config = config or TrackerConfig()
         self._model = self.geometry.arc_points(self.config.n_points)
-        self._flip = _flip(self.geometry)
+        self._flip = flip_transform(self.geometry)
         self._tangents = self.geometry.tangent_at(np.linspace(0.0, 1.0, self.config.n_points))
         c = self.config
         self._steps = np.arange(-c.profile_half_length, c.profile_half_length + 1e-9,
@@ -398,20 +224,20 @@ class NeedleTracker:
         return points, *stereo.project(points)
 
     def _residuals(self, x, T0, stereo, fields, keep):
-        R = _rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
+        R = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
         t = T0[:3, 3] + x[3:] * self._scale[3:]
         points = self._model[keep] @ R.T + t
         z = points[:, 2]
         if np.any(z <= 1e-4):
             return np.full(2 * int(keep.sum()), _OUT_OF_VIEW)
         uv_l, uv_r = stereo.project(points)
-        r_l = _sample(fields[0].cost, uv_l)
-        r_r = _sample(fields[1].cost, uv_r)
+        r_l = sample(fields[0].cost, uv_l)
+        r_r = sample(fields[1].cost, uv_r)
         r = np.concatenate([r_l, r_r])
         return np.where(np.isnan(r), _OUT_OF_VIEW, r)
 
     def _fit(self, T0, stereo, fields, hidden):
-        keep = ~hidden
+        keep = ~hidden.any(axis=0)
         if keep.sum() < 4:
             return T0
         result = least_squares(self._residuals, np.zeros(6), args=(T0, stereo, fields, keep),
@@ -420,7 +246,7 @@ class NeedleTracker:
                                ftol=1e-6)
         x = result.x
         T = np.eye(4)
-        T[:3, :3] = _rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
+        T[:3, :3] = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
         T[:3, 3] = T0[:3, 3] + x[3:] * self._scale[3:]
         return T
 
@@ -459,19 +285,19 @@ class NeedleTracker:
             dirs = np.vstack([normal, -direction[:1], direction[-1:]])
             origin = uv[index]
             samples = origin[:, None, :] + steps[None, :, None] * dirs[:, None, :]
-            profile = _sample(field.soft, samples.reshape(-1, 2)).reshape(len(index),
+            profile = sample(field.soft, samples.reshape(-1, 2)).reshape(len(index),
                                                                            len(steps))
             profile = np.nan_to_num(profile, nan=0.0)
-            edges, valid = _runs(profile[:n], steps, c.profile_step)
+            edges, valid = runs(profile[:n], steps, c.profile_step)
             wide = edges[1] - edges[0]
-            valid &= ~hidden & (wide >= 0.5 * width) & (wide <= 1.6 * width + 1.0)
+            valid &= ~hidden[side] & (wide >= 0.5 * width) & (wide <= 1.6 * width + 1.0)
             offset = np.where(valid, 0.5 * (edges[0] + edges[1]), 0.0)
-            ends, ends_valid = _runs(profile[n:], steps, c.profile_step, closed=False)
-            ends_valid &= ~hidden[[0, n - 1]] & (np.abs(ends[1]) <= c.end_gate)
+            ends, ends_valid = runs(profile[n:], steps, c.profile_step, closed=False)
+            ends_valid &= ~hidden[side, [0, n - 1]] & (np.abs(ends[1]) <= c.end_gate)
             # an end that runs into the thread (tied to the tail) is hidden, not seen
             beyond = (origin[n:, None, :] + (ends[1][:, None, None] + _BEYOND[None, :, None])
                       * dirs[n:, None, :])
-            thread = _sample(field.thread_soft, beyond.reshape(-1, 2)).reshape(2, -1)
+            thread = sample(field.thread_soft, beyond.reshape(-1, 2)).reshape(2, -1)
             ends_valid &= ~(np.nan_to_num(thread, nan=0.0) > 0.25).any(axis=1)
             offset = np.concatenate([offset, np.where(ends_valid, ends[1], 0.0)])
             out.append((index, dirs, offset, np.concatenate([valid, ends_valid])))
@@ -513,7 +339,7 @@ class NeedleTracker:
             A = J.T @ (w[:, None] * J)
             A += 1e-6 * np.trace(A) * np.eye(6)
             step = np.linalg.solve(A, J.T @ (w * r))
-            T[:3, :3] = _rotvec_matrix(step[:3]) @ T[:3, :3]
+            T[:3, :3] = rotvec_matrix(step[:3]) @ T[:3, :3]
             T[:3, 3] = T[:3, 3] + step[3:]
             if np.linalg.norm(step[3:]) < 2e-6 and np.linalg.norm(step[:3]) < 2e-4:
                 break
@@ -601,7 +427,7 @@ class NeedleTracker:
                     chord = np.linalg.norm(points[1] - points[0])
                     if not 0.5 * g.chord < chord < 1.5 * g.chord:
                         continue
-                    starts.append(_kabsch(model, points))
+                    starts.append(kabsch(model, points))
         return starts
 
     # ------------------------------------------------------------------ the estimate
@@ -619,8 +445,8 @@ class NeedleTracker:
             Where the needle is thought to be (``T_camera_needle``): the tool pose times the
             grasp while held, the last estimate while it lies free; None: detect it.
         tools : sequence of array_like, shape (4, 4)
-            Tool-tip poses (camera frame) of the instruments near the needle: the arc inside
-            their jaws is not looked for.
+            Tool-tip poses (camera frame) of the instruments near the needle: the arc where
+            their jaws, wrist or shaft cover it in an image is not looked for there.
         support_normal : array_like, shape (3,), optional
             Normal (camera frame) of the surface a free needle lies on, e.g.
             :attr:`suture_lfd.perception.markers.MarkerDetections.normal`: of the poses that
@@ -640,8 +466,9 @@ class NeedleTracker:
         c = self.config
         left = check_image(left, stereo, 'left')
         right = check_image(right, stereo, 'right')
-        fields = (_Field(left, c.blur), _Field(right, c.blur))
-        segments = [jaw_segment(_pose(T, 'tool pose'), c) for T in tools]
+        fields = (WireImage(left, c.blur), WireImage(right, c.blur))
+        capsules = [k for T in tools for k in tool_capsules(
+            _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length, c.shaft_radius)]
         if support_normal is not None:
             support_normal = np.asarray(support_normal, dtype=float).reshape(3)
             support_normal = support_normal / np.linalg.norm(support_normal)
@@ -655,15 +482,15 @@ class NeedleTracker:
                                                                 'images')
             # each detection and its mirror: the images tell them apart by a fraction of a
             # pixel only
-            none = np.zeros(len(self._model), bool)
+            none = np.zeros((2, len(self._model)), bool)
             starts = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
                       for T0 in starts]
-            starts += [_mirror(T) for T in starts]
+            starts += [mirrored(T) for T in starts]
         candidates = []
         for T in starts:
-            hidden = _hidden_by(self._model @ T[:3, :3].T + T[:3, 3], segments)
+            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
             T = self._refine(T, stereo, fields, hidden)
-            hidden = _hidden_by(self._model @ T[:3, :3].T + T[:3, 3], segments)
+            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
             residual, share, share_l, share_r = self._score(T, stereo, fields, hidden)
             trusted = share >= c.min_visible and residual <= c.max_residual
             # the closest fit, a hidden tenth of the arc counting as 0.2 px
