@@ -33,6 +33,7 @@ computed by other code is refused with :class:`CodeMismatchError` and the study 
 of it stored.
 """
 
+import contextlib
 from dataclasses import dataclass
 import inspect
 import logging
@@ -40,7 +41,7 @@ import time
 
 from suture_lfd.study.digest import code_digest
 from suture_lfd.study.runner import call_job, pending, run_stages
-from suture_lfd.study.signals import STOP_GRACE_S, stop_on_signals
+from suture_lfd.study.signals import STOP_GRACE_S, stop_on_signals, terminate_children
 
 _LOG = logging.getLogger(__name__)
 
@@ -199,16 +200,34 @@ class DaskSession:
             self.client = Client(self.cluster)
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, kind, value, tb):
+        self.close(stop=kind is not None and issubclass(kind, KeyboardInterrupt))
 
-    def close(self):
-        """Close the client and the local cluster it started (its workers stopped in seconds)."""
+    def close(self, stop=False):
+        """
+        Close the client and the local cluster it started.
+
+        Parameters
+        ----------
+        stop : bool
+            The run was interrupted: the local cluster's worker processes are stopped first
+            (SIGTERM, SIGKILL after :data:`~suture_lfd.study.signals.STOP_GRACE_S`), so that
+            the cluster closes at once instead of waiting for their jobs; an existing cluster
+            is left running.
+
+        """
+        if stop and self.cluster is not None:
+            logging.getLogger('distributed').setLevel(logging.CRITICAL)  # workers going down
+            for nanny in self.cluster.workers.values():
+                nanny.auto_restart = False
+            terminate_children()
         if self.client is not None:
-            self.client.close(timeout=STOP_GRACE_S)
+            with contextlib.suppress(TimeoutError, OSError):
+                self.client.close(timeout=STOP_GRACE_S)
             self.client = None
         if self.cluster is not None:
-            self.cluster.close(timeout=STOP_GRACE_S)
+            with contextlib.suppress(TimeoutError, OSError):
+                self.cluster.close(timeout=STOP_GRACE_S if stop else None)
             self.cluster = None
 
     def n_workers(self):

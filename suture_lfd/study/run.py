@@ -422,7 +422,7 @@ def run_study(args, stream=None):
                 interrupted = getattr(exc, 'signum', signal.SIGINT)
             finally:
                 if session is not None:
-                    session.close()
+                    session.close(stop=interrupted is not None)
                 close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
             if interrupted is not None:
                 progress.finish()

@@ -23,6 +23,7 @@ in the main thread and returns the process's :class:`StopRequest`.
 
 import contextlib
 import logging
+from multiprocessing import resource_tracker
 import os
 import signal
 import time
@@ -166,6 +167,20 @@ def _children():
         return []
 
 
+def _run_children():
+    """Return this process's descendants but multiprocessing's resource tracker."""
+    # the tracker ignores SIGTERM and exits with this process
+    tracker = getattr(resource_tracker._resource_tracker, '_pid', None)
+    return [c for c in _children() if c.pid != tracker]
+
+
+def terminate_children():
+    """Send SIGTERM to every process this one started (no waiting: their owner reaps them)."""
+    for child in _run_children():
+        with contextlib.suppress(psutil.Error):
+            child.terminate()
+
+
 def stop_children(grace=STOP_GRACE_S):
     """
     Stop every process this one started that is still running: SIGTERM, then SIGKILL.
@@ -184,7 +199,7 @@ def stop_children(grace=STOP_GRACE_S):
         Processes that were still running.
 
     """
-    children = _children()
+    children = _run_children()
     for child in children:
         with contextlib.suppress(psutil.Error):
             child.terminate()

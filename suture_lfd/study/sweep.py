@@ -464,7 +464,7 @@ def run_sweep(args, stream=None):
             interrupted = getattr(exc, 'signum', 2)
         finally:
             if session is not None:
-                session.close()
+                session.close(stop=interrupted is not None)
             close_worker()
         if interrupted is not None:
             progress.finish()
