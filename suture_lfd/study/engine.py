@@ -41,7 +41,7 @@ import time
 
 from suture_lfd.study.digest import code_digest
 from suture_lfd.study.runner import call_job, pending, run_stages
-from suture_lfd.study.signals import STOP_GRACE_S, stop_on_signals, terminate_children
+from suture_lfd.study.signals import STOP_GRACE_S, stop_on_signals, terminate_processes
 
 _LOG = logging.getLogger(__name__)
 
@@ -218,9 +218,7 @@ class DaskSession:
         """
         if stop and self.cluster is not None:
             logging.getLogger('distributed').setLevel(logging.CRITICAL)  # workers going down
-            for nanny in self.cluster.workers.values():
-                nanny.auto_restart = False
-            terminate_children()
+            terminate_processes(nanny.pid for nanny in self.cluster.workers.values())
         if self.client is not None:
             with contextlib.suppress(TimeoutError, OSError):
                 self.client.close(timeout=STOP_GRACE_S)

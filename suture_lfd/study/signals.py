@@ -174,11 +174,22 @@ def _run_children():
     return [c for c in _children() if c.pid != tracker]
 
 
-def terminate_children():
-    """Send SIGTERM to every process this one started (no waiting: their owner reaps them)."""
+def terminate_processes(pids):
+    """
+    Send SIGTERM to those of ``pids`` that this process started (no waiting: their owner reaps).
+
+    Parameters
+    ----------
+    pids : iterable of int
+        Process ids (of a local cluster's workers, say); others than this process's
+        descendants are left alone.
+
+    """
+    wanted = set(pids)
     for child in _run_children():
-        with contextlib.suppress(psutil.Error):
-            child.terminate()
+        if child.pid in wanted:
+            with contextlib.suppress(psutil.Error):
+                child.terminate()
 
 
 def stop_children(grace=STOP_GRACE_S):
