@@ -155,8 +155,8 @@ class WorkerPool:
             for worker in self._workers:
                 waits[worker.conn] = worker
                 waits[worker.process.sentinel] = worker
-            for ready in wait(list(waits), timeout=POLL_S):
-                worker = waits[ready]
+            ready = dict.fromkeys(waits[r] for r in wait(list(waits), timeout=POLL_S))
+            for worker in ready:  # once each, though both its pipe and its sentinel be ready
                 if worker.job is None and worker.process.is_alive():
                     continue
                 self._collect(worker, on_record)
