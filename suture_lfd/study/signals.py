@@ -167,11 +167,9 @@ def _children():
         return []
 
 
-def _run_children():
-    """Return this process's descendants but multiprocessing's resource tracker."""
-    # the tracker ignores SIGTERM and exits with this process
-    tracker = getattr(resource_tracker._resource_tracker, '_pid', None)
-    return [c for c in _children() if c.pid != tracker]
+def _tracker_pid():
+    """Process id of multiprocessing's resource tracker (started with spawned workers)."""
+    return getattr(resource_tracker._resource_tracker, '_pid', None)
 
 
 def terminate_processes(pids):
@@ -185,8 +183,8 @@ def terminate_processes(pids):
         descendants are left alone.
 
     """
-    wanted = set(pids)
-    for child in _run_children():
+    wanted = set(pids) - {_tracker_pid()}
+    for child in _children():
         if child.pid in wanted:
             with contextlib.suppress(psutil.Error):
                 child.terminate()
@@ -207,21 +205,27 @@ def stop_children(grace=STOP_GRACE_S):
     Returns
     -------
     int
-        Processes that were still running.
+        Processes that were still running (but multiprocessing's resource tracker, which
+        ignores SIGTERM and is killed at once).
 
     """
-    children = _run_children()
+    children = _children()
+    tracker = _tracker_pid()
     for child in children:
         with contextlib.suppress(psutil.Error):
-            child.terminate()
+            if child.pid == tracker:  # it ignores SIGTERM; nothing of a run is registered in it
+                child.kill()
+            else:
+                child.terminate()
     _, alive = psutil.wait_procs(children, timeout=grace)
     for child in alive:
         with contextlib.suppress(psutil.Error):
             child.kill()
     psutil.wait_procs(alive, timeout=grace)
-    if children:
-        _LOG.info('stopped %d process(es) left by the run', len(children))
-    return len(children)
+    others = [c for c in children if c.pid != tracker]
+    if others:
+        _LOG.info('stopped %d process(es) left by the run', len(others))
+    return len(others)
 
 
 def wait_gone(processes, deadline):
