@@ -19,11 +19,9 @@ resamples it to its own), so every cell of a seed shares that seed's demonstrati
 2 x 2 sweep over two seeds records two sets of demonstrations, not eight.
 
 All jobs (every seed's demonstrations, then every cell's throws) run as one job set on the
-chosen ``--engine`` (:mod:`suture_lfd.study.engine`), stored in one resumable ``results.jsonl``
-in the sweep folder under each job's ``id`` (:mod:`suture_lfd.study.keys`): an interrupted
-sweep resumes like a study, and a sweep extended by seeds, methods or values in the same folder
-reuses every job it shares with the stored ones. SIGINT and SIGTERM stop it as they stop a study
-(exit status 130 / 143, no report). The
+chosen ``--engine`` (:mod:`suture_lfd.study.engine`), stored in ``results.jsonl`` in the sweep
+folder by job ``id`` (:mod:`suture_lfd.study.keys`): a sweep resumes, and reuses every stored
+job it shares, as a study does; SIGINT and SIGTERM stop it as they stop a study. The
 folder gets ``seed-<s>/`` (bags, segment files), ``cells/<cell>/seed-<s>/`` (a full study
 report per cell and seed) and ``sweep.md`` / ``sweep.csv`` / ``sweep_<parameter>.png``:
 generality, regeneration success and Table II errors against each swept parameter, mean and
