@@ -20,6 +20,7 @@ NODES = {
     'teleop': 'suture_lfd.nodes.executables:teleop',
     'mtms': 'suture_lfd.nodes.executables:mtms',
     'viewer': 'suture_lfd.nodes.executables:viewer',
+    'perception': 'suture_lfd.nodes.executables:perception',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',
@@ -36,7 +37,8 @@ def interface_files():
 
 
 def config_files():
-    return sorted(str(p.relative_to(HERE)) for p in (HERE / 'config').glob('*.yaml'))
+    return sorted(str(p.relative_to(HERE)) for pattern in ('*.yaml', '*.xml')
+                  for p in (HERE / 'config').glob(pattern))
 
 
 setup(

@@ -109,18 +109,20 @@ def main():
     node = rclpy.create_node('bench_teleop')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    state = {'teleop': None, 'base': None, 'tool': None}
+    state = {'teleop': None, 'base': None, 'tool': None, 'camera': None}
     stages = {'MTMR/measured_cp': Stage(1.0), 'PSM1/servo_cp': Stage(5.0),
               'PSM1/setpoint_cp': Stage(5.0)}
 
     def on_stage(name):
         def callback(msg):
+            # every stage is in the camera frame (the MTM's display frame HRSV, the PSM's ECM
+            # on a patient cart) or in PSM1_base (an arm on its own): seen in world here
             T = cv.matrix_from_pose(msg.pose)
-            if name != 'MTMR/measured_cp':
-                if state['base'] is None:
-                    return
-                T = state['base'] @ T
-            stages[name].add(time.monotonic(), T[:3, 3], None)
+            frame = msg.header.frame_id
+            to_world = state['base'] if frame == 'PSM1_base' else state['camera']
+            if to_world is None:
+                return
+            stages[name].add(time.monotonic(), (to_world @ T)[:3, 3], None)
         return callback
 
     for name in stages:
@@ -130,8 +132,11 @@ def main():
     node.create_subscription(PoseStamped, 'sim/PSM1/base_frame',
                              lambda m: state.__setitem__('base', cv.matrix_from_pose(m.pose)),
                              LATCHED)
-    node.create_subscription(PoseStamped, 'PSM1/measured_cp',
+    node.create_subscription(PoseStamped, 'PSM1/local/measured_cp',
                              lambda m: state.__setitem__('tool', cv.matrix_from_pose(m.pose)),
+                             STATE)
+    node.create_subscription(PoseStamped, 'ECM/measured_cp',  # in world on a patient cart
+                             lambda m: state.__setitem__('camera', cv.matrix_from_pose(m.pose)),
                              STATE)
     pose_pub = node.create_publisher(PoseStamped, 'viewer/input/MTMR/pose', STATE)
     grip_pub = node.create_publisher(Float64, 'viewer/input/MTMR/gripper', STATE)
@@ -141,7 +146,8 @@ def main():
     sent = []            # (send time, handle position s along the line)
     try:
         deadline = time.monotonic() + 90
-        while (state['tool'] is None or state['base'] is None) and time.monotonic() < deadline:
+        while (state['tool'] is None or state['base'] is None or state['camera'] is None) \
+                and time.monotonic() < deadline:
             time.sleep(0.05)
         if state['tool'] is None:
             sys.exit('the simulator did not start; logs in ' + log_dir)

@@ -12,7 +12,9 @@ All poses are in ``world`` (z up, phantom at the origin; SI units):
   and ``ECM -> ECM_left|right_optical``;
 - ``sim/visualization`` (visualization_msgs/MarkerArray): needle arc, thread, red markers, tool
   tips;
-- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8) and ``ECM/left|right/camera_info``.
+- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8), ``ECM/left|right/camera_info`` (a
+  rectified pair: the right ``P`` has ``-fx * baseline``) and, when asked for,
+  ``ECM/left|right/depth`` (32FC1, m); rendered only while someone subscribes.
 
 The node calls these publishers from its one executor thread; they skip topics nobody reads.
 """
@@ -41,10 +43,12 @@ class SceneTopics:
     ----------
     node : rclpy.node.Node
     sim : sim_bridge.simulation.Simulation
+    depth : bool
+        Publish the metric depth images too.
 
     """
 
-    def __init__(self, node, sim):
+    def __init__(self, node, sim, depth=False):
         self._node = node
         self._sim = sim
         pub = node.create_publisher
@@ -61,6 +65,8 @@ class SceneTopics:
         self._images = {s: pub(Image, f'ECM/{s}/image_raw', qos.IMAGES) for s in ('left', 'right')}
         self._infos = {s: pub(CameraInfo, f'ECM/{s}/camera_info', qos.IMAGES)
                        for s in ('left', 'right')}
+        self._depths = ({s: pub(Image, f'ECM/{s}/depth', qos.IMAGES) for s in ('left', 'right')}
+                        if depth else {})
 
     def publish_latched(self, stamp):
         """Publish the scene's fixed frames (after start-up and after a reset)."""
@@ -119,13 +125,17 @@ class SceneTopics:
     def publish_camera(self, stamp):
         """Render and publish the stereo pair and its calibration (only if someone listens)."""
         listening = any(p.get_subscription_count() for p in (*self._images.values(),
-                                                              *self._infos.values()))
+                                                              *self._infos.values(),
+                                                              *self._depths.values()))
         if not listening:
             return
         frame = self._sim.render()
         camera = self._sim.camera
-        for side, rgb in (('left', frame.left_rgb), ('right', frame.right_rgb)):
+        for side, rgb, depth in (('left', frame.left_rgb, frame.left_depth),
+                                 ('right', frame.right_rgb, frame.right_depth)):
             frame_id = f'ECM_{side}_optical'
             self._images[side].publish(cv.image_message(rgb, frame_id, stamp))
             self._infos[side].publish(cv.camera_info_message(camera.camera_info(side), frame_id,
                                                              stamp))
+            if side in self._depths and depth is not None:
+                self._depths[side].publish(cv.depth_message(depth, frame_id, stamp))

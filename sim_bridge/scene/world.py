@@ -38,6 +38,10 @@ from sim_bridge.geometry import invert_transform, quaternion_from_matrix
 from sim_bridge.paths import config_path
 from sim_bridge.validation import check_positive
 
+# Frames of the arms' Cartesian poses (WorldConfig.frames): a patient cart (PSMs in the camera
+# frame) or each arm in its own base.
+FRAMES = ('cart', 'base')
+
 # Collision groups (bit masks).
 GROUP_ENVIRONMENT = 1
 GROUP_NEEDLE = 2
@@ -136,6 +140,10 @@ class WorldConfig:
         Table colour (a surgical drape).
     arms : dict of Placement
         RCM frame of each arm (``PSM1``, ``PSM2``, ``ECM``) in ``world``.
+    frames : str
+        Frames of the arms' Cartesian poses: ``'cart'`` (a patient cart with set-up joints:
+        PSM poses in the ECM camera frame ``ECM``, the ECM in ``world``) or ``'base'`` (each
+        arm in its own RCM frame ``<ARM>_base``, as a single arm on a table).
     instrument : InstrumentShape
         Instrument shapes and colours.
     needle_segments : int
@@ -167,9 +175,13 @@ class WorldConfig:
     needle_restitution: float = 0.0
     marker_thickness: float = 0.0002
     phantom_collision_margin: float = 0.001
+    frames: str = 'cart'
 
     def __post_init__(self):
         check_positive(self.physics_step, 'world physics_step (s)')
+        if self.frames not in FRAMES:
+            raise ValueError(f"world frames must be 'cart' (PSM poses in the camera frame) or "
+                             f"'base' (each arm in <ARM>_base), got {self.frames!r}")
         if self.solver_iterations < 1:
             raise ValueError(
                 f'world solver_iterations must be >= 1, got {self.solver_iterations}')
@@ -216,6 +228,52 @@ def transform_from_bullet(position, quaternion):
     T[:3, :3] = np.reshape(pybullet.getMatrixFromQuaternion(quaternion), (3, 3))
     T[:3, 3] = position
     return T
+
+
+def _wire_mesh(needle, n_arc=48, n_ring=12):
+    """
+    Return the needle's wire as a closed triangle mesh in the needle frame, for drawing.
+
+    A tube of the wire's radius along the arc with flat ends (PyBullet's CPU renderer draws
+    capsules in shape arrays far thicker than their radius, so the drawn needle is a mesh).
+
+    Returns
+    -------
+    vertices : ndarray, shape (n, 3)
+    normals : ndarray, shape (n, 3)
+    indices : list of int
+        Counter-clockwise triangles seen from outside.
+
+    """
+    r = 0.5 * needle.wire_diameter
+    s = np.linspace(0.0, 1.0, n_arc + 1)
+    centre = needle.point_at(s)
+    radial = centre / needle.radius
+    theta = np.linspace(0.0, 2.0 * math.pi, n_ring, endpoint=False)
+    z = np.array([0.0, 0.0, 1.0])
+    ring = (np.cos(theta)[None, :, None] * radial[:, None, :]
+            + np.sin(theta)[None, :, None] * z[None, None, :])  # (n_arc + 1, n_ring, 3)
+    vertices = (centre[:, None, :] + r * ring).reshape(-1, 3)
+    normals = ring.reshape(-1, 3)
+    indices = []
+    for i in range(n_arc):
+        for j in range(n_ring):
+            a, b = i * n_ring + j, i * n_ring + (j + 1) % n_ring
+            c, d = a + n_ring, b + n_ring
+            indices += [a, c, b, b, c, d]
+    tangent = needle.tangent_at(np.array([0.0, 1.0]))
+    caps = []
+    for k, (row, direction) in enumerate(((0, -tangent[0]), (n_arc, tangent[1]))):
+        first = len(vertices) + sum(len(c[0]) for c in caps)
+        ring_vertices = vertices[row * n_ring:(row + 1) * n_ring]
+        cap_vertices = np.vstack([centre[row], ring_vertices])
+        caps.append((cap_vertices, np.tile(direction, (n_ring + 1, 1))))
+        for j in range(n_ring):
+            a, b = first + 1 + j, first + 1 + (j + 1) % n_ring
+            indices += [first, b, a] if k == 0 else [first, a, b]
+    vertices = np.vstack([vertices] + [c[0] for c in caps])
+    normals = np.vstack([normals] + [c[1] for c in caps])
+    return vertices, normals, indices
 
 
 def _arc_mass_properties(points, mass):
@@ -462,7 +520,11 @@ class World:
             R = Rotation.align_vectors([axis / length], [[0.0, 0.0, 1.0]])[0]
             parts.append((pybullet.GEOM_CAPSULE, {'radius': r, 'height': length},
                           (0.5 * (a + b)).tolist(), R.as_quat().tolist()))
-        vis, col = self._build_compound(parts, cfg.needle_rgba)
+        _, col = self._build_compound(parts, cfg.needle_rgba)
+        vertices, normals, indices = _wire_mesh(g)
+        vis = c.createVisualShape(pybullet.GEOM_MESH, vertices=vertices.tolist(),
+                                  indices=indices, normals=normals.tolist(),
+                                  rgbaColor=list(cfg.needle_rgba))
         com, axes, moments = _arc_mass_properties(g.arc_points(64), g.mass)
         self._T_needle_com = np.eye(4)
         self._T_needle_com[:3, :3] = axes
