@@ -79,7 +79,8 @@ def run(label, design, workers, engine='local', code=None):
         wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
         if result.returncode != 0:
             raise SystemExit(f'{label}: the study failed:\n{result.stderr[-2000:]}')
-        (path,) = Path(tmp).glob('results-*.jsonl')
+        # results.jsonl; results-<hash>.jsonl for a --before revision of the earlier format
+        (path,) = [*Path(tmp).glob('results.jsonl'), *Path(tmp).glob('results-*.jsonl')]
         records = [json.loads(line) for line in path.read_text().splitlines()]
     return {'label': label, 'jobs': len(records), 'wall_s': wall, 'cpu_s': cpu,
             'errors': sum(1 for r in records if r.get('error')),

@@ -45,13 +45,9 @@ def cmd_info(args):
 
 def cmd_study(args):
     """Run the study of the seed paper and write its report."""
-    try:
-        from suture_lfd import study
-    except ImportError:
-        logging.getLogger('suture_lfd').warning(
-            'the study runner is not available in this version; reporting the scene instead')
-        return cmd_info(args)
-    return study.main(args)
+    from suture_lfd.study import run
+
+    return run.main(args)
 
 
 def cmd_sweep(args):
@@ -161,7 +157,7 @@ def build_parser():
     from suture_lfd.study import add_arguments as add_study_arguments
 
     add_study_arguments(study)
-    study.set_defaults(func=cmd_study, seconds=0.5)
+    study.set_defaults(func=cmd_study)
     sweep = sub.add_parser('sweep', help='run a grid of studies (seeds, methods, DMP '
                                          'hyper-parameters) as one job set',
                            description='Run the studies of a sweep file as one job set on the '

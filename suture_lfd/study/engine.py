@@ -19,6 +19,12 @@ bounded window of jobs in flight (three per worker), so a study of 10⁶ jobs do
 scheduler 10⁶ futures at once; a job whose worker dies is rescheduled by Dask (``retries`` and
 the scheduler's ``allowed-failures``).
 
+SIGINT and SIGTERM stop a Dask run as they stop the local pool (:mod:`suture_lfd.study.signals`):
+the driver looks at the stop request between records (every :data:`POLL_S`), cancels the jobs in
+flight, closes its client and the local cluster it started (its worker processes are stopped,
+then killed after :data:`~suture_lfd.study.signals.STOP_GRACE_S`); a cluster that was already
+running keeps running, the cancelled jobs dropped.
+
 A Dask worker runs one job at a time per process (``threads_per_worker=1``: PyBullet's DIRECT
 clients of a process must not be shared between threads), keeps its simulations between jobs
 (the same per-process state as a pool worker) and never loads ROS. Every record carries the
@@ -27,17 +33,23 @@ computed by other code is refused with :class:`CodeMismatchError` and the study 
 of it stored.
 """
 
+import contextlib
 from dataclasses import dataclass
+import inspect
 import logging
 import time
 
-from suture_lfd.study.runner import call_job, pending, run_stages, sigterm_as_interrupt
+from suture_lfd.study.digest import code_digest
+from suture_lfd.study.runner import call_job, pending, run_stages
+from suture_lfd.study.signals import STOP_GRACE_S, stop_on_signals, terminate_processes
 
 _LOG = logging.getLogger(__name__)
 
 #: Jobs in flight per Dask worker: enough to keep every worker busy while records come back,
 #: few enough that an interrupted study cancels little and the scheduler holds little.
 IN_FLIGHT_PER_WORKER = 3
+#: Longest time (s) the driver waits for a record before it looks at the stop request again.
+POLL_S = 0.05
 #: Times Dask reruns a job that raised in the worker machinery (a job's own exception is a
 #: record with ``error``, never retried here; a dead worker is retried by the scheduler).
 RETRIES = 2
@@ -102,13 +114,6 @@ def parse_engine(text):
         return EngineSpec('dask', scheduler_file=text[len('scheduler-file:'):])
     raise ValueError(f'--engine {text!r} is not one of: local, dask, tcp://HOST:PORT, '
                      'scheduler-file:PATH')
-
-
-def code_digest():
-    """Return the digest of the sources a job's result depends on (this process's copy)."""
-    from suture_lfd.study import code_digest as digest
-
-    return digest()
 
 
 def run_stages_on(engine, stages, job_fn, store, workers=1, progress=None, initializer=None,
@@ -195,16 +200,32 @@ class DaskSession:
             self.client = Client(self.cluster)
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, kind, value, tb):
+        self.close(stop=kind is not None and issubclass(kind, KeyboardInterrupt))
 
-    def close(self):
-        """Close the client and the local cluster it started."""
+    def close(self, stop=False):
+        """
+        Close the client and the local cluster it started.
+
+        Parameters
+        ----------
+        stop : bool
+            The run was interrupted: the local cluster's worker processes are stopped first
+            (SIGTERM, SIGKILL after :data:`~suture_lfd.study.signals.STOP_GRACE_S`), so that
+            the cluster closes at once instead of waiting for their jobs; an existing cluster
+            is left running.
+
+        """
+        if stop and self.cluster is not None:
+            logging.getLogger('distributed').setLevel(logging.CRITICAL)  # workers going down
+            terminate_processes(nanny.pid for nanny in self.cluster.workers.values())
         if self.client is not None:
-            self.client.close()
+            with contextlib.suppress(TimeoutError, OSError):
+                self.client.close(timeout=STOP_GRACE_S)
             self.client = None
         if self.cluster is not None:
-            self.cluster.close()
+            with contextlib.suppress(TimeoutError, OSError):
+                self.cluster.close(timeout=STOP_GRACE_S if stop else None)
             self.cluster = None
 
     def n_workers(self):
@@ -214,28 +235,26 @@ class DaskSession:
         return max(1, len(info.get('workers', {})))
 
     def _takes_n_workers(self):
-        import inspect
-
         return 'n_workers' in inspect.signature(self.client.scheduler_info).parameters
 
     def run_stages(self, stages, job_fn, store, progress=None, initializer=None, initargs=()):
         """Run the pending jobs of every stage, stage after stage; return how many ran."""
         ran = 0
         todo = [pending(stage, store) for stage in stages]
-        with sigterm_as_interrupt():
+        with stop_on_signals() as stop, stop.deferred():
             for stage in todo:
                 if stage:
                     ran += self._run_stage(stage, job_fn, store, progress, initializer,
-                                           initargs)
+                                           initargs, stop)
         return ran
 
     def _submit(self, job, job_fn, initializer, initargs):
         return self.client.submit(
             dask_job, job_fn, job, initializer, initargs, self.code,
-            key=f'suture-lfd-{self.code}-{job["key"]}-{time.monotonic_ns()}', pure=False,
+            key=f'suture-lfd-{job["id"]}-{time.monotonic_ns()}', pure=False,
             retries=RETRIES)
 
-    def _run_stage(self, stage, job_fn, store, progress, initializer, initargs):
+    def _run_stage(self, stage, job_fn, store, progress, initializer, initargs, stop):
         """Keep a bounded window of the stage's jobs in flight; store records as they come."""
         from distributed import as_completed
 
@@ -247,26 +266,31 @@ class DaskSession:
         running = as_completed(list(in_flight))
         ran = 0
         try:
-            for future in running:
-                key = in_flight.pop(future)
-                try:
-                    record = future.result()
-                except Exception as exc:  # the worker machinery, not the job: jobs return errors
-                    raise EngineError(f'the Dask cluster could not run job {key}: '
-                                      f'{type(exc).__name__}: {exc}') from exc
-                check_code(record, self.code)
-                store.add(record)
-                ran += 1
-                if progress is not None:
-                    progress.advance(record['key'])
-                job = next(jobs, None)
-                if job is not None:
-                    future = self._submit(job, job_fn, initializer, initargs)
-                    in_flight[future] = job['key']
-                    running.add(future)
+            while in_flight:
+                stop.check()
+                finished = running.next_batch(block=False)
+                if not finished:
+                    time.sleep(POLL_S)
+                    continue
+                for future in finished:
+                    key = in_flight.pop(future)
+                    try:
+                        record = future.result()
+                    except Exception as exc:  # the machinery, not the job: jobs return errors
+                        raise EngineError(f'the Dask cluster could not run job {key}: '
+                                          f'{type(exc).__name__}: {exc}') from exc
+                    check_code(record, self.code)
+                    store.add(record)
+                    ran += 1
+                    if progress is not None:
+                        progress.advance(record['key'])
+                    job = next(jobs, None)
+                    if job is not None:
+                        future = self._submit(job, job_fn, initializer, initargs)
+                        in_flight[future] = job['key']
+                        running.add(future)
         except BaseException:
-            for future in in_flight:
-                future.cancel()
+            self.client.cancel(list(in_flight), force=True)
             raise
         return ran
 
@@ -306,7 +330,7 @@ def dask_job(job_fn, job, initializer, initargs, code):
         mine = _WORKER['code'] = code_digest()
     where = _worker_address()
     if mine != code:
-        return {'key': job['key'], 'code': mine, 'worker': where,
+        return {'id': job['id'], 'key': job['key'], 'code': mine, 'worker': where,
                 'error': 'code digest mismatch'}
     init = (getattr(initializer, '__module__', None), getattr(initializer, '__qualname__', None),
             repr(initargs))

@@ -295,8 +295,6 @@ def demo_job(job):
     record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),
               'failure': run.score.failure, 'time_s': float(run.score.time_s), 'ok': False}
     demo = _through_bag(run.demo, out / job['bag'], job['pair'])
-    if demo is None:
-        demo, record['bag'] = run.demo, None
     if run.score.score < 1.0:
         record['failure'] = f'no successful demonstration: {run.score.failure}'
         return record
@@ -314,14 +312,12 @@ def demo_job(job):
 
 def _through_bag(demo, bag, pair):
     """Write the demonstration as the recorder would and read it back as the segmenter does."""
-    try:
-        from suture_lfd.demos.demo_bag import (
-            default_base_frames,
-            demonstration_from_bag,
-            write_demonstration_bag,
-        )
-    except ImportError:  # the bag codec of demonstrations is not in this version
-        return None
+    from suture_lfd.demos.demo_bag import (
+        default_base_frames,
+        demonstration_from_bag,
+        write_demonstration_bag,
+    )
+
     if bag.exists():
         shutil.rmtree(bag)  # left by a run killed while writing it
     bag.parent.mkdir(parents=True, exist_ok=True)
@@ -333,49 +329,20 @@ def _through_bag(demo, bag, pair):
 
 
 def _save_segments(demo, segmentation, path, source='', subject=''):
-    """Save what the throws learn from: the segment file (or the demonstration without it)."""
-    try:
-        from suture_lfd.segmentation.segments import make_segment_file
-    except ImportError:  # no segment files in this version: keep the demonstration itself
-        demo.save(path)
-        return
+    """Save what the throws learn from: the demonstration's segment file."""
+    from suture_lfd.segmentation.segments import make_segment_file
+
     make_segment_file(demo, segmentation, source=source, subject=subject).save(path)
 
 
 # ---------------------------------------------------------------------- throws
 def _training(path):
     data = _state().data
-    if path not in data:
-        from suture_lfd.skill import training_data, training_data_from_demonstration
+    if path not in data:  # the skill's TrainingData of the demonstration's segment file
+        from suture_lfd.skill import training_data
 
-        try:
-            from suture_lfd.segmentation.segments import SegmentFile
-        except ImportError:  # the demonstration was kept instead of a segment file
-            from suture_lfd.demos.demonstration import Demonstration
-            from suture_lfd.segmentation import segment_demonstration
-
-            demo = Demonstration.load(path)
-            data[path] = training_data_from_demonstration(demo, segment_demonstration(demo),
-                                                          source=path)
-        else:
-            data[path] = _training_from_segments(SegmentFile.load(path), training_data)
+        data[path] = training_data(path)
     return data[path]
-
-
-def _training_from_segments(segments, training_data):
-    """Return the skill's TrainingData of a segment file."""
-    from suture_lfd.skill import PairGeometry, TrainingData
-
-    try:
-        return training_data(segments)
-    except ValueError:  # a skill module that does not read segment files itself
-        needle = {}
-        for task in TASKS:
-            t, poses = segments.needle(task)
-            needle[task] = (np.asarray(t), np.asarray(poses)[:, :3], np.asarray(poses)[:, 3:])
-        pair = PairGeometry(segments.pair, segments.entry, segments.exit, segments.normal)
-        timing = {name: segments.times(name) for name in SUBTASKS}
-        return TrainingData(pair, needle, timing, segments.source)
 
 
 def _dmp_params():
@@ -516,7 +483,7 @@ def throw_job(job):
     pair = markers[job['test_pair']]
     curves = {}
     for task in TASKS:
-        n_pts = skill.dmps[task].params.n_pts if hasattr(skill.dmps[task], 'params') else None
+        n_pts = skill.dmps[task].params.n_pts
         T, P, Q = data.needle[task]
         _, P0, Q0 = resample_poses(T, P, Q, n_pts=n_pts or len(T))
         _, P1, Q1 = skill.rollout(task, pair)

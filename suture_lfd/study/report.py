@@ -335,7 +335,8 @@ def write_report(folder, records, config, run_info=None):
         'demonstration), `summary.json` (every number below), PNG figures, `bags/` (the '
         'demonstrations as rosbag2 bags), `segments/` (their segment files), `replays/` (what '
         'the viewer needs to replay each throw: `suture-lfd view <this folder> --throw ROW`, '
-        'ROW a row of `throws.csv`), `results-*.jsonl` (the resumable per-job results).', '']
+        'ROW a row of `throws.csv`), `results.jsonl` (the per-job results, found by the '
+        "digest of each job's inputs: resume and reuse).", '']
     for method, s in summary.items():
         rows = tables.throws(records, method)
         gen = tables.generality(rows)
@@ -420,7 +421,8 @@ def write_report(folder, records, config, run_info=None):
         md += [f'- command: `{run_info.get("command", "")}`',
                f'- workers: {run_info.get("workers", "")}',
                f'- jobs run by this invocation: {run_info.get("jobs_run", 0)} '
-               f'(already done before: {run_info.get("resumed", 0)})',
+               f'(reused from the results stored in the folder: {run_info.get("resumed", 0)}, '
+               'jobs found by the digest of their inputs and code)',
                f'- wall time of this invocation: {_f(run_info.get("wall_s", float("nan")), 1)} s',
                f'- throughput: {_f(run_info.get("rate", float("nan")), 3)} jobs/s', '']
     wall = [r.get('wall_s') for r in records if r.get('wall_s') is not None]

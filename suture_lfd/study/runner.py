@@ -1,28 +1,28 @@
 """
 Run a study's jobs: in this process or in a pool of worker processes, with progress and resume.
 
-A job is a small picklable ``dict`` with ``key`` (unique name) and ``kind``; a job function
-(module-level, so worker processes can import it) turns it into a result record (``dict``).
-Jobs run in stages (the demonstrations before the throws learnt from them); within a stage they
-run in any order, ``workers`` at a time. Every finished record is appended to the
-:class:`~suture_lfd.study.store.ResultStore` by this (the parent) process only, so a kill at any
-moment loses at most the jobs that were running. Jobs whose key is already stored without an
-``error`` are not run again.
+A job is a small picklable ``dict`` with ``key`` (its name in the study), ``id`` (what decides
+its result, :mod:`suture_lfd.study.keys`) and ``kind``; a job function (module-level, so worker
+processes can import it) turns it into a result record (``dict``). Jobs run in stages (the
+demonstrations before the throws learnt from them); within a stage they run in any order,
+``workers`` at a time (:class:`~suture_lfd.study.pool.WorkerPool`). Every finished record is
+appended to the :class:`~suture_lfd.study.store.ResultStore` by this (the parent) process only,
+so a kill at any moment loses at most the jobs that were running. Jobs whose ``id`` is already
+stored without an ``error`` are not run again.
 
-Worker processes are started with ``spawn`` (each builds its own PyBullet simulations) and
-ignore SIGINT; the parent stops them when it is interrupted (SIGINT, or SIGTERM, which it turns
-into the same :class:`KeyboardInterrupt`).
+SIGINT and SIGTERM stop a run the same way (:mod:`suture_lfd.study.signals`): no new job is
+handed out, the records stored stay, the workers are stopped and
+:class:`~suture_lfd.study.signals.Interrupted` is raised.
 """
 
-import contextlib
 import logging
-import multiprocessing
-import os
 import shutil
-import signal
 import sys
 import time
 import traceback
+
+from suture_lfd.study.pool import WorkerPool
+from suture_lfd.study.signals import stop_on_signals
 
 _LOG = logging.getLogger(__name__)
 
@@ -122,10 +122,6 @@ class Progress:
             self.stream.flush()
 
 
-def _ignore_sigint():
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def call_job(job_fn, job):
     """Run one job; an exception becomes a record with ``error`` (the traceback's last line)."""
     t0 = time.perf_counter()
@@ -139,34 +135,11 @@ def call_job(job_fn, job):
     return record
 
 
-class Terminated(KeyboardInterrupt):
-    """A SIGTERM that stops the run, handled as Ctrl-C is (``signum``: the signal)."""
-
-    signum = signal.SIGTERM
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt():
-    """Turn SIGTERM into a KeyboardInterrupt (:class:`Terminated`) while the block runs."""
-    def handler(signum, frame):
-        raise Terminated(f'signal {signum}')
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def pending(jobs, store):
-    """Return the jobs not yet stored (or stored with an error), in order."""
+    """Return the jobs whose result is not stored yet (or stored with an error), in order."""
     out = []
     for job in jobs:
-        record = store.records.get(job['key'])
+        record = store.records.get(job['id'])
         if record is None or record.get('error'):
             out.append(job)
     return out
@@ -200,76 +173,42 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
 
     Raises
     ------
-    KeyboardInterrupt
-        On SIGINT or SIGTERM; every record finished before it is stored.
+    suture_lfd.study.signals.Interrupted
+        On SIGINT or SIGTERM (a :class:`KeyboardInterrupt`); every record finished before it
+        is stored and the workers are stopped.
+    suture_lfd.study.pool.PoolError
+        A worker process died before it took a job.
 
     """
-    ran = 0
     todo = [pending(stage, store) for stage in stages]
     if not any(todo):
         return 0
-    with sigterm_as_interrupt():
+    ran = 0
+
+    def keep(record):
+        nonlocal ran
+        store.add(record)
+        ran += 1
+        if progress is not None:
+            progress.advance(record['key'])
+
+    with stop_on_signals() as stop:
         if workers <= 1:
             if initializer is not None:
                 initializer(*initargs)
             for stage in todo:
                 for job in stage:
-                    record = call_job(job_fn, job)
-                    store.add(record)
-                    ran += 1
-                    if progress is not None:
-                        progress.advance(job['key'])
+                    record = call_job(job_fn, job)  # a signal stops it where it is
+                    with stop.deferred():
+                        keep(record)
+                    stop.check()
             return ran
-        ctx = multiprocessing.get_context('spawn')
-        with _one_blas_thread():
-            pool = ctx.Pool(workers, initializer=_init_worker, initargs=(initializer, initargs))
-        try:
+        with stop.deferred(), WorkerPool(workers, _JobCall(job_fn), initializer,
+                                         initargs) as pool:
             for stage in todo:
-                if not stage:
-                    continue
-                # chunksize 1: a long job never holds finished ones back from the store.
-                for record in pool.imap_unordered(_JobCall(job_fn), stage, chunksize=1):
-                    store.add(record)
-                    ran += 1
-                    if progress is not None:
-                        progress.advance(record['key'])
-            pool.close()
-        except BaseException:
-            pool.terminate()
-            raise
-        finally:
-            pool.join()
+                pool.run(stage, keep, stop)
+        stop.check()
     return ran
-
-
-# Thread counts of the BLAS libraries, read when NumPy loads them in a worker process.
-_BLAS_THREADS = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS')
-
-
-@contextlib.contextmanager
-def _one_blas_thread():
-    """
-    Start worker processes with one BLAS thread each, as Dask starts its workers.
-
-    The workers already keep every core busy; a job's few larger linear-algebra calls (the
-    least-squares fit of a DMP) split over threads cost several times their CPU on a loaded
-    machine, and give the same results. A thread count the user set is kept.
-    """
-    added = [name for name in _BLAS_THREADS if name not in os.environ]
-    for name in added:
-        os.environ[name] = '1'
-    try:
-        yield
-    finally:
-        for name in added:
-            os.environ.pop(name, None)
-
-
-def _init_worker(initializer, initargs):
-    _ignore_sigint()
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if initializer is not None:
-        initializer(*initargs)
 
 
 class _JobCall:

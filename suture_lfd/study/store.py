@@ -1,14 +1,22 @@
 """
-Append-only store of a study's per-job results, so an interrupted study resumes where it stopped.
+Append-only store of a folder's per-job results, so a study never redoes a job it has.
 
-One study run writes its finished jobs (a demonstration or one executed throw) to
-``results-<config hash>.jsonl`` in its output folder, one JSON object per line, each appended and
-flushed as soon as the job is done. A later run with the same configuration (same hash) reads
-the file back and skips every job already in it; a line cut short by a kill (no trailing
-newline, or not valid JSON) is dropped and its job done again. A run with another configuration
-uses another file, so results of different configurations never mix.
+Every run in a folder (a study, its held-out throws, a rerun with the methods reordered or one
+added, a sweep) writes its finished jobs (a demonstration or one executed throw) to
+``results.jsonl`` in the folder, one JSON object per line, each appended and flushed as soon as
+the job is done. A record is found again by its job's ``id``: the digest of everything that
+decides the job's result (:mod:`suture_lfd.study.keys`: method and parameters, subject, pairs,
+seeds, the content of the configuration files, the code), so a later run skips every job whose
+``id`` is stored, whatever other jobs it runs beside it, and a record of other code, files or
+parameters is never taken for one of this run's. A line cut short by a kill (no trailing
+newline, or not valid JSON) is dropped and its job done again.
 
-Every record is a flat ``dict`` with at least ``key`` (the job's unique name) and ``kind``.
+Files of the earlier format (``results-<configuration hash>.jsonl``, one per configuration, whose
+records have no ``id``) are not read (:func:`earlier_format_files` names them for the run's
+message): their jobs run again.
+
+Every record is a flat ``dict`` with at least ``id``, ``key`` (the job's name in its run) and
+``kind``.
 """
 
 import hashlib
@@ -21,7 +29,7 @@ from pathlib import Path
 _LOG = logging.getLogger(__name__)
 
 
-def config_hash(config):
+def config_hash(config, length=12):
     """
     Return a short, stable hash of a JSON-serialisable configuration.
 
@@ -29,15 +37,17 @@ def config_hash(config):
     ----------
     config : dict
         Everything that changes a study's results (seeds, design, methods, file contents).
+    length : int
+        Hex digits kept (12 by default).
 
     Returns
     -------
     str
-        First 12 hex digits of the SHA-256 of the canonical JSON (sorted keys).
+        First ``length`` hex digits of the SHA-256 of the canonical JSON (sorted keys).
 
     """
     text = json.dumps(config, sort_keys=True, separators=(',', ':'), default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:12]
+    return hashlib.sha256(text.encode()).hexdigest()[:length]
 
 
 def _jsonable(value):
@@ -53,32 +63,47 @@ def _jsonable(value):
     return value
 
 
+RESULTS_NAME = 'results'
+
+
+def earlier_format_files(folder):
+    """
+    Return the result files of the earlier format in ``folder`` (not read by this version).
+
+    They are ``results-<configuration hash>.jsonl``: one file per whole study configuration,
+    records without a job ``id``; their jobs run again under this version's keys.
+    """
+    return sorted(p for p in Path(folder).glob('results-*.jsonl') if p.is_file())
+
+
 class ResultStore:
     """
-    The append-only result file of one study configuration.
+    The append-only result file of a folder, records found by their job's ``id``.
 
     Parameters
     ----------
     folder : str or Path
-        Output folder of the study (created if missing).
-    digest : str
-        Configuration hash (:func:`config_hash`); names the file.
+        Output folder of the study or sweep (created if missing).
+    name : str
+        File name without ``.jsonl`` (default ``results``).
 
     Attributes
     ----------
     path : Path
-        ``<folder>/results-<digest>.jsonl``.
+        ``<folder>/<name>.jsonl``.
     records : dict of str to dict
-        Finished jobs by key, in the order they were stored.
+        Finished jobs by ``id``, in the order they were stored (the last record of an ``id``
+        wins: a job stored with an error and run again).
     dropped : int
-        Damaged lines ignored when the file was read (a job killed while being written).
+        Damaged lines ignored when the file was read (a job killed while being written), and
+        lines that are not records of this format.
 
     """
 
-    def __init__(self, folder, digest):
+    def __init__(self, folder, name=RESULTS_NAME):
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
-        self.path = self.folder / f'results-{digest}.jsonl'
+        self.path = self.folder / f'{name}.jsonl'
         self.records = {}
         self.dropped = 0
         self._read()
@@ -91,28 +116,34 @@ class ResultStore:
         tail = lines.pop()  # empty when the file ends with a newline; else cut short by a kill
         if tail.strip():
             self.dropped += 1
+        kept = []
         for line in lines:
             try:
                 record = json.loads(line)
-                if not isinstance(record, dict) or 'key' not in record:
+                if not isinstance(record, dict) or 'id' not in record or 'key' not in record:
                     raise ValueError('not a study record')
             except ValueError:
                 if line.strip():
                     self.dropped += 1
                 continue
-            self.records[record['key']] = record
+            self.records[record['id']] = record
+            kept.append(line)
         if self.dropped or tail:
-            _LOG.warning('%s: ignored %d damaged line(s) (an interrupted write); those jobs '
-                         'run again', self.path, self.dropped)
+            _LOG.warning('%s: ignored %d damaged line(s) (an interrupted write, or not a record '
+                         'with a job id); those jobs run again', self.path, self.dropped)
             # Rewrite the file without the damage so appends start on a fresh line.
             tmp = self.path.with_suffix('.jsonl.tmp')
-            with open(tmp, 'w') as f:
-                for record in self.records.values():
-                    f.write(json.dumps(record, sort_keys=True) + '\n')
+            with open(tmp, 'wb') as f:
+                f.writelines(line + b'\n' for line in kept)
             os.replace(tmp, self.path)
 
-    def __contains__(self, key):
-        return key in self.records
+    def __contains__(self, job_id):
+        return job_id in self.records
+
+    def done(self, job):
+        """Return the record of ``job`` (by its ``id``) if stored without an error, else None."""
+        record = self.records.get(job['id'])
+        return None if record is None or record.get('error') else record
 
     def __len__(self):
         return len(self.records)
@@ -124,18 +155,18 @@ class ResultStore:
         Parameters
         ----------
         record : dict
-            Flat record with ``key`` and ``kind``; NaN becomes ``null``.
+            Flat record with ``id``, ``key`` and ``kind``; NaN becomes ``null``.
 
         """
-        if 'key' not in record or 'kind' not in record:
-            raise ValueError(f'a study record needs key and kind, got {sorted(record)}')
+        if 'id' not in record or 'key' not in record or 'kind' not in record:
+            raise ValueError(f'a study record needs id, key and kind, got {sorted(record)}')
         record = _jsonable(record)
         if self._file is None:
             self._file = open(self.path, 'a')
         self._file.write(json.dumps(record, sort_keys=True) + '\n')
         self._file.flush()
         os.fsync(self._file.fileno())
-        self.records[record['key']] = record
+        self.records[record['id']] = record
 
     def close(self):
         """Close the file (records stay readable in :attr:`records`)."""

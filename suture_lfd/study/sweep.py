@@ -19,8 +19,9 @@ resamples it to its own), so every cell of a seed shares that seed's demonstrati
 2 x 2 sweep over two seeds records two sets of demonstrations, not eight.
 
 All jobs (every seed's demonstrations, then every cell's throws) run as one job set on the
-chosen ``--engine`` (:mod:`suture_lfd.study.engine`), stored in one resumable
-``results-<hash>.jsonl`` in the sweep folder; an interrupted sweep resumes like a study. The
+chosen ``--engine`` (:mod:`suture_lfd.study.engine`), stored in ``results.jsonl`` in the sweep
+folder by job ``id`` (:mod:`suture_lfd.study.keys`): a sweep resumes, and reuses every stored
+job it shares, as a study does; SIGINT and SIGTERM stop it as they stop a study. The
 folder gets ``seed-<s>/`` (bags, segment files), ``cells/<cell>/seed-<s>/`` (a full study
 report per cell and seed) and ``sweep.md`` / ``sweep.csv`` / ``sweep_<parameter>.png``:
 generality, regeneration success and Table II errors against each swept parameter, mean and
@@ -40,7 +41,6 @@ import time
 
 import numpy as np
 from sim_bridge.configfile import ConfigError, load_yaml
-from suture_lfd.study import attach_demos, build_config, hashed_config, plan_jobs
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,
@@ -49,7 +49,18 @@ from suture_lfd.study.engine import (
     run_stages_on,
 )
 from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
+from suture_lfd.study.keys import demo_ids, with_ids
+from suture_lfd.study.pool import PoolError
+from suture_lfd.study.run import (
+    attach_demos,
+    build_config,
+    hashed_config,
+    ordered_records,
+    plan_jobs,
+    stored_note,
+)
 from suture_lfd.study.runner import Progress, pending
+from suture_lfd.study.signals import stop_children, stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash
 
 SWEEP_FORMAT = 1
@@ -206,7 +217,8 @@ def plan_sweep(sweep):
         ``studies`` (seed -> study configuration), ``cells`` (name -> parameters), ``axes``.
     demos, throws : list of dict
         Study jobs with keys, paths and seeds of the sweep: ``seed-<s>/demo/...`` and
-        ``<cell>/seed-<s>/throw/...``; throws carry their cell's ``dmp`` values.
+        ``<cell>/seed-<s>/throw/...``; throws carry their cell's ``dmp`` values; every job
+        its ``id`` (:func:`suture_lfd.study.keys.with_ids`, with its seed's study context).
 
     """
     studies, demos, throws = {}, [], []
@@ -216,18 +228,19 @@ def plan_sweep(sweep):
         studies[str(seed)] = config
         seed_demos, seed_throws = plan_jobs(config)
         prefix = f'seed-{seed}'
-        for job in seed_demos:
-            demos.append({**job, 'key': f'{prefix}/{job["key"]}', 'cohort_seed': int(seed),
-                          'bag': f'{prefix}/{job["bag"]}',
-                          'segments': f'{prefix}/{job["segments"]}'})
+        seed_demos = with_ids([{**job, 'key': f'{prefix}/{job["key"]}', 'cohort_seed': int(seed),
+                                'bag': f'{prefix}/{job["bag"]}',
+                                'segments': f'{prefix}/{job["segments"]}'}
+                               for job in seed_demos], config)
+        demos += seed_demos
         for name, point in cells:
             where = f'cells/{name}/{prefix}'
-            for job in seed_throws:
-                throws.append({
-                    **job, 'key': f'{name}/{prefix}/{job["key"]}', 'cell': name,
-                    'dmp': dmp_overrides(point), 'demo_key': f'{prefix}/{job["demo_key"]}',
-                    'trajectories': (f'{where}/{job["trajectories"]}'
-                                     if job['trajectories'] else None)})
+            throws += with_ids([{
+                **job, 'key': f'{name}/{prefix}/{job["key"]}', 'cell': name,
+                'dmp': dmp_overrides(point), 'demo_key': f'{prefix}/{job["demo_key"]}',
+                'trajectories': (f'{where}/{job["trajectories"]}'
+                                 if job['trajectories'] else None)}
+                for job in seed_throws], config, demo_ids(seed_demos))
     config = {'format': SWEEP_FORMAT, 'studies': studies, 'cells': dict(cells),
               'axes': [[a, list(v)] for a, v in sweep.axes], 'seeds': list(sweep.seeds)}
     return config, demos, throws
@@ -319,7 +332,8 @@ def write_sweep_report(folder, config, rows, run_info):
           f'{len(config["cells"])} cells x {len(config["seeds"])} seeds '
           f'({", ".join(str(s) for s in config["seeds"])}); '
           f'engine: {run_info.get("engine", "?")}, {run_info.get("jobs_run", 0)} jobs run in '
-          f'{run_info.get("wall_s", 0.0):.1f} s.', '',
+          f'{run_info.get("wall_s", 0.0):.1f} s, {run_info.get("resumed", 0)} reused from '
+          'the stored results.', '',
           'Each value is the mean over seeds (± the standard deviation of the per-seed values) '
           'of the cells having that parameter value; every cell has a full study report in '
           '`cells/<cell>/seed-<s>/report.md`.', '']
@@ -393,7 +407,7 @@ def run_sweep(args, stream=None):
     Run (or resume) a sweep and write its reports; return the exit status.
 
     0 done, 1 the engine failed, 2 bad sweep file or options, 130/143 interrupted (SIGINT,
-    SIGTERM).
+    SIGTERM; the stored results kept, no report).
     """
     import os
 
@@ -424,38 +438,43 @@ def run_sweep(args, stream=None):
         return 0
     cohort = next(iter(config['studies'].values()))['cohort_file']
     settings = JobSettings(out=str(out), cohort_path=cohort, cohort_seed=sweep.seeds[0])
-    status, ran = 0, 0
-    with ResultStore(out, digest) as store:
-        done = sum(1 for j in demos + throws
-                   if not store.records.get(j['key'], {'error': 'missing'}).get('error'))
-        progress = Progress(total, done=done, stream=stream)
+    status, interrupted = 0, None
+    with stop_on_signals('sweep') as stop, ResultStore(out) as store:
+        reused = stored_note('sweep', store, demos + throws, stream)
+        progress = Progress(total, done=reused, stream=stream)
         session = None
         try:
             if engine.kind == 'dask' and pending(demos + throws, store):
-                session = open_session(engine, workers)
+                with stop.deferred():  # a cluster is never left half started
+                    session = open_session(engine, workers)
+                stop.check()
             where = session or engine
-            ran += run_stages_on(where, [demos], run_job, store, workers=workers,
-                                 progress=progress, initializer=init_worker,
-                                 initargs=(settings,))
-            ran += run_stages_on(where, [attach_demos(throws, store)], run_job, store,
-                                 workers=workers, progress=progress, initializer=init_worker,
-                                 initargs=(settings,))
-        except (CodeMismatchError, EngineError) as exc:
+            run_stages_on(where, [demos], run_job, store, workers=workers, progress=progress,
+                          initializer=init_worker, initargs=(settings,))
+            run_stages_on(where, [attach_demos(throws, store, demos)], run_job, store,
+                          workers=workers, progress=progress, initializer=init_worker,
+                          initargs=(settings,))
+        except (CodeMismatchError, EngineError, PoolError) as exc:
             progress.finish()
             print(f'suture-lfd sweep: error: {exc}', file=sys.stderr, flush=True)
             status = 1
         except KeyboardInterrupt as exc:
-            progress.finish()
-            print(f'sweep interrupted: {progress.done}/{total} jobs stored; run the same '
-                  'command again to resume', file=stream, flush=True)
-            status = 128 + getattr(exc, 'signum', 2)  # 130, or 143 for SIGTERM
+            interrupted = getattr(exc, 'signum', 2)
         finally:
             if session is not None:
-                session.close()
+                session.close(stop=interrupted is not None)
             close_worker()
-        records = list(store.records.values())
+        if interrupted is not None:
+            progress.finish()
+            stop_children()  # whatever the engine left: no process of the run outlives it
+            print(f'sweep interrupted: {progress.done}/{total} jobs stored in '
+                  f'{store.path.name}; run the same command again to resume', file=stream,
+                  flush=True)
+            return 128 + interrupted  # 130, or 143 for SIGTERM
+        ran = progress.done - progress.resumed
+        records = ordered_records(store, demos + throws)
     wall = time.monotonic() - t0
-    run_info = {'engine': engine.describe(), 'jobs_run': ran, 'wall_s': wall,
+    run_info = {'engine': engine.describe(), 'jobs_run': ran, 'resumed': reused, 'wall_s': wall,
                 'workers': workers}
     from suture_lfd.study import report as report_writer
 

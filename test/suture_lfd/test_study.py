@@ -32,7 +32,7 @@ def study(out, *args, **kwargs):
 
 
 def records(out):
-    (path,) = Path(out).glob('results-*.jsonl')
+    (path,) = Path(out).glob('results.jsonl')
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
@@ -114,7 +114,7 @@ def test_an_interrupted_study_resumes_without_redoing_finished_throws(small_stud
     deadline = time.monotonic() + TIMEOUT
     try:
         while time.monotonic() < deadline:  # interrupt once the demonstration is stored
-            files = list(out.glob('results-*.jsonl'))
+            files = list(out.glob('results.jsonl'))
             if files and files[0].read_text().count('\n') >= 1:
                 break
             assert proc.poll() is None, proc.communicate()[1][-3000:]

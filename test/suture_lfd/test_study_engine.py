@@ -20,7 +20,7 @@ from suture_lfd.study.engine import (
     parse_engine,
     run_stages_on,
 )
-from suture_lfd.study.runner import Progress
+from suture_lfd.study.runner import Progress, run_stages
 from suture_lfd.study.store import ResultStore
 
 TIMEOUT = 900
@@ -54,8 +54,8 @@ def dying_job(job):
 
 
 def jobs(tmp_path, n, **extra):
-    return [{'key': f'k{i}', 'kind': 'test', 'x': i, 'runs': str(tmp_path / 'runs'), **extra}
-            for i in range(n)]
+    return [{'id': f'id-k{i}', 'key': f'k{i}', 'kind': 'test', 'x': i,
+             'runs': str(tmp_path / 'runs'), **extra} for i in range(n)]
 
 
 def runs_of(tmp_path, key):
@@ -95,7 +95,7 @@ def test_quick_study_through_dask_gives_the_local_pool_s_csv_byte_for_byte(tmp_p
     for name in ('throws.csv', 'demos.csv'):
         assert (tmp_path / 'dask' / name).read_bytes() == \
             (tmp_path / 'local' / name).read_bytes(), name
-    (path,) = (tmp_path / 'dask').glob('results-*.jsonl')
+    path = tmp_path / 'dask' / 'results.jsonl'
     records = [json.loads(line) for line in path.read_text().splitlines()]
     assert len({r['code'] for r in records}) == 1  # every record carries the code digest
 
@@ -106,10 +106,21 @@ def test_a_worker_killed_mid_job_is_retried_and_every_job_is_stored(tmp_path):
             DaskSession(EngineSpec('dask'), workers=2) as session:
         ran = session.run_stages([todo], dying_job, store)
         assert ran == 8
-        assert {k: r['value'] for k, r in store.records.items()} == \
+        assert {r['key']: r['value'] for r in store.records.values()} == \
             {f'k{i}': i * i for i in range(8)}
         assert all(not r['error'] for r in store.records.values())
     assert (tmp_path / 'runs' / 'killed-once').exists()  # the worker did die on k3
+
+
+def test_a_pool_worker_killed_mid_job_stores_an_error_and_the_others_run(tmp_path):
+    todo = jobs(tmp_path, 6)
+    with ResultStore(tmp_path, 'pool') as store:
+        assert run_stages([todo], dying_job, store, workers=2) == 6
+        errors = {r['key']: r['error'] for r in store.records.values() if r['error']}
+        assert list(errors) == ['k3'] and 'died' in errors['k3']
+        assert run_stages([todo], dying_job, store, workers=2) == 1  # only k3 again
+        assert not any(r['error'] for r in store.records.values())
+    assert runs_of(tmp_path, 'k0') == 1
 
 
 def test_an_interrupted_dask_run_resumes_without_redoing_jobs(tmp_path):
@@ -119,13 +130,13 @@ def test_an_interrupted_dask_run_resumes_without_redoing_jobs(tmp_path):
         with pytest.raises(KeyboardInterrupt):
             run_stages_on(spec, [todo], square_job, store, workers=2,
                           progress=InterruptAfter(12, 5))
-        stored = set(store.records)
+        stored = {r['key'] for r in store.records.values()}
     assert 5 <= len(stored) < 12
     with ResultStore(tmp_path, 'resume') as store:
         ran = run_stages_on(spec, [todo], square_job, store, workers=2)
         assert ran == 12 - len(stored)
         assert len(store.records) == 12
-    lines = (tmp_path / 'results-resume.jsonl').read_text().splitlines()
+    lines = (tmp_path / 'resume.jsonl').read_text().splitlines()
     keys = [json.loads(line)['key'] for line in lines]
     assert sorted(keys) == sorted(f'k{i}' for i in range(12))  # each stored once
     for key in stored:  # a stored job never ran again

@@ -82,7 +82,7 @@ def test_a_small_study_reports_held_out_generality_beside_the_fixed_pairs(tmp_pa
     assert summary['held_out']['overall'] == pytest.approx(mean)
     assert '| `pair_frame` | held-out, all | ' in section
     assert f'**{mean:.3f}**' in section
-    fixed = [json.loads(line) for p in Path(out).glob('results-*.jsonl')
+    fixed = [json.loads(line) for p in Path(out).glob('results.jsonl')
              for line in p.read_text().splitlines()]
     throws = [r for r in fixed if r['kind'] == 'throw']
     assert len(throws) == 1

@@ -9,7 +9,7 @@ import pytest
 from suture_lfd.study import report
 from suture_lfd.study import tables as study_tables
 from suture_lfd.study.runner import Progress
-from suture_lfd.study.store import ResultStore, config_hash
+from suture_lfd.study.store import ResultStore, config_hash, earlier_format_files
 
 PAIRS = [('synthetic', 'synth1'), ('synthetic', 'synth2'), ('scanned', 'scan1')]
 SUBJECTS = [('S01', 'experienced'), ('S02', 'naive'), ('S03', 'naive')]
@@ -156,23 +156,35 @@ def test_calibration_residuals_are_ours_minus_the_paper():
 
 
 def test_store_keeps_finished_records_and_drops_a_line_cut_by_a_kill(tmp_path):
-    digest = config_hash({'seed': 1})
-    assert digest == config_hash({'seed': 1}) != config_hash({'seed': 2})
-    with ResultStore(tmp_path, digest) as store:
-        store.add({'key': 'a', 'kind': 'throw', 'score': 1.0, 'x': float('nan')})
-        store.add({'key': 'b', 'kind': 'throw', 'score': 0.8})
+    assert config_hash({'seed': 1}) == config_hash({'seed': 1}) != config_hash({'seed': 2})
+    with ResultStore(tmp_path) as store:
+        store.add({'id': 'i-a', 'key': 'a', 'kind': 'throw', 'score': 1.0, 'x': float('nan')})
+        store.add({'id': 'i-b', 'key': 'b', 'kind': 'throw', 'score': 0.8})
+    assert store.path.name == 'results.jsonl'
     with open(store.path, 'a') as f:
-        f.write('{"key": "c", "kind": "thr')  # killed mid-write
-    again = ResultStore(tmp_path, digest)
-    assert list(again.records) == ['a', 'b'] and again.dropped == 1
-    assert again.records['a']['x'] is None
-    again.add({'key': 'c', 'kind': 'throw', 'score': 0.0})
+        f.write('{"id": "i-c", "key": "c", "kind": "thr')  # killed mid-write
+    again = ResultStore(tmp_path)
+    assert list(again.records) == ['i-a', 'i-b'] and again.dropped == 1
+    assert again.records['i-a']['x'] is None
+    again.add({'id': 'i-c', 'key': 'c', 'kind': 'throw', 'score': 0.0})
     again.close()
-    third = ResultStore(tmp_path, digest)
-    assert list(third.records) == ['a', 'b', 'c'] and third.dropped == 0
-    assert ResultStore(tmp_path, config_hash({'seed': 2})).records == {}
-    with pytest.raises(ValueError, match='key and kind'):
-        third.add({'score': 1.0})
+    third = ResultStore(tmp_path)
+    assert list(third.records) == ['i-a', 'i-b', 'i-c'] and third.dropped == 0
+    assert third.done({'id': 'i-b'})['score'] == 0.8 and third.done({'id': 'i-d'}) is None
+    assert ResultStore(tmp_path, 'other').records == {}
+    with pytest.raises(ValueError, match='id, key and kind'):
+        third.add({'key': 'd', 'kind': 'throw', 'score': 1.0})
+
+
+def test_a_result_file_of_the_earlier_format_is_named_and_not_read(tmp_path):
+    earlier = tmp_path / 'results-0123456789ab.jsonl'
+    earlier.write_text(json.dumps({'key': 'a', 'kind': 'throw', 'score': 1.0}) + '\n')
+    assert earlier_format_files(tmp_path) == [earlier]
+    assert ResultStore(tmp_path).records == {}
+    (tmp_path / 'results.jsonl').write_text(
+        json.dumps({'key': 'a', 'kind': 'throw', 'score': 1.0}) + '\n')  # no job id
+    store = ResultStore(tmp_path)
+    assert store.records == {} and store.dropped == 1
 
 
 def test_progress_reports_rate_and_time_left():

@@ -36,7 +36,7 @@ def study(out, *args):
 
 
 def records(out):
-    (path,) = Path(out).glob('results-*.jsonl')
+    (path,) = Path(out).glob('results.jsonl')
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 

@@ -60,7 +60,7 @@ def test_a_small_sweep_writes_its_report_with_plots_and_a_study_per_cell(sweep):
 
 def test_cells_of_a_seed_share_its_demonstrations(sweep):
     out, _ = sweep
-    (path,) = Path(out).glob('results-*.jsonl')
+    (path,) = Path(out).glob('results.jsonl')
     records = [json.loads(line) for line in path.read_text().splitlines()]
     demos = [r['key'] for r in records if r['kind'] == 'demo']
     assert len(demos) == len(set(demos)) == 2 * 4  # per seed, not per cell
