@@ -10,15 +10,16 @@ States (``dvrk_teleoperation.py``, names as the issue of this package gives them
   seen through the camera, and following waits until they agree within
   ``orientation_tolerance``; the operator must be present (coag pedal) and active (the gripper
   opened or closed by ``start_gripper_threshold``, or the wrist rolled by
-  ``start_roll_threshold``, since the operator came), then the map is anchored;
+  ``start_roll_threshold``, in this state, before or after the pedal: either order), then the
+  map is anchored;
 - ``FOLLOWING``: every cycle the PSM gets ``servo_cp`` (the anchored map of the MTM pose) and
   ``jaw/servo_jp`` (the rate-limited gripper);
 - ``CLUTCHED``: the clutch pedal is down: the PSM holds (``hold``), the MTM's orientation is
   locked (``lock_orientation``) when it is aligned, the hand recentres; releasing the clutch goes
   back through ``ALIGNING`` and anchors again, so the tool does not jump.
 
-When the operator leaves (coag released), the PSM holds and the machine goes back to
-``ALIGNING``; when an arm stops being ready, back to ``SETTING_ARMS``.
+When the operator leaves (coag released), the PSM holds, the gesture is forgotten and the
+machine goes back to ``ALIGNING``; when an arm stops being ready, back to ``SETTING_ARMS``.
 
 :meth:`Teleoperation.step` takes one cycle's :class:`TeleopInputs` and returns the commands
 (:class:`Command`) for the ROS layer to send, in order.
@@ -334,8 +335,8 @@ class Teleoperation:
         dt = 0.0 if self._t is None else max(0.0, inp.t - self._t)
         self._t = inp.t
         present = inp.operator_present
-        if present and not self._present:
-            self.operator_active = False    # a new presence: wait for the gripper gesture
+        if self._present and not present:
+            self.operator_active = False    # the operator left: wait for a new gesture
             self._range = None
         self._present = present
         if self.state == DISABLED:
@@ -388,8 +389,8 @@ class Teleoperation:
             out.append(Command('move_cp', 'mtm', T))
             self._range = None          # the move turns the wrist: not the operator's gesture
             return out
-        if present and not mtm_busy:
-            self._track_activity(inp)
+        if not mtm_busy:
+            self._track_activity(inp)       # a pinch counts before the coag pedal as after
         if present and self.operator_active and error <= cfg.orientation_tolerance \
                 and not mtm_busy:
             if inp.clutch:
