@@ -4,7 +4,8 @@ Virtual MTMs node: ``MTML`` and ``MTMR`` and the console's foot pedals, driven b
 The dVRK MTM interface of each, driven by an input device (``device``: ``browser``,
 ``gamepad`` or ``spacemouse``).
 
-Per MTM (namespace = its name), what a dVRK teleoperation client uses:
+Per MTM (namespace = its name), what a dVRK teleoperation client uses, from the start (a
+browser's MTM stands at a rest pose until the page's handle gives it one):
 
 - published: ``operating_state`` (crtk_msgs/OperatingState, latched event, again after every
   ``state_command``), ``measured_cp``, ``setpoint_cp`` (geometry_msgs/PoseStamped, in the
@@ -22,7 +23,8 @@ and the console's ``/console/clutch``, ``/console/operator_present``, ``/console
 (sensor_msgs/Joy ``buttons=[1|0]``, latched events on every change), so run the simulator with
 ``footpedals:=false``; ``pedals: emulate`` presses the simulator's pedals through
 ``/footpedals/<name>/emulate`` instead. The browser back-end reads the viewer's
-``viewer/input/<MTM>/pose``, ``viewer/input/<MTM>/gripper`` and ``viewer/input/pedals``.
+``viewer/input/<MTM>/pose``, ``viewer/input/<MTM>/gripper`` and ``viewer/input/pedals``
+(``[clutch, coag, camera]``: the page's clutch, coag and record controls).
 Parameters: ``config/mtms.yaml``.
 """
 
@@ -130,7 +132,6 @@ class MtmsNode(Node):
         self._t = t
         self.mtms = {}
         self._pubs = {}
-        self._has_pose = {}
         self._last_cp = {}
         self._busy = {}
         for name in cfg.mtms:
@@ -138,7 +139,6 @@ class MtmsNode(Node):
             T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
             mtm = self.mtms[name] = VirtualMtm(name, T0, cfg.move_duration)
             mtm.set_gripper(cfg.gripper_start)
-            self._has_pose[name] = cfg.device != 'browser'
             self._busy[name] = False
             pub = self.create_publisher
             self._pubs[name] = {
@@ -219,7 +219,7 @@ class MtmsNode(Node):
             self._reject(name, str(exc))
             return
         mtm = self.mtms[name]
-        if mtm.state != 'ENABLED' or not self._has_pose[name]:
+        if mtm.state != 'ENABLED':
             self._reject(name, f'{name}: move_cp, arm not ready')
             self._pubs[name]['goal_reached'].publish(Bool(data=False))
             return
@@ -274,17 +274,11 @@ class MtmsNode(Node):
             arm = reading.arms.get(name)
             if arm is not None:
                 if arm.pose is not None:
-                    if not self._has_pose[name]:
-                        mtm.device = np.array(arm.pose, dtype=float)
-                        mtm.measured_cp(t)
-                    self._has_pose[name] = True
                     mtm.set_device_pose(arm.pose)
                 elif arm.twist is not None:
                     mtm.apply_twist(arm.twist[0], arm.twist[1], dt)
                 if arm.gripper is not None:
                     mtm.set_gripper(arm.gripper)
-            if not self._has_pose[name]:
-                continue
             T = mtm.measured_cp(t)
             pubs = self._pubs[name]
             pubs['measured_cp'].publish(cv.pose_stamped(T, self.frame_id, stamp))
