@@ -155,7 +155,6 @@ class MtmControls:
         """Build the handles, sliders, buttons and key bindings on ``page``."""
         server = page.server
         with server.gui.add_folder('Console'):
-            self._status = server.gui.add_markdown(self._status_text())
             clutch = server.gui.add_button(CLUTCH_LABEL, color='gray',
                                            hint='pressed while held (mouse or key C)')
             clutch.on_hold(self._on_clutch_held, callback_hz=HOLD_HZ)
@@ -187,6 +186,8 @@ class MtmControls:
                 slider.on_update(self._gripper_callback(mtm, slider))
                 self.sliders[mtm] = slider
             server.gui.add_html(key_script_html())
+            # last: its lines change, the controls above it stay where the mouse found them
+            self._status = server.gui.add_markdown(self._status_text())
         for mtm in self.mtms:
             handle = server.scene.add_transform_controls(
                 f'/mtm/{mtm}', scale=HANDLE_PX, fixed=True, line_width=3.0, depth_test=False,

@@ -114,7 +114,8 @@ class ViewerPage:
         self._events = []
         self._events_lock = threading.Lock()
         self._events_dirty = False
-        with self.server.gui.add_folder('Scene events'):
+        # below the panels: a growing list must not move the controls under the mouse
+        with self.server.gui.add_folder('Scene events', order=1e6):
             self._events_md = self.server.gui.add_markdown('_no event yet_')
         self.status = self.server.gui.add_markdown('')
         self.panels = []
