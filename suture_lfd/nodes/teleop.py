@@ -63,16 +63,16 @@ class TeleopNode(Node):
         self._warned = set()
         m, p = cfg.mtm, cfg.psm
         sub = self.create_subscription
-        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, qos.STREAM)
-        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, qos.STREAM)
+        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, qos.LATEST)
+        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, qos.LATEST)
         sub(OperatingState, f'{m}/operating_state',
             lambda msg: setattr(self, '_mtm_state', self._arm_state(msg)), qos.EVENTS)
-        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, qos.STREAM)
-        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, qos.STREAM)
+        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, qos.LATEST)
+        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, qos.LATEST)
         sub(OperatingState, f'{p}/operating_state',
             lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), qos.EVENTS)
         if cfg.ecm:
-            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.STREAM)
+            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.LATEST)
         sub(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
         sub(Joy, cfg.clutch_topic, self._on_clutch, qos.EVENTS)
         if cfg.operator_present_topic:
