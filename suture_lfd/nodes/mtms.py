@@ -26,6 +26,11 @@ and the console's ``/console/clutch``, ``/console/operator_present``, ``/console
 ``viewer/input/<MTM>/pose``, ``viewer/input/<MTM>/gripper`` and ``viewer/input/pedals``
 (``[clutch, coag, camera]``: the page's clutch, coag and record controls).
 Parameters: ``config/mtms.yaml``.
+
+Nobody moving costs little: the cycle (device polling and the state topics) runs at ``rate``
+while something changes (a device input, a pose, a gripper, a pedal, a ``move_cp``) and for
+``idle_after`` s after, at ``idle_rate`` otherwise; an input from the browser brings the full
+rate back at once.
 """
 
 from dataclasses import dataclass
@@ -61,6 +66,10 @@ class MtmsConfig:
         The MTMs served.
     rate : float
         Hz of the state topics and of the device polling.
+    idle_rate : float
+        Hz of both while nothing changes.
+    idle_after : float
+        s without a change before the cycle slows to ``idle_rate``.
     pedals : str
         ``own`` (publish ``/footpedals/*``) or ``emulate`` (press the simulator's).
     move_duration : float
@@ -85,6 +94,8 @@ class MtmsConfig:
     device: str = 'browser'
     mtms: tuple[str, ...] = ('MTMR', 'MTML')
     rate: float = 200.0
+    idle_rate: float = 10.0
+    idle_after: float = 0.5
     pedals: str = 'own'
     move_duration: float = 0.5
     gripper_start: float = 0.5
@@ -104,7 +115,8 @@ class MtmsConfig:
             raise ValueError(f'parameter pedals must be own or emulate, got {self.pedals!r}')
         if not self.mtms:
             raise ValueError('parameter mtms must name at least one MTM')
-        for name in ('rate', 'linear_speed', 'angular_speed', 'gripper_speed'):
+        for name in ('rate', 'idle_rate', 'idle_after', 'linear_speed', 'angular_speed',
+                     'gripper_speed'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.move_duration < 0:
@@ -133,7 +145,10 @@ class MtmsNode(Node):
         self.mtms = {}
         self._pubs = {}
         self._last_cp = {}
+        self._last_gripper = {}
         self._busy = {}
+        self._active_until = -1.0      # s: the cycle runs at the full rate until then
+        self._period_ns = None
         for name in cfg.mtms:
             T0 = np.eye(4)
             T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
@@ -170,7 +185,7 @@ class MtmsNode(Node):
                 sub(PoseStamped, f'{prefix}/{name}/pose',
                     lambda m, n=name: self._on_handle(n, m), qos.SENSOR)
                 sub(Float64, f'{prefix}/{name}/gripper',
-                    lambda m, n=name: self.device.set_gripper(n, m.data), qos.SENSOR)
+                    lambda m, n=name: self._on_gripper(n, m), qos.SENSOR)
             self._publish_state(name)
         if cfg.device == 'browser':
             self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals,
@@ -185,7 +200,8 @@ class MtmsNode(Node):
             else:
                 self._pedal_pubs[pedal] = [
                     self.create_publisher(Joy, f'/footpedals/{pedal}/emulate', qos.STREAM)]
-        self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self._timer = self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self._wake()
         self.get_logger().info(f'virtual {", ".join(cfg.mtms)} on the {cfg.device} '
                                f'(frame {self.frame_id}), pedals {cfg.pedals}')
 
@@ -225,6 +241,7 @@ class MtmsNode(Node):
             return
         mtm.move_cp(T, self._now())
         self._publish_state(name)
+        self._wake()
 
     def _on_lock(self, name, msg):
         q = np.array([msg.x, msg.y, msg.z, msg.w])
@@ -244,12 +261,32 @@ class MtmsNode(Node):
             self.get_logger().warning(str(exc))
             return
         self.device.set_pose(name, T)
+        self._wake()
+
+    def _on_gripper(self, name, msg):
+        self.device.set_gripper(name, msg.data)
+        self._wake()
 
     def _on_pedals(self, msg):
         try:
             self.device.set_pedals(list(msg.buttons))
         except ValueError as exc:
             self.get_logger().warning(str(exc))
+        self._wake()
+
+    # --- the pace of the cycle --------------------------------------------------------------
+
+    def _wake(self):
+        """Something changed: the cycle runs at the full rate for ``idle_after`` s."""
+        self._active_until = self._now() + self.config.idle_after
+        self._pace(True)
+
+    def _pace(self, active):
+        period_ns = int(1e9 / (self.config.rate if active else self.config.idle_rate))
+        if period_ns != self._period_ns:
+            self._period_ns = period_ns
+            self._timer.timer_period_ns = period_ns
+            self._timer.reset()       # the next cycle one new period from now
 
     def _press(self, pedal, pressed):
         msg = Joy()
@@ -266,10 +303,12 @@ class MtmsNode(Node):
         self._t = t
         reading = self.device.poll(t)
         stamp = self.get_clock().now().to_msg()
+        changed = False
         for pedal, pressed in reading.pedals.items():
             if pedal in self._pedal_state and pressed != self._pedal_state[pedal]:
                 self._pedal_state[pedal] = pressed
                 self._press(pedal, pressed)
+                changed = True
         for name, mtm in self.mtms.items():
             arm = reading.arms.get(name)
             if arm is not None:
@@ -290,16 +329,23 @@ class MtmsNode(Node):
                 dR = T[:3, :3] @ last[:3, :3].T
                 w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0],
                               dR[1, 0] - dR[0, 1]]) * 0.5 / dt
+            changed = changed or last is None or not np.array_equal(T, last) \
+                or mtm.gripper != self._last_gripper.get(name)
             self._last_cp[name] = T
+            self._last_gripper[name] = mtm.gripper
             pubs['measured_cv'].publish(cv.twist_stamped(np.concatenate([v, w]), self.frame_id,
                                                          stamp))
             pubs['gripper'].publish(cv.joint_state(['gripper'], stamp,
                                                    position=[mtm.gripper]))
             busy = mtm.is_busy(t)
+            changed = changed or busy
             if busy != self._busy[name]:
                 self._publish_state(name)
                 if not busy:
                     pubs['goal_reached'].publish(Bool(data=True))
+        if changed:
+            self._active_until = t + self.config.idle_after
+        self._pace(t < self._active_until)
 
     def destroy_node(self):
         self.device.close()

@@ -54,6 +54,9 @@ class TeleopConfig:
         the operator is always present.
     rate : float
         Cycles per second (the dVRK's teleop: 200, ``--interval 0.005``).
+    idle_rate : float
+        Cycles per second while nobody teleoperates: the operator is not present and the
+        teleoperation neither follows nor is clutched (the node's cycles cost CPU for nothing).
     scale : float
         PSM translation per MTM translation.
     align_mtm : bool
@@ -87,6 +90,7 @@ class TeleopConfig:
     clutch_topic: str = '/footpedals/clutch'
     operator_present_topic: str = '/footpedals/coag'
     rate: float = 200.0
+    idle_rate: float = 10.0
     scale: float = 0.2
     align_mtm: bool = True
     rotation_locked: bool = False
@@ -109,7 +113,7 @@ class TeleopConfig:
     align_period: float = 10.0
 
     def __post_init__(self):
-        for name in ('rate', 'scale', 'command_retry', 'align_period'):
+        for name in ('rate', 'idle_rate', 'scale', 'command_retry', 'align_period'):
             check_positive(getattr(self, name), f'parameter {name}')
         for name in ('orientation_tolerance', 'start_gripper_threshold', 'start_roll_threshold'):
             if getattr(self, name) < 0:
