@@ -70,6 +70,7 @@ from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
+from sim_bridge.scene.world import FRAMES
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from sim_bridge.validation import check_positive
 from std_msgs.msg import String
@@ -134,6 +135,11 @@ class SimulatorConfig:
         cannula, insertion 0).
     footpedals : bool
         Run the console foot pedals (``/footpedals/*``) in this process.
+    frames : str
+        Frames of the arms' Cartesian poses: ``cart`` (a patient cart: PSM poses in the ECM
+        camera frame ``ECM``, the ECM in ``world``, the set-up joints' ``SUJ/*`` topics),
+        ``base`` (each arm in its RCM frame ``<ARM>_base``), ``''``: ``world.frames`` of
+        ``config/world.yaml``.
 
     """
 
@@ -157,6 +163,7 @@ class SimulatorConfig:
     start_at_home: bool = False
     psm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     ecm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    frames: str = ''
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -178,6 +185,9 @@ class SimulatorConfig:
             if len(value) != n or not all(math.isfinite(float(v)) for v in value):
                 raise ValueError(f'parameter {name} must be {n} finite joint values (rad / m), '
                                  f'got {list(value)}')
+        if self.frames not in ('', *FRAMES):
+            raise ValueError(f"parameter frames must be 'cart', 'base' or '' (world.yaml's), "
+                             f'got {self.frames!r}')
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
                              f'got {self.tracking!r}')
@@ -244,6 +254,8 @@ class Simulator(_QuietEndpoints, Node):
         rest = {} if cfg.start_at_home else {
             'psm_rest_jp': tuple(float(v) for v in cfg.psm_rest_jp),
             'ecm_rest_jp': tuple(float(v) for v in cfg.ecm_rest_jp)}
+        if cfg.frames:
+            sim_config = replace(sim_config, world=replace(sim_config.world, frames=cfg.frames))
         sim_config = replace(
             sim_config,
             arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present,
@@ -291,9 +303,11 @@ class Simulator(_QuietEndpoints, Node):
         # at real time on the wall clock, clients without use_sim_time compare operating_state
         # stamps with their system clock: those stamps never fall behind it
         wall = time.time_ns if cfg.clock_start < 0 and self._rtf == 1.0 else None
+        cart = sim_config.world.frames == 'cart'
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
-                                   lock=self.locked, stamp_floor_ns=wall)
+                                   lock=self.locked, stamp_floor_ns=wall,
+                                   T_world_base=self.sim.T_world_base(name), suj=cart)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
