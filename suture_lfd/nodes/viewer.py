@@ -48,7 +48,9 @@ node publishes what the person does and nothing else about teleoperation:
 All three are RELIABLE, VOLATILE, depth 10, stamped with the node's clock. It reads
 ``/<teleop>/current_state`` (std_msgs/String) of each teleop node and ``recorder/status`` (the
 recorder's JSON) to show on the page each arm's state, what to do next and the bag being
-recorded. Parameters: ``config/viewer.yaml``.
+recorded. When a recording starts it selects the simulator's current pair (the last
+``target_pair`` event) again on ``sim/target_pair``, as the demonstrator does: the throw is
+scored afresh and the bag says which pair it sutures. Parameters: ``config/viewer.yaml``.
 """
 
 from dataclasses import dataclass
@@ -179,6 +181,10 @@ class Viewer(Node):
             if self.config.recorder:
                 self.create_subscription(String, f'/{self.config.recorder}/status',
                                          self._on_recorder_status, qos.LATCHED)
+                self._target_pair = self.create_publisher(String, 'sim/target_pair',
+                                                          qos.COMMANDS)
+        self._pair = ''
+        self._recording = False
         self._tf_count = 0
         self.create_subscription(TFMessage, '/tf', self._on_tf, qos.STREAM)
         self.create_subscription(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
@@ -227,6 +233,8 @@ class Viewer(Node):
         except ValueError as exc:
             self.get_logger().warning(f'sim/events: {exc}')
             return
+        if event.get('kind') == 'target_pair' and 'error' not in event:
+            self._pair = str(event.get('pair', ''))
         self.page.add_event(float(event.get('t', 0.0)), event)
 
     def _on_image(self, msg):
@@ -269,7 +277,11 @@ class Viewer(Node):
         except ValueError:
             return
         bag = status.get('bag')
-        if status.get('recording'):
+        recording = bool(status.get('recording'))
+        if recording and not self._recording and self._pair:
+            self._target_pair.publish(String(data=self._pair))
+        self._recording = recording
+        if recording:
             text = f'**recording** to `{bag}` — Record (R) stops it'
         elif bag:
             text = f'bag written: `{bag}` — Record (R) starts another'
