@@ -157,8 +157,8 @@ class MtmControls:
         with server.gui.add_folder('Console'):
             clutch = server.gui.add_button(CLUTCH_LABEL, color='gray',
                                            hint='pressed while held (mouse or key C)')
-            clutch.on_hold(self._on_clutch_held, callback_hz=HOLD_HZ)
-            clutch.on_click(self._on_clutch_released)
+            clutch.on_hold(self.clutch_held, callback_hz=HOLD_HZ)
+            clutch.on_click(self.clutch_released)
             self.buttons['clutch'] = clutch
             coag = server.gui.add_button(f'Coag ({HOTKEYS["coag"]})', color='gray',
                                          hint='operator present: press once, again to leave')
@@ -264,7 +264,7 @@ class MtmControls:
         with self._lock:
             lost = self.pedals['clutch'] and self._clock() - self._last_hold > HOLD_TIMEOUT
         if lost:
-            self._on_clutch_released(None)
+            self.clutch_released(None)
 
     # --- page callbacks ------------------------------------------------------------------------
 
@@ -330,7 +330,8 @@ class MtmControls:
     def _send_pedals(self, camera=0):
         self._on_pedals(self.pedals['clutch'], self.pedals['coag'], camera)
 
-    def _on_clutch_held(self, _event):
+    def clutch_held(self, _event=None):
+        """Press the clutch: the page says it is held (at press, then at :data:`HOLD_HZ`)."""
         with self._lock:
             self._last_hold = self._clock()
             if self.pedals['clutch']:
@@ -339,7 +340,8 @@ class MtmControls:
             self._send_pedals()
         self.buttons['clutch'].color = 'red'
 
-    def _on_clutch_released(self, _event):
+    def clutch_released(self, _event=None):
+        """Release the clutch: the page says it was let go (the click at pointer up)."""
         with self._lock:
             if not self.pedals['clutch']:
                 return
