@@ -73,7 +73,7 @@ class Probe:
         node.create_subscription(TFMessage, '/tf_static', self._on_static, LATCHED)
         node.create_subscription(OperatingState, 'PSM1/operating_state',
                                  lambda m: setattr(self, 'state', m), STREAM)
-        node.create_subscription(PoseStamped, 'PSM1/measured_cp',
+        node.create_subscription(PoseStamped, 'PSM1/local/measured_cp',
                                  lambda m: setattr(self, 'measured', m), STREAM)
         node.create_subscription(Joy, 'viewer/input/pedals', self._on_pedals, STREAM)
         self.command = node.create_publisher(StringStamped, 'PSM1/state_command', STREAM)
