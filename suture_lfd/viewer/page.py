@@ -35,6 +35,7 @@ CAMERA_FOV = np.radians(45.0)
 VIEWS = ('endoscope', 'free')
 LOOK_DISTANCE = 0.08  # m, the orbit centre ahead of the endoscope (its working distance)
 REASSERT_PERIOD = 0.5  # s between two checks that a page still looks through the endoscope
+CLIP_AHEAD = 0.003  # m ahead of the endoscope where the lines are cut in its view
 
 
 def page_url(host, port):
@@ -151,6 +152,8 @@ class ViewerPage:
         self.view = view
         self._view_button.label = self._view_label()
         if view == 'free':
+            self.scene.set_clip_plane(None)
+            self.scene.show_ecm(True)
             self.set_camera()
         elif self._endoscope is not None:
             self.set_camera(*self._endoscope)
@@ -170,6 +173,8 @@ class ViewerPage:
         self._endoscope = pose
         if self.view != 'endoscope':
             return
+        self.scene.set_clip_plane(position + CLIP_AHEAD * T[:3, 2], T[:3, 2])
+        self.scene.show_ecm(False)      # the camera does not see itself
         now = time.monotonic()
         if moved:
             self.set_camera(*pose)

@@ -7,12 +7,16 @@ it; coag and a pinch, in either order, start following; a drag of the MTMR handl
 moves its tool (PSM2, the right arm) to the right in the endoscope image; key C held for 2 s
 with key repeat keeps the clutch pressed for those 2 s and releases it at key up, without a jump
 of the tool; the record control starts and stops a bag that the segmenter's reader reads.
+The page's first picture is the one the README shows: run with ``SUTURE_LFD_UPDATE_DOC=1`` to
+write it to ``doc/console.png``.
 """
 
 import json
 import math
+import os
 from pathlib import Path
 import re
+import shutil
 import threading
 import time
 
@@ -238,6 +242,8 @@ def test_a_person_demonstrates_from_the_page(ros, launch, tmp_path):
             return all(seen.values()) and seen
         assert ros.wait_for(scene_seen, 300, 1.0), \
             f'tools or needle not where the endoscope sees them ({tmp_path / "endoscope.png"})'
+        if os.environ.get('SUTURE_LFD_UPDATE_DOC') == '1':
+            shutil.copyfile(tmp_path / 'endoscope.png', REPO / 'doc' / 'console.png')
         uv1, uv2 = pixels(np.array([shaft_points['PSM1'], shaft_points['PSM2']]), camera, rect)
         assert uv1[0] < rect[0] + 0.5 * rect[2] < uv2[0], \
             'the left arm (PSM1) is not left in the image, or the right arm (PSM2) not right'
