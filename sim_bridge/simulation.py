@@ -467,9 +467,14 @@ class Simulation:
         if local is self._camera_local:
             return
         self._camera_local = local
-        T_camera_world = invert_transform(self._tool_pose('ECM'))
+        T = self._tool_pose('ECM')
+        T_camera_world = np.eye(4)
+        R_t = T[:3, :3].T
+        T_camera_world[:3, :3] = R_t
+        T_camera_world[:3, 3] = -(R_t @ T[:3, 3])
         for name in PSMS:
-            self.arms[name].set_base_frame(T_camera_world @ self._T_world_base[name], 'ECM')
+            self.arms[name].set_base_frame(T_camera_world @ self._T_world_base[name], 'ECM',
+                                           checked=True)
 
     def _emit(self, kind, **data):
         self._events.append(SimEvent(self.time, kind, data))

@@ -544,7 +544,10 @@ class CrtkArm:
 
     def _srv_ik(self, request, response):
         """
-        Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint).
+        Solve the IK of a tool-tip pose in the ``measured_cp`` frame near ``jp`` (or the setpoint).
+
+        As ``forward_kinematics`` answers in that frame (``local/forward_kinematics`` in
+        ``<ARM>_base``), the pose is read in it: the camera frame of a patient cart's PSMs.
 
         The ECM answers as it moves: the position, rolled about the shaft towards the
         orientation (:meth:`EcmKinematics.ik_position`); a position outside the workspace is
@@ -553,7 +556,8 @@ class CrtkArm:
         arm = self._get_arm()
         k = arm.kinematics
         try:
-            T = cv.matrix_from_pose(request.cp, what='inverse_kinematics cp')
+            T = np.linalg.solve(arm.base_frame_view,
+                                cv.matrix_from_pose(request.cp, what='inverse_kinematics cp'))
             q_ref = np.asarray(request.jp, dtype=float) if len(request.jp) else arm.setpoint_jp
             q_ref = k.check_q(q_ref, name='inverse_kinematics jp')
             if arm.has_jaw:

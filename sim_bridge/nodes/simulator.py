@@ -51,6 +51,7 @@ scene topics are in modules of their own.
 """
 
 from dataclasses import dataclass, replace
+import gc
 import json
 import math
 import sys
@@ -509,6 +510,11 @@ class Simulator(_QuietEndpoints, Node):
         self._publish_event('target_pair', sim.time, pair=self._pair)
         self.scene.publish_latched(self.stamp())
         self._clock_pub.publish(cv.clock_message(self.stamp()))
+        # the old scene is garbage, the new one lives on: collect once, keep the collector off
+        # the new scene (as after start-up, sim_bridge.ros.entry)
+        gc.unfreeze()
+        gc.collect()
+        gc.freeze()
         response.success = True
         response.message = f'scene reset ({self._resets}), target pair {self._pair}'
         return response

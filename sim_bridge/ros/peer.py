@@ -32,8 +32,9 @@ def process_start_ns(pid=None):
     """
     Return when process ``pid`` (default: this one) started, on the system clock (int ns).
 
-    From its start time in ``/proc`` (clock ticks since boot, 10 ms resolution) and the time
-    since boot now; without ``/proc`` (another system), the time of this call.
+    From its start time in ``/proc`` (clock ticks since boot) and the time since boot now, both
+    10 ms steps, so the result is rounded down by two ticks: never after the true start; without
+    ``/proc`` (another system), the time of this call.
     """
     pid = os.getpid() if pid is None else int(pid)
     info = _start_ticks(pid)
@@ -45,7 +46,8 @@ def process_start_ns(pid=None):
         return now
     if info is None:
         return now
-    age = uptime - info[0] / os.sysconf('SC_CLK_TCK')
+    tick = 1.0 / os.sysconf('SC_CLK_TCK')
+    age = uptime - info[0] * tick + 2 * tick
     return now - int(max(age, 0.0) * 1e9)
 
 

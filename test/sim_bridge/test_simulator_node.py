@@ -80,7 +80,9 @@ def expected_contract(ns=''):
         for topic, (msgtype, durability) in pubs.items():
             table[('pub', f'{ns}/{arm}/{topic}')] = (msgtype, 'RELIABLE', durability.name)
         for topic, msgtype in subs.items():
-            table[('sub', f'{ns}/{arm}/{topic}')] = (msgtype, 'RELIABLE', 'VOLATILE')
+            # state_command: a volatile and a transient-local reader (sim_bridge.ros.intake)
+            durability = 'TRANSIENT_LOCAL+VOLATILE' if topic == 'state_command' else 'VOLATILE'
+            table[('sub', f'{ns}/{arm}/{topic}')] = (msgtype, 'RELIABLE', durability)
     return table
 
 
@@ -90,10 +92,13 @@ def observed_contract(node, table):
     for kind, topic in table:
         infos = (node.get_publishers_info_by_topic(topic) if kind == 'pub'
                  else node.get_subscriptions_info_by_topic(topic))
+        durabilities = set()
         for info in infos:
             if info.node_name == 'simulator':
                 q = info.qos_profile
-                seen[(kind, topic)] = (info.topic_type, q.reliability.name, q.durability.name)
+                durabilities.add(q.durability.name)
+                seen[(kind, topic)] = (info.topic_type, q.reliability.name,
+                                       '+'.join(sorted(durabilities)))
     return seen
 
 
@@ -190,7 +195,7 @@ def test_graph_matches_the_dvrk_contract_headless_from_any_directory(ros, launch
     sim = launch('simulator', cwd=tmp_path)  # no arguments, not the source folder
     node = ros.node('graph_probe')
     table = expected_contract()
-    assert ros.wait_for(lambda: len(observed_contract(node, table)) == len(table), 40.0), \
+    assert ros.wait_for(lambda: observed_contract(node, table) == table, 40.0), \
         sim.log()
     wanted = {f'/{arm}/{name}' for arm in ARMS for name in SERVICES}
     assert ros.wait_for(lambda: wanted <= set(dict(node.get_service_names_and_types())), 20.0)

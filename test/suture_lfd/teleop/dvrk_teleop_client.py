@@ -17,6 +17,7 @@ getter's data-age error: the script stops there, this client skips the cycle), `
 it runs until SIGINT.
 """
 
+import gc
 import math
 import sys
 import threading
@@ -162,9 +163,20 @@ class TeleopScript:
                 next_at = time.monotonic()
 
     def step(self):
-        # run_all_states: every getter, every cycle
+        # run_all_states: every getter, every cycle (all of them asked, so that the errors name
+        # every stale topic; the first one stops the cycle as it stops the script)
+        stale = []
+        for arm, topic in ((self.mtm, 'measured_cp'), (self.mtm, 'setpoint_cp'),
+                           (self.psm, 'setpoint_cp')):
+            try:
+                arm.cp[topic].get()
+            except DataAgeError as exc:
+                stale.append(exc)
+        for exc in stale[1:]:
+            say('ERROR', exc)
+        if stale:
+            raise stale[0]
         self.mtm_cp = self.mtm.pose('measured_cp')
-        self.mtm.pose('setpoint_cp')
         self.psm_cp = self.psm.pose('setpoint_cp')
         getattr(self, f'_{self.state.lower()}')()
 
@@ -263,7 +275,12 @@ def main(mtm_name, psm_name):
     node = rclpy.create_node('dvrk_python_teleoperation')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
+    def spin():
+        try:
+            executor.spin()
+        except ExternalShutdownException:   # SIGINT shut the context down: the end
+            pass
+    spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
     script = None
     try:
@@ -289,12 +306,14 @@ def main(mtm_name, psm_name):
         say('FRAMES', f"{mtm.cp['measured_cp'].msg.header.frame_id} "
                       f"{psm.cp['setpoint_cp'].msg.header.frame_id}")
         script = TeleopScript(node, mtm, psm)
+        gc.freeze()   # what start-up built stays out of the cyclic collector's full passes
         script.run()
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
         executor.shutdown(timeout_sec=1.0)
+        spinner.join(2.0)
         node.destroy_node()
         rclpy.try_shutdown()
 
