@@ -1,11 +1,15 @@
 # Shared by the scripts: environment (DDS on this machine only), node start-up, clean stop.
-# Source it; it defines `start NAME ARGS...` (a node executable in the background, log in
-# $LOG_DIR/NAME.log), `run NAME ARGS...` (a node in the foreground while the started ones are
-# watched: a node that dies ends the script at once with its error line), `wait_ready NAME
-# TEXT` (until the node's log says TEXT), and stops every started node on exit (SIGTERM, then
-# SIGKILL after $STOP_TIMEOUT seconds). Logs go to one folder per run under
-# $SUTURE_LFD_LOGS (default: suture-lfd-logs in the temporary directory), printed at the
-# start and removed when the script succeeds; LOG_DIR names another folder, always kept.
+# Source it; it defines `start [--as LOG] NAME ARGS...` (a node executable in the background,
+# log in $LOG_DIR/LOG.log, LOG defaulting to NAME), `run NAME ARGS...` (a node in the
+# foreground while the started ones are watched: a node that dies ends the script at once with
+# its error line), `wait_ready NAME TEXT` (until the node's log says TEXT), `watch_nodes`
+# (until a started node dies, then ends the script with its error line), and stops every
+# started node on exit (SIGTERM, then SIGKILL after $STOP_TIMEOUT seconds). Every node dies
+# with the script even when the script is killed outright (SIGKILL): the kernel sends it
+# SIGTERM then (prctl PR_SET_PDEATHSIG, set by `guard` before the node's program starts). Logs
+# go to one folder per run under $SUTURE_LFD_LOGS (default: suture-lfd-logs in the temporary
+# directory), printed at the start and removed when the script succeeds; LOG_DIR names another
+# folder, always kept.
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv=${SUTURE_LFD_VENV:-$repo/.venv}
 [ -x "$venv/bin/simulator" ] || "$repo/tools/setup.sh"
@@ -14,6 +18,13 @@ export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-$(( $$ % 90 + 10 ))}
 export AMENT_PREFIX_PATH=$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}
 export PYTHONUNBUFFERED=1
 STOP_TIMEOUT=${STOP_TIMEOUT:-10}
+# guard PROGRAM ARGS...: PROGRAM, with SIGTERM on this script's death (a script killed before
+# that took effect is seen at once: the program does not start)
+guard=("$venv/bin/python" -I -S -c 'import ctypes, os, sys
+ctypes.CDLL(None).prctl(1, 15)
+if os.getppid() != int(sys.argv[1]):
+    sys.exit(143)
+os.execv(sys.argv[2], sys.argv[2:])' "$$")
 children=()
 names=()
 declare -A ready_text=([simulator]='simulating')  # the log line that says a node is ready
@@ -72,7 +83,7 @@ wait_ready() {
 run() {
   local name=$1 pid
   shift
-  "$venv/bin/$name" "$@" >"$LOG_DIR/$name.log" 2>&1 &
+  "${guard[@]}" "$venv/bin/$name" "$@" >"$LOG_DIR/$name.log" 2>&1 &
   pid=$!
   local began=$SECONDS
   while kill -0 "$pid" 2>/dev/null; do
@@ -136,12 +147,14 @@ check_running() {
 # The script's help: its leading comment block, without the comment marks.
 usage() { awk 'NR == 1 { next } /^#/ { sub(/^# ?/, ""); print; next } { exit }' "$0"; }
 
-# phantom_params PHANTOM SCENE PAIR: set phantom_args to the simulator's phantom parameters.
-# PHANTOM is a phantom of the scene, a mesh (STL/OBJ/PLY) or a phantom file (.yaml); empty:
-# the phantom the pair's name starts with (scan* scanned, synth* synthetic). SCENE ('' none)
-# replaces the installed scene.yaml. Files are passed with absolute paths.
+# phantom_params PHANTOM SCENE PAIR: set phantom_args to the simulator's phantom parameters
+# and phantom to the phantom resolved. PHANTOM is a phantom of the scene, a mesh (STL/OBJ/PLY)
+# or a phantom file (.yaml); empty: the phantom the pair's name starts with (scan* scanned,
+# synth* synthetic). SCENE ('' none) replaces the installed scene.yaml. Files are passed with
+# absolute paths.
 phantom_params() {
-  local phantom=$1 scene=$2 pair=$3
+  local scene=$2 pair=$3
+  phantom=$1
   if [ -z "$phantom" ]; then
     case "$pair" in
       scan*) phantom=scanned ;;
@@ -164,16 +177,30 @@ phantom_params() {
 }
 
 start() {
+  local log=''
+  if [ "$1" = --as ]; then
+    log=$2
+    shift 2
+  fi
   local name=$1
   shift
+  log=${log:-$name}
   if [ "$logs_announced" = 0 ]; then
     say "logs in $LOG_DIR"
     logs_announced=1
   fi
-  "$venv/bin/$name" "$@" >"$LOG_DIR/$name.log" 2>&1 &
+  "${guard[@]}" "$venv/bin/$name" "$@" >"$LOG_DIR/$log.log" 2>&1 &
   children+=("$!")
-  names+=("$name")
-  say "started $name (pid $!)"
+  names+=("$log")
+  say "started $log (pid $!)"
+}
+
+# watch_nodes: never return; when a started node dies, end the script with its error line.
+watch_nodes() {
+  while true; do
+    check_children
+    sleep 0.2
+  done
 }
 
 stop_children() {

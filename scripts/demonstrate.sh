@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A person demonstrates a throw: simulator (real time), viewer, virtual MTMs, two teleop nodes
-# (MTMR -> PSM1, MTML -> PSM2) and the recorder, on this machine.
+# (MTMR -> PSM2, the right arm; MTML -> PSM1, the left arm) and the recorder, on this machine.
 #
 #   scripts/demonstrate.sh --device browser|gamepad|spacemouse|console [--pair synth1]
 #                          [--out DIR] [--record-pedal camera|coag] [--no-align]
@@ -42,16 +42,17 @@ esac
 phantom_params "$phantom" "$scene" "$pair"
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
-say "ROS_DOMAIN_ID=$ROS_DOMAIN_ID, logs in $LOG_DIR"
+say "ROS_DOMAIN_ID=$ROS_DOMAIN_ID"
 start simulator --ros-args "${phantom_args[@]}" -p target_pair:="$pair" \
   -p real_time_factor:=1.0 -p footpedals:=false
 if [ -x "$venv/bin/viewer" ]; then
-  start viewer --ros-args -p phantom:="$phantom"
+  start viewer --ros-args -p phantom:="$phantom" -p view:=endoscope
   url=''
-  for _ in $(seq 1 60); do
+  for _ in $(seq 1 300); do
+    check_children
     url=$(grep -o 'http://[^ ]*' "$LOG_DIR/viewer.log" | head -1 || true)
     [ -n "$url" ] && break
-    sleep 0.5
+    sleep 0.2
   done
   say "viewer: ${url:-see $LOG_DIR/viewer.log} (over SSH: ssh -L 8080:localhost:8080 <host>)"
 elif [ "$device" = browser ]; then
@@ -63,20 +64,14 @@ else
 fi
 if [ "$device" != console ]; then
   start mtms --ros-args -p device:="$device"
-  sleep 2
-  if ! kill -0 "${children[-1]}" 2>/dev/null; then
-    say "the $device could not be opened:"; tail -3 "$LOG_DIR/mtms.log" >&2; exit 1
-  fi
 fi
-"$venv/bin/teleop" --ros-args -r __node:=MTMR_PSM1 -p mtm:=MTMR -p psm:=PSM1 \
-  -p align_mtm:="$align" >"$LOG_DIR/teleop_MTMR_PSM1.log" 2>&1 &
-children+=("$!")
-"$venv/bin/teleop" --ros-args -r __node:=MTML_PSM2 -p mtm:=MTML -p psm:=PSM2 \
-  -p align_mtm:="$align" >"$LOG_DIR/teleop_MTML_PSM2.log" 2>&1 &
-children+=("$!")
+start --as teleop_MTMR_PSM2 teleop --ros-args -r __node:=MTMR_PSM2 -p mtm:=MTMR -p psm:=PSM2 \
+  -p align_mtm:="$align"
+start --as teleop_MTML_PSM1 teleop --ros-args -r __node:=MTML_PSM1 -p mtm:=MTML -p psm:=PSM1 \
+  -p align_mtm:="$align"
 start recorder --ros-args -p output_dir:="$out" -p use_sim_time:=true \
   -p toggle_pedal:=/footpedals/"$record_pedal"
 say "pair $pair; press the $record_pedal pedal to start and stop a recording"
 say "bags go to $out/"
 printf '%s\n' "$out"
-wait "${children[0]}"
+watch_nodes

@@ -27,5 +27,4 @@ phantom_params "$phantom" "$scene" ''
 say "ROS_DOMAIN_ID=$ROS_DOMAIN_ID"
 start simulator --ros-args "${phantom_args[@]}" -p real_time_factor:="$rtf" "${extra[@]}"
 wait_ready simulator 'simulating'
-while check_running; do sleep 0.5; done
-check_children
+watch_nodes

@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 
-from sim_bridge.processes import stop_group
+from sim_bridge.processes import popen, stop_group
 from sim_bridge.ros.dds import use_project_profile
 
 REPO = Path(__file__).resolve().parent.parent
@@ -105,16 +105,20 @@ def executable(name):
 
 
 class NodeProcess:
-    """A node executable running as a real subprocess in its own process group."""
+    """
+    A node executable running as a real subprocess in its own process group.
+
+    It dies with the test run: the kernel sends it SIGTERM when the run's process dies, even by
+    SIGKILL (:func:`sim_bridge.processes.popen`).
+    """
 
     def __init__(self, argv, log_dir, env=None, cwd=None):
         self.argv = [str(a) for a in argv]
         name = Path(self.argv[0]).name
         self.log_path = Path(log_dir) / f'{name}-{int(time.monotonic() * 1e6)}.log'
         self._log = open(self.log_path, 'w')
-        self.popen = subprocess.Popen(
-            self.argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd,
-            env={**os.environ, **(env or {})}, start_new_session=True)
+        self.popen = popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd,
+                           env={**os.environ, **(env or {})})
 
     @property
     def pid(self):

@@ -8,6 +8,7 @@ import subprocess
 import time
 
 import pytest
+from sim_bridge.processes import popen
 
 SCRIPTS = Path(__file__).resolve().parent.parent / 'scripts'
 
@@ -26,8 +27,8 @@ def _alive(pid):
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT])
 def test_stopping_the_simulator_script_stops_the_simulator(tmp_path, sig):
     env = {**os.environ, 'LOG_DIR': str(tmp_path), 'ROS_DOMAIN_ID': os.environ['ROS_DOMAIN_ID']}
-    proc = subprocess.Popen([str(SCRIPTS / 'simulator.sh'), '--rtf', '1.0'], env=env,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = popen([str(SCRIPTS / 'simulator.sh'), '--rtf', '1.0'], env=env,
+                 stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stderr.readline()
         while line and 'started simulator' not in line:

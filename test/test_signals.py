@@ -1,5 +1,6 @@
 """
-SIGINT and SIGTERM, sent to every node in the middle of its work, as a user or a script stops it.
+SIGINT and SIGTERM, sent to every node in the middle of its work, as a user or a script stops it;
+and SIGKILL sent to what started the nodes (a test run, a script), which they do not outlive.
 
 Each node stops commanding (the arms hold), writes the result it has with outcome
 ``interrupted``, and exits with 128 + the signal number (130, 143): never 0 for a throw that did
@@ -10,7 +11,10 @@ start-up (while the node's modules load, PyBullet connects, the node is built) i
 import json
 import os
 from pathlib import Path
+import re
 import signal
+import subprocess
+import sys
 import time
 
 from geometry_msgs.msg import PoseStamped
@@ -24,6 +28,7 @@ from suture_lfd import bags
 import yaml
 
 SEGMENTS = Path(__file__).resolve().parent / 'suture_lfd' / 'data' / 'study_S01_synth1.npz'
+SCRIPTS = Path(__file__).resolve().parent.parent / 'scripts'
 LATCHED = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 WORK_TIMEOUT = 600.0  # s of wall time for a node to get to work on a loaded 2-core machine
@@ -152,3 +157,78 @@ def test_every_node_stopped_mid_work_holds_reports_and_exits_with_the_signal(
 
     assert sim.running()
     assert interrupt(sim, sig) == code, sim.log()
+
+
+# --- nodes die with what started them -------------------------------------------------------
+
+CHILD_TEST = """
+import os
+import time
+
+from conftest import launch  # noqa: F401 (the fixture under test)
+from harness import wait_for
+from test_signals import handles_signals
+
+
+def test_that_is_killed(launch):
+    procs = [launch('simulator'), launch('footpedals')]
+    assert wait_for(lambda: all(handles_signals(p) for p in procs), 300.0, period=0.2)
+    with open(os.environ['NODE_PIDS'], 'w') as f:
+        f.write(' '.join(str(p.pid) for p in procs))
+    time.sleep(600)
+"""
+
+
+def _gone(pid):
+    """Return True once ``pid`` has exited (a zombie left to a reaper counts as gone)."""
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0] == 'Z'
+    except OSError:
+        return True
+
+
+def test_the_nodes_of_a_test_run_killed_with_sigkill_die_with_it(tmp_path):
+    (tmp_path / 'test_child.py').write_text(CHILD_TEST)
+    pids_file = tmp_path / 'pids'
+    here = Path(__file__).resolve().parent
+    env = {**os.environ, 'NODE_PIDS': str(pids_file),
+           'PYTHONPATH': os.pathsep.join([str(here), os.environ.get('PYTHONPATH', '')])}
+    runner = subprocess.Popen(
+        [sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider', '--rootdir',
+         str(tmp_path), str(tmp_path / 'test_child.py')], cwd=tmp_path, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        assert wait_for(lambda: pids_file.exists() and pids_file.read_text().strip()
+                        or runner.poll() is not None, WORK_TIMEOUT, period=0.2)
+        assert runner.poll() is None, runner.stdout.read().decode()[-3000:]
+        nodes = [int(pid) for pid in pids_file.read_text().split()]
+        assert len(nodes) == 2 and not any(_gone(pid) for pid in nodes)
+        os.kill(runner.pid, signal.SIGKILL)       # the runner alone: no clean-up of its own
+        runner.wait(10)
+        assert wait_for(lambda: all(_gone(pid) for pid in nodes), 60.0, period=0.1), \
+            [Path(f'/proc/{pid}/cmdline').read_bytes() for pid in nodes if not _gone(pid)]
+    finally:
+        if runner.poll() is None:
+            os.killpg(runner.pid, signal.SIGKILL)
+            runner.wait(10)
+
+
+def test_the_nodes_of_a_script_killed_with_sigkill_die_with_it(tmp_path):
+    env = {**os.environ, 'LOG_DIR': str(tmp_path)}
+    script = subprocess.Popen([str(SCRIPTS / 'simulator.sh')], env=env, stderr=subprocess.PIPE,
+                              text=True, start_new_session=True)
+    try:
+        line = script.stderr.readline()
+        while line and 'started simulator' not in line:
+            line = script.stderr.readline()
+        node = int(re.search(r'pid (\d+)', line).group(1))
+        while line and 'simulator ready' not in line:
+            line = script.stderr.readline()
+        assert 'simulator ready' in line and not _gone(node)
+        os.kill(script.pid, signal.SIGKILL)       # the script alone: its trap never runs
+        script.wait(10)
+        assert wait_for(lambda: _gone(node), 60.0, period=0.1)
+    finally:
+        if script.poll() is None:
+            os.killpg(script.pid, signal.SIGKILL)
+            script.wait(10)

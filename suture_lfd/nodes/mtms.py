@@ -4,7 +4,8 @@ Virtual MTMs node: ``MTML`` and ``MTMR`` and the console's foot pedals, driven b
 The dVRK MTM interface of each, driven by an input device (``device``: ``browser``,
 ``gamepad`` or ``spacemouse``).
 
-Per MTM (namespace = its name), what a dVRK teleoperation client uses:
+Per MTM (namespace = its name), what a dVRK teleoperation client uses, from the start (a
+browser's MTM stands at a rest pose until the page's handle gives it one):
 
 - published: ``operating_state`` (crtk_msgs/OperatingState, latched event, again after every
   ``state_command``), ``measured_cp``, ``setpoint_cp`` (geometry_msgs/PoseStamped, in the
@@ -29,8 +30,14 @@ and the console's ``/console/clutch``, ``/console/operator_present``, ``/console
 (sensor_msgs/Joy ``buttons=[1|0]``, latched events on every change), so run the simulator with
 ``footpedals:=false``; ``pedals: emulate`` presses the simulator's pedals through
 ``/footpedals/<name>/emulate`` instead. The browser back-end reads the viewer's
-``viewer/input/<MTM>/pose``, ``viewer/input/<MTM>/gripper`` and ``viewer/input/pedals``.
+``viewer/input/<MTM>/pose``, ``viewer/input/<MTM>/gripper`` and ``viewer/input/pedals``
+(``[clutch, coag, camera]``: the page's clutch, coag and record controls).
 Parameters: ``config/mtms.yaml``.
+
+Nobody moving costs little: the cycle (device polling and the state topics) runs at ``rate``
+while something changes (a device input, a pose, a gripper, a pedal, a ``move_cp``) and for
+``idle_after`` s after, at ``idle_rate`` otherwise; an input from the browser brings the full
+rate back at once.
 """
 
 from dataclasses import dataclass
@@ -70,6 +77,10 @@ class MtmsConfig:
         The MTMs served.
     rate : float
         Hz of the state topics and of the device polling.
+    idle_rate : float
+        Hz of both while nothing changes.
+    idle_after : float
+        s without a change before the cycle slows to ``idle_rate``.
     pedals : str
         ``own`` (publish ``/footpedals/*``) or ``emulate`` (press the simulator's).
     move_duration : float
@@ -97,6 +108,8 @@ class MtmsConfig:
     device: str = 'browser'
     mtms: tuple[str, ...] = ('MTMR', 'MTML')
     rate: float = 200.0
+    idle_rate: float = 10.0
+    idle_after: float = 0.5
     pedals: str = 'own'
     move_duration: float = 0.5
     gripper_start: float = 0.5
@@ -117,7 +130,8 @@ class MtmsConfig:
             raise ValueError(f'parameter pedals must be own or emulate, got {self.pedals!r}')
         if not self.mtms:
             raise ValueError('parameter mtms must name at least one MTM')
-        for name in ('rate', 'linear_speed', 'angular_speed', 'gripper_speed'):
+        for name in ('rate', 'idle_rate', 'idle_after', 'linear_speed', 'angular_speed',
+                     'gripper_speed'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.move_duration < 0:
@@ -157,16 +171,17 @@ class MtmsNode(Node):
         self._t = t
         self.mtms = {}
         self._pubs = {}
-        self._has_pose = {}
         self._last_cp = {}
+        self._last_gripper = {}
         self._busy = {}
+        self._active_until = -1.0      # s: the cycle runs at the full rate until then
+        self._period_ns = None
         self._intakes = {}
         for name in cfg.mtms:
             T0 = np.eye(4)
             T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
             mtm = self.mtms[name] = VirtualMtm(name, T0, cfg.move_duration)
             mtm.set_gripper(cfg.gripper_start)
-            self._has_pose[name] = cfg.device != 'browser'
             self._busy[name] = False
             pub = self.create_publisher
             self._pubs[name] = {
@@ -202,7 +217,7 @@ class MtmsNode(Node):
                 sub(PoseStamped, f'{prefix}/{name}/pose',
                     lambda m, n=name: self._on_handle(n, m), qos.SENSOR)
                 sub(Float64, f'{prefix}/{name}/gripper',
-                    lambda m, n=name: self.device.set_gripper(n, m.data), qos.SENSOR)
+                    lambda m, n=name: self._on_gripper(n, m), qos.SENSOR)
             self._publish_state(name)
         if cfg.device == 'browser':
             self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals,
@@ -217,7 +232,8 @@ class MtmsNode(Node):
             else:
                 self._pedal_pubs[pedal] = [
                     self.create_publisher(Joy, f'/footpedals/{pedal}/emulate', qos.STREAM)]
-        self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self._timer = self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self._wake()
         self.get_logger().info(f'virtual {", ".join(cfg.mtms)} on the {cfg.device} '
                                f'(frame {self.frame_id}), pedals {cfg.pedals}')
 
@@ -258,12 +274,13 @@ class MtmsNode(Node):
             self._reject(name, str(exc))
             return
         mtm = self.mtms[name]
-        if mtm.state != 'ENABLED' or not self._has_pose[name]:
+        if mtm.state != 'ENABLED':
             self._reject(name, f'{name}: move_cp, arm not ready')
             self._pubs[name]['goal_reached'].publish(Bool(data=False))
             return
         mtm.move_cp(T, self._now())
         self._publish_state(name)
+        self._wake()
 
     def _on_lock(self, name, msg):
         q = np.array([msg.x, msg.y, msg.z, msg.w])
@@ -313,12 +330,32 @@ class MtmsNode(Node):
             self.get_logger().warning(str(exc))
             return
         self.device.set_pose(name, T)
+        self._wake()
+
+    def _on_gripper(self, name, msg):
+        self.device.set_gripper(name, msg.data)
+        self._wake()
 
     def _on_pedals(self, msg):
         try:
             self.device.set_pedals(list(msg.buttons))
         except ValueError as exc:
             self.get_logger().warning(str(exc))
+        self._wake()
+
+    # --- the pace of the cycle --------------------------------------------------------------
+
+    def _wake(self):
+        """Something changed: the cycle runs at the full rate for ``idle_after`` s."""
+        self._active_until = self._now() + self.config.idle_after
+        self._pace(True)
+
+    def _pace(self, active):
+        period_ns = int(1e9 / (self.config.rate if active else self.config.idle_rate))
+        if period_ns != self._period_ns:
+            self._period_ns = period_ns
+            self._timer.timer_period_ns = period_ns
+            self._timer.reset()       # the next cycle one new period from now
 
     def _press(self, pedal, pressed):
         msg = Joy()
@@ -335,10 +372,12 @@ class MtmsNode(Node):
         self._t = t
         reading = self.device.poll(t)
         ns = self.get_clock().now().nanoseconds
+        changed = False
         for pedal, pressed in reading.pedals.items():
             if pedal in self._pedal_state and pressed != self._pedal_state[pedal]:
                 self._pedal_state[pedal] = pressed
                 self._press(pedal, pressed)
+                changed = True
                 if pedal == 'clutch' and not pressed:
                     for mtm in self.mtms.values():
                         mtm.release_clutch(t)
@@ -347,17 +386,11 @@ class MtmsNode(Node):
             if arm is not None:
                 pose = None if arm.pose is None else self._display_pose(arm.pose)
                 if pose is not None:
-                    if not self._has_pose[name]:
-                        mtm.device = np.array(pose, dtype=float)
-                        mtm.measured_cp(t)
-                    self._has_pose[name] = True
                     mtm.set_device_pose(pose)
                 elif arm.twist is not None:
                     mtm.apply_twist(arm.twist[0], arm.twist[1], dt)
                 if arm.gripper is not None:
                     mtm.set_gripper(arm.gripper)
-            if not self._has_pose[name]:
-                continue
             T = mtm.measured_cp(t)
             pubs = self._pubs[name]
             # written as CDR bytes (sim_bridge.cdr): a fraction of building the messages, on a
@@ -372,15 +405,22 @@ class MtmsNode(Node):
                 dR = T[:3, :3] @ last[:3, :3].T
                 w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0],
                               dR[1, 0] - dR[0, 1]]) * 0.5 / dt
+            changed = changed or last is None or not np.array_equal(T, last) \
+                or mtm.gripper != self._last_gripper.get(name)
             self._last_cp[name] = T
+            self._last_gripper[name] = mtm.gripper
             pubs['measured_cv'].publish(cdr.vector6_stamped(ns, self.frame_id,
                                                             np.concatenate([v, w])))
             pubs['gripper'].publish(cdr.joint_state(ns, ('gripper',), [mtm.gripper]))
             busy = mtm.is_busy(t)
+            changed = changed or busy
             if busy != self._busy[name]:
                 self._publish_state(name)
                 if not busy:
                     pubs['goal_reached'].publish(Bool(data=True))
+        if changed:
+            self._active_until = t + self.config.idle_after
+        self._pace(t < self._active_until)
 
     def destroy_node(self):
         self.device.close()

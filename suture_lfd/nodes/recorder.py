@@ -18,6 +18,12 @@ while it was recorded; the bag's ``metadata.yaml`` keeps the per-topic counts (c
 ``suture_lfd.counts``) and the total (``suture_lfd.lost``). Stopped by SIGINT or SIGTERM while
 recording, the node closes the bag with what it holds and marks it ``suture_lfd.outcome:
 interrupted``.
+
+At rest the recorder costs next to nothing: the streamed topics (neither latched nor carried
+over: the arms' 100 Hz state and commands) are subscribed by a companion node that is spun only
+while recording. Their subscriptions stay matched in between, so DDS keeps their latest
+messages; a recording takes the ones received after it started (``received_timestamp``) and
+reads the sequence numbers of the older ones only to count gaps from there on.
 """
 
 from dataclasses import dataclass
@@ -29,7 +35,9 @@ from pathlib import Path
 import queue
 import sys
 import threading
+import time
 
+import rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
@@ -113,6 +121,7 @@ class BagSession:
         self.types = {}
         self.qos = {}
         self.error = None
+        self.started_ns = 0       # wall clock (ns) of the start: DDS's received_timestamp
         self._logger = logger
         self._queue = queue.SimpleQueue()
         self._writer = bags.BagWriter(path, chunk_bytes=config.chunk_bytes,
@@ -198,6 +207,11 @@ class Recorder(Node):
         self._last = {}            # carry-over topic -> last CDR bytes
         self._gaps = PublicationGaps()
         self._ros_clock = self.get_clock()
+        # the streamed topics' subscriptions: spun only while recording (see the module's doc)
+        self._streams = rclpy.create_node(f'{self.get_name()}_streams',
+                                          namespace=self.get_namespace(), context=self.context,
+                                          start_parameter_services=False)
+        self._spinning_streams = False
         self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
@@ -255,7 +269,8 @@ class Recorder(Node):
         carry = self.config.matches('carry_over', topic)
         self._types[topic] = msgtype
         self._latched[topic] = latched
-        self._topic_subs[topic] = self.create_subscription(
+        node = self if latched or carry else self._streams
+        self._topic_subs[topic] = node.create_subscription(
             cls, topic, functools.partial(self._on_messages, topic, carry), profile, raw=True)
 
     def _discover(self):
@@ -289,7 +304,8 @@ class Recorder(Node):
             self._last[topic] = rawdata
         missed = self._gaps.observe(topic, info.get('publication_sequence_number'))
         session = self._session
-        if session is None:
+        if session is None or (info.get('received_timestamp') or session.started_ns) \
+                < session.started_ns:      # held by DDS from before the recording
             return
         if missed:
             session.missed[topic] = session.missed.get(topic, 0) + missed
@@ -319,6 +335,7 @@ class Recorder(Node):
         path = self._next_path()
         path.parent.mkdir(parents=True, exist_ok=True)
         session = BagSession(path, self.config, self.get_logger())
+        session.started_ns = time.time_ns()
         now = self._ros_clock.now().nanoseconds
         for topic, rawdata in self._last.items():
             session.types[topic] = self._types[topic]
@@ -328,6 +345,7 @@ class Recorder(Node):
             session.carried[topic] = 1
             session.put(topic, now, rawdata)
         self._session = session
+        self._spin_streams(True)
         self.get_logger().info(f'recording to {path}')
         self._publish_status()
         return path
@@ -337,6 +355,7 @@ class Recorder(Node):
         session, self._session = self._session, None
         if session is None:
             raise ValueError('not recording; call ~/start first')
+        self._spin_streams(False)
         counts = session.close()
         log = self.get_logger().warning if counts['lost'] else self.get_logger().info
         log(f'closed {session.path}: {counts["written"]} messages written, '
@@ -347,6 +366,22 @@ class Recorder(Node):
         if session.error:
             raise ValueError(session.error)
         return counts
+
+    def _spin_streams(self, on):
+        """Add the streamed topics' node to this node's executor (``on``) or take it off."""
+        executor = self.executor
+        if executor is None or on == self._spinning_streams:
+            return
+        if on:
+            executor.add_node(self._streams)
+        else:
+            executor.remove_node(self._streams)
+        self._spinning_streams = on
+
+    def destroy_node(self):
+        self._spin_streams(False)
+        self._streams.destroy_node()
+        return super().destroy_node()
 
     def _on_start(self, request, response):
         try:

@@ -15,7 +15,8 @@ Publishes ``~/current_state`` (std_msgs/String: SETTING_ARMS, ALIGNING, CLUTCHED
 DISABLED) and ``~/following`` (std_msgs/Bool), latched; ``~/state_command``
 (crtk_msgs/StringStamped ``enable``/``disable``) starts and stops it, as the dVRK teleop
 components' topics. Run one per MTM/PSM pair, named like the dVRK's (``-r __node:=MTMR_PSM1``).
-Parameters: ``config/teleop.yaml``.
+Parameters: ``config/teleop.yaml``. The cycle runs at ``rate`` while the operator is present
+(coag) or the teleoperation follows or is clutched, at ``idle_rate`` otherwise.
 """
 
 import sys
@@ -33,6 +34,7 @@ from std_msgs.msg import Bool, Empty, Header, String
 from suture_lfd.nodes import executables
 from suture_lfd.teleop.frames import FrameTree
 from suture_lfd.teleop.teleoperation import (
+    CLUTCHED,
     FOLLOWING,
     ArmState,
     TeleopConfig,
@@ -61,16 +63,16 @@ class TeleopNode(Node):
         self._warned = set()
         m, p = cfg.mtm, cfg.psm
         sub = self.create_subscription
-        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, qos.STREAM)
-        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, qos.STREAM)
+        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, qos.LATEST)
+        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, qos.LATEST)
         sub(OperatingState, f'{m}/operating_state',
             lambda msg: setattr(self, '_mtm_state', self._arm_state(msg)), qos.EVENTS)
-        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, qos.STREAM)
-        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, qos.STREAM)
+        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, qos.LATEST)
+        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, qos.LATEST)
         sub(OperatingState, f'{p}/operating_state',
             lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), qos.EVENTS)
         if cfg.ecm:
-            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.STREAM)
+            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.LATEST)
         sub(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
         sub(Joy, cfg.clutch_topic, self._on_clutch, qos.EVENTS)
         if cfg.operator_present_topic:
@@ -94,7 +96,9 @@ class TeleopNode(Node):
         self._current = pub(String, '~/current_state', qos.LATCHED)
         self._following = pub(Bool, '~/following', qos.LATCHED)
         self._publish_state()
-        self.create_timer(1.0 / cfg.rate, self._on_timer)
+        self._period_ns = None
+        self._timer = self.create_timer(1.0 / cfg.idle_rate, self._on_timer)
+        self._pace()
         self.get_logger().info(f'{m} -> {p} (scale {cfg.scale}, camera '
                                f'{cfg.ecm or "none"}, align_mtm {cfg.align_mtm})')
 
@@ -154,6 +158,7 @@ class TeleopNode(Node):
     def _on_present(self, msg):
         if len(msg.buttons):
             self._present = msg.buttons[0] == 1
+            self._pace()
 
     def _on_state_command(self, msg):
         if msg.string not in ('enable', 'disable'):
@@ -193,6 +198,17 @@ class TeleopNode(Node):
             for command in commands:
                 self._send(command, stamp)
         self._publish_state()
+        self._pace()
+
+    def _pace(self):
+        """Run the cycle at ``rate`` while someone teleoperates, at ``idle_rate`` otherwise."""
+        cfg = self.config
+        busy = self._present or self.teleop.state in (FOLLOWING, CLUTCHED)
+        period_ns = int(1e9 / (cfg.rate if busy else cfg.idle_rate))
+        if period_ns != self._period_ns:
+            self._period_ns = period_ns
+            self._timer.timer_period_ns = period_ns
+            self._timer.reset()       # the next cycle one new period from now
 
     def _send(self, command, stamp):
         kind, arm, value = command

@@ -17,6 +17,10 @@ reachable from the network unless asked) and open the URL it prints. The page dr
   (``ECM/left/image_raw``, ``camera_rate`` > 0);
 - ``sim/events`` as they happen, in the side panel.
 
+``view: endoscope`` opens the page looking through the ECM's left camera (``/tf``
+``ECM -> ECM_left_optical``, the camera model's vertical field of view), following it live;
+the ``View`` button switches to a free 3-D view and back.
+
 It sends what changed to the page ``frame_rate`` times a second, and publishes
 ``viewer/stats`` (std_msgs/String, JSON, every ``stats_period`` s): ``frame_rate`` (frames sent
 per second), ``tf_rate`` (``/tf`` messages per second), ``clients`` (browsers connected) and
@@ -25,21 +29,28 @@ per second), ``tf_rate`` (``/tf`` messages per second), ``clients`` (browsers co
 
 Contract with the virtual MTMs (browser input back-end)
 --------------------------------------------------------
-For each MTM named in the parameter ``mtms`` (default ``[MTML, MTMR]``) the page has a 6-DOF
-handle (a transform gizmo that starts at the matching PSM's tool pose: MTMR <-> PSM1,
-MTML <-> PSM2), a gripper slider, and ``Clutch``/``Coag`` buttons with keys ``C``/``V`` (each
-click or key press toggles that pedal). The node publishes what the person does and nothing
-else about teleoperation:
+For each MTM named in the parameter ``mtms`` (default ``[MTML, MTMR]``) the page has a handle
+at the tool of the PSM it drives (``teleops``: ``<MTM>_<PSM>`` names of the teleop nodes,
+default ``MTMR_PSM2``, ``MTML_PSM1``), put there once the arms are homed (the teleop leaves
+``SETTING_ARMS``) and again at every clutch (it enters ``CLUTCHED``), a gripper slider, a
+``Clutch`` control pressed while held (mouse or key ``C``), ``Coag`` (key ``V``, a toggle) and
+``Record`` (key ``R``: one press of the camera pedal) (:mod:`suture_lfd.viewer.controls`). The
+node publishes what the person does and nothing else about teleoperation:
 
 - ``viewer/input/<MTM>/pose`` (geometry_msgs/PoseStamped, frame_id ``world``): the handle's
-  pose, on every change (at the page's rate, >= 30 Hz, while it is dragged);
+  pose, on every change (at the page's rate, >= 20 Hz, while it is dragged) and when it is put
+  at its tool;
 - ``viewer/input/<MTM>/gripper`` (std_msgs/Float64): gripper opening angle, rad, 0 ... 1.047
   (60 deg);
-- ``viewer/input/pedals`` (sensor_msgs/Joy): ``buttons = [clutch, coag]``, 1 = pressed, on every
-  change.
+- ``viewer/input/pedals`` (sensor_msgs/Joy): ``buttons = [clutch, coag, camera]``, 1 = pressed,
+  on every change (the camera pedal pressed and released at once).
 
-All three are RELIABLE, VOLATILE, depth 10, stamped with the node's clock. Parameters:
-``config/viewer.yaml``.
+All three are RELIABLE, VOLATILE, depth 10, stamped with the node's clock. It reads
+``/<teleop>/current_state`` (std_msgs/String) of each teleop node and ``recorder/status`` (the
+recorder's JSON) to show on the page each arm's state, what to do next and the bag being
+recorded. When a recording starts it selects the simulator's current pair (the last
+``target_pair`` event) again on ``sim/target_pair``, as the demonstrator does: the throw is
+scored afresh and the bag says which pair it sutures. Parameters: ``config/viewer.yaml``.
 """
 
 from dataclasses import dataclass
@@ -56,9 +67,9 @@ from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Float64, String
-from suture_lfd.viewer.assets import load_phantom, needle_arc
-from suture_lfd.viewer.controls import PSM_OF_MTM, MtmControls
-from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, FrameClock, ViewerPage
+from suture_lfd.viewer.assets import endoscope_fov, load_phantom, needle_arc
+from suture_lfd.viewer.controls import MtmControls
+from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, VIEWS, FrameClock, ViewerPage
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -85,6 +96,12 @@ class ViewerConfig:
         only with ``camera_rate`` > 0).
     stats_period : float
         Seconds between ``viewer/stats`` messages.
+    view : str
+        The page's first view: ``free`` or ``endoscope`` (through the ECM's left camera).
+    teleops : tuple of str
+        Teleop node names ``<MTM>_<PSM>``: which PSM each MTM drives, whose state is shown.
+    recorder : str
+        Name of the recorder node whose ``~/status`` is shown (``''``: none).
 
     """
 
@@ -95,8 +112,18 @@ class ViewerConfig:
     mtms: tuple[str, ...] = ('MTML', 'MTMR')
     images: bool = True
     stats_period: float = 1.0
+    view: str = 'free'
+    teleops: tuple[str, ...] = ('MTMR_PSM2', 'MTML_PSM1')
+    recorder: str = 'recorder'
 
     def __post_init__(self):
+        if self.view not in VIEWS:
+            raise ValueError(f'parameter view must be one of {", ".join(VIEWS)}, got '
+                             f'{self.view!r}')
+        for name in self.teleops:
+            if name.count('_') != 1 or not all(name.split('_')):
+                raise ValueError(f'parameter teleops: {name!r} is not <MTM>_<PSM> (e.g. '
+                                 'MTMR_PSM2)')
         if not self.frame_rate > 0:
             raise ValueError(f'parameter frame_rate must be > 0 Hz, got {self.frame_rate}')
         if not 0 <= self.port <= 65535:
@@ -128,19 +155,36 @@ class Viewer(Node):
         self.config = declare_config(self, ViewerConfig, 'viewer.yaml', 'viewer')
         phantom = load_phantom(self.config.phantom)
         points, diameter = needle_arc()
-        self.page = ViewerPage(points, diameter, host=self.config.host, port=self.config.port)
+        self.page = ViewerPage(points, diameter, host=self.config.host, port=self.config.port,
+                               view=self.config.view)
         self.page.show_phantom(phantom)
+        self._fov = endoscope_fov()
+        self.pairs = dict(name.split('_') for name in self.config.teleops)
+        self._to_place = set(self.config.mtms)     # handles to put at their tools
+        self._states = {}
         self._input = {}
         for mtm in self.config.mtms:
             self._input[mtm] = (
                 self.create_publisher(PoseStamped, f'viewer/input/{mtm}/pose', qos.STREAM),
                 self.create_publisher(Float64, f'viewer/input/{mtm}/gripper', qos.STREAM))
         self._pedals = self.create_publisher(Joy, 'viewer/input/pedals', qos.STREAM)
+        self._pedal_state = (0, 0)
         self.controls = None
         if self.config.mtms:
             self.controls = self.page.add_panel(MtmControls(
                 self.config.mtms, on_pose=self._publish_pose, on_gripper=self._publish_gripper,
-                on_pedals=self._publish_pedals))
+                on_pedals=self._publish_pedals, psm_of_mtm=self.pairs))
+            for mtm, psm in self.pairs.items():
+                self.create_subscription(String, f'/{mtm}_{psm}/current_state',
+                                         lambda msg, m=mtm: self._on_teleop_state(m, msg),
+                                         qos.LATCHED)
+            if self.config.recorder:
+                self.create_subscription(String, f'/{self.config.recorder}/status',
+                                         self._on_recorder_status, qos.LATCHED)
+                self._target_pair = self.create_publisher(String, 'sim/target_pair',
+                                                          qos.COMMANDS)
+        self._pair = ''
+        self._recording = False
         self._tf_count = 0
         self.create_subscription(TFMessage, '/tf', self._on_tf, qos.STREAM)
         self.create_subscription(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
@@ -189,6 +233,8 @@ class Viewer(Node):
         except ValueError as exc:
             self.get_logger().warning(f'sim/events: {exc}')
             return
+        if event.get('kind') == 'target_pair' and 'error' not in event:
+            self._pair = str(event.get('pair', ''))
         self.page.add_event(float(event.get('t', 0.0)), event)
 
     def _on_image(self, msg):
@@ -200,13 +246,48 @@ class Viewer(Node):
 
     def _render(self):
         self.clock.tick(self.page.render())
-        if self.controls is not None:
-            for mtm in self.config.mtms:
-                psm = PSM_OF_MTM.get(mtm)
-                if psm and not self.controls.placed(mtm):
-                    T = self.page.scene.tf.world(psm)
-                    if T is not None:
-                        self.controls.place(mtm, T)
+        tf = self.page.scene.tf
+        T_optical = tf.world('ECM_left_optical')
+        if T_optical is not None:
+            self.page.set_endoscope(T_optical, self._fov)
+        if self.controls is None:
+            return
+        if T_optical is not None:
+            self.controls.set_image_rotation(T_optical[:3, :3])
+        self.controls.tick()
+        for mtm in list(self._to_place):
+            T = tf.world(self.pairs.get(mtm, ''))
+            if T is not None:
+                self._to_place.discard(mtm)
+                self.controls.place(mtm, T)
+
+    # --- the console's state -------------------------------------------------------------------
+
+    def _on_teleop_state(self, mtm, msg):
+        before, state = self._states.get(mtm), msg.data
+        self._states[mtm] = state
+        # put the handle at its tool once the arms are homed, and at every clutch
+        if state == 'CLUTCHED' or (state != 'FOLLOWING' and before in (None, 'SETTING_ARMS')):
+            self._to_place.add(mtm)
+        self.controls.set_teleop_state(mtm, state)
+
+    def _on_recorder_status(self, msg):
+        try:
+            status = json.loads(msg.data)
+        except ValueError:
+            return
+        bag = status.get('bag')
+        recording = bool(status.get('recording'))
+        if recording and not self._recording and self._pair:
+            self._target_pair.publish(String(data=self._pair))
+        self._recording = recording
+        if recording:
+            text = f'**recording** to `{bag}` — Record (R) stops it'
+        elif bag:
+            text = f'bag written: `{bag}` — Record (R) starts another'
+        else:
+            text = 'Record (R): press to start a bag'
+        self.controls.set_recording(text)
 
     def _publish_stats(self):
         now = time.monotonic()
@@ -227,8 +308,12 @@ class Viewer(Node):
     def _publish_gripper(self, mtm, angle):
         self._input[mtm][1].publish(Float64(data=float(angle)))
 
-    def _publish_pedals(self, clutch, coag):
-        msg = Joy(buttons=[int(clutch), int(coag)])
+    def _publish_pedals(self, clutch, coag, camera=0):
+        if clutch and not self._pedal_state[0]:
+            # no teleop tells when it clutched: put the handles back at once
+            self._to_place.update(m for m in self.config.mtms if m not in self._states)
+        self._pedal_state = (int(clutch), int(coag))
+        msg = Joy(buttons=[int(clutch), int(coag), int(camera)])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._pedals.publish(msg)
 

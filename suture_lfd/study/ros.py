@@ -29,7 +29,6 @@ are deleted) and runs again on resume. ``ros/results/`` keeps each throw's outco
 executor wrote it (without the pose samples).
 """
 
-import ctypes
 from dataclasses import dataclass, field
 import errno
 import fcntl
@@ -44,7 +43,7 @@ import tempfile
 import time
 
 import numpy as np
-from sim_bridge.processes import kill_group, stop_group
+from sim_bridge.processes import kill_group, popen, stop_group
 from suture_lfd.errors import RosThrowError
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
@@ -162,17 +161,6 @@ class DomainLease:
             self._fd = None
 
 
-_PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent():
-    """In the child before exec: SIGTERM when the process that started it dies (Linux)."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass
-
-
 class NodeProcess:
     """A node executable in a process group of its own, its output in a log file."""
 
@@ -181,9 +169,8 @@ class NodeProcess:
         self.log_path = Path(log_path)
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.log_path, 'w') as log:
-            self.popen = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT,
-                                          stdin=subprocess.DEVNULL, env=env,
-                                          start_new_session=True, preexec_fn=_die_with_parent)
+            self.popen = popen(self.argv, stdout=log, stderr=subprocess.STDOUT,
+                               stdin=subprocess.DEVNULL, env=env)
 
     def poll(self):
         """Return the exit code, or None while it runs."""

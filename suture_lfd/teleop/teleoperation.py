@@ -10,15 +10,16 @@ States (``dvrk_teleoperation.py``, names as the issue of this package gives them
   seen through the camera, and following waits until they agree within
   ``orientation_tolerance``; the operator must be present (coag pedal) and active (the gripper
   opened or closed by ``start_gripper_threshold``, or the wrist rolled by
-  ``start_roll_threshold``, since the operator came), then the map is anchored;
+  ``start_roll_threshold``, in this state, before or after the pedal: either order), then the
+  map is anchored;
 - ``FOLLOWING``: every cycle the PSM gets ``servo_cp`` (the anchored map of the MTM pose) and
   ``jaw/servo_jp`` (the rate-limited gripper);
 - ``CLUTCHED``: the clutch pedal is down: the PSM holds (``hold``), the MTM's orientation is
   locked (``lock_orientation``) when it is aligned, the hand recentres; releasing the clutch goes
   back through ``ALIGNING`` and anchors again, so the tool does not jump.
 
-When the operator leaves (coag released), the PSM holds and the machine goes back to
-``ALIGNING``; when an arm stops being ready, back to ``SETTING_ARMS``.
+When the operator leaves (coag released), the PSM holds, the gesture is forgotten and the
+machine goes back to ``ALIGNING``; when an arm stops being ready, back to ``SETTING_ARMS``.
 
 :meth:`Teleoperation.step` takes one cycle's :class:`TeleopInputs` and returns the commands
 (:class:`Command`) for the ROS layer to send, in order.
@@ -53,6 +54,9 @@ class TeleopConfig:
         the operator is always present.
     rate : float
         Cycles per second (the dVRK's teleop: 200, ``--interval 0.005``).
+    idle_rate : float
+        Cycles per second while nobody teleoperates: the operator is not present and the
+        teleoperation neither follows nor is clutched (the node's cycles cost CPU for nothing).
     scale : float
         PSM translation per MTM translation.
     align_mtm : bool
@@ -86,6 +90,7 @@ class TeleopConfig:
     clutch_topic: str = '/footpedals/clutch'
     operator_present_topic: str = '/footpedals/coag'
     rate: float = 200.0
+    idle_rate: float = 10.0
     scale: float = 0.2
     align_mtm: bool = True
     rotation_locked: bool = False
@@ -108,7 +113,7 @@ class TeleopConfig:
     align_period: float = 10.0
 
     def __post_init__(self):
-        for name in ('rate', 'scale', 'command_retry', 'align_period'):
+        for name in ('rate', 'idle_rate', 'scale', 'command_retry', 'align_period'):
             check_positive(getattr(self, name), f'parameter {name}')
         for name in ('orientation_tolerance', 'start_gripper_threshold', 'start_roll_threshold'):
             if getattr(self, name) < 0:
@@ -334,8 +339,8 @@ class Teleoperation:
         dt = 0.0 if self._t is None else max(0.0, inp.t - self._t)
         self._t = inp.t
         present = inp.operator_present
-        if present and not self._present:
-            self.operator_active = False    # a new presence: wait for the gripper gesture
+        if self._present and not present:
+            self.operator_active = False    # the operator left: wait for a new gesture
             self._range = None
         self._present = present
         if self.state == DISABLED:
@@ -388,8 +393,8 @@ class Teleoperation:
             out.append(Command('move_cp', 'mtm', T))
             self._range = None          # the move turns the wrist: not the operator's gesture
             return out
-        if present and not mtm_busy:
-            self._track_activity(inp)
+        if not mtm_busy:
+            self._track_activity(inp)       # a pinch counts before the coag pedal as after
         if present and self.operator_active and error <= cfg.orientation_tolerance \
                 and not mtm_busy:
             if inp.clutch:

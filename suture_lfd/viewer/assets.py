@@ -6,6 +6,7 @@ so a viewer started with the simulator's ``phantom`` parameter draws the same pa
 """
 
 from dataclasses import replace
+import math
 from pathlib import Path
 
 from sim_bridge.scene.phantom import build_phantom
@@ -60,3 +61,15 @@ def needle_arc(config=None, n=32):
     """
     needle = (config or load_simulation_config()).scene.needle
     return needle.arc_points(n), needle.wire_diameter
+
+
+def endoscope_fov(config=None):
+    """
+    Return the vertical field of view (rad) of the ECM's cameras, from the camera model.
+
+    ``fy`` (pixels) when the configuration gives it, otherwise ``vertical_fov``.
+    """
+    camera = (config or load_simulation_config()).camera
+    if camera.fy > 0:
+        return 2.0 * math.atan(0.5 * camera.height / camera.fy)
+    return float(camera.vertical_fov)

@@ -1,31 +1,85 @@
 """
-The virtual MTMs' browser input: a 6-DOF handle and a gripper slider per MTM, the pedals.
+The console on the page: a handle and a gripper slider per virtual MTM, the pedals, the state.
 
 A page panel (:meth:`suture_lfd.viewer.page.ViewerPage.add_panel`) that reports what the person
-does through three callbacks and knows nothing of teleoperation or ROS:
+does through callbacks and knows nothing of ROS:
 
-- ``on_pose(mtm, T_world_handle)``: the handle's pose (4x4, ``world``, m) on every change
-  (the page sends a dragged handle's pose at its frame rate);
+- ``on_pose(mtm, T_world_handle)``: the handle's pose (4x4, ``world``, m) on every change and
+  whenever the handle is put back at its tool;
 - ``on_gripper(mtm, angle)``: gripper opening angle (rad, 0 ... :data:`GRIPPER_MAX`);
-- ``on_pedals(clutch, coag)``: the pedal state (1 = pressed) on every change.
+- ``on_pedals(clutch, coag, camera)``: the pedal state (1 = pressed) on every change.
 
-Each MTM's handle starts at the tool pose of its PSM (:data:`PSM_OF_MTM`: MTMR drives PSM1,
-MTML PSM2) once :meth:`MtmControls.place` gives it. The pedals are toggles: a click on the
-``Clutch`` or ``Coag`` button, or its key (:data:`HOTKEYS`, case-insensitive, also listed in
-the page's command palette, Ctrl+K), presses a released pedal and releases a pressed one.
+Handles. Each MTM's handle sits at the tool of the PSM it drives (``psm_of_mtm``, MTMR drives
+PSM2 and MTML PSM1 by default: each hand on its side of the endoscope image) once
+:meth:`MtmControls.place` puts it there: the viewer does when the arms are homed and at every
+clutch. A handle keeps a fixed size on screen (:data:`HANDLE_PX`) and, in the default mode, moves
+only in the image plane of the endoscope (its two arrows and the square between them, no
+rotation ring to catch by mistake); the ``Handle`` control (keys :data:`MODE_KEYS`) switches to
+``depth`` (the arrow along the view) or ``rotate`` (the rings alone). The pose sent keeps the
+orientation the person gave in ``rotate`` mode whatever the mode shows.
+
+Pedals. ``Clutch`` is pressed only while held: the button held down with the mouse, or key C
+held (key repeat ignored; a page script turns key down and up into the button's press and
+release); if the page stops saying it is held for :data:`HOLD_TIMEOUT` s (a lost pointer), it
+is released. ``Coag`` (key V) toggles the operator's presence; ``Record`` (key R) presses the
+camera pedal once (the recorder starts or stops a bag).
 """
 
+import json
 import math
 import threading
+import time
 
 import numpy as np
 from sim_bridge.geometry import matrix_from_quaternion
 from suture_lfd.viewer.scene import wxyz_from_matrix
 
-PSM_OF_MTM = {'MTMR': 'PSM1', 'MTML': 'PSM2'}
+PSM_OF_MTM = {'MTMR': 'PSM2', 'MTML': 'PSM1'}
 GRIPPER_MAX = math.radians(60.0)  # rad, the MTM gripper's opening range
-HOTKEYS = {'clutch': 'C', 'coag': 'V'}
-HANDLE_SCALE = 0.025  # m, size of the drawn handle
+HANDLE_PX = 110.0  # px, length of a handle's arrows on screen
+HOLD_HZ = 20.0  # Hz at which a held clutch button reports it is held
+HOLD_TIMEOUT = 1.0  # s without a report before a held clutch counts as released
+MODES = ('move in image', 'depth', 'rotate')
+MODE_KEYS = {'move in image': 'M', 'depth': 'Z', 'rotate': 'T'}
+HOTKEYS = {'clutch': 'C', 'coag': 'V', 'record': 'R'}
+CLUTCH_LABEL = 'Clutch (hold C)'
+# What to do next, per teleop state (ALIGNING depends on the coag pedal).
+NEXT_ACTION = {
+    None: 'start its teleop node',
+    'SETTING_ARMS': 'wait: the arms are being enabled and homed',
+    'ALIGNING': 'press Coag (V) and pinch the gripper (move its slider), in either order',
+    'FOLLOWING': 'drag the handle; hold C to clutch and bring it back to the tool',
+    'CLUTCHED': 'release C to follow again',
+    'DISABLED': 'the teleop is disabled',
+}
+NEXT_ACTION_PRESENT = 'pinch the gripper: move its slider by 5 deg or more'
+
+# Key C held -> the clutch button held: key down (not a repeat) presses it, key up releases it,
+# through the button's own pointer events (viser sends key presses only, not releases). Run once
+# per page by an image that fails to load (the only way the page's HTML runs code).
+_KEY_SCRIPT = (
+    "if(!window.__sutureClutchKey){window.__sutureClutchKey=1;let held=false;"
+    "const btn=()=>[...document.querySelectorAll('button')].find("
+    "b=>b.innerText&&b.innerText.includes(LABEL));"
+    "const form=e=>{const t=e.target;return t&&(t.tagName==='INPUT'||t.tagName==='TEXTAREA');};"
+    "const opts=()=>({bubbles:true,cancelable:true,button:0,buttons:1,pointerId:77,"
+    "pointerType:'mouse',isPrimary:true});"
+    "window.addEventListener('keydown',e=>{if(e.code!=='KeyC'||e.ctrlKey||e.metaKey||form(e))"
+    "return;e.preventDefault();if(e.repeat||held)return;const b=btn();if(!b)return;held=true;"
+    "b.dispatchEvent(new PointerEvent('pointerdown',opts()));},true);"
+    "const up=()=>{if(!held)return;held=false;const b=btn();if(!b)return;"
+    "b.dispatchEvent(new PointerEvent('pointerup',{...opts(),buttons:0}));"
+    "b.dispatchEvent(new MouseEvent('click',{bubbles:true,cancelable:true,button:0}));};"
+    "window.addEventListener('keyup',e=>{if(e.code==='KeyC')up();},true);"
+    "window.addEventListener('blur',up);}"
+)
+
+
+def key_script_html():
+    """Return the HTML of the page element that installs the clutch key's script."""
+    script = _KEY_SCRIPT.replace('LABEL', json.dumps(CLUTCH_LABEL).replace('"', "'"))
+    return (f'<img alt="" src="data:image/png;base64,AA==" style="display:none" '
+            f'onerror="{script}">')
 
 
 def _matrix(position, wxyz):
@@ -36,9 +90,16 @@ def _matrix(position, wxyz):
     return T
 
 
+def next_action(state, coag):
+    """Return what the person should do next for a teleop in ``state`` (None: none seen)."""
+    if state == 'ALIGNING' and coag:
+        return NEXT_ACTION_PRESENT
+    return NEXT_ACTION.get(state, f'teleop state {state}')
+
+
 class MtmControls:
     """
-    Handles, gripper sliders and pedal buttons of the virtual MTMs on the page.
+    Handles, gripper sliders, pedal and record controls and the console's state on the page.
 
     Parameters
     ----------
@@ -46,75 +107,218 @@ class MtmControls:
         MTM names (``MTML``, ``MTMR``); one handle and one slider each.
     on_pose, on_gripper, on_pedals : callable, optional
         Called from the page's threads, see the module docstring.
+    psm_of_mtm : dict, optional
+        The PSM each MTM drives (default :data:`PSM_OF_MTM`).
+    clock : callable, optional
+        Monotonic time (s), for the held clutch's timeout.
 
     Attributes
     ----------
     pedals : dict
         ``{'clutch': 0|1, 'coag': 0|1}``, the current state.
+    mode : str
+        The handles' mode, one of :data:`MODES`.
 
     """
 
-    def __init__(self, mtms=('MTML', 'MTMR'), on_pose=None, on_gripper=None, on_pedals=None):
+    def __init__(self, mtms=('MTML', 'MTMR'), on_pose=None, on_gripper=None, on_pedals=None,
+                 psm_of_mtm=None, clock=time.monotonic):
         unknown = [m for m in mtms if not m]
         if unknown or len(set(mtms)) != len(mtms):
             raise ValueError(f'mtms must be distinct non-empty names, got {list(mtms)}')
         self.mtms = tuple(mtms)
+        self.psm_of_mtm = dict(PSM_OF_MTM if psm_of_mtm is None else psm_of_mtm)
         self._on_pose = on_pose or (lambda mtm, T: None)
         self._on_gripper = on_gripper or (lambda mtm, angle: None)
-        self._on_pedals = on_pedals or (lambda clutch, coag: None)
+        self._on_pedals = on_pedals or (lambda clutch, coag, camera: None)
+        self._clock = clock
         self.pedals = {'clutch': 0, 'coag': 0}
-        self._lock = threading.Lock()
+        self.mode = MODES[0]
+        self._lock = threading.RLock()
+        self._last_hold = -math.inf
         self.handles = {}
         self.sliders = {}
         self.buttons = {}
         self.commands = {}
+        self._R_image = np.eye(3)       # the handles' frame when not rotating: the image plane
+        self._R_shown = {}              # orientation each handle shows (world)
+        self._R_user = {}               # orientation each handle sends (world)
         self._placed = set()
-        self._moved = set()
+        self._states = {}               # teleop state of each MTM
+        self._recording = ''
+        self._status = None
+        self._mode_input = None
+
+    # --- building the page ---------------------------------------------------------------------
 
     def attach(self, page):
         """Build the handles, sliders, buttons and key bindings on ``page``."""
         server = page.server
-        with server.gui.add_folder('Virtual MTMs'):
+        with server.gui.add_folder('Console'):
+            clutch = server.gui.add_button(CLUTCH_LABEL, color='gray',
+                                           hint='pressed while held (mouse or key C)')
+            clutch.on_hold(self.clutch_held, callback_hz=HOLD_HZ)
+            clutch.on_click(self.clutch_released)
+            self.buttons['clutch'] = clutch
+            coag = server.gui.add_button(f'Coag ({HOTKEYS["coag"]})', color='gray',
+                                         hint='operator present: press once, again to leave')
+            coag.on_click(self._on_coag)
+            self.buttons['coag'] = coag
+            record = server.gui.add_button(f'Record ({HOTKEYS["record"]})', color='gray',
+                                           hint='the camera pedal: starts and stops a bag')
+            record.on_click(self._on_record)
+            self.buttons['record'] = record
+            for name, callback in (('coag', self._on_coag), ('record', self._on_record)):
+                command = server.gui.add_command(
+                    f'Press {name}', description=f'the {name} control', hotkey=HOTKEYS[name])
+                command.on_trigger(callback)
+                self.commands[name] = command
+            self._mode_input = server.gui.add_dropdown('Handle', MODES, initial_value=self.mode)
+            self._mode_input.on_update(lambda _event: self.set_mode(self._mode_input.value))
+            for mode, key in MODE_KEYS.items():
+                command = server.gui.add_command(f'Handle: {mode}', hotkey=key)
+                command.on_trigger(lambda _event, m=mode: self._select_mode(m))
+                self.commands[mode] = command
             for mtm in self.mtms:
-                handle = server.scene.add_transform_controls(
-                    f'/mtm/{mtm}', scale=HANDLE_SCALE, line_width=2.0, depth_test=False,
-                    visible=False)
-                handle.on_update(self._pose_callback(mtm))
-                self.handles[mtm] = handle
                 slider = server.gui.add_slider(
                     f'{mtm} gripper (deg)', min=0.0, max=math.degrees(GRIPPER_MAX), step=0.5,
                     initial_value=0.0)
                 slider.on_update(self._gripper_callback(mtm, slider))
                 self.sliders[mtm] = slider
-            for pedal, key in HOTKEYS.items():
-                button = server.gui.add_button(f'{pedal.capitalize()} ({key})', color='gray')
-                button.on_click(self._toggle_callback(pedal))
-                self.buttons[pedal] = button
-                command = server.gui.add_command(
-                    f'Toggle {pedal}', description=f'press or release the {pedal} pedal',
-                    hotkey=key)
-                command.on_trigger(self._toggle_callback(pedal))
-                self.commands[pedal] = command
+            server.gui.add_html(key_script_html())
+            # last: its lines change, the controls above it stay where the mouse found them
+            self._status = server.gui.add_markdown(self._status_text())
+        for mtm in self.mtms:
+            handle = server.scene.add_transform_controls(
+                f'/mtm/{mtm}', scale=HANDLE_PX, fixed=True, line_width=3.0, depth_test=False,
+                visible=False, **self._mode_props(self.mode))
+            handle.on_update(self._pose_callback(mtm))
+            self.handles[mtm] = handle
+
+    @staticmethod
+    def _mode_props(mode):
+        if mode == 'depth':
+            return {'active_axes': (False, False, True), 'disable_axes': False,
+                    'disable_sliders': True, 'disable_rotations': True}
+        if mode == 'rotate':
+            return {'active_axes': (True, True, True), 'disable_axes': True,
+                    'disable_sliders': True, 'disable_rotations': False}
+        return {'active_axes': (True, True, False), 'disable_axes': False,
+                'disable_sliders': False, 'disable_rotations': True}
+
+    # --- what the viewer tells it --------------------------------------------------------------
+
+    def set_image_rotation(self, R_world_image):
+        """Orient the handles' arrows along the endoscope image (3x3: x right, y down, z ahead)."""
+        with self._lock:
+            self._R_image = np.array(R_world_image, dtype=float)[:3, :3]
+            if self.mode == 'rotate':
+                return
+            for mtm, handle in self.handles.items():
+                if mtm in self._placed and not np.allclose(self._R_shown.get(mtm), self._R_image):
+                    self._R_shown[mtm] = self._R_image.copy()
+                    handle.wxyz = wxyz_from_matrix(self._R_image)
 
     def place(self, mtm, T_world_tool):
-        """Put ``mtm``'s handle at a PSM tool pose (4x4, ``world``) until the user moves it."""
+        """
+        Put ``mtm``'s handle at a PSM tool pose (4x4, ``world``) and send that pose.
+
+        The orientation sent stays the one the person gave (the tool's at the first placing).
+        """
         handle = self.handles.get(mtm)
-        if handle is None or mtm in self._moved:
+        if handle is None:
             return
-        handle.position = tuple(np.asarray(T_world_tool, float)[:3, 3].tolist())
-        handle.wxyz = wxyz_from_matrix(T_world_tool)
-        handle.visible = True
-        self._placed.add(mtm)
+        T_world_tool = np.asarray(T_world_tool, float)
+        with self._lock:
+            if mtm not in self._R_user:
+                self._R_user[mtm] = T_world_tool[:3, :3].copy()
+            self._R_shown[mtm] = self._R_image.copy() if self.mode != 'rotate' \
+                else self._R_user[mtm].copy()
+            handle.position = tuple(T_world_tool[:3, 3].tolist())
+            handle.wxyz = wxyz_from_matrix(self._R_shown[mtm])
+            handle.visible = True
+            self._placed.add(mtm)
+            T = np.eye(4)
+            T[:3, :3] = self._R_user[mtm]
+            T[:3, 3] = T_world_tool[:3, 3]
+        self._on_pose(mtm, T)
 
     def placed(self, mtm):
-        """Whether ``mtm``'s handle has been placed (at its PSM or by the user)."""
-        return mtm in self._placed or mtm in self._moved
+        """Whether ``mtm``'s handle has been placed at its tool."""
+        return mtm in self._placed
+
+    def set_teleop_state(self, mtm, state):
+        """Show the teleop state of ``mtm``'s pair (``FOLLOWING``, ...) and the next action."""
+        with self._lock:
+            self._states[mtm] = state
+        self._show_status()
+
+    def set_recording(self, text):
+        """Show the recorder's state (markdown, e.g. the bag's path)."""
+        with self._lock:
+            self._recording = text
+        self._show_status()
+
+    def tick(self):
+        """Release a held clutch whose page stopped reporting it (call it every frame)."""
+        with self._lock:
+            lost = self.pedals['clutch'] and self._clock() - self._last_hold > HOLD_TIMEOUT
+        if lost:
+            self.clutch_released(None)
+
+    # --- page callbacks ------------------------------------------------------------------------
+
+    def _status_text(self):
+        lines = []
+        for mtm in self.mtms:
+            state = self._states.get(mtm)
+            lines.append(f'**{mtm} → {self.psm_of_mtm.get(mtm, "?")}**: {state or "no teleop"}'
+                         f' — {next_action(state, self.pedals["coag"])}')
+        lines.append(self._recording or 'Record (R): press to start a bag')
+        return '  \n'.join(lines)
+
+    def _show_status(self):
+        if self._status is not None:
+            text = self._status_text()
+            if self._status.content != text:
+                self._status.content = text
+
+    def _select_mode(self, mode):
+        if self._mode_input is not None and self._mode_input.value != mode:
+            self._mode_input.value = mode   # its callback sets the mode
+        else:
+            self.set_mode(mode)
+
+    def set_mode(self, mode):
+        """Switch the handles to ``mode`` (one of :data:`MODES`)."""
+        if mode not in MODES:
+            raise ValueError(f'handle mode must be one of {MODES}, got {mode!r}')
+        with self._lock:
+            if mode == self.mode:
+                return
+            self.mode = mode
+            for mtm, handle in self.handles.items():
+                for key, value in self._mode_props(mode).items():
+                    setattr(handle, key, value)
+                if mtm not in self._placed:
+                    continue
+                self._R_shown[mtm] = self._R_user[mtm].copy() if mode == 'rotate' \
+                    else self._R_image.copy()
+                handle.wxyz = wxyz_from_matrix(self._R_shown[mtm])
 
     def _pose_callback(self, mtm):
         def callback(event):
             handle = event.target
-            self._moved.add(mtm)
-            self._on_pose(mtm, _matrix(handle.position, handle.wxyz))
+            with self._lock:
+                T = _matrix(handle.position, handle.wxyz)
+                if mtm not in self._R_user:
+                    self._R_user[mtm] = T[:3, :3].copy()
+                if self.mode == 'rotate':
+                    self._R_user[mtm] = T[:3, :3].copy()
+                    self._R_shown[mtm] = T[:3, :3].copy()
+                T[:3, :3] = self._R_user[mtm]
+                self._placed.add(mtm)
+            self._on_pose(mtm, T)
         return callback
 
     def _gripper_callback(self, mtm, slider):
@@ -123,11 +327,37 @@ class MtmControls:
             self._on_gripper(mtm, angle)
         return callback
 
-    def _toggle_callback(self, pedal):
-        def callback(_event):
-            with self._lock:
-                self.pedals[pedal] = 1 - self.pedals[pedal]
-                state = dict(self.pedals)
-            self.buttons[pedal].color = 'red' if state[pedal] else 'gray'
-            self._on_pedals(state['clutch'], state['coag'])
-        return callback
+    def _send_pedals(self, camera=0):
+        self._on_pedals(self.pedals['clutch'], self.pedals['coag'], camera)
+
+    def clutch_held(self, _event=None):
+        """Press the clutch: the page says it is held (at press, then at :data:`HOLD_HZ`)."""
+        with self._lock:
+            self._last_hold = self._clock()
+            if self.pedals['clutch']:
+                return
+            self.pedals['clutch'] = 1
+            self._send_pedals()
+        self.buttons['clutch'].color = 'red'
+
+    def clutch_released(self, _event=None):
+        """Release the clutch: the page says it was let go (the click at pointer up)."""
+        with self._lock:
+            if not self.pedals['clutch']:
+                return
+            self.pedals['clutch'] = 0
+            self._send_pedals()
+        self.buttons['clutch'].color = 'gray'
+
+    def _on_coag(self, _event):
+        with self._lock:
+            self.pedals['coag'] = 1 - self.pedals['coag']
+            self._send_pedals()
+            pressed = self.pedals['coag']
+        self.buttons['coag'].color = 'red' if pressed else 'gray'
+        self._show_status()
+
+    def _on_record(self, _event):
+        with self._lock:
+            self._send_pedals(camera=1)
+            self._send_pedals(camera=0)

@@ -6,6 +6,11 @@ otherwise: the page accepts control input) and the :class:`~suture_lfd.viewer.sc
 Panels that are not the scene (the virtual MTMs' input, the replay controls) plug in through
 :meth:`ViewerPage.add_panel`: a panel is any object with ``attach(page)``; it builds its own
 GUI elements and callbacks and never touches the scene code.
+
+Two views, one click apart (the ``View`` button): ``free``, an orbit camera starting front right
+of the pad, and ``endoscope``, the surgeon's view: the page's camera at the ECM's left camera
+(:meth:`ViewerPage.set_endoscope`: its optical frame and vertical field of view), following it
+as it moves and put back there when the mouse orbits away from it.
 """
 
 import json
@@ -14,6 +19,7 @@ import threading
 import time
 
 import numpy as np
+from sim_bridge.geometry import matrix_from_quaternion
 from suture_lfd.viewer.scene import SceneView
 import viser
 
@@ -26,6 +32,10 @@ NEAR = 0.002  # m, the page camera's near plane (the scene is a few cm across)
 CAMERA_POSITION = (0.09, -0.10, 0.10)
 CAMERA_LOOK_AT = (0.0, 0.0, 0.0)
 CAMERA_FOV = np.radians(45.0)
+VIEWS = ('endoscope', 'free')
+LOOK_DISTANCE = 0.08  # m, the orbit centre ahead of the endoscope (its working distance)
+REASSERT_PERIOD = 0.5  # s between two checks that a page still looks through the endoscope
+CLIP_AHEAD = 0.003  # m ahead of the endoscope where the lines are cut in its view
 
 
 def page_url(host, port):
@@ -67,6 +77,8 @@ class ViewerPage:
         TCP port (0: any free port).
     title : str
         Title shown in the page's title bar.
+    view : str
+        The first view, ``free`` or ``endoscope`` (:data:`VIEWS`).
 
     Attributes
     ----------
@@ -78,7 +90,9 @@ class ViewerPage:
     """
 
     def __init__(self, needle_points, needle_diameter=0.001, host=DEFAULT_HOST,
-                 port=DEFAULT_PORT, title='suture_lfd viewer'):
+                 port=DEFAULT_PORT, title='suture_lfd viewer', view='free'):
+        if view not in VIEWS:
+            raise ValueError(f'view must be one of {VIEWS}, got {view!r}')
         if port == 0:
             port = _free_port(host)
         self.server = viser.ViserServer(host=host, port=port, label=title, verbose=False)
@@ -89,13 +103,20 @@ class ViewerPage:
                                         show_logo=False, show_share_button=False,
                                         titlebar_content=None)
         self.scene = SceneView(self.server.scene, needle_points, needle_diameter)
+        self.view = view
+        self._endoscope = None          # (position, look_at, up, fov) of the ECM's left camera
+        self._checked = 0.0
         self.set_camera()
+        self._view_button = self.server.gui.add_button(self._view_label(), color='blue')
+        self._view_button.on_click(lambda _event: self.set_view(
+            'free' if self.view == 'endoscope' else 'endoscope'))
         self.server.scene.add_grid('/grid', width=0.4, height=0.4, cell_size=0.02,
                                    section_size=0.1, position=(0.0, 0.0, -0.0005))
         self._events = []
         self._events_lock = threading.Lock()
         self._events_dirty = False
-        with self.server.gui.add_folder('Scene events'):
+        # below the panels: a growing list must not move the controls under the mouse
+        with self.server.gui.add_folder('Scene events', order=1e6):
             self._events_md = self.server.gui.add_markdown('_no event yet_')
         self.status = self.server.gui.add_markdown('')
         self.panels = []
@@ -106,19 +127,76 @@ class ViewerPage:
                                phantom.T_world_phantom, phantom.rgba)
         self.scene.set_marker_radius(phantom.marker_radius)
 
-    def set_camera(self, position=CAMERA_POSITION, look_at=CAMERA_LOOK_AT, fov=CAMERA_FOV):
+    def set_camera(self, position=CAMERA_POSITION, look_at=CAMERA_LOOK_AT, up=(0.0, 0.0, 1.0),
+                   fov=CAMERA_FOV):
         """Camera of every page opened from now on (and of the open ones): world, m, rad."""
         camera = self.server.initial_camera
         camera.position = tuple(map(float, position))
         camera.look_at = tuple(map(float, look_at))
-        camera.up = (0.0, 0.0, 1.0)
+        camera.up = tuple(map(float, up))
         camera.fov = float(fov)
         camera.near = NEAR
         for client in self.server.get_clients().values():
             client.camera.position = tuple(map(float, position))
             client.camera.look_at = tuple(map(float, look_at))
-            client.camera.up_direction = (0.0, 0.0, 1.0)
+            client.camera.up_direction = tuple(map(float, up))
             client.camera.fov = float(fov)
+
+    def _view_label(self):
+        return 'View: free 3-D' if self.view == 'endoscope' else 'View: endoscope'
+
+    def set_view(self, view):
+        """Look through the endoscope (``endoscope``) or orbit freely (``free``)."""
+        if view not in VIEWS:
+            raise ValueError(f'view must be one of {VIEWS}, got {view!r}')
+        self.view = view
+        self._view_button.label = self._view_label()
+        if view == 'free':
+            self.scene.set_clip_plane(None)
+            self.scene.show_ecm(True)
+            self.set_camera()
+        elif self._endoscope is not None:
+            self.set_camera(*self._endoscope)
+
+    def set_endoscope(self, T_world_optical, fov):
+        """
+        Take the ECM's left camera: its optical frame (4x4, ``world``; x right, y down, z ahead).
+
+        ``fov`` is the camera model's vertical field of view (rad). In the ``endoscope`` view
+        every page looks through it; call it again whenever the ECM moves.
+        """
+        T = np.asarray(T_world_optical, float)
+        position = T[:3, 3]
+        pose = (position, position + LOOK_DISTANCE * T[:3, 2], -T[:3, 1], float(fov))
+        moved = self._endoscope is None or not all(
+            np.allclose(a, b, atol=1e-6) for a, b in zip(pose, self._endoscope))
+        self._endoscope = pose
+        if self.view != 'endoscope':
+            return
+        self.scene.set_clip_plane(position + CLIP_AHEAD * T[:3, 2], T[:3, 2])
+        self.scene.show_ecm(False)      # the camera does not see itself
+        now = time.monotonic()
+        if moved:
+            self.set_camera(*pose)
+            self._checked = now
+        elif now - self._checked >= REASSERT_PERIOD:
+            self._checked = now
+            self._reassert()
+
+    def _reassert(self):
+        """Put back a page whose camera left the endoscope (an orbit with the mouse)."""
+        position, look_at, up, fov = self._endoscope
+        for client in self.server.get_clients().values():
+            try:
+                off = np.linalg.norm(np.asarray(client.camera.position) - position)
+                R = np.asarray(matrix_from_quaternion(_xyzw(client.camera.wxyz)))
+            except AssertionError:  # no camera message from this browser yet
+                continue
+            if off > 1e-4 or float(R[:, 2] @ (look_at - position)) < 0.999 * LOOK_DISTANCE:
+                client.camera.position = tuple(map(float, position))
+                client.camera.look_at = tuple(map(float, look_at))
+                client.camera.up_direction = tuple(map(float, up))
+                client.camera.fov = fov
 
     def add_panel(self, panel):
         """Plug a panel (an object with ``attach(page)``) into the page; returns the panel."""
@@ -181,6 +259,11 @@ class ViewerPage:
     def close(self):
         """Stop the server."""
         self.server.stop()
+
+
+def _xyzw(wxyz):
+    w, x, y, z = (float(v) for v in wxyz)
+    return (x, y, z, w)
 
 
 def _free_port(host):

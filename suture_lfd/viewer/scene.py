@@ -33,12 +33,45 @@ def wxyz_from_matrix(T):
     return (w, x, y, z)
 
 
+def rotation_with_z(z):
+    """Return a rotation (3x3) whose third column is the unit vector ``z``."""
+    z = np.asarray(z, dtype=float)
+    helper = (1.0, 0.0, 0.0) if abs(z[0]) < 0.9 else (0.0, 1.0, 0.0)
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack((x, np.cross(z, x), z))
+
+
 def segments_from_strip(points):
     """Return line segments ``(n - 1, 2, 3)`` joining consecutive points ``(n, 3)``."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     if len(points) < 2:
         return np.zeros((0, 2, 3))
     return np.stack((points[:-1], points[1:]), axis=1)
+
+
+def clip_segments(segments, plane):
+    """
+    Return the parts of line segments ``(n, 2, 3)`` in front of a plane ``(point, normal)``.
+
+    A segment wholly behind the plane is dropped; one that crosses it is cut at it. ``plane``
+    None keeps every segment.
+    """
+    segments = np.asarray(segments, dtype=float).reshape(-1, 2, 3)
+    if plane is None or not len(segments):
+        return segments
+    point, normal = (np.asarray(v, dtype=float) for v in plane)
+    d = (segments - point) @ normal                       # (n, 2) signed distances
+    keep = (d > 0.0).any(axis=1)
+    segments, d = segments[keep].copy(), d[keep]
+    for end in (0, 1):
+        behind = d[:, end] <= 0.0
+        if behind.any():
+            other = 1 - end
+            s = (d[behind, other] / (d[behind, other] - d[behind, end]))[:, None]
+            a, b = segments[behind, other], segments[behind, end]
+            segments[behind, end] = a + s * (b - a)
+    return segments
 
 
 def _rgb255(rgba):
@@ -117,6 +150,10 @@ class SceneView:
         self._drawn_version = -1
         self._markers = {}
         self._lines = {}
+        self._line_data = {}            # key -> (points, colour, width): redrawn on a new clip
+        self._clip = None               # (point, normal): lines behind this plane are cut
+        self._show_ecm = True           # False when the page looks through the ECM's camera
+        self._reclip = False
         self._spheres = {}
         self._phantom = None
         self._image = None
@@ -132,9 +169,12 @@ class SceneView:
             thickness=max(2.0 * needle_diameter, 0.0015), visible=False)
         for arm in ARMS:
             color = ARM_COLORS[arm]
-            self._handles[arm + '/shaft'] = scene.add_line_segments(
-                f'/arms/{arm}/shaft', np.zeros((1, 2, 3)), color,
-                thickness=SHAFT_DIAMETER if arm != 'ECM' else 0.01, visible=False)
+            # a solid cylinder, not a thick line: the shafts pass beside and behind the
+            # endoscope's camera, and only a surface is clipped right at its near plane
+            self._handles[arm + '/shaft'] = scene.add_cylinder(
+                f'/arms/{arm}/shaft', radius=0.5 * (SHAFT_DIAMETER if arm != 'ECM' else 0.01),
+                height=SHAFT_OUTSIDE, color=color, radial_segments=16, cast_shadow=False,
+                receive_shadow=False, visible=False)
             self._handles[arm + '/tool'] = scene.add_frame(
                 f'/arms/{arm}/tool', axes_length=0.012, axes_radius=0.0012, origin_radius=0.0025,
                 origin_color=color, visible=False)
@@ -175,6 +215,30 @@ class SceneView:
             self._pending_spheres[key] = (np.asarray(points, float), _rgb255(rgba),
                                           float(diameter))
 
+    def set_clip_plane(self, point=None, normal=None):
+        """
+        Cut the line markers behind a plane (``world``, m; None: no plane).
+
+        The endoscope view sets its near plane: a line passing behind the camera (the thread
+        on the table) would otherwise be drawn as a wedge across the image.
+        """
+        plane = None if point is None else (np.asarray(point, float), np.asarray(normal, float))
+        with self._lock:
+            same = (plane is None and self._clip is None) or (
+                plane is not None and self._clip is not None
+                and all(np.allclose(a, b, atol=1e-6) for a, b in zip(plane, self._clip)))
+            if not same:
+                self._clip = plane
+                self._reclip = True
+
+    def show_ecm(self, shown):
+        """Draw the ECM (its shaft, tip axes and frustum) or not (in the endoscope view)."""
+        shown = bool(shown)
+        if shown != self._show_ecm:
+            self._show_ecm = shown
+            self._drawn_version = -1
+            self._sent.clear()
+
     def set_image(self, rgb):
         """Show an ECM image ``(h, w, 3)`` uint8 in the ECM's camera frustum."""
         with self._lock:
@@ -195,6 +259,11 @@ class SceneView:
         """
         with self._lock:
             lines, self._pending_lines = self._pending_lines, {}
+            if self._reclip:
+                lines = {**self._line_data, **lines}
+                self._reclip = False
+            self._line_data.update(lines)
+            clip = self._clip
             spheres, self._pending_spheres = self._pending_spheres, {}
             image = self._image if self._image_version != self._image_drawn else None
             self._image_drawn = self._image_version
@@ -203,7 +272,7 @@ class SceneView:
             return False
         self._drawn_version = version
         for key, (points, color, width) in lines.items():
-            self._draw_lines(key, points, color, width)
+            self._draw_lines(key, points, color, width, clip)
         for key, (points, color, diameter) in spheres.items():
             self._draw_spheres(key, points, color, diameter)
         self._pose('phantom', self._phantom)
@@ -255,6 +324,11 @@ class SceneView:
                 handle.position = position
 
     def _draw_arm(self, arm):
+        if arm == 'ECM' and not self._show_ecm:
+            for part in ('/tool', '/shaft'):
+                if self._handles[arm + part].visible:
+                    self._handles[arm + part].visible = False
+            return
         T_tool = self.tf.world(arm)
         T_rcm = self.tf.world(f'{arm}_base')
         if T_tool is None:
@@ -268,17 +342,22 @@ class SceneView:
         length = float(np.linalg.norm(axis))
         if length < 1e-6:
             return
-        outside = rcm - axis / length * SHAFT_OUTSIDE
         shaft = self._handles[arm + '/shaft']
-        points = np.array([[outside, tip]], dtype=np.float32)
-        if not np.array_equal(shaft.points, points):
-            shaft.points = points
-        if not shaft.visible:
-            shaft.visible = True
+        height = length + SHAFT_OUTSIDE
+        if shaft.height != height:
+            shaft.height = height
+        T = np.eye(4)
+        T[:3, :3] = rotation_with_z(axis / length)
+        T[:3, 3] = tip - 0.5 * height * axis / length
+        self._set_pose(shaft, T)
 
     def _draw_camera(self, image):
         T = self.tf.world('ECM_left_optical')
         if T is None:
+            return
+        if not self._show_ecm:
+            if self._frustum is not None and self._frustum.visible:
+                self._frustum.visible = False
             return
         if self._frustum is None or image is not None:
             if self._frustum is not None:
@@ -290,9 +369,18 @@ class SceneView:
                 color=ARM_COLORS['ECM'], thickness=0.0006, image=image, format='jpeg')
         self._set_pose(self._frustum, T)
 
-    def _draw_lines(self, key, points, color, width):
+    def _draw_lines(self, key, points, color, width, clip=None):
         handle = self._lines.get(key)
-        segments = segments_from_strip(points).astype(np.float32)
+        segments = clip_segments(segments_from_strip(points), clip)
+        # a segment of no length has no direction: the page would draw it as a wedge
+        segments = segments[np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1) > 1e-6]
+        segments = segments.astype(np.float32)
+        if not len(segments):
+            if handle is not None:
+                handle.visible = False
+            return
+        if handle is not None and not handle.visible:
+            handle.visible = True
         if handle is None or handle.thickness != width:
             if handle is not None:
                 handle.remove()

@@ -77,7 +77,7 @@ class Burst:
     def matched(self):
         return all(p.get_subscription_count() > 0 for p in self.pubs.values())
 
-    def run(self, seconds, rate_hz=RATE_HZ):
+    def run(self, seconds, rate_hz=RATE_HZ, first_tick=0):
         """Publish for ``seconds`` at ``rate_hz`` ticks (blocking); return messages sent."""
         period = 1.0 / rate_hz
         t0 = time.monotonic()
@@ -85,7 +85,7 @@ class Burst:
         while tick * period < seconds and not self._stop.is_set():
             for topic, (kind, _, every) in self.topics.items():
                 if tick % every == 0:
-                    msg = make_message(kind, tick)
+                    msg = make_message(kind, first_tick + tick)
                     self.pubs[topic].publish(msg)
                     self.sent[topic].append(msg)
             tick += 1
@@ -240,6 +240,38 @@ def test_recorder_writes_every_message_of_a_burst_readable_by_rosbags_and_mcap(
     assert bags.qos_fields(summary.topics['/sim/events'].qos)[:2] == (True, True)
     assert bags.qos_fields(summary.topics['/PSM1/measured_js'].qos)[:2] == (True, False)
     assert 'version: 9' in (bag / 'metadata.yaml').read_text()
+    assert proc.running()
+
+
+def test_a_recording_holds_what_was_published_after_its_start_however_long_the_rest(
+        ros, launch, tmp_path):
+    # at rest the recorder does not take the streams; DDS holds their last messages, which a
+    # recording must neither write nor count as missed
+    from rclpy.serialization import deserialize_message
+
+    streams = {t: v for t, v in BURST_TOPICS.items() if not v[1]}
+    proc = launch_recorder(launch, tmp_path, 'depth:=50')
+    node = ros.node('rest_source')
+    burst = Burst(node, streams)
+    assert wait_for(burst.matched, 20.0), proc.log()
+    burst.run(1.0)                   # 200 messages per topic at rest: more than the depth
+    assert burst.wait_acked()
+    burst.sent = {t: [] for t in streams}
+    started = call(ros, node, '/recorder/start', starts=True)
+    assert started.success, started.message
+    burst.run(0.5, first_tick=10_000)
+    assert burst.wait_acked()
+    time.sleep(1.0)                  # the recorder's callbacks take what its reader holds
+    stopped = call(ros, node, '/recorder/stop')
+    counts = json.loads(stopped.message)
+    assert counts['lost'] == 0, counts
+    for topic, sent in burst.sent.items():
+        assert counts['topics'][topic] == {'received': len(sent), 'carried': 0,
+                                           'written': len(sent), 'missed': 0}, topic
+    stored = read_with_rosbags(Path(started.message))
+    for topic, sent in burst.sent.items():
+        cls = message_types()[streams[topic][0]]
+        assert [deserialize_message(raw, cls) for _, raw in stored[topic]] == sent
     assert proc.running()
 
 

@@ -1,17 +1,19 @@
 """
 The browser back-end: the viewer page's handles drive the virtual MTMs.
 
-The viewer node publishes, in ``world``, ``viewer/input/<MTM>/pose`` (the 6-DOF handle),
+The viewer node publishes, in ``world``, ``viewer/input/<MTM>/pose`` (the handle),
 ``viewer/input/<MTM>/gripper`` (opening angle, rad, 0..1.047) and ``viewer/input/pedals``
-(``buttons = [clutch, coag]``); the virtual MTMs' ROS layer hands each message to this device
-(:meth:`BrowserDevice.set_pose`, :meth:`set_gripper`, :meth:`set_pedals`), which holds the
-latest of each for the next poll. No hardware: the page works over SSH port forwarding.
+(``buttons = [clutch, coag, camera]``, 1 pressed); the virtual MTMs' ROS layer hands each
+message to this device (:meth:`BrowserDevice.set_pose`, :meth:`set_gripper`,
+:meth:`set_pedals`), which holds the latest of each for the next poll. A pedal pressed and
+released between two polls (a click on the page's record control) is still seen pressed by
+one poll, then released by the next. No hardware: the page works over SSH port forwarding.
 """
 
 import numpy as np
 from suture_lfd.teleop.devices import ArmReading, InputDevice, Reading
 
-PEDAL_BUTTONS = ('clutch', 'coag')
+PEDAL_BUTTONS = ('clutch', 'coag', 'camera')
 
 
 class BrowserDevice(InputDevice):
@@ -32,6 +34,7 @@ class BrowserDevice(InputDevice):
         self._poses = {}
         self._grippers = {}
         self._pedals = {}
+        self._pressed = set()   # pedals pressed since the last poll
 
     def set_pose(self, mtm, T_world_handle):
         """Take a handle pose (4x4, ``world``) of ``mtm``."""
@@ -45,20 +48,25 @@ class BrowserDevice(InputDevice):
 
     def set_pedals(self, buttons):
         """
-        Take the pedal buttons ``[clutch, coag]`` (1 pressed, 0 released).
+        Take the pedal buttons ``[clutch, coag]`` or ``[clutch, coag, camera]`` (1 pressed).
 
         Raises
         ------
         ValueError
-            If there are not 2 buttons.
+            If there are not 2 or 3 buttons.
 
         """
-        if len(buttons) != len(PEDAL_BUTTONS):
-            raise ValueError(f'viewer/input/pedals must have buttons [clutch, coag], got '
-                             f'{list(buttons)}')
-        self._pedals = {name: bool(b) for name, b in zip(PEDAL_BUTTONS, buttons)}
+        if len(buttons) not in (2, len(PEDAL_BUTTONS)):
+            raise ValueError(f'viewer/input/pedals must have buttons [clutch, coag, camera], '
+                             f'got {list(buttons)}')
+        for name, b in zip(PEDAL_BUTTONS, buttons):
+            self._pedals[name] = bool(b)
+            if b:
+                self._pressed.add(name)
 
     def poll(self, t):
         arms = {m: ArmReading(pose=self._poses.get(m), gripper=self._grippers.get(m))
                 for m in self.mtms}
-        return Reading(arms=arms, pedals=dict(self._pedals))
+        pedals = {name: pressed or name in self._pressed for name, pressed in self._pedals.items()}
+        self._pressed.clear()
+        return Reading(arms=arms, pedals=pedals)

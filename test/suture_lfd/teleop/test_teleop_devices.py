@@ -84,7 +84,11 @@ def test_the_browser_device_holds_the_latest_handle_and_names_bad_pedals():
     np.testing.assert_array_equal(reading.arms['MTMR'].pose, T)
     assert reading.arms['MTMR'].gripper == 0.4 and reading.arms['MTML'].pose is None
     assert reading.pedals == {'clutch': True, 'coag': False}
-    with pytest.raises(ValueError, match='clutch, coag'):
+    dev.set_pedals([1, 0, 1])                   # a click on the record control: pressed ...
+    dev.set_pedals([1, 0, 0])                   # ... and released before the next poll
+    assert dev.poll(0.01).pedals == {'clutch': True, 'coag': False, 'camera': True}
+    assert dev.poll(0.02).pedals == {'clutch': True, 'coag': False, 'camera': False}
+    with pytest.raises(ValueError, match='clutch, coag, camera'):
         dev.set_pedals([1])
     with pytest.raises(ValueError, match='unknown device'):
         open_device('keyboard', ('MTMR',))

@@ -177,6 +177,31 @@ def test_following_needs_the_operators_gripper_gesture_and_an_aligned_mtm():
     assert rig.teleop.state == FOLLOWING
 
 
+@pytest.mark.parametrize('pinch_first', [True, False])
+def test_coag_and_the_pinch_start_following_in_either_order(pinch_first):
+    rig = Rig()
+    rig.present = False
+    rig.step(3)                                 # aligned, nobody at the console
+    assert rig.teleop.state == ALIGNING
+    first, second = ('gripper', 'present') if pinch_first else ('present', 'gripper')
+    for what in (first, second):
+        assert rig.teleop.state == ALIGNING
+        if what == 'gripper':
+            rig.gripper += 6 * DEG
+        else:
+            rig.present = True
+        rig.step(2)
+    assert rig.teleop.state == FOLLOWING
+    rig.present = False                         # the operator leaves: the gesture is forgotten
+    rig.step(2)
+    rig.present = True
+    rig.step(5)
+    assert rig.teleop.state == ALIGNING
+    rig.gripper -= 6 * DEG
+    rig.step(2)
+    assert rig.teleop.state == FOLLOWING
+
+
 def test_clutch_reanchors_without_a_jump():
     rig = Rig().step(2)
     rig.gripper += 6 * DEG

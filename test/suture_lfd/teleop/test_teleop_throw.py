@@ -13,6 +13,7 @@ import sys
 
 from harness import wait_for
 import pytest
+from sim_bridge.processes import popen
 from suture_lfd.segmentation.segments import SUBTASK_NAMES, SegmentFile
 
 REPO = Path(__file__).resolve().parents[3]
@@ -21,8 +22,8 @@ OPERATOR = Path(__file__).with_name('scripted_operator.py')
 
 
 def run_script(name, *args, timeout):
-    proc = subprocess.Popen([str(SCRIPTS / name), *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = popen([str(SCRIPTS / name), *map(str, args)], stdout=subprocess.PIPE,
+                 stderr=subprocess.PIPE, text=True)
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:

@@ -73,7 +73,7 @@ class Probe:
         node.create_subscription(TFMessage, '/tf_static', self._on_static, LATCHED)
         node.create_subscription(OperatingState, 'PSM1/operating_state',
                                  lambda m: setattr(self, 'state', m), STREAM)
-        node.create_subscription(PoseStamped, 'PSM1/measured_cp',
+        node.create_subscription(PoseStamped, 'PSM1/local/measured_cp',
                                  lambda m: setattr(self, 'measured', m), STREAM)
         node.create_subscription(Joy, 'viewer/input/pedals', self._on_pedals, STREAM)
         self.command = node.create_publisher(StringStamped, 'PSM1/state_command', STREAM)
@@ -183,15 +183,17 @@ def test_the_page_shows_the_scene_follows_psm1_and_reports_input(ros, launch, tm
         assert near(changed, uv_end, 6), f'nothing drawn anew at the tool {uv_end.round()}'
         assert near(changed, uv_start, 6), f'the tool still at {uv_start.round()}'
 
-        # a click on a button and a key press reach the node's callbacks and its topics
+        # a click on a button and key presses reach the node's callbacks and its topics: the
+        # clutch is pressed while the button or key C is held, coag (V) toggles
         browser.click(*browser.element_center('Clutch'))
-        assert ros.wait_for(lambda: probe.pedals and probe.pedals[-1] == [1, 0], 30), \
+        assert ros.wait_for(lambda: probe.pedals[-2:] == [[1, 0, 0], [0, 0, 0]], 30), \
             probe.pedals
         browser.click(*rect[:2])  # focus back on the 3-D view, as after using the scene
         browser.press_key('v')
-        assert ros.wait_for(lambda: probe.pedals[-1] == [1, 1], 30), probe.pedals
+        assert ros.wait_for(lambda: probe.pedals[-1] == [0, 1, 0], 30), probe.pedals
         browser.press_key('c')
-        assert ros.wait_for(lambda: probe.pedals[-1] == [0, 1], 30), probe.pedals
+        assert ros.wait_for(lambda: probe.pedals[-2:] == [[1, 1, 0], [0, 1, 0]], 30), \
+            probe.pedals
     finally:
         browser.close()
     assert simulator.running() and viewer.running()

@@ -1,0 +1,86 @@
+"""The console's controls on a real viser page, without a browser: the held clutch, the handles."""
+
+import math
+
+import numpy as np
+import pytest
+from sim_bridge.geometry import matrix_from_quaternion
+from suture_lfd.viewer.assets import needle_arc
+from suture_lfd.viewer.controls import HOLD_TIMEOUT, MODES, MtmControls, next_action
+from suture_lfd.viewer.page import ViewerPage
+from suture_lfd.viewer.scene import wxyz_from_matrix
+
+
+class Clock:
+    """Time the test sets (s)."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+@pytest.fixture
+def console():
+    points, diameter = needle_arc()
+    page = ViewerPage(points, diameter, port=0)
+    sent = {'poses': [], 'pedals': []}
+    clock = Clock()
+    controls = page.add_panel(MtmControls(
+        ('MTML', 'MTMR'), clock=clock,
+        on_pose=lambda mtm, T: sent['poses'].append((mtm, T)),
+        on_pedals=lambda *buttons: sent['pedals'].append(list(buttons))))
+    try:
+        yield controls, sent, clock
+    finally:
+        page.close()
+
+
+def test_the_clutch_is_pressed_while_held_and_released_once(console):
+    controls, sent, clock = console
+    for _ in range(40):                         # held 2 s: the page reports it at 20 Hz
+        controls.clutch_held()
+        clock.t += 0.05
+        controls.tick()
+    assert sent['pedals'] == [[1, 0, 0]]
+    controls.clutch_released()
+    controls.clutch_released()                  # a second release changes nothing
+    assert sent['pedals'] == [[1, 0, 0], [0, 0, 0]]
+    controls.clutch_held()                      # held, then the page goes quiet (lost pointer)
+    clock.t += HOLD_TIMEOUT + 0.01
+    controls.tick()
+    assert sent['pedals'][-2:] == [[1, 0, 0], [0, 0, 0]]
+
+
+def test_a_handle_sits_at_its_tool_in_the_image_plane_and_keeps_the_hands_orientation(console):
+    controls, sent, _ = console
+    assert controls.psm_of_mtm == {'MTMR': 'PSM2', 'MTML': 'PSM1'}
+    R_image = matrix_from_quaternion((math.sin(0.3), 0.0, 0.0, math.cos(0.3)))
+    controls.set_image_rotation(R_image)
+    T_tool = np.eye(4)
+    T_tool[:3, :3] = matrix_from_quaternion((0.0, math.sin(0.5), 0.0, math.cos(0.5)))
+    T_tool[:3, 3] = (0.04, 0.0, 0.04)
+    controls.place('MTMR', T_tool)
+    mtm, T = sent['poses'][-1]
+    assert mtm == 'MTMR' and controls.placed('MTMR') and not controls.placed('MTML')
+    np.testing.assert_allclose(T, T_tool, atol=1e-12)           # the pose sent: the tool's
+    handle = controls.handles['MTMR']
+    np.testing.assert_allclose(np.abs(handle.wxyz), np.abs(wxyz_from_matrix(R_image)),
+                               atol=1e-9)                        # the arrows: the image's
+    assert handle.disable_rotations and handle.active_axes == (True, True, False)
+    controls.set_mode('rotate')
+    assert not handle.disable_rotations and handle.disable_axes and handle.disable_sliders
+    controls.set_mode(MODES[0])
+    T_tool[:3, 3] += 0.01                       # at the next clutch: back to the moved tool
+    controls.place('MTMR', T_tool)
+    np.testing.assert_allclose(sent['poses'][-1][1][:3, 3], T_tool[:3, 3], atol=1e-12)
+    with pytest.raises(ValueError, match='handle mode'):
+        controls.set_mode('scale')
+
+
+def test_the_page_says_what_to_do_next():
+    assert 'Coag' in next_action('ALIGNING', coag=False)
+    assert 'pinch' in next_action('ALIGNING', coag=True)
+    assert 'release C' in next_action('CLUTCHED', coag=True)
+    assert 'teleop' in next_action(None, coag=False)
