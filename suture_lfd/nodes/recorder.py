@@ -22,8 +22,8 @@ interrupted``.
 At rest the recorder costs next to nothing: the streamed topics (neither latched nor carried
 over: the arms' 100 Hz state and commands) are subscribed by a companion node that is spun only
 while recording. Their subscriptions stay matched in between, so DDS keeps their latest
-messages; a recording takes the ones received after it started (``received_timestamp``) and
-reads the sequence numbers of the older ones only to count gaps from there on.
+messages; a recording drops those at its start, and any other received before it started
+(``received_timestamp``), reading their sequence numbers only to count gaps from there on.
 """
 
 from dataclasses import dataclass
@@ -335,6 +335,8 @@ class Recorder(Node):
         path = self._next_path()
         path.parent.mkdir(parents=True, exist_ok=True)
         session = BagSession(path, self.config, self.get_logger())
+        if not self._spinning_streams:
+            self._drop_held()
         session.started_ns = time.time_ns()
         now = self._ros_clock.now().nanoseconds
         for topic, rawdata in self._last.items():
@@ -377,6 +379,17 @@ class Recorder(Node):
         else:
             executor.remove_node(self._streams)
         self._spinning_streams = on
+
+    def _drop_held(self):
+        """Take and drop what DDS holds of the streams from before a start (seen for gaps)."""
+        for sub in self._streams.subscriptions:
+            topic = sub.topic_name
+            with sub.handle:
+                while True:
+                    taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    self._gaps.observe(topic, taken[1].get('publication_sequence_number'))
 
     def destroy_node(self):
         self._spin_streams(False)
