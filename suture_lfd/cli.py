@@ -1,5 +1,5 @@
 """
-Command line of suture_lfd: ``study``, ``sweep``, ``info``, ``assess``, ``bag``, ``view``.
+Command line of suture_lfd: study, sweep, info, assess, bag, view, urdf.
 
 ``sweep SWEEP.yaml`` runs a grid of studies as one job set (:mod:`suture_lfd.study.sweep`).
 
@@ -8,6 +8,8 @@ phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recor
 ``bag recover PATH [--out OUT]`` rebuilds a valid bag from one whose recording was interrupted.
 ``view BAG`` and ``view STUDY --throw ROW`` replay a recording in the browser viewer.
 ``assess BAG`` scores one demonstration (skill assessment) and writes its table.
+``urdf --arm PSM1`` writes an arm's URDF, the model the simulator publishes as
+``/<ARM>/robot_description``, for RViz and other URDF tools.
 """
 
 import argparse
@@ -121,6 +123,29 @@ def cmd_view(args):
         return 1
 
 
+def cmd_urdf(args):
+    """Write the URDF of one arm (or of every arm into a folder) as the simulator builds it."""
+    from pathlib import Path
+
+    from sim_bridge.robot_model import simulation_urdfs
+
+    models = simulation_urdfs(parent=args.parent)
+    if args.arm == 'all':
+        if not args.out:
+            print('suture-lfd urdf: error: --arm all needs --out FOLDER', file=sys.stderr)
+            return 2
+        folder = Path(args.out)
+        folder.mkdir(parents=True, exist_ok=True)
+        for arm, text in models.items():
+            (folder / f'{arm}.urdf').write_text(text)
+            print(folder / f'{arm}.urdf')
+    elif args.out:
+        Path(args.out).write_text(models[args.arm])
+    else:
+        sys.stdout.write(models[args.arm])
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='suture-lfd', description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -189,6 +214,20 @@ def build_parser():
     view.add_argument('--seconds', type=float, default=None,
                       help='stop serving after this many seconds (default: until Ctrl-C)')
     view.set_defaults(func=cmd_view)
+    urdf = sub.add_parser(
+        'urdf', help="write an arm's URDF (robot model for RViz)",
+        description="Write an arm's URDF, made from config/kinematics.yaml and the instrument "
+        'shapes of config/world.yaml as the simulator builds the arm: the model it publishes '
+        'on /<ARM>/robot_description. Joint names are those of measured_js and '
+        'jaw/measured_js; the root link is the RCM frame <ARM>_base.')
+    urdf.add_argument('--arm', required=True, choices=['PSM1', 'PSM2', 'ECM', 'all'],
+                      help='arm to write (all: PSM1.urdf, PSM2.urdf, ECM.urdf into --out)')
+    urdf.add_argument('--out', default=None,
+                      help='file to write (a folder with --arm all; default: standard output)')
+    urdf.add_argument('--parent', default=None, choices=['world'],
+                      help='attach <ARM>_base to world where config/world.yaml places it '
+                           '(default: <ARM>_base is the root)')
+    urdf.set_defaults(func=cmd_urdf)
     return parser
 
 

@@ -1,5 +1,5 @@
 """
-mypy on the annotated public API: geometry, validation, kinematics and the DMP.
+mypy on the annotated public API: geometry, validation, kinematics, robot model and the DMP.
 
 The settings are the ``[mypy]`` sections of ``setup.cfg`` (every function annotated, no
 implicit ``Optional``; PyBullet and the other untyped libraries are taken as ``Any``). A second
@@ -15,7 +15,7 @@ from harness import REPO
 
 # The modules whose public API is annotated, checked with every function typed.
 ANNOTATED = ('sim_bridge/geometry.py', 'sim_bridge/validation.py', 'sim_bridge/kinematics',
-             'suture_lfd/dmp')
+             'sim_bridge/robot_model.py', 'suture_lfd/dmp')
 
 
 def run_mypy(paths, cache_dir):

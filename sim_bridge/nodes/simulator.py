@@ -4,7 +4,8 @@ The simulator node: the simulated dVRK scene behind the dVRK 2.x CRTK ROS 2 inte
 Runs :class:`sim_bridge.simulation.Simulation` and gives each arm (``PSM1``, ``PSM2``, ``ECM``) the
 topics, services and events of a physical dVRK (:mod:`sim_bridge.nodes.crtk_arm`), so a dVRK client
 drives it unchanged; adds the scene's ground truth, ``/tf``, visualization and the ECM stereo
-camera (:mod:`sim_bridge.nodes.scene_topics`), the console foot pedals
+camera (:mod:`sim_bridge.nodes.scene_topics`), each arm's URDF on ``<ARM>/robot_description``
+(:mod:`sim_bridge.nodes.robot_description`), the console foot pedals
 (:mod:`sim_bridge.nodes.footpedals`), and:
 
 - ``sim/events`` (crtk_msgs/StringStamped, RELIABLE, TRANSIENT_LOCAL, depth 1000): one JSON
@@ -65,6 +66,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
+from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
@@ -298,6 +300,7 @@ class Simulator(_QuietEndpoints, Node):
         self.scene = SceneTopics(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
         self.create_service(Trigger, 'sim/reset', self._on_reset)
+        self.robot_descriptions = RobotDescriptions(self, self.sim)
 
         stamp = self.stamp()
         self._clock_pub.publish(cv.clock_message(stamp))
