@@ -16,7 +16,8 @@ DISABLED) and ``~/following`` (std_msgs/Bool), latched; ``~/state_command``
 (crtk_msgs/StringStamped ``enable``/``disable``) starts and stops it, as the dVRK teleop
 components' topics. Run one per MTM/PSM pair, named like the dVRK's (``-r __node:=MTMR_PSM1``).
 Parameters: ``config/teleop.yaml``. The cycle runs at ``rate`` while the operator is present
-(coag) or the teleoperation follows or is clutched, at ``idle_rate`` otherwise.
+(coag), the teleoperation follows or is clutched, or for a second after the MTM's gripper moved
+(a pinch may come before coag), and at ``idle_rate`` otherwise.
 """
 
 import sys
@@ -96,6 +97,7 @@ class TeleopNode(Node):
         self._following = pub(Bool, '~/following', qos.LATCHED)
         self._publish_state()
         self._period_ns = None
+        self._active_until = -1.0       # s: a gripper that moved keeps the full rate until then
         self._timer = self.create_timer(1.0 / cfg.idle_rate, self._on_timer)
         self._pace()
         self.get_logger().info(f'{m} -> {p} (scale {cfg.scale}, camera '
@@ -144,7 +146,12 @@ class TeleopNode(Node):
 
     def _on_gripper(self, msg):
         if len(msg.position):
-            self._gripper = float(msg.position[0])
+            gripper = float(msg.position[0])
+            if gripper != self._gripper:
+                self._active_until = self._now() + 1.0
+                if self._period_ns != int(1e9 / self.config.rate):
+                    self._pace()
+            self._gripper = gripper
 
     def _on_jaw(self, msg):
         if len(msg.position):
@@ -202,7 +209,8 @@ class TeleopNode(Node):
     def _pace(self):
         """Run the cycle at ``rate`` while someone teleoperates, at ``idle_rate`` otherwise."""
         cfg = self.config
-        busy = self._present or self.teleop.state in (FOLLOWING, CLUTCHED)
+        busy = self._present or self.teleop.state in (FOLLOWING, CLUTCHED) \
+            or self._now() < self._active_until
         period_ns = int(1e9 / (cfg.rate if busy else cfg.idle_rate))
         if period_ns != self._period_ns:
             self._period_ns = period_ns
