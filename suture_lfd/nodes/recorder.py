@@ -210,6 +210,7 @@ class Recorder(Node):
         # the streamed topics' subscriptions: spun only while recording (see the module's doc)
         self._streams = rclpy.create_node(f'{self.get_name()}_streams',
                                           namespace=self.get_namespace(), context=self.context,
+                                          use_global_arguments=False,   # topics are absolute
                                           start_parameter_services=False)
         self._spinning_streams = False
         self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
