@@ -22,8 +22,9 @@ interrupted``.
 At rest the recorder costs next to nothing: the streamed topics (neither latched nor carried
 over: the arms' 100 Hz state and commands) are subscribed by a companion node that is spun only
 while recording. Their subscriptions stay matched in between, so DDS keeps their latest
-messages; a recording drops those at its start, and any other received before it started
-(``received_timestamp``), reading their sequence numbers only to count gaps from there on.
+messages; a recording takes them in one pass at its start (after saying it records) and drops
+those received before it started (``received_timestamp``), reading their sequence numbers
+only to count gaps from there on.
 """
 
 from dataclasses import dataclass
@@ -336,8 +337,6 @@ class Recorder(Node):
         path = self._next_path()
         path.parent.mkdir(parents=True, exist_ok=True)
         session = BagSession(path, self.config, self.get_logger())
-        if not self._spinning_streams:
-            self._drop_held()
         session.started_ns = time.time_ns()
         now = self._ros_clock.now().nanoseconds
         for topic, rawdata in self._last.items():
@@ -348,9 +347,9 @@ class Recorder(Node):
             session.carried[topic] = 1
             session.put(topic, now, rawdata)
         self._session = session
-        self._spin_streams(True)
         self.get_logger().info(f'recording to {path}')
-        self._publish_status()
+        self._publish_status()        # at once: what DDS holds may take a while to go through
+        self._spin_streams(True)
         return path
 
     def stop(self, publish=True):
@@ -376,21 +375,23 @@ class Recorder(Node):
         if executor is None or on == self._spinning_streams:
             return
         if on:
+            self._take_held()
             executor.add_node(self._streams)
         else:
             executor.remove_node(self._streams)
         self._spinning_streams = on
 
-    def _drop_held(self):
-        """Take and drop what DDS holds of the streams from before a start (seen for gaps)."""
+    def _take_held(self):
+        """Take what DDS holds of the streams in one pass (recording what came after start)."""
         for sub in self._streams.subscriptions:
             topic = sub.topic_name
+            carry = self.config.matches('carry_over', topic)
             with sub.handle:
                 while True:
                     taken = sub.handle.take_message(sub.msg_type, True)
                     if taken is None:
                         break
-                    self._gaps.observe(topic, taken[1].get('publication_sequence_number'))
+                    self._on_message(topic, carry, taken[0], taken[1])
 
     def destroy_node(self):
         self._spin_streams(False)
