@@ -36,7 +36,8 @@ def interface_files():
 
 
 def config_files():
-    return sorted(str(p.relative_to(HERE)) for p in (HERE / 'config').glob('*.yaml'))
+    return sorted(str(p.relative_to(HERE)) for pattern in ('*.yaml', '*.xml')
+                  for p in (HERE / 'config').glob(pattern))
 
 
 setup(

@@ -54,7 +54,15 @@ Also measured:
 - the factor reached at ``real_time_factor`` 0 (as fast as it goes) with no state subscribers,
   and with the full client.
 
-Run: ``.venv/bin/python bench/bench_simulator_node.py [--seconds 10]``
+Gaps (``--gaps``): the dVRK's teleoperation script reads each arm's state in a 5 ms loop and
+raises when it is older than 20 ms; the dVRK publishes every 10 ms. With the full client running,
+the gaps between consecutive ``measured_cp``, ``setpoint_cp`` and ``measured_js`` messages of
+each arm as the client receives them (median, p99, max, and how many exceed 20 ms), idle and
+with ``--load`` busy processes competing for the cores, for this tree and, with ``--before
+REV``, the simulator of another revision in the same run.
+
+Run: ``.venv/bin/python bench/bench_simulator_node.py [--seconds 10]``; gaps:
+``.venv/bin/python bench/bench_simulator_node.py --gaps --before main [--seconds 20]``
 """
 
 import argparse
@@ -83,6 +91,10 @@ STATE_TOPICS = ('setpoint_js', 'setpoint_cp', 'measured_js', 'measured_cp', 'mea
                 'spatial/measured_cf', 'spatial/jacobian', 'body/measured_cf', 'body/jacobian',
                 'local/measured_cp', 'local/setpoint_cp', 'jaw/measured_js', 'jaw/setpoint_js')
 EVENT_TOPICS = ('operating_state', 'trajectory_j/ratio')
+# the state whose age the dVRK's teleoperation script checks (its getters raise on data older
+# than 20 ms: 4 periods of its 5 ms loop)
+GAP_TOPICS = ('measured_cp', 'setpoint_cp', 'measured_js')
+AGE_LIMIT_S = 0.020
 
 
 def state_topics(arm):
@@ -282,7 +294,7 @@ def role_client(args):
     types = message_types()
     lock = threading.Lock()
     counts = {}
-    log = {'measured_js': [], 'stats': [], 'received': [], 'viewer': []}
+    log = {'measured_js': [], 'stats': [], 'received': [], 'viewer': [], 'arrivals': {}}
 
     def count(name):
         def callback(_msg):
@@ -296,11 +308,21 @@ def role_client(args):
             log['measured_js'].append((time.monotonic(), msg.header.stamp.sec
                                        + msg.header.stamp.nanosec * 1e-9))
 
+    def arrival(name, then):
+        times = log['arrivals'].setdefault(name, [])
+
+        def callback(msg):
+            times.append(time.monotonic())  # (list.append is atomic)
+            then(msg)
+        return callback
+
     arms = [a for a in args.arms.split(',') if a]
     for arm in arms:
         for topic in state_topics(arm):
             name = f'{arm}/{topic}'
             callback = measured_js if name == 'PSM1/measured_js' else count(name)
+            if topic in GAP_TOPICS:
+                callback = arrival(name, callback)
             node.create_subscription(types[topic], name, callback, state_qos)
         for topic in EVENT_TOPICS:
             node.create_subscription(types[topic], f'{arm}/{topic}', count(f'{arm}/{topic}'),
@@ -331,10 +353,10 @@ def role_client(args):
 class Proc:
     """A role process (this script with ``--role``) or the simulator, in its own session."""
 
-    def __init__(self, argv, stdin=False):
+    def __init__(self, argv, stdin=False, env=None):
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
-                                     text=True, start_new_session=True)
+                                     text=True, start_new_session=True, env=env)
         self.pid = self.proc.pid
 
     @classmethod
@@ -566,15 +588,101 @@ def live_phase(bin_dir, tmp, seconds, arms, viewer=False):
             'browser': browser is not None}
 
 
+def checkout(rev, tmp):
+    """Export git revision ``rev`` of this repository into ``tmp``; return the folder."""
+    out = Path(tmp) / f'rev_{rev.replace("/", "_")}'
+    out.mkdir()
+    repo = Path(__file__).resolve().parent.parent
+    archive = subprocess.run(['git', '-C', str(repo), 'archive', rev], check=True,
+                             capture_output=True).stdout
+    subprocess.run(['tar', '-x', '-C', str(out)], input=archive, check=True)
+    return out
+
+
+def gaps_phase(bin_dir, tmp, seconds, load, arms, source=None, sim_args=()):
+    """
+    The simulator at real time with the full client; the gaps between state messages there.
+
+    ``load``: that many busy processes compete for the cores meanwhile. ``source``: run the
+    simulator from that source folder (another revision). Returns the gaps (s) between
+    consecutive ``GAP_TOPICS`` messages of each arm at the client, all pooled.
+    """
+    env = dict(os.environ)
+    if source is not None:
+        env['PYTHONPATH'] = str(source)
+    sim = Proc([str(bin_dir / 'simulator'), *(('--ros-args', *sim_args) if sim_args else ())],
+               env=env)
+    out = Path(tmp) / f'gaps_{time.monotonic_ns()}.json'
+    client = Proc.role('client', '--arms', arms, '--out', str(out), stdin=True)
+    burners = []
+    try:
+        client.expect('ready', 60.0)
+        time.sleep(8.0)  # the simulator up and streaming
+        burners = [subprocess.Popen([sys.executable, '-c', 'while True: pass'],
+                                    start_new_session=True) for _ in range(load)]
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        t1 = time.monotonic()
+        client.tell('stop')
+        client.wait(30.0)
+    finally:
+        for b in burners:
+            b.kill()
+            b.wait()
+        client.stop()
+        sim.stop()
+    gaps = []
+    for times in read_json(out)['arrivals'].values():
+        t = np.array([x for x in times if t0 <= x <= t1])
+        gaps.extend(np.diff(t).tolist())
+    return np.array(gaps)
+
+
+def gaps_report(args, bin_dir, tmp):
+    """Print the state gaps with the full client, idle and loaded, before and after."""
+    runs = [('this tree', None)]
+    if args.before:
+        runs.insert(0, (f'before ({args.before})', checkout(args.before, tmp)))
+    sim_args = tuple(args.sim_args.split()) if args.sim_args else ()
+    ms = 1e3
+    print(f'gaps between consecutive {"/".join(GAP_TOPICS)} messages of each arm at a dVRK '
+          f'client of {args.arms} (every state topic of a dvrk.psm / dvrk.ecm; '
+          f"{args.seconds:g} s per phase; the dVRK: 10 ms; the dVRK teleoperation script's "
+          f"limit {AGE_LIMIT_S * ms:.0f} ms); this tree's simulator: "
+          f'{args.sim_args or "defaults"}')
+    for load in (0, args.load):
+        for title, source in runs:
+            gaps = gaps_phase(bin_dir, tmp, args.seconds, load, args.arms, source,
+                              sim_args if source is None else ())
+            over = int(np.sum(gaps > AGE_LIMIT_S))
+            print(f'  {title:24s} {"idle" if not load else f"{load} busy processes":18s} '
+                  f'median {pct(gaps, 50) * ms:5.1f}  p99 {pct(gaps, 99) * ms:5.1f}  '
+                  f'max {pct(gaps, 100) * ms:5.1f} ms  over {AGE_LIMIT_S * ms:.0f} ms: {over} '
+                  f'of {len(gaps)}; p99 / 20 ms = {pct(gaps, 99) / AGE_LIMIT_S:.2f}',
+                  flush=True)
+    print(f'load average (1 min) after: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores')
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='length of each phase (s)')
     parser.add_argument('--viewer', action='store_true',
                         help='also run the full-client phase with the viewer connected (its node '
                              'and a headless Chromium on its page)')
+    parser.add_argument('--gaps', action='store_true',
+                        help='measure only the gaps between state messages at a client, idle '
+                             'and under a CPU load')
+    parser.add_argument('--load', type=int, default=2,
+                        help='--gaps: busy processes of the loaded phase (default 2)')
+    parser.add_argument('--before', help='--gaps: also run the simulator of this git revision')
+    parser.add_argument('--sim-args', default='',
+                        help='--gaps: parameters of this tree\'s simulator ("-p rate:=200")')
     parser.add_argument('--role', choices=('echo', 'probe', 'client'), help=argparse.SUPPRESS)
     parser.add_argument('--target', choices=('echo', 'sim'), help=argparse.SUPPRESS)
-    parser.add_argument('--arms', default=','.join(ARMS), help=argparse.SUPPRESS)
+    parser.add_argument('--arms', default=None,
+                        help='--gaps: the arms the client subscribes to (default PSM1, as '
+                             'dvrk_teleoperation.py -p PSM1)')
     parser.add_argument('--out', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role:
@@ -583,6 +691,11 @@ def main():
     bin_dir = Path(sys.executable).parent
     tmp = tempfile.mkdtemp(prefix='bench_simulator_node_')
     seconds = str(args.seconds)
+    if args.gaps:
+        args.arms = args.arms or 'PSM1'
+        gaps_report(args, bin_dir, tmp)
+        return
+    args.arms = args.arms if args.arms is not None else ','.join(ARMS)
 
     load_before = os.getloadavg()[0]
     bare, wrapped, full, dt = loop_capacity()

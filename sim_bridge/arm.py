@@ -66,6 +66,7 @@ VALID_COMMANDS = {
     'PAUSED': ('disable', 'pause', 'resume', 'unhome'),
     'FAULT': ('enable', 'disable', 'unhome'),
 }
+JAW_NAMES = ('jaw',)  # the joint name of jaw/measured_js and jaw goals
 EVENT_KINDS = ('operating_state', 'goal_reached', 'error', 'warning', 'status', 'ratio')
 _QUATERNION_TOLERANCE = 1e-3
 
@@ -369,6 +370,13 @@ class Arm:
                           throttle_key=(command, 'not ready'))
         return ready
 
+    def _by_name(self, values, names, command):
+        """Return a joint vector in the arm's joint order (:func:`order_by_name`)."""
+        if not names:
+            return values  # the common case: crtk clients send no names
+        return order_by_name(values, names, self.kinematics.joint_names,
+                             f'{self.name}: {command}')
+
     def _clip_arm(self, command, q, stream):
         clipped = self.kinematics.clip(q)
         if np.any(clipped != q):
@@ -387,12 +395,16 @@ class Arm:
                           throttle_key=(command, 'clipped') if stream else None)
         return clipped
 
-    def _pose_in_rcm(self, pose, command):
-        """Validate a Cartesian goal (in the measured_cp frame) and express it in <ARM>_base."""
+    def _pose_in_rcm(self, pose, command, local=False):
+        """
+        Validate a Cartesian goal and express it in <ARM>_base.
+
+        The goal is in the measured_cp frame, or in ``<ARM>_base`` already when ``local``.
+        """
         if isinstance(pose, np.ndarray) and pose.dtype == np.float64 and pose.shape == (4, 4):
             T = check_pose(pose, name=f'{command} goal')  # the common case: a float matrix
             # in the RCM frame already when the base frame is the identity (solve would copy)
-            return T if self._base_is_identity else np.linalg.solve(self._base_frame, T)
+            return T if local or self._base_is_identity else np.linalg.solve(self._base_frame, T)
         arr = np.asarray(pose, dtype=float) if _is_numeric(pose) else None
         if arr is None:
             raise ValueError(f'{command} goal must be a 4x4 pose or (x, y, z, qx, qy, qz, qw)')
@@ -408,7 +420,7 @@ class Arm:
             T[:3, 3] = arr[:3]
         else:
             T = check_pose(arr, name=f'{command} goal')
-        return np.linalg.solve(self._base_frame, T)
+        return T if local else np.linalg.solve(self._base_frame, T)
 
     # -- arm commands --------------------------------------------------------------------------
 
@@ -419,7 +431,7 @@ class Arm:
         self._arm.servo(q, self._time, self.config.servo_stream_gap)
         self._set_busy(self._motion_running())
 
-    def servo_jp(self, q):
+    def servo_jp(self, q, names=None):
         """
         Set the joint setpoint directly (no trajectory; leaves busy false).
 
@@ -427,18 +439,22 @@ class Arm:
         ----------
         q : array_like, shape (n,)
             Joint positions (rad / m); clipped to the limits with a warning.
+        names : sequence of str, optional
+            Joint names of ``q``, in any order (:func:`order_by_name`); none, or numeric ones:
+            ``q`` is in the arm's joint order.
 
         """
         if not self._ready('servo_jp'):
             return
         try:
-            q = self.kinematics.check_q(q, name='servo_jp position')
+            q = self.kinematics.check_q(self._by_name(q, names, 'servo_jp'),
+                                        name='servo_jp position')
         except ValueError as exc:
             self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jp', 'input'))
             return
         self._servo_arm(self._clip_arm('servo_jp', q, stream=True))
 
-    def servo_jr(self, dq):
+    def servo_jr(self, dq, names=None):
         """
         Add a joint increment to the current setpoint.
 
@@ -446,18 +462,21 @@ class Arm:
         ----------
         dq : array_like, shape (n,)
             Joint increments (rad / m).
+        names : sequence of str, optional
+            Joint names of ``dq`` (as :meth:`servo_jp`).
 
         """
         if not self._ready('servo_jr'):
             return
         try:
-            dq = self.kinematics.check_q(dq, name='servo_jr increment')
+            dq = self.kinematics.check_q(self._by_name(dq, names, 'servo_jr'),
+                                         name='servo_jr increment')
         except ValueError as exc:
             self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jr', 'input'))
             return
         self._servo_arm(self._clip_arm('servo_jr', self._arm.setpoint + dq, stream=True))
 
-    def servo_cp(self, pose):
+    def servo_cp(self, pose, local=False):
         """
         Set a Cartesian setpoint: closed-form IK near the current setpoint.
 
@@ -466,12 +485,14 @@ class Arm:
         pose : array_like, shape (4, 4) or (7,)
             Tool-tip goal in the ``measured_cp`` frame (``base_frame`` applied), as a matrix or as
             ``(x, y, z, qx, qy, qz, qw)`` (metres, unit quaternion).
+        local : bool
+            The goal is in the RCM frame ``<ARM>_base`` (as ``local_measured_cp``) instead.
 
         """
         if not self._ready('servo_cp', needs_tool=True):
             return
         try:
-            T = self._pose_in_rcm(pose, 'servo_cp')
+            T = self._pose_in_rcm(pose, 'servo_cp', local)
             q_ref = self._arm.setpoint_values
             key = (T.tobytes(), self._pack_joints(*q_ref))
             if self._ik_memo is not None and self._ik_memo[0] == key:
@@ -519,6 +540,19 @@ class Arm:
             q = clipped
         return q
 
+    def reject_goal(self, command, text):
+        """
+        Refuse a Cartesian goal its sender placed in a frame the arm's owner does not know.
+
+        A ``warning`` (throttled per command); a ``move_cp`` also gets its busy pulse, closed by
+        ``goal_reached`` false, so a client waiting for the move ends. The arm holds its goal.
+        """
+        self._message('warning', text, throttle_key=(command, 'frame'))
+        if command.startswith('move'):
+            self._set_busy(True, force=True)
+            self._emit('goal_reached', False)
+            self._set_busy(self._motion_running())
+
     def _reject_move(self, text):
         """Error, then a busy pulse closed by goal_reached(False), the arm holding its goal."""
         self._message('error', text)
@@ -531,7 +565,7 @@ class Arm:
         self._free = False
         self._set_busy(True, force=True)
 
-    def move_jp(self, q):
+    def move_jp(self, q, names=None):
         """
         Start a joint trajectory to ``q`` (busy until it arrives, then goal_reached True).
 
@@ -539,18 +573,21 @@ class Arm:
         ----------
         q : array_like, shape (n,)
             Goal joint positions (rad / m); clipped to the limits with a warning.
+        names : sequence of str, optional
+            Joint names of ``q`` (as :meth:`servo_jp`).
 
         """
         if not self._ready('move_jp'):
             return
         try:
-            q = self.kinematics.check_q(q, name='move_jp position')
+            q = self.kinematics.check_q(self._by_name(q, names, 'move_jp'),
+                                        name='move_jp position')
         except ValueError as exc:
             self._reject_move(f'{self.name}: {exc}')
             return
         self._move_arm(self._clip_arm('move_jp', q, stream=False))
 
-    def move_jr(self, dq):
+    def move_jr(self, dq, names=None):
         """
         Start a joint trajectory by an increment from the current setpoint.
 
@@ -558,19 +595,22 @@ class Arm:
         ----------
         dq : array_like, shape (n,)
             Joint increments (rad / m).
+        names : sequence of str, optional
+            Joint names of ``dq`` (as :meth:`servo_jp`).
 
         """
         if not self._ready('move_jr'):
             return
         try:
-            dq = self.kinematics.check_q(dq, name='move_jr increment')
+            dq = self.kinematics.check_q(self._by_name(dq, names, 'move_jr'),
+                                         name='move_jr increment')
         except ValueError as exc:
             self._reject_move(f'{self.name}: {exc}')
             return
         goal = self._arm.target(self._time)[0] + dq
         self._move_arm(self._clip_arm('move_jr', goal, stream=False))
 
-    def move_cp(self, pose):
+    def move_cp(self, pose, local=False):
         """
         Start a joint trajectory to the IK solution of a Cartesian goal (not a straight line).
 
@@ -578,6 +618,8 @@ class Arm:
         ----------
         pose : array_like, shape (4, 4) or (7,)
             Tool-tip goal in the ``measured_cp`` frame, matrix or ``(x, y, z, qx, qy, qz, qw)``.
+        local : bool
+            The goal is in the RCM frame ``<ARM>_base`` instead.
 
         Notes
         -----
@@ -587,7 +629,7 @@ class Arm:
         if not self._ready('move_cp', needs_tool=True):
             return
         try:
-            T = self._pose_in_rcm(pose, 'move_cp')
+            T = self._pose_in_rcm(pose, 'move_cp', local)
             q_ref = self._arm.target(self._time)[0]
             if self._has_jaw:
                 q = self.kinematics.ik(T, q_ref=q_ref)
@@ -606,17 +648,20 @@ class Arm:
             return
         self._move_arm(q)
 
-    def servo_jf(self, effort):
+    def servo_jf(self, effort, names=None):
         """
         Record a joint effort setpoint (N, N m); the kinematic simulation does not act on it.
 
         Parameters
         ----------
         effort : array_like, shape (n,)
+        names : sequence of str, optional
+            Joint names of ``effort`` (as :meth:`servo_jp`).
 
         """
         try:
-            self._setpoint_jf = self.kinematics.check_q(effort, name='servo_jf effort')
+            self._setpoint_jf = self.kinematics.check_q(self._by_name(effort, names, 'servo_jf'),
+                                                        name='servo_jf effort')
         except ValueError as exc:
             self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jf', 'input'))
 
@@ -638,7 +683,7 @@ class Arm:
 
     # -- jaw -----------------------------------------------------------------------------------
 
-    def _jaw_angle(self, command, angle):
+    def _jaw_angle(self, command, angle, names=None):
         if not self._has_jaw:
             self._message('error', f'{self.name}: {command}: this arm has no jaw')
             return None
@@ -646,20 +691,30 @@ class Arm:
             return None
         if isinstance(angle, float) and math.isfinite(angle):  # the common case, a number
             return self._clip_jaw(command, float(angle), stream=command == 'jaw_servo_jp')
+        if names:
+            try:
+                angle = order_by_name(angle, names, JAW_NAMES, f'{self.name}: {command}')
+            except ValueError as exc:
+                self._report_input(command, str(exc))
+                return None
         try:
             value = np.asarray(angle, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             value = np.array([np.nan, np.nan])
         if value.shape != (1,) or not math.isfinite(value[0]):
-            text = f'{self.name}: {command} needs one finite angle (rad), got {angle!r}'
-            if command == 'jaw_move_jp':
-                self._reject_move(text)
-            else:
-                self._message('error', text, throttle_key=(command, 'input'))
+            self._report_input(command, f'{self.name}: {command} needs one finite angle (rad), '
+                                        f'got {angle!r}')
             return None
         return self._clip_jaw(command, float(value[0]), stream=command == 'jaw_servo_jp')
 
-    def jaw_servo_jp(self, angle):
+    def _report_input(self, command, text):
+        """Reject a jaw goal: a move ends at once (goal_reached False), a servo stream warns."""
+        if command == 'jaw_move_jp':
+            self._reject_move(text)
+        else:
+            self._message('error', text, throttle_key=(command, 'input'))
+
+    def jaw_servo_jp(self, angle, names=None):
         """
         Set the jaw setpoint directly (PSM only).
 
@@ -667,9 +722,11 @@ class Arm:
         ----------
         angle : float or array_like, shape (1,)
             Jaw opening angle (rad); clipped to the jaw range with a warning.
+        names : sequence of str, optional
+            ``('jaw',)``, none, or a numeric name; any other is rejected.
 
         """
-        angle = self._jaw_angle('jaw_servo_jp', angle)
+        angle = self._jaw_angle('jaw_servo_jp', angle, names)
         if angle is None:
             return
         if self._jaw.trajectory is not None:
@@ -677,7 +734,7 @@ class Arm:
         self._jaw.servo((angle,), self._time, self.config.servo_stream_gap)
         self._set_busy(self._motion_running())
 
-    def jaw_move_jp(self, angle):
+    def jaw_move_jp(self, angle, names=None):
         """
         Start a jaw trajectory (PSM only); shares the arm's busy flag, runs alongside arm moves.
 
@@ -685,9 +742,11 @@ class Arm:
         ----------
         angle : float or array_like, shape (1,)
             Goal jaw angle (rad); clipped to the jaw range with a warning.
+        names : sequence of str, optional
+            As :meth:`jaw_servo_jp`.
 
         """
-        angle = self._jaw_angle('jaw_move_jp', angle)
+        angle = self._jaw_angle('jaw_move_jp', angle, names)
         if angle is None:
             return
         self._jaw.move((angle,), self._time, self._ratio)
@@ -968,6 +1027,70 @@ def _read_only(array):
     """Return ``array`` marked read-only (it is shared, not copied)."""
     array.flags.writeable = False
     return array
+
+
+def _positional(names):
+    """Whether joint names say nothing of the order: none, or all numeric (``'0'``, ``'1'``)."""
+    return all(str(n).strip().isdigit() for n in names)
+
+
+def order_by_name(values, names, joint_names, what='joint goal'):
+    """
+    Put a joint vector given with joint names into the arm's joint order.
+
+    The dVRK simulators' contract: joint commands are mapped by name, in any order; with no
+    names, or numeric names only, they are taken by position.
+
+    Parameters
+    ----------
+    values : array_like, shape (k,)
+        Positions (rad / m), increments or efforts, one per name.
+    names : sequence of str or None
+        Their joint names.
+    joint_names : sequence of str
+        The arm's joints, in its order (``measured_js`` names).
+    what : str
+        The command, for messages.
+
+    Returns
+    -------
+    array_like
+        ``values`` itself when taken by position, else a float array of shape
+        ``(len(joint_names),)``.
+
+    Raises
+    ------
+    ValueError
+        If a name is not one of the arm's joints, a joint is named twice or not at all, or the
+        numbers of names and values differ.
+
+    """
+    if not names or _positional(names):
+        return values
+    names = tuple(names)
+    joint_names = tuple(joint_names)
+    if names == joint_names:
+        return values
+    expected = ', '.join(joint_names)
+    unknown = [n for n in names if n not in joint_names]
+    if unknown:
+        raise ValueError(f'{what}: unknown joint name{"s" if len(unknown) > 1 else ""} '
+                         f'{", ".join(map(repr, unknown))}; the joints are {expected}')
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f'{what}: joint {", ".join(map(repr, twice))} named more than once')
+    missing = [n for n in joint_names if n not in names]
+    if missing:
+        raise ValueError(f'{what}: no value for joint {", ".join(map(repr, missing))}; name '
+                         f'every joint ({expected}) or none')
+    try:
+        arr = np.asarray(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f'{what}: joint values must be numbers, got {values!r}') from None
+    if arr.size != len(names):
+        raise ValueError(f'{what}: {len(names)} joint names for {arr.size} values')
+    index = {n: i for i, n in enumerate(names)}
+    return arr[[index[n] for n in joint_names]]
 
 
 class _OutsideWorkspaceError(Exception):

@@ -27,7 +27,12 @@ Events (:class:`SimEvent`, stamped with simulation time): ``grasp``, ``release``
 ``entry``, ``exit``, ``withdrawn``, ``extracted``, ``trauma``, ``collision``, ``score``.
 
 Frames: ``world`` (z up; phantom at the origin, see ``config/world.yaml``) unless a name says
-otherwise; poses are 4x4 ``T_world_*``; SI units. Time is simulation time in seconds, counted in
+otherwise; poses are 4x4 ``T_world_*``; SI units. The arms' own Cartesian poses
+(:attr:`sim_bridge.arm.Arm.measured_cp`, what the CRTK topics report) follow ``world.frames``:
+``cart`` (a patient cart) puts each PSM's in the ECM camera frame ``ECM``, set again whenever the
+ECM moves, and the ECM's in ``world``; ``base`` leaves every arm in its RCM frame ``<ARM>_base``.
+Controllers never see those: :meth:`Simulation.observation` and :meth:`Simulation.apply` speak
+``world``. Time is simulation time in seconds, counted in
 whole physics steps, and the same seed gives bit-identical runs.
 
 Size: one physics step touches every part of the scene in a fixed order; the order is readable in
@@ -341,7 +346,10 @@ class Simulation:
             self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
         self._tool_cache = {}
-        self._command_frames = {}
+        self._camera_local = None  # ECM tool tip (RCM frame) the PSMs' frames were set from
+        if cfg.world.frames == 'cart':
+            self.arms['ECM'].set_base_frame(self._T_world_base['ECM'], 'world')
+            self._follow_camera()
         self._steps = 0
         self._events = []
         self.grasp.reset()
@@ -449,6 +457,20 @@ class Simulation:
         self._tool_cache[name] = (local, T)
         return T
 
+    def _follow_camera(self):
+        """
+        Patient-cart frames: put each PSM's reference frame on the ECM's camera frame ``ECM``.
+
+        Computed again only when the ECM has moved (its tool-tip array is replaced then).
+        """
+        local = self.arms['ECM'].local_measured_cp_view
+        if local is self._camera_local:
+            return
+        self._camera_local = local
+        T_camera_world = invert_transform(self._tool_pose('ECM'))
+        for name in PSMS:
+            self.arms[name].set_base_frame(T_camera_world @ self._T_world_base[name], 'ECM')
+
     def _emit(self, kind, **data):
         self._events.append(SimEvent(self.time, kind, data))
 
@@ -481,6 +503,8 @@ class Simulation:
         t = self._steps * dt
         for arm in self._arm_list:
             arm.step(dt)
+        if self._camera_local is not None:
+            self._follow_camera()
         if after_arms is not None:
             after_arms()
         for ev in self.grasp.update(self._jaws(), self._tool_pose, self._T_needle):
@@ -660,7 +684,7 @@ class Simulation:
         Send a controller's command to the arms.
 
         Tool targets ``T_world_tool`` become each PSM's ``servo_cp`` (expressed in the arm's
-        ``measured_cp`` frame), jaw targets its ``jaw_servo_jp``; None entries are skipped.
+        RCM frame ``<ARM>_base``), jaw targets its ``jaw_servo_jp``; None entries are skipped.
         Invalid targets (NaN, inf, unreachable) are rejected by the arm as ``error`` events.
 
         Parameters
@@ -675,19 +699,11 @@ class Simulation:
             arm = self.arms[name]
             T = np.asarray(T, dtype=float)
             if T.shape == (4, 4) and np.isfinite(T).all():
-                T = self._command_frame(name, arm) @ T
-            arm.servo_cp(T)  # the arm rejects malformed goals with an error event
+                T = self._T_base_world[name] @ T
+            arm.servo_cp(T, local=True)  # the arm rejects malformed goals with an error event
         for name, jaw in (command.jaw or {}).items():
             if jaw is not None:
                 self.arms[name].jaw_servo_jp(jaw)
-
-    def _command_frame(self, name, arm):
-        """``T_ref_world`` of an arm's ``measured_cp`` frame, computed again when it changed."""
-        base = arm.base_frame_view  # read-only, replaced when the arm's base frame is set
-        cached = self._command_frames.get(name)
-        if cached is None or cached[0] is not base:
-            cached = self._command_frames[name] = (base, base @ self._T_base_world[name])
-        return cached[1]
 
     def set_target_pair(self, name):
         """

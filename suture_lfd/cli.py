@@ -33,7 +33,7 @@ def cmd_info(args):
         print(f'phantom {phantom}: t = {sim.time:.3f} s simulated')
         for name, arm in sim.arms.items():
             state = arm.operating_state
-            tip = (sim.T_world_base(name) @ arm.measured_cp)[:3, 3]
+            tip = sim.tool_pose(name)[:3, 3]
             print(f'  {name:5s} {state.state:9s} homed={state.is_homed!s:5s} tip {_fmt(tip)}')
         print(f'  needle centre {_fmt(sim.needle_pose()[:3, 3])}')
         for name, pair in sim.phantom.markers.items():

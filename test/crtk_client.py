@@ -186,6 +186,10 @@ class ArmClient:
         msg = self._get('measured_cp')
         return cv.matrix_from_pose(msg.pose), cv.seconds_from_stamp(msg.header.stamp)
 
+    def local_setpoint_cp(self):
+        msg = self._get('local/setpoint_cp')
+        return cv.matrix_from_pose(msg.pose), cv.seconds_from_stamp(msg.header.stamp)
+
     # -- operating state ---------------------------------------------------------------------
 
     def _state_command(self, command):

@@ -17,6 +17,7 @@ import threading
 import time
 
 from sim_bridge.processes import popen, stop_group
+from sim_bridge.ros.dds import use_project_profile
 
 REPO = Path(__file__).resolve().parent.parent
 DOMAIN_ID = 10 + os.getpid() % 90
@@ -27,6 +28,7 @@ os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 os.environ['PYTHONUNBUFFERED'] = '1'
+use_project_profile()  # the project's Fast DDS profile for the test's participants and nodes
 
 SIGINT_EXIT = 128 + signal.SIGINT    # a node stopped by SIGINT exits with 130
 SIGTERM_EXIT = 128 + signal.SIGTERM  # ... by SIGTERM with 143

@@ -16,29 +16,51 @@ cisst-ros):
   ``endoscope_type`` (ECM); operating_state stamps are non-zero, strictly increasing and, when
   the simulator clock stands for the wall clock, never behind it (crtk clients compare them
   with their own ``now()``);
-- commands (RELIABLE, VOLATILE, depth 1): ``state_command``, ``servo_jp``, ``servo_jr``,
-  ``servo_jf``, ``servo_cp``, ``move_jp``, ``move_jr``, ``move_cp``, ``hold``, ``free``,
-  ``spatial/servo_cf``, ``body/servo_cf``, ``body/set_cf_orientation_absolute``,
-  ``use_gravity_compensation``, ``trajectory_j/set_ratio``, ``set_base_frame``; PSMs add
-  ``jaw/servo_jp``, ``jaw/move_jp``, ``jaw/servo_jf`` and ``emulate_tool_present``;
+- streamed commands (RELIABLE, VOLATILE, depth 1: a new servo goal replaces the last):
+  ``servo_jp``, ``servo_jr``, ``servo_jf``, ``servo_cp``; PSMs add ``jaw/servo_jp`` and
+  ``jaw/servo_jf``;
+- queued commands (RELIABLE, VOLATILE, depth 100: an ordered queue, a burst is never dropped):
+  ``move_jp``, ``move_jr``, ``move_cp``, ``hold``, ``free``, ``spatial/servo_cf``,
+  ``body/servo_cf``, ``body/set_cf_orientation_absolute``, ``use_gravity_compensation``,
+  ``trajectory_j/set_ratio``, ``set_base_frame``; PSMs add ``jaw/move_jp`` and
+  ``emulate_tool_present``; a latched publisher's goal arrives once matched, like on the dVRK;
+- ``state_command``: a volatile and a transient-local reader (:mod:`sim_bridge.ros.intake`), so
+  that a command that a latched publisher (crtk) sends before discovery has matched it still
+  arrives, once, in order, and one written before the simulator started (an earlier client's,
+  replayed to a restarted simulator) is dropped with a ``warning``. (A transient-local reader on
+  ``move_*`` as well would make every volatile ``move_*`` publisher, crtk's included, warn of
+  incompatible QoS; a move is sent after the client has seen the arm's state anyway.)
 - services: ``operating_state``, ``crtk_version``, ``forward_kinematics``,
   ``local/forward_kinematics``, ``inverse_kinematics``.
 
-Frames: ``measured_cp``/``setpoint_cp``/``measured_cv`` in the arm's reference frame
-(``<ARM>_base``, the RCM frame, unless ``set_base_frame`` names another); ``local/*`` always in
-``<ARM>_base``; body quantities in the tool-tip frame ``<ARM>``. SI units. ``servo_cp`` and
-``move_cp`` goals are read in the reference frame whatever their ``frame_id``; one stamped in
-another frame is executed all the same, with a warning (every 5 s per frame) naming both.
+Frames: ``measured_cp``/``setpoint_cp``/``measured_cv`` in the arm's reference frame (on a
+patient cart the ECM camera frame ``ECM`` for a PSM and ``world`` for the ECM, else the RCM frame
+``<ARM>_base``; ``set_base_frame`` names another); ``local/*`` always in ``<ARM>_base``; body
+quantities in the tool-tip frame ``<ARM>``. SI units. ``servo_cp`` and ``move_cp`` goals are read
+by their ``frame_id``: ``""`` or the reference frame; ``ECM_view`` (the dVRK simulators' view
+frame: ``ECM`` turned half a turn about its z axis, x left, y up) while the reference frame is
+``ECM``; ``<ARM>_base``; ``world``. A goal in any other frame is rejected with a ``warning``
+(throttled as the arm's other warnings; a ``move_cp`` also gets a busy pulse ending with
+``goal_reached`` false).
+
+On a patient cart the set-up joints' topics tell a client where the arm's base is (the
+simulated cart has no set-up joints to move, so their ``measured_js`` is empty):
+``SUJ/<ARM>/measured_cp`` and ``SUJ/<ARM>/local/measured_cp`` (``T_world_<ARM>_base``, frame
+``world``, child ``<ARM>_base``) and ``SUJ/<ARM>/measured_js``, at the state rate.
+
+Joint commands carry their JointState names to the arm, which maps them by name in any order
+(none, or numeric names: by position) and rejects an unknown name with an ``error``.
 
 Every command is handed to :class:`sim_bridge.arm.Arm` unchanged; the arm validates it (NaN,
 infinite values, non-unit quaternions, wrong vector lengths, joint limits, reachability, readiness)
 and reports problems as ``error``/``warning`` events, which this face publishes.
+
+Size: one arm's endpoints, the order in which its commands are applied and its state
+publication are one table of topics; split, each part would need the others' tables.
 """
 
 from contextlib import nullcontext
 from functools import cached_property
-import math
-import time
 
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
@@ -50,13 +72,11 @@ from sim_bridge import cdr
 from sim_bridge.kinematics import UnreachableError
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
+from sim_bridge.ros.intake import CommandIntake
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 CRTK_VERSION = '1.1.0'
-# A Cartesian command stamped in a frame other than the arm's reference frame is warned about
-# at most this often (s) per topic and frame: a 1 kHz stream must not flood the warning topic.
-FRAME_WARNING_PERIOD = 5.0
 # Streaming commands (up to 1 kHz from a teleoperation client): taken by the simulator right
 # before each stepping round (:meth:`CrtkArm.take_commands`) instead of waking the executor for
 # every message; like the dVRK, which applies servo goals in its control loop. Any other command
@@ -69,6 +89,10 @@ POLLED_COMMANDS = ('servo_jp', 'servo_jr', 'servo_jf', 'servo_cp', 'jaw/servo_jp
 # the command sent last wins, so the move is dropped. Moves by the part of the arm they drive.
 MOVES = {'move_jp': 'arm', 'move_jr': 'arm', 'move_cp': 'arm', 'jaw/move_jp': 'jaw'}
 _ZERO6 = np.zeros(6)
+WORLD = 'world'
+# The dVRK simulators' view frame in the camera frame ECM: x left, y up, z along the view.
+VIEW_FRAME = 'ECM_view'
+_T_ECM_VIEW = np.diag([-1.0, -1.0, 1.0, 1.0])
 # Smallest step between two operating_state stamps: 1 us, so that clients comparing stamps as
 # float seconds (about 0.24 us resolution at today's epoch) still see them increase.
 _STAMP_STEP_NS = 1000
@@ -171,6 +195,12 @@ class CrtkArm:
     lock : callable, optional
         Returns a context manager that every callback (command, service) holds while it runs;
         the owner holds the same lock when it steps the arm or publishes (default: none).
+    T_world_base : array_like, shape (4, 4), optional
+        The arm's RCM frame ``<ARM>_base`` in ``world``: Cartesian goals stamped ``world`` are
+        taken (default: rejected, as any frame the arm cannot place).
+    suj : bool, optional
+        Publish the patient cart's set-up joint topics ``SUJ/<ARM>/*`` (needs
+        ``T_world_base``).
     stamp_floor_ns : callable, optional
         Returns a time (int ns) that ``operating_state`` stamps must not fall behind: the wall
         clock when the simulator clock stands for it. A client without ``use_sim_time`` takes
@@ -185,12 +215,17 @@ class CrtkArm:
     """
 
     def __init__(self, node, name, get_arm, now_ns, on_command=None, poll_servo=False,
-                 lock=None, stamp_floor_ns=None):
+                 lock=None, stamp_floor_ns=None, T_world_base=None, suj=False):
         self.name = name
+        self._T_world_base = None if T_world_base is None else np.array(T_world_base,
+                                                                         dtype=float)
+        self._T_base_world = None if T_world_base is None else np.linalg.inv(
+            self._T_world_base)
         self._stamp_floor_ns = stamp_floor_ns or (lambda: 0)
         self._lock = lock or nullcontext
         self._polled_group = _Polled() if poll_servo else None
         self._polled = []
+        self.intakes = {}  # topic -> CommandIntake (sim_bridge.ros.intake)
         self._streamed_ns = {'arm': -1, 'jaw': -1}  # newest streamed goal applied, source stamp
         self._node = node
         self._get_arm = get_arm
@@ -233,6 +268,13 @@ class CrtkArm:
             lambda s, t: cdr.jacobian_array(s.jacobian_spatial))
         add('gravity_compensation/setpoint_js', JointState,
             lambda s, t: cdr.joint_state(t, names, effort=zeros))
+        if suj and self._T_world_base is not None:
+            base_pose = cv.pose_vector(self._T_world_base)
+            for topic in ('measured_cp', 'local/measured_cp'):
+                add(topic, PoseStamped, lambda s, t: cdr.pose_stamped(t, WORLD, base_pose),
+                    prefix=f'SUJ/{name}')
+            add('measured_js', JointState, lambda s, t: cdr.joint_state(t, (), []),
+                prefix=f'SUJ/{name}')
         if self._has_jaw:
             add('jaw/measured_js', JointState, lambda s, t: cdr.joint_state(
                 t, ('jaw',), [s.arm.jaw_measured_jp], [s.arm.jaw_measured_jv], [0.0]))
@@ -257,13 +299,15 @@ class CrtkArm:
 
         sub = self._subscribe
         sub('state_command', StringStamped, lambda a, m: a.state_command(m.string))
-        sub('servo_jp', JointState, lambda a, m: a.servo_jp(cv.raw_positions(m)))
-        sub('servo_jr', JointState, lambda a, m: a.servo_jr(cv.raw_positions(m)))
-        sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m)))
-        sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m)))
-        sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m)))
-        sub('servo_cp', PoseStamped, self._cartesian('servo_cp', lambda a, v: a.servo_cp(v)))
-        sub('move_cp', PoseStamped, self._cartesian('move_cp', lambda a, v: a.move_cp(v)))
+        sub('servo_jp', JointState, lambda a, m: a.servo_jp(cv.raw_positions(m), m.name))
+        sub('servo_jr', JointState, lambda a, m: a.servo_jr(cv.raw_positions(m), m.name))
+        sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m), m.name))
+        sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m), m.name))
+        sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m), m.name))
+        sub('servo_cp', PoseStamped,
+            self._cartesian('servo_cp', lambda a, v, local: a.servo_cp(v, local=local)))
+        sub('move_cp', PoseStamped,
+            self._cartesian('move_cp', lambda a, v, local: a.move_cp(v, local=local)))
         sub('hold', Empty, lambda a, m: a.hold())
         sub('free', Empty, lambda a, m: a.free())
         sub('trajectory_j/set_ratio', Float64, lambda a, m: a.set_ratio(m.data))
@@ -274,8 +318,10 @@ class CrtkArm:
         sub('body/set_cf_orientation_absolute', Bool, lambda a, m: None)
         sub('use_gravity_compensation', Bool, lambda a, m: None)
         if self._has_jaw:
-            sub('jaw/servo_jp', JointState, lambda a, m: a.jaw_servo_jp(cv.raw_positions(m)))
-            sub('jaw/move_jp', JointState, lambda a, m: a.jaw_move_jp(cv.raw_positions(m)))
+            sub('jaw/servo_jp', JointState,
+                lambda a, m: a.jaw_servo_jp(cv.raw_positions(m), m.name))
+            sub('jaw/move_jp', JointState,
+                lambda a, m: a.jaw_move_jp(cv.raw_positions(m), m.name))
             sub('jaw/servo_jf', JointState, lambda a, m: None)
             sub('emulate_tool_present', Bool, lambda a, m: a.emulate_tool_present(m.data))
 
@@ -292,27 +338,43 @@ class CrtkArm:
             lambda req, resp: self._srv_fk(req, resp, local=True))
         srv(QueryInverseKinematics, f'{name}/inverse_kinematics', self._srv_ik)
         self._warned = set()
-        self._frame_warned = {}   # (topic, frame_id) -> monotonic time of its last warning
 
     def _cartesian(self, topic, apply):
-        """Return the handler of a Cartesian command: warn about its frame_id, apply its pose."""
+        """
+        Return the handler of a Cartesian command: its pose in the frame its frame_id names.
+
+        ``apply(arm, pose, local)`` gets the goal in the arm's reference frame, or in
+        ``<ARM>_base`` when ``local``.
+        """
         def handler(arm, msg):
             frame = msg.header.frame_id
-            if frame and frame != arm.reference_frame:
-                self._warn_frame(topic, frame, arm.reference_frame)
-            apply(arm, cv.vector_from_pose(msg.pose))
+            reference = arm.reference_frame
+            if not frame or frame == reference:
+                apply(arm, cv.vector_from_pose(msg.pose), False)
+                return
+            if frame == self.base_frame_id:
+                apply(arm, cv.vector_from_pose(msg.pose), True)
+                return
+            if frame == WORLD and self._T_base_world is not None:
+                convert, local = self._T_base_world, True
+            elif frame == VIEW_FRAME and reference == 'ECM':
+                convert, local = _T_ECM_VIEW, False
+            else:
+                frames = [repr(reference), repr(self.base_frame_id)]
+                if reference == 'ECM':
+                    frames.append(repr(VIEW_FRAME))
+                if self._T_base_world is not None:
+                    frames.append(repr(WORLD))
+                arm.reject_goal(topic, f'{self.name}: {topic} stamped in frame {frame!r} '
+                                       f'ignored: send it in {", ".join(frames)} or with an '
+                                       f"empty frame_id (the arm's reference frame)")
+                return
+            try:
+                T = cv.matrix_from_pose(msg.pose, what=f'{topic} pose')
+            except ValueError:
+                T = None  # the arm names what is wrong with the goal
+            apply(arm, cv.vector_from_pose(msg.pose) if T is None else convert @ T, local)
         return handler
-
-    def _warn_frame(self, topic, frame, reference):
-        """Say (at most every FRAME_WARNING_PERIOD s per frame) that frame_id is not applied."""
-        now = time.monotonic()
-        if now - self._frame_warned.get((topic, frame), -math.inf) < FRAME_WARNING_PERIOD:
-            return
-        self._frame_warned[(topic, frame)] = now
-        self._publish_text('warning', f'{self.name}: {topic} stamped in frame {frame!r} is read '
-                                      f"in {reference!r}, the arm's reference frame; frame_id "
-                                      'is not transformed (send it in that frame or leave it '
-                                      'empty)')
 
     @property
     def base_frame_id(self):
@@ -321,9 +383,10 @@ class CrtkArm:
 
     # -- wiring --------------------------------------------------------------------------------
 
-    def _add_state(self, topic, msg_type, build):
-        pub = self._node.create_publisher(msg_type, f'{self.name}/{topic}', qos.STATE)
-        self._state[topic] = (pub, build)
+    def _add_state(self, topic, msg_type, build, prefix=None):
+        name = f'{prefix or self.name}/{topic}'
+        pub = self._node.create_publisher(msg_type, name, qos.STATE)
+        self._state[name] = (pub, build)
 
     def _subscribe(self, topic, msg_type, handler):
         def callback(msg):
@@ -335,10 +398,9 @@ class CrtkArm:
                                                  callback_group=self._polled_group)
             self._polled.append((sub, 'jaw' if topic.startswith('jaw/') else 'arm'))
         else:
-            def in_order(msg, info):
+            def in_order(msg, sent):
                 # streamed commands sent before this one go first, those sent after it (already
                 # waiting too) after it: by the senders' publication stamps
-                sent = info.get('source_timestamp')
                 with self._lock():
                     later = self.take_commands(before_ns=sent)
                     part = MOVES.get(topic)
@@ -346,8 +408,22 @@ class CrtkArm:
                         callback(msg)
                     for sub, streamed, newer, stamp in later:
                         self._handle_streamed(sub, streamed, newer, stamp)
-            self._node.create_subscription(msg_type, f'{self.name}/{topic}', in_order,
-                                           qos.ARM_COMMANDS)
+            if topic == 'state_command':
+                self.intakes[topic] = CommandIntake(
+                    self._node, msg_type, f'{self.name}/{topic}', in_order,
+                    on_stale=lambda msg, age: self._stale(topic, msg, age))
+            else:
+                self._node.create_subscription(
+                    msg_type, f'{self.name}/{topic}',
+                    lambda msg, info: in_order(msg, info.get('source_timestamp')),
+                    qos.QUEUED_COMMANDS)
+
+    def _stale(self, topic, msg, age):
+        """Warn that a latched command written before the simulator started was dropped."""
+        what = f' {msg.string!r}' if hasattr(msg, 'string') else ''
+        self._publish_text('warning', f'{self.name}: ignored a latched {topic}{what} written '
+                                      f'{age:.1f} s before the simulator started (left by an '
+                                      'earlier client or run); send it again')
 
     def take_commands(self, before_ns=None):
         """
@@ -468,7 +544,10 @@ class CrtkArm:
 
     def _srv_ik(self, request, response):
         """
-        Solve the IK of a tool-tip pose in ``<ARM>_base`` near ``jp`` (or the setpoint).
+        Solve the IK of a tool-tip pose in the ``measured_cp`` frame near ``jp`` (or the setpoint).
+
+        As ``forward_kinematics`` answers in that frame (``local/forward_kinematics`` in
+        ``<ARM>_base``), the pose is read in it: the camera frame of a patient cart's PSMs.
 
         The ECM answers as it moves: the position, rolled about the shaft towards the
         orientation (:meth:`EcmKinematics.ik_position`); a position outside the workspace is
@@ -477,7 +556,8 @@ class CrtkArm:
         arm = self._get_arm()
         k = arm.kinematics
         try:
-            T = cv.matrix_from_pose(request.cp, what='inverse_kinematics cp')
+            T = np.linalg.solve(arm.base_frame_view,
+                                cv.matrix_from_pose(request.cp, what='inverse_kinematics cp'))
             q_ref = np.asarray(request.jp, dtype=float) if len(request.jp) else arm.setpoint_jp
             q_ref = k.check_q(q_ref, name='inverse_kinematics jp')
             if arm.has_jaw:

@@ -51,6 +51,7 @@ scene topics are in modules of their own.
 """
 
 from dataclasses import dataclass, replace
+import gc
 import json
 import math
 import sys
@@ -72,6 +73,7 @@ from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
+from sim_bridge.scene.world import FRAMES
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
 from sim_bridge.validation import check_positive
 from std_msgs.msg import String
@@ -136,6 +138,11 @@ class SimulatorConfig:
         cannula, insertion 0).
     footpedals : bool
         Run the console foot pedals (``/footpedals/*``) in this process.
+    frames : str
+        Frames of the arms' Cartesian poses: ``cart`` (a patient cart: PSM poses in the ECM
+        camera frame ``ECM``, the ECM in ``world``, the set-up joints' ``SUJ/*`` topics),
+        ``base`` (each arm in its RCM frame ``<ARM>_base``), ``''``: ``world.frames`` of
+        ``config/world.yaml``.
 
     """
 
@@ -159,6 +166,7 @@ class SimulatorConfig:
     start_at_home: bool = False
     psm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     ecm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    frames: str = ''
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -180,6 +188,9 @@ class SimulatorConfig:
             if len(value) != n or not all(math.isfinite(float(v)) for v in value):
                 raise ValueError(f'parameter {name} must be {n} finite joint values (rad / m), '
                                  f'got {list(value)}')
+        if self.frames not in ('', *FRAMES):
+            raise ValueError(f"parameter frames must be 'cart', 'base' or '' (world.yaml's), "
+                             f'got {self.frames!r}')
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
                              f'got {self.tracking!r}')
@@ -246,6 +257,8 @@ class Simulator(_QuietEndpoints, Node):
         rest = {} if cfg.start_at_home else {
             'psm_rest_jp': tuple(float(v) for v in cfg.psm_rest_jp),
             'ecm_rest_jp': tuple(float(v) for v in cfg.ecm_rest_jp)}
+        if cfg.frames:
+            sim_config = replace(sim_config, world=replace(sim_config.world, frames=cfg.frames))
         sim_config = replace(
             sim_config,
             arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present,
@@ -293,9 +306,11 @@ class Simulator(_QuietEndpoints, Node):
         # at real time on the wall clock, clients without use_sim_time compare operating_state
         # stamps with their system clock: those stamps never fall behind it
         wall = time.time_ns if cfg.clock_start < 0 and self._rtf == 1.0 else None
+        cart = sim_config.world.frames == 'cart'
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
-                                   lock=self.locked, stamp_floor_ns=wall)
+                                   lock=self.locked, stamp_floor_ns=wall,
+                                   T_world_base=self.sim.T_world_base(name), suj=cart)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
@@ -495,6 +510,11 @@ class Simulator(_QuietEndpoints, Node):
         self._publish_event('target_pair', sim.time, pair=self._pair)
         self.scene.publish_latched(self.stamp())
         self._clock_pub.publish(cv.clock_message(self.stamp()))
+        # the old scene is garbage, the new one lives on: collect once, keep the collector off
+        # the new scene (as after start-up, sim_bridge.ros.entry)
+        gc.unfreeze()
+        gc.collect()
+        gc.freeze()
         response.success = True
         response.message = f'scene reset ({self._resets}), target pair {self._pair}'
         return response

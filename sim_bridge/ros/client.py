@@ -5,8 +5,8 @@ A client of the simulator's topics for a node that drives the two PSMs.
 its own timers, parameters and topics. It subscribes to what a controller needs and publishes
 what it sends, with the profiles of :mod:`sim_bridge.ros.qos`:
 
-- arms' state: ``<ARM>/measured_cp``, ``<ARM>/measured_js``, ``<ARM>/jaw/measured_js``,
-  ``<ARM>/operating_state``;
+- arms' state: ``<ARM>/measured_cp``, ``<ARM>/local/measured_cp``, ``<ARM>/measured_js``,
+  ``<ARM>/jaw/measured_js``, ``<ARM>/operating_state``;
 - ground truth: ``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``,
   ``sim/markers/<pair>/entry|exit`` (of the pairs given to :meth:`SimClient.watch_pairs`) and
   the scene events ``sim/events`` (grasps and releases are followed in
@@ -27,8 +27,13 @@ way in-process and over ROS. Typical use in a node's timer::
         command = controller.step(client.observation('synth1'))
         client.send(command, cv.stamp_from_seconds(command.t))
 
-Frames: ``world``; ``<ARM>_base`` (the frame of ``measured_cp`` unless the arm reports
-``world``); poses 4x4; metres, radians, seconds.
+Frames: ``world``; ``<ARM>_base``; poses 4x4; metres, radians, seconds. The arms' frames are
+converted here, once, so a controller sees ``world`` whatever frame the arms report in: the tool
+pose is ``T_world_base @ local/measured_cp`` (``local/*`` is in ``<ARM>_base`` on every dVRK);
+goals are sent in the frame of ``measured_cp``: ``<ARM>_base`` or ``world`` as they are, any
+other (the camera frame ``ECM`` of a patient cart) through ``T_ref_base = measured_cp @
+local/measured_cp^-1`` of the newest pair published together (same stamp), so they follow the
+ECM as the arm's reference frame does.
 """
 
 import time
@@ -38,6 +43,7 @@ from geometry_msgs.msg import PoseStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 from sim_bridge.control import Observation
+from sim_bridge.geometry import invert_transform
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.scene.phantom import MarkerPair
@@ -67,6 +73,8 @@ class SimClient:
     ----------
     tools : dict of str to tuple
         Per arm the newest ``measured_cp``: ``(stamp_s, frame_id, T_frame_tool)``.
+    local : dict of str to tuple
+        Per arm the newest ``local/measured_cp``: ``(stamp_s, T_base_tool)``.
     q, jaw, state : dict of str to message
         Newest ``measured_js``, ``jaw/measured_js`` and ``operating_state`` per arm.
     bases : dict of str to ndarray (4, 4)
@@ -86,6 +94,8 @@ class SimClient:
         self.node = node
         self.arms = tuple(arms)
         self.tools, self.q, self.jaw, self.state = {}, {}, {}, {}
+        self.local = {}
+        self._T_ref_base = {}  # arm -> (stamp_s, T_ref_base) of the newest matching pair
         self.bases, self.markers = {}, {}
         self.needle = None
         self.holders = set()
@@ -100,12 +110,14 @@ class SimClient:
                        for a in self.arms}
         self._jaw_pub = {a: pub(JointState, f'{a}/jaw/servo_jp', qos.SERVO_STREAM)
                          for a in self.arms}
-        self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STREAM)
+        self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STATE_COMMAND)
                          for a in self.arms}
         self._target = pub(String, 'sim/target_pair', qos.STREAM)
         sub = node.create_subscription
         for a in self.arms:
             sub(PoseStamped, f'{a}/measured_cp', lambda m, a=a: self._on_cp(a, m), qos.STREAM)
+            sub(PoseStamped, f'{a}/local/measured_cp', lambda m, a=a: self._on_local(a, m),
+                qos.STREAM)
             sub(JointState, f'{a}/measured_js', lambda m, a=a: self.q.__setitem__(a, m),
                 qos.STREAM)
             sub(JointState, f'{a}/jaw/measured_js', lambda m, a=a: self.jaw.__setitem__(a, m),
@@ -123,8 +135,22 @@ class SimClient:
     def _on_cp(self, arm, msg):
         stamp = cv.seconds_from_stamp(msg.header.stamp)
         self.tools[arm] = (stamp, msg.header.frame_id, cv.matrix_from_pose(msg.pose))
+        self._pair_frames(arm)
         if self._on_cp_cb is not None:
             self._on_cp_cb(arm, stamp)
+
+    def _on_local(self, arm, msg):
+        self.local[arm] = (cv.seconds_from_stamp(msg.header.stamp), cv.matrix_from_pose(msg.pose))
+        self._pair_frames(arm)
+
+    def _pair_frames(self, arm):
+        """Keep ``T_ref_base`` of the newest measured_cp and local/measured_cp of one stamp."""
+        tool, local = self.tools.get(arm), self.local.get(arm)
+        if tool is None or local is None or tool[0] != local[0]:
+            return
+        if tool[1] in ('world', f'{arm}_base'):
+            return  # a frame placed by the base frames alone: no pair needed
+        self._T_ref_base[arm] = (tool[0], tool[2] @ invert_transform(local[1]))
 
     def _on_needle(self, msg):
         self.needle = cv.matrix_from_pose(msg.pose)
@@ -180,7 +206,13 @@ class SimClient:
         """Return True once the arms' state, base frames, needle and pairs' markers came."""
         return (all(self.has_pair(p) for p in pairs) and self.needle is not None and all(
             a in self.tools and a in self.bases and a in self.jaw and a in self.state
-            for a in self.arms))
+            and self._placed(a) for a in self.arms))
+
+    def _placed(self, arm):
+        """Whether the arm's tool pose can be placed in world and its goals in its frame."""
+        frame = self.tools[arm][1]
+        return frame in ('world', f'{arm}_base') or (arm in self.local
+                                                     and arm in self._T_ref_base)
 
     def homed(self):
         """Return True when every arm is enabled, homed and not busy."""
@@ -198,7 +230,11 @@ class SimClient:
     def world_tool(self, arm):
         """Return the arm's newest tool pose ``T_world_tool``."""
         _, frame, T = self.tools[arm]
-        return T if frame == 'world' else self.bases[arm] @ T
+        if frame == 'world':
+            return T
+        if frame != f'{arm}_base':
+            T = self.local[arm][1]  # in <ARM>_base on every dVRK
+        return self.bases[arm] @ T
 
     def marker_pair(self, name):
         """Return a watched pair as a :class:`sim_bridge.scene.phantom.MarkerPair` (world)."""
@@ -299,7 +335,12 @@ class SimClient:
             T = command.T_world_tool.get(arm)
             if T is not None:
                 _, frame, _ = self.tools[arm]
-                T_cmd = T if frame == 'world' else np.linalg.solve(self.bases[arm], T)
+                if frame == 'world':
+                    T_cmd = T
+                elif frame == f'{arm}_base':
+                    T_cmd = np.linalg.solve(self.bases[arm], T)
+                else:
+                    T_cmd = self._T_ref_base[arm][1] @ np.linalg.solve(self.bases[arm], T)
                 self._servo[arm].publish(cv.pose_stamped(T_cmd, frame, stamp))
                 self._count(self._servo[arm])
                 sent += 1

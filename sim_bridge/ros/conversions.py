@@ -142,6 +142,16 @@ def transform_stamped(T, parent, child, stamp):
     return msg
 
 
+def matrix_from_transform(transform):
+    """Return the 4x4 matrix of a ``geometry_msgs/Transform`` (quaternion normalised)."""
+    t, q = transform.translation, transform.rotation
+    q = np.array([q.x, q.y, q.z, q.w], dtype=float)
+    T = np.eye(4)
+    T[:3, :3] = matrix_from_quaternion(q / np.linalg.norm(q))
+    T[:3, 3] = (t.x, t.y, t.z)
+    return T
+
+
 def tf_message(transforms):
     """Return a ``tf2_msgs/TFMessage`` of ``TransformStamped`` messages."""
     return TFMessage(transforms=list(transforms))

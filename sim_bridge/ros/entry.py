@@ -16,7 +16,8 @@ The one ``main`` of every node executable: help, argument checks, signals, exit 
    bad file, bad parameter) gives one line on stderr, ``<name>: error: <message>``, and exit 2;
    an override ``-p name:=value`` of a parameter the node does not declare is refused the same
    way, before the node spins;
-5. spins it until it is ``finished`` (a node that ends by itself sets ``finished`` and
+5. exempts what the node built from Python's cyclic collector (:func:`_keep_start_up_objects`)
+   and spins it until it is ``finished`` (a node that ends by itself sets ``finished`` and
    ``exit_code``), a signal arrives or the context is shut down;
 6. after a signal calls the node's ``on_interrupt(signal_name)``: stop commanding (the arms hold
    their last setpoint, as a dVRK arm does when its servo stream stops) and write the result it
@@ -33,6 +34,7 @@ its executor: threads of its own), ``companions`` (further nodes spun on the sam
 
 import ast
 from contextlib import contextmanager
+import gc
 import importlib
 import importlib.util
 import re
@@ -42,6 +44,7 @@ import textwrap
 
 from sim_bridge.configfile import load_yaml
 from sim_bridge.paths import config_path
+from sim_bridge.ros.dds import use_project_profile
 
 HELP_FLAGS = ('-h', '--help')
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -315,6 +318,19 @@ def run_node(make_node, name, args=None, *, doc='', config_file=None, example=No
         state.raise_at_once = False
 
 
+def _keep_start_up_objects():
+    """
+    Collect once, then exempt every object alive after start-up from Python's cyclic collector.
+
+    A node keeps what it built at start-up (a scene, meshes, messages, endpoints: some 65,000
+    objects in the simulator) until it exits; a full collection walks them all, and took 350 ms
+    in the simulator on a busy two-core machine, a silence in its 100 Hz state that a dVRK client
+    reports as stale data. Frozen, they are skipped; garbage made later is collected as before.
+    """
+    gc.collect()
+    gc.freeze()
+
+
 def _run(make_node, name, argv, ros_args, state, spin_period):
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -323,6 +339,7 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
 
     context = rclpy.utilities.get_default_context()
     nodes, node, executor = [], None, None
+    use_project_profile()  # before the participant exists (sim_bridge.ros.dds)
     try:
         rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
         try:
@@ -342,6 +359,7 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
         executor = SingleThreadedExecutor(context=context)
         for each in nodes:
             executor.add_node(each)
+        _keep_start_up_objects()
         _call(node, 'on_start')
         with state.deferred():
             try:

@@ -12,6 +12,7 @@ cannot be watched (``alive`` returns None) and the client falls back on its time
 import json
 import os
 import socket
+import time
 
 
 def _start_ticks(pid):
@@ -25,6 +26,29 @@ def _start_ticks(pid):
     if len(fields) < 20:
         return None
     return int(fields[19]), fields[0]
+
+
+def process_start_ns(pid=None):
+    """
+    Return when process ``pid`` (default: this one) started, on the system clock (int ns).
+
+    From its start time in ``/proc`` (clock ticks since boot) and the time since boot now, both
+    10 ms steps, so the result is rounded down by two ticks: never after the true start; without
+    ``/proc`` (another system), the time of this call.
+    """
+    pid = os.getpid() if pid is None else int(pid)
+    info = _start_ticks(pid)
+    now = time.time_ns()
+    try:
+        with open('/proc/uptime', 'rb') as f:
+            uptime = float(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return now
+    if info is None:
+        return now
+    tick = 1.0 / os.sysconf('SC_CLK_TCK')
+    age = uptime - info[0] * tick + 2 * tick
+    return now - int(max(age, 0.0) * 1e9)
 
 
 def announcement(pid=None):

@@ -49,10 +49,29 @@ SERVO_STREAM = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
 COMMANDS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 
-# The commands an arm receives (servo, move, jaw, state commands): only the newest target
-# counts; an older one still queued would drive the arm backwards.
+# The streamed goals an arm receives (servo_*, jaw/servo_*): only the newest target counts; an
+# older one still queued would drive the arm backwards.
 ARM_COMMANDS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                   durability=DurabilityPolicy.VOLATILE)
+                          durability=DurabilityPolicy.VOLATILE)
+
+# Commands an arm or a virtual MTM applies one by one, in order (state commands, moves, hold,
+# free, settings): a burst is queued, never dropped (the dVRK simulators' contract: an ordered
+# queue of up to 32; a latched state command fills both readers of sim_bridge.ros.intake, hence
+# 100). Volatile, so that every publisher matches.
+QUEUED_COMMANDS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+
+# The second reader of a state_command topic (sim_bridge.ros.intake): transient-local, so that a
+# command a latched publisher (crtk) sent before discovery matched it still arrives; stale ones
+# are dropped by the intake, not by the QoS.
+LATCHED_COMMANDS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+# How a client publishes state commands: latched, as crtk does, so that one sent before
+# discovery completes is not lost, and a volatile publisher does not meet the receiver's
+# transient-local reader (rclpy warns of incompatible QoS there).
+STATE_COMMAND = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 # /clock as the simulator and the player publish it: every tick reaches the subscribers that
 # keep up (use_sim_time nodes, the recorder).

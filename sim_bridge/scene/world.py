@@ -38,6 +38,10 @@ from sim_bridge.geometry import invert_transform, quaternion_from_matrix
 from sim_bridge.paths import config_path
 from sim_bridge.validation import check_positive
 
+# Frames of the arms' Cartesian poses (WorldConfig.frames): a patient cart (PSMs in the camera
+# frame) or each arm in its own base.
+FRAMES = ('cart', 'base')
+
 # Collision groups (bit masks).
 GROUP_ENVIRONMENT = 1
 GROUP_NEEDLE = 2
@@ -136,6 +140,10 @@ class WorldConfig:
         Table colour (a surgical drape).
     arms : dict of Placement
         RCM frame of each arm (``PSM1``, ``PSM2``, ``ECM``) in ``world``.
+    frames : str
+        Frames of the arms' Cartesian poses: ``'cart'`` (a patient cart with set-up joints:
+        PSM poses in the ECM camera frame ``ECM``, the ECM in ``world``) or ``'base'`` (each
+        arm in its own RCM frame ``<ARM>_base``, as a single arm on a table).
     instrument : InstrumentShape
         Instrument shapes and colours.
     needle_segments : int
@@ -167,9 +175,13 @@ class WorldConfig:
     needle_restitution: float = 0.0
     marker_thickness: float = 0.0002
     phantom_collision_margin: float = 0.001
+    frames: str = 'cart'
 
     def __post_init__(self):
         check_positive(self.physics_step, 'world physics_step (s)')
+        if self.frames not in FRAMES:
+            raise ValueError(f"world frames must be 'cart' (PSM poses in the camera frame) or "
+                             f"'base' (each arm in <ARM>_base), got {self.frames!r}")
         if self.solver_iterations < 1:
             raise ValueError(
                 f'world solver_iterations must be >= 1, got {self.solver_iterations}')

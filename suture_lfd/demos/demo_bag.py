@@ -6,7 +6,9 @@ else the recorder took, the topics of :data:`DEMO_TOPICS` (the simulator's topic
 namespace ``/``):
 
 - ``/PSM1/measured_cp``, ``/PSM2/measured_cp`` (geometry_msgs/PoseStamped): tool tip in the
-  arm's base frame (frame_id ``<ARM>_base``, the dVRK default) or in ``world``;
+  arm's base frame (frame_id ``<ARM>_base``, the dVRK default) or in ``world``; in the camera
+  frame ``ECM`` of a patient cart, ``/PSM1/local/measured_cp`` and ``/PSM2/local/measured_cp``
+  (in ``<ARM>_base``, recorded beside them) are read instead;
 - ``/sim/PSM1/base_frame``, ``/sim/PSM2/base_frame`` (PoseStamped, latched): ``T_world_base``;
 - ``/PSM1/jaw/measured_js``, ``/PSM2/jaw/measured_js`` (sensor_msgs/JointState): jaw angle;
 - ``/sim/needle/measured_cp`` (PoseStamped, ``world``): needle pose;
@@ -286,6 +288,22 @@ def _world_poses(frames, poses, arm, T_world_base, path):
     return poses
 
 
+def _pose_topic(reader, by_topic, arm):
+    """
+    Return the topic an arm's tool poses are read from: ``measured_cp`` or its local one.
+
+    A patient cart reports ``measured_cp`` in the moving camera frame ``ECM``; its
+    ``local/measured_cp`` (in ``<ARM>_base``, recorded beside it) is then read instead.
+    """
+    topic, local = f'/{arm}/measured_cp', f'/{arm}/local/measured_cp'
+    messages = by_topic[topic]
+    if messages and by_topic.get(local):
+        frame = reader.deserialize(messages[0]).header.frame_id
+        if frame not in ('world', '', f'{arm}_base'):
+            return local
+    return topic
+
+
 def _events(reader):
     out = []
     if '/sim/events' not in reader.topics:
@@ -370,6 +388,8 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
         wanted = [topic_in, topic_out, '/sim/needle/measured_cp']
         for arm in PSMS:
             wanted += [f'/sim/{arm}/base_frame', f'/{arm}/measured_cp', f'/{arm}/jaw/measured_js']
+            if f'/{arm}/local/measured_cp' in reader.topics:
+                wanted.append(f'/{arm}/local/measured_cp')
         by_topic = {topic: [] for topic in wanted}
         for message in reader.messages(wanted):
             by_topic[message.topic].append(message)
@@ -394,7 +414,7 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
             bases[arm] = values[-1]
         series = {}
         for arm in PSMS:
-            topic = f'/{arm}/measured_cp'
+            topic = _pose_topic(reader, by_topic, arm)
             times, values = _series(reader, by_topic[topic],
                                     lambda m: (m.header.frame_id, _pose_vector(m)),
                                     lean(topic, POSE, _fast_pose))

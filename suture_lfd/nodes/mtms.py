@@ -8,14 +8,21 @@ Per MTM (namespace = its name), what a dVRK teleoperation client uses:
 
 - published: ``operating_state`` (crtk_msgs/OperatingState, latched event, again after every
   ``state_command``), ``measured_cp``, ``setpoint_cp`` (geometry_msgs/PoseStamped, in the
-  device's frame: ``world`` for the browser, the camera ``ECM`` for velocity devices),
-  ``measured_cv`` (TwistStamped), ``gripper/measured_js`` (JointState ``gripper``, rad), every
-  ``1/rate`` s; ``goal_reached`` (Bool), ``error``/``warning``/``status`` (String) events;
-- subscribed: ``state_command`` (crtk_msgs/StringStamped), ``move_cp`` (PoseStamped; ``is_busy``
+  console's display frame ``HRSV``: the endoscope image's axes, x right, y down, z into the
+  view, origin at the camera; :mod:`suture_lfd.teleop.virtual_mtm`), ``measured_cv``
+  (TwistStamped), ``gripper/measured_js`` (JointState ``gripper``, rad), every ``1/rate`` s;
+  ``goal_reached`` (Bool), ``error``/``warning``/``status`` (String) events;
+- subscribed: ``state_command`` (crtk_msgs/StringStamped; latched and volatile publishers
+  alike, :mod:`sim_bridge.ros.intake`), ``move_cp`` (PoseStamped, queued; ``is_busy``
   true until the MTM is there, then ``goal_reached``), ``lock_orientation``
   (geometry_msgs/Quaternion), ``unlock_orientation`` (std_msgs/Empty),
   ``use_gravity_compensation`` (std_msgs/Bool), ``body/servo_cf`` (WrenchStamped: accepted and
-  ignored, a virtual MTM has no motors).
+  ignored, a virtual MTM has no motors). Releasing the clutch pedal unlocks the orientation,
+  as a console's MTM does: a client need not send ``unlock_orientation`` after a clutch.
+
+Velocity devices move the MTMs in the display frame itself; the browser's handles are posed in
+``world`` and are seen from the camera: ``<camera>/measured_cp`` (the ECM, with ``/tf_static``
+when its frame is not ``world``) places them, live with the ECM's motion.
 
 Pedals (``pedals: own``): ``/footpedals/clutch``, ``/footpedals/coag``, ``/footpedals/camera``
 and the console's ``/console/clutch``, ``/console/operator_present``, ``/console/camera``
@@ -44,11 +51,14 @@ from sensor_msgs.msg import JointState, Joy
 from sim_bridge.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
+from sim_bridge.ros.intake import CommandIntake
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Bool, Empty, Float64, String
 from suture_lfd.nodes import executables
-from suture_lfd.teleop.devices import PEDALS, open_device
-from suture_lfd.teleop.virtual_mtm import VirtualMtm
+from suture_lfd.teleop.devices import CAMERA_FRAME, PEDALS, open_device
+from suture_lfd.teleop.frames import FrameTree
+from suture_lfd.teleop.virtual_mtm import DISPLAY_FRAME, VirtualMtm
+from tf2_msgs.msg import TFMessage
 
 CONSOLE = {'clutch': 'clutch', 'coag': 'operator_present', 'camera': 'camera'}
 
@@ -88,6 +98,9 @@ class MtmsConfig:
         Gamepad: SDL joystick index.
     device_path : str
         SpaceMouse: hidraw path (``''``: the first 3Dconnexion device found).
+    camera : str
+        The arm whose ``measured_cp`` is the camera (the display frame's origin and axes),
+        for a device that gives poses in another frame (the browser's ``world``).
 
     """
 
@@ -106,6 +119,7 @@ class MtmsConfig:
     gripper_speed: float = 1.5
     device_index: int = 0
     device_path: str = ''
+    camera: str = 'ECM'
 
     def __post_init__(self):
         if self.device not in ('browser', 'gamepad', 'spacemouse'):
@@ -139,7 +153,17 @@ class MtmsNode(Node):
             else:
                 options['path'] = cfg.device_path
         self.device = open_device(cfg.device, cfg.mtms, **options)
-        self.frame_id = self.device.frame_id
+        self.frame_id = DISPLAY_FRAME
+        self._device_frame = self.device.frame_id
+        self.frames = FrameTree()  # the camera in the device's frame, for devices not in it
+        if self._device_frame != CAMERA_FRAME:
+            if not cfg.camera:
+                raise ValueError(f'parameter camera must name the ECM: the {cfg.device} gives '
+                                 f'poses in {self._device_frame!r}, seen from the camera')
+            self.create_subscription(PoseStamped, f'{cfg.camera}/measured_cp',
+                                     self._on_camera, qos.STREAM)
+            self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
+                                     qos.STATIC_TF)
         t = self._now()
         self._t = t
         self.mtms = {}
@@ -155,6 +179,7 @@ class MtmsNode(Node):
                                          use_global_arguments=False,  # names resolved here
                                          start_parameter_services=False)
         self._polled = []
+        self._intakes = {}
         for name in cfg.mtms:
             T0 = np.eye(4)
             T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
@@ -175,10 +200,14 @@ class MtmsNode(Node):
                 'status': pub(String, f'{name}/status', qos.EVENTS),
             }
             sub = self.create_subscription
-            sub(StringStamped, f'{name}/state_command',
-                lambda m, n=name: self._on_state_command(n, m), qos.STREAM)
+            # a latched state_command (crtk's, sent before discovery) arrives once, in order;
+            # one written before this node started is dropped (sim_bridge.ros.intake)
+            self._intakes[name] = CommandIntake(
+                self, StringStamped, f'{name}/state_command',
+                lambda m, sent, n=name: self._on_state_command(n, m),
+                on_stale=lambda m, age, n=name: self._on_stale_command(n, m, age))
             sub(PoseStamped, f'{name}/move_cp', lambda m, n=name: self._on_move_cp(n, m),
-                qos.STREAM)
+                qos.QUEUED_COMMANDS)
             sub(Quaternion, f'{name}/lock_orientation',
                 lambda m, n=name: self._on_lock(n, m), qos.LATCHED)
             sub(Empty, f'{name}/unlock_orientation',
@@ -231,6 +260,13 @@ class MtmsNode(Node):
             self.get_logger().warning(problem)
         self._publish_state(name)
 
+    def _on_stale_command(self, name, msg, age):
+        text = (f'{name}: ignored a latched state_command {msg.string!r} written {age:.1f} s '
+                'before the virtual MTMs started (left by an earlier client or run); send it '
+                'again')
+        self._pubs[name]['warning'].publish(String(data=text))
+        self.get_logger().warning(text)
+
     def _reject(self, name, text):
         self._pubs[name]['error'].publish(String(data=text))
         self.get_logger().error(text)
@@ -258,6 +294,28 @@ class MtmsNode(Node):
                                f'(norm {norm:.6g})')
             return
         self.mtms[name].lock_orientation(matrix_from_quaternion(q / norm), self._now())
+
+    # --- frames -------------------------------------------------------------------------------
+
+    def _on_camera(self, msg):
+        try:
+            T = cv.matrix_from_pose(msg.pose, what=f'{self.config.camera}/measured_cp')
+        except ValueError as exc:
+            self.get_logger().warning(str(exc))
+            return
+        self.frames.set(msg.header.frame_id, CAMERA_FRAME, T)
+
+    def _on_tf_static(self, msg):
+        for tr in msg.transforms:
+            self.frames.set(tr.header.frame_id, tr.child_frame_id, cv.matrix_from_transform(
+                tr.transform))
+
+    def _display_pose(self, T_dev):
+        """Return a device pose in the display frame, or None while the camera is unknown."""
+        if self._device_frame == CAMERA_FRAME:
+            return T_dev
+        T = self.frames.transform(CAMERA_FRAME, self._device_frame)
+        return None if T is None else T @ T_dev
 
     # --- device inputs ----------------------------------------------------------------------
 
@@ -336,15 +394,19 @@ class MtmsNode(Node):
                 self._pedal_state[pedal] = pressed
                 self._press(pedal, pressed)
                 changed = True
+                if pedal == 'clutch' and not pressed:
+                    for mtm in self.mtms.values():
+                        mtm.release_clutch(t)
         for name, mtm in self.mtms.items():
             arm = reading.arms.get(name)
             if arm is not None:
-                if arm.pose is not None:
+                pose = None if arm.pose is None else self._display_pose(arm.pose)
+                if pose is not None:
                     if not self._has_pose[name]:
-                        mtm.device = np.array(arm.pose, dtype=float)
+                        mtm.device = np.array(pose, dtype=float)
                         mtm.measured_cp(t)
                     self._has_pose[name] = True
-                    mtm.set_device_pose(arm.pose)
+                    mtm.set_device_pose(pose)
                 elif arm.twist is not None:
                     mtm.apply_twist(arm.twist[0], arm.twist[1], dt)
                 if arm.gripper is not None:

@@ -1,10 +1,11 @@
 """
 The MTM -> PSM mapping of the dVRK's teleoperation, with the frames written out.
 
-Frames: ``M`` is the frame of the MTM's ``measured_cp`` (a console's display frame, or ``world``
-for a virtual MTM), ``P`` the frame of the PSM's ``measured_cp``/``servo_cp`` (``<PSM>_base``,
-or the ECM tip with set-up joints), ``C`` the camera (ECM tip, optical convention: x right,
-y down, z along the view). ``R_C_M`` and ``R_C_P`` rotate M and P coordinates into C.
+Frames: ``M`` is the frame of the MTM's ``measured_cp`` (a console's display frame, ``HRSV`` for
+the virtual MTMs, whose axes are the camera's), ``P`` the frame of the PSM's
+``measured_cp``/``servo_cp`` (the ECM tip ``ECM`` on a patient cart, or ``<PSM>_base``), ``C`` the
+camera (ECM tip, optical convention: x right, y down, z along the view). ``R_C_M`` and ``R_C_P``
+rotate M and P coordinates into C; on a patient cart with a console both are the identity.
 
 At an anchor (entering following, and again after every clutch release) the MTM pose
 ``T_M_mtm0`` and the PSM setpoint ``T_P_psm0`` are kept; then, as the dVRK's teleoperation

@@ -3,7 +3,11 @@ A virtual MTM: the pose, gripper and wrist of a dVRK Master Tool Manipulator, dr
 
 A device gives either an absolute handle pose (the viewer's 6-DOF handle) or a velocity (a
 gamepad's sticks, a SpaceMouse) that :func:`integrate_twist` turns into a pose; in both cases
-the device pose ``T_F_dev`` is in the MTM's frame F (``frame_id`` of its ``measured_cp``).
+the device pose ``T_F_dev`` is in the MTM's frame F (``frame_id`` of its ``measured_cp``): the
+console's display frame :data:`DISPLAY_FRAME`, aligned with the endoscope image as a surgeon's
+console shows it (x right and y down in the image, z into it, origin at the camera), so that the
+hand's motion in F is the tool's motion in the camera frame of a patient cart's PSMs, and plain
+pose arithmetic between an MTM's ``measured_cp`` and a PSM's ``setpoint_cp`` teleoperates.
 The MTM's measured pose is the device pose moved by an offset that the MTM's own commands
 change, as a physical MTM's motors do:
 
@@ -11,7 +15,9 @@ change, as a physical MTM's motors do:
   s (``is_busy`` true meanwhile, as a dVRK arm's trajectory), then stays there: the offset
   takes up the difference between the hand and the goal;
 - ``lock_orientation``: the orientation stays at the given one, whatever the hand does;
-  ``unlock_orientation``: it follows the hand's rotations again from there, without a jump.
+  ``unlock_orientation``, or the operator letting go of the clutch pedal
+  (:meth:`VirtualMtm.release_clutch`): it follows the hand's rotations again from there,
+  without a jump.
 
 Poses are 4x4 matrices ``T_F_x``; velocities ``(v, w)`` in m/s and rad/s, in frame F.
 """
@@ -22,6 +28,9 @@ import numpy as np
 from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix, quaternion_slerp
 
 STATES = ('DISABLED', 'ENABLED')
+# The console's display frame (named as the dVRK console's stereo viewer frame): the axes of the
+# endoscope image (x right, y down, z into the view), its origin at the camera.
+DISPLAY_FRAME = 'HRSV'
 
 
 def deadband(values, threshold):
@@ -199,3 +208,12 @@ class VirtualMtm:
         R = self.measured_cp(t)[:3, :3]
         self._locked = None
         self._R_offset = self.device[:3, :3].T @ R
+
+    def release_clutch(self, t):
+        """
+        Let the wrist follow the hand again, without a jump: the operator let go of the clutch.
+
+        A clutch locks the orientation (``lock_orientation``); a console's MTM is free again
+        when the pedal comes up, with or without an ``unlock_orientation`` after it.
+        """
+        self.unlock_orientation(t)

@@ -134,7 +134,8 @@ def test_the_ecm_follows_servo_cp_and_move_cp_goals_by_their_position(ros, simul
     assert ecm.move_jp([0.0, 0.0, 0.12, 0.0]).wait()  # dvrk_arm_test's prepare_cartesian
     T0, _ = ecm.setpoint_cp()
 
-    # a 2 cm circle in x and y of ECM_base that keeps the start orientation, 500 samples in 5 s
+    # a 2 cm circle in x and y of the ECM's measured_cp frame that keeps the start orientation,
+    # 500 samples in 5 s
     received = []
     sub = ecm.node.create_subscription(
         type(ecm._get('setpoint_cp')), 'ECM/setpoint_cp', received.append, 100)
@@ -172,7 +173,10 @@ def test_the_ecm_follows_servo_cp_and_move_cp_goals_by_their_position(ros, simul
     answer = ik.call_async(QueryInverseKinematics.Request(cp=cv.pose_from_matrix(goal)))
     assert ros.wait_for(answer.done, 10.0) and answer.result().result, answer.result()
     q = answer.result().jp
-    r = math.sqrt(sum(v * v for v in goal[:3, 3]))
+    # the goal is in the measured_cp frame (world, the ECM's cart): its distance to the RCM
+    local, _ = ecm.local_setpoint_cp()
+    T_ref_base = ecm.setpoint_cp()[0] @ np.linalg.inv(local)
+    r = float(np.linalg.norm(goal[:3, 3] - T_ref_base[:3, 3]))
     assert q[2] == pytest.approx(r - 0.3829 + 0.3822, abs=1e-6)  # insertion to the tip
 
     # move_cp 5 cm either side in x, and back: each reaches its goal

@@ -80,7 +80,9 @@ def expected_contract(ns=''):
         for topic, (msgtype, durability) in pubs.items():
             table[('pub', f'{ns}/{arm}/{topic}')] = (msgtype, 'RELIABLE', durability.name)
         for topic, msgtype in subs.items():
-            table[('sub', f'{ns}/{arm}/{topic}')] = (msgtype, 'RELIABLE', 'VOLATILE')
+            # state_command: a volatile and a transient-local reader (sim_bridge.ros.intake)
+            durability = 'TRANSIENT_LOCAL+VOLATILE' if topic == 'state_command' else 'VOLATILE'
+            table[('sub', f'{ns}/{arm}/{topic}')] = (msgtype, 'RELIABLE', durability)
     return table
 
 
@@ -90,10 +92,13 @@ def observed_contract(node, table):
     for kind, topic in table:
         infos = (node.get_publishers_info_by_topic(topic) if kind == 'pub'
                  else node.get_subscriptions_info_by_topic(topic))
+        durabilities = set()
         for info in infos:
             if info.node_name == 'simulator':
                 q = info.qos_profile
-                seen[(kind, topic)] = (info.topic_type, q.reliability.name, q.durability.name)
+                durabilities.add(q.durability.name)
+                seen[(kind, topic)] = (info.topic_type, q.reliability.name,
+                                       '+'.join(sorted(durabilities)))
     return seen
 
 
@@ -179,8 +184,9 @@ def joints(q):
     return JointState(position=[float(v) for v in q])
 
 
-def pose_msg(T):
+def pose_msg(T, frame=''):
     msg = PoseStamped()
+    msg.header.frame_id = frame
     msg.pose = cv.pose_from_matrix(T)
     return msg
 
@@ -189,7 +195,7 @@ def test_graph_matches_the_dvrk_contract_headless_from_any_directory(ros, launch
     sim = launch('simulator', cwd=tmp_path)  # no arguments, not the source folder
     node = ros.node('graph_probe')
     table = expected_contract()
-    assert ros.wait_for(lambda: len(observed_contract(node, table)) == len(table), 40.0), \
+    assert ros.wait_for(lambda: observed_contract(node, table) == table, 40.0), \
         sim.log()
     wanted = {f'/{arm}/{name}' for arm in ARMS for name in SERVICES}
     assert ros.wait_for(lambda: wanted <= set(dict(node.get_service_names_and_types())), 20.0)
@@ -321,9 +327,9 @@ def test_a_client_runs_the_dvrk_arm_test_sequence(ros, launch):
         assert ros.wait_for(lambda: np.linalg.norm(cv.matrix_from_pose(
             psm.last('measured_cp').pose)[:3, 3] - T[:3, 3]) < 1e-4, 10.0)  # noqa: B023
 
-    # frames: measured_cp in PSM1_base (no base frame set), local/measured_cp in the RCM frame
-    # and equal to the local forward kinematics of the measured joints
-    assert psm.last('measured_cp').header.frame_id == 'PSM1_base'
+    # frames: measured_cp in the camera frame (a patient cart), local/measured_cp in the RCM
+    # frame and equal to the local forward kinematics of the measured joints
+    assert psm.last('measured_cp').header.frame_id == 'ECM'
     assert psm.last('local/measured_cp').header.frame_id == 'PSM1_base'
     fk = psm.node.create_client(QueryForwardKinematics, '/PSM1/local/forward_kinematics')
     assert fk.wait_for_service(10.0)
@@ -447,32 +453,47 @@ def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
     assert ros.wait_for(lambda: len(psm.get('measured_js')) > n + 20, 10.0)
 
 
-def test_a_cartesian_goal_in_another_frame_is_warned_about_once_and_read_in_the_base(
+def test_cartesian_goals_are_read_in_the_frame_they_name_and_other_frames_are_refused(
         ros, launch):
-    sim = launch('simulator')
+    sim = launch('simulator', '--ros-args', *FAST_ARMS)
     psm = ArmClient(ros, 'PSM2')
-    assert ros.wait_for(psm.connected, 40.0), sim.log()
+    node = psm.node
+    got = {}
+    node.create_subscription(PoseStamped, '/sim/PSM2/base_frame',
+                             lambda m: got.__setitem__('base', m), LATCHED)
+    node.create_subscription(PoseStamped, '/PSM2/local/setpoint_cp',
+                             lambda m: got.__setitem__('local', m), STREAM)
+    assert ros.wait_for(lambda: psm.connected() and 'base' in got, 40.0), sim.log()
     psm.enable_and_home()
-    T = cv.matrix_from_pose(psm.last('measured_cp').pose)
-    T[2, 3] -= 0.005
+    T_world_base = cv.matrix_from_pose(got['base'].pose)
+    local = cv.matrix_from_pose(psm.last('local/measured_cp').pose)
+    camera = cv.matrix_from_pose(psm.last('measured_cp').pose)
+    T_camera_base = camera @ invert_transform(local)
+    view = np.diag([-1.0, -1.0, 1.0, 1.0])  # ECM_view: x left, y up
     t = time.monotonic()
-    for frame in ('', 'PSM2_base'):   # the arm's own frame or none: no warning
-        msg = pose_msg(T)
-        msg.header.frame_id = frame
-        psm.send('servo_cp', msg)
-    msg = pose_msg(T)
-    msg.header.frame_id = 'world'
-    for _ in range(50):                # a stream of them: one warning, throttled
+    for k, frame in enumerate(('', 'ECM', 'ECM_view', 'PSM2_base', 'world')):
+        goal = local.copy()
+        goal[:3, 3] += 0.002 * np.array([k % 2, k // 2 % 2, -1.0])  # in PSM2_base
+        in_frame = {'': T_camera_base @ goal, 'ECM': T_camera_base @ goal,
+                    'ECM_view': view @ T_camera_base @ goal, 'PSM2_base': goal,
+                    'world': T_world_base @ goal}[frame]
+        assert psm.move('move_cp', pose_msg(in_frame, frame)) == [True], frame
+        assert ros.wait_for(lambda g=goal: np.allclose(cv.matrix_from_pose(
+            got['local'].pose), g, atol=1e-9), 10.0), frame
+    setpoint = got['local']
+    msg = pose_msg(local, 'PSM1_base')
+    for _ in range(50):                # a stream of them: one warning, throttled, none applied
         psm.send('servo_cp', msg)
         time.sleep(0.002)
-    assert ros.wait_for(lambda: any('world' in m.data for m in psm.get('warning', t)), 10.0)
-    # executed as a goal in PSM2_base, as before
-    assert ros.wait_for(lambda: np.allclose(
-        cv.matrix_from_pose(psm.last('setpoint_cp').pose)[:3, 3], T[:3, 3], atol=1e-6), 10.0)
+    assert psm.move('move_cp', pose_msg(local, 'camera')) == [False]
+    assert ros.wait_for(lambda: len(psm.get('warning', t)) == 2, 10.0)
     time.sleep(0.5)
     warnings = [m.data for m in psm.get('warning', t)]
-    assert len(warnings) == 1, warnings
-    assert "servo_cp stamped in frame 'world' is read in 'PSM2_base'" in warnings[0]
+    assert len(warnings) == 2, warnings
+    assert "servo_cp stamped in frame 'PSM1_base' ignored" in warnings[0]
+    assert "move_cp stamped in frame 'camera' ignored" in warnings[1]
+    assert cv.matrix_from_pose(got['local'].pose) == pytest.approx(
+        cv.matrix_from_pose(setpoint.pose))
 
 
 def test_a_state_snapshot_gives_the_arm_properties():
@@ -539,7 +560,7 @@ def test_a_grasp_through_the_crtk_topics_is_an_event_and_the_scene_resets(ros, l
     # places the arm bases (what sim/<ARM>/base_frame says) in world
     assert ros.wait_for(lambda: tf and tf_static, 10.0)
     frames = {(t.header.frame_id, t.child_frame_id) for t in tf}
-    assert {('PSM1_base', 'PSM1'), ('PSM2_base', 'PSM2'), ('ECM_base', 'ECM'),
+    assert {('ECM', 'PSM1'), ('ECM', 'PSM2'), ('world', 'ECM'),
             ('world', 'needle')} <= frames
     base = next(t.transform for t in tf_static if t.child_frame_id == 'PSM2_base')
     assert [base.translation.x, base.translation.y, base.translation.z] == pytest.approx(
@@ -555,8 +576,8 @@ def test_a_grasp_through_the_crtk_topics_is_an_event_and_the_scene_resets(ros, l
     above = T_grasp.copy()
     above[2, 3] += 0.01
     assert psm.move('jaw/move_jp', joints([0.8])) == [True]
-    assert psm.move('move_cp', pose_msg(T_base_world @ above)) == [True]
-    assert psm.move('move_cp', pose_msg(T_base_world @ T_grasp)) == [True]
+    assert psm.move('move_cp', pose_msg(T_base_world @ above, 'PSM2_base')) == [True]
+    assert psm.move('move_cp', pose_msg(T_base_world @ T_grasp, 'PSM2_base')) == [True]
     assert psm.move('jaw/move_jp', joints([-0.35])) == [True]
     assert ros.wait_for(lambda: any(e['kind'] == 'grasp' for _, e in events), 10.0)
     stamp, grasp = next((s, e) for s, e in events if e['kind'] == 'grasp')
@@ -565,7 +586,7 @@ def test_a_grasp_through_the_crtk_topics_is_an_event_and_the_scene_resets(ros, l
     lifted = T_grasp.copy()
     lifted[2, 3] += 0.02
     before = cv.matrix_from_pose(truth['needle'].pose)[2, 3]
-    assert psm.move('move_cp', pose_msg(T_base_world @ lifted)) == [True]
+    assert psm.move('move_cp', pose_msg(T_base_world @ lifted, 'PSM2_base')) == [True]
     assert ros.wait_for(lambda: cv.matrix_from_pose(truth['needle'].pose)[2, 3] - before
                         > 0.015, 10.0)
 

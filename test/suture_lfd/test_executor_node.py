@@ -69,19 +69,22 @@ class Watcher:
         self.execute.publish(String(data=pair))
 
 
-def start_nodes(launch, ros, segments, rtf=0.25):
+def start_nodes(launch, ros, segments, rtf=0.25, frames='cart'):
     # Quarter real time: the 100 ms watchdog is in simulation time, so a simulator stalled for a
     # moment by a starved CPU (other test runs on this 2-core machine) is not taken for dead.
-    sim = launch('simulator', '--ros-args', '-p', f'real_time_factor:={rtf}')
+    sim = launch('simulator', '--ros-args', '-p', f'real_time_factor:={rtf}',
+                 '-p', f'frames:={frames}')
     executor = launch('executor', '--ros-args', '-p', f'segments:={segments}')
     watcher = Watcher(ros)
     assert ros.wait_for(lambda: watcher.state() == 'idle', timeout=120.0), executor.log()
     return sim, executor, watcher
 
 
+# a patient cart (PSM poses in the camera frame) and arms in their own bases: the same throw
+@pytest.mark.parametrize('frames', ['cart', 'base'])
 def test_the_executor_node_completes_a_throw_and_the_simulator_scores_it(launch, ros, segments,
-                                                                         simulation):
-    sim, executor, watcher = start_nodes(launch, ros, segments)
+                                                                         simulation, frames):
+    sim, executor, watcher = start_nodes(launch, ros, segments, frames=frames)
     geometry = simulation.needle_geometry
     tips = []  # needle tip positions (world, m) the simulator node reports during the throw
     watcher.node.create_subscription(

@@ -24,7 +24,7 @@ STATE = QoSProfile(depth=10)
 
 
 class SceneWatch:
-    """Latest PSM/ECM poses (``world``), jaws, states and the teleop nodes' states."""
+    """Latest PSM/ECM poses (``local/measured_cp``), jaws, states and teleop nodes' states."""
 
     def __init__(self, node, psms=('PSM1', 'PSM2'), teleops=('MTMR_PSM1',)):
         self.node = node
@@ -32,7 +32,8 @@ class SceneWatch:
         self.cp, self.base, self.jaw, self.state, self.teleop = {}, {}, {}, {}, {}
         self.history = {a: [] for a in psms}
         for arm in (*psms, 'ECM'):
-            node.create_subscription(PoseStamped, f'{arm}/measured_cp',
+            # local/measured_cp: in <ARM>_base whatever frame measured_cp is in (patient cart)
+            node.create_subscription(PoseStamped, f'{arm}/local/measured_cp',
                                      lambda m, a=arm: self._on_cp(a, m), STATE)
             node.create_subscription(PoseStamped, f'sim/{arm}/base_frame',
                                      lambda m, a=arm: self.base.__setitem__(
@@ -56,7 +57,7 @@ class SceneWatch:
                 self.history[arm].append((cv.seconds_from_stamp(msg.header.stamp), T))
 
     def world(self, arm):
-        """Return the arm's ``measured_cp`` in ``world`` (4x4)."""
+        """Return the arm's tool tip in ``world`` (4x4)."""
         with self.lock:
             return self.base[arm] @ self.cp[arm]
 

@@ -37,9 +37,8 @@ class CrtkArm:
         self.busy_changes = []
         sub, pub = node.create_subscription, node.create_publisher
         sub(OperatingState, f'{name}/operating_state', self._on_state, VOLATILE)
-        sub(PoseStamped, f'{name}/setpoint_cp',
-            lambda m: setattr(self, 'setpoint', cv.matrix_from_pose(m.pose)), VOLATILE)
         self.frame = ''
+        sub(PoseStamped, f'{name}/setpoint_cp', self._on_setpoint, VOLATILE)
         self._state_command = pub(StringStamped, f'{name}/state_command', LATCH)
         if mtm:
             sub(PoseStamped, f'{name}/measured_cp', self._on_measured, VOLATILE)
@@ -62,6 +61,10 @@ class CrtkArm:
             if self.state is not None and msg.is_busy != self.state.is_busy:
                 self.busy_changes.append(msg.is_busy)
             self.state = msg
+
+    def _on_setpoint(self, msg):
+        self.setpoint = cv.matrix_from_pose(msg.pose)
+        self.frame = msg.header.frame_id
 
     def _on_measured(self, msg):
         self.measured = cv.matrix_from_pose(msg.pose)
@@ -152,11 +155,11 @@ def client_graph(ros, launch):
     operator.handles['MTMR'] = watch.world('PSM1')
     operator.handles['MTML'] = np.eye(4)
     stream(operator, 0.2)
-    yield node, operator, mtm, psm, clutch, coag, (sim, mtms)
+    yield node, operator, mtm, psm, clutch, coag, watch, (sim, mtms)
 
 
 def test_a_dvrk_python_style_client_teleoperates_psm1_through_the_virtual_mtms(client_graph):
-    node, op, mtm, psm, clutch, coag, procs = client_graph
+    node, op, mtm, psm, clutch, coag, watch, procs = client_graph
     # arms: enable and home, waiting on the operating_state events the commands cause
     psm.enable_and_home()
     mtm.enable_and_home()
@@ -190,8 +193,12 @@ def test_a_dvrk_python_style_client_teleoperates_psm1_through_the_virtual_mtms(c
     stream(op, 1.5, during=during)
     stream(op, 0.8)
     moved = psm.setpoint[:3, 3] - start_psm[:3, 3]
-    # the Python client maps MTM translation into the PSM's frame as is (no camera)
-    np.testing.assert_allclose(moved, 0.2 * d, atol=0.001)
+    # the Python client maps MTM translation into the PSM's frame as is: both are the camera's
+    # (the console's display frame, the patient cart's ECM), so the hand's motion seen from the
+    # camera is the tool's
+    assert mtm.frame == 'HRSV' and psm.frame == 'ECM'
+    R_camera_world = watch.camera()[:3, :3].T
+    np.testing.assert_allclose(moved, 0.2 * R_camera_world @ d, atol=0.001)
     assert psm.jaw == pytest.approx(0.9 * 80 / 60, abs=0.02)
     # the clutch pedal: the client stops and holds
     op.clutch = True

@@ -55,6 +55,23 @@ def test_a_virtual_mtm_moves_when_told_then_follows_the_hand_without_a_jump():
     np.testing.assert_allclose(mtm.measured_cp(1.0), T, atol=1e-12)   # no jump at unlock
 
 
+def test_a_clutch_release_frees_the_wrist_without_unlock_orientation_and_without_a_jump():
+    mtm = VirtualMtm('MTMR', move_duration=0.0)
+    mtm.state_command('enable')
+    locked = rotation_from_rotvec([0.0, 0.4, 0.0])
+    mtm.lock_orientation(locked, t=0.0)                  # the clutch goes down
+    mtm.set_device_pose(integrate_twist(mtm.device, [0.02, 0, 0], [0, 0, 0.5], 1.0))
+    T = mtm.measured_cp(1.0)
+    np.testing.assert_allclose(T[:3, :3], locked, atol=1e-12)
+    mtm.release_clutch(1.0)                              # the pedal comes up
+    np.testing.assert_allclose(mtm.measured_cp(1.0), T, atol=1e-12)   # no jump
+    turn = rotation_from_rotvec([0.2, 0.0, 0.0])
+    device = mtm.device.copy()
+    device[:3, :3] = turn @ device[:3, :3]
+    mtm.set_device_pose(device)
+    np.testing.assert_allclose(mtm.measured_cp(1.1)[:3, :3], turn @ locked, atol=1e-12)
+
+
 def test_the_browser_device_holds_the_latest_handle_and_names_bad_pedals():
     dev = open_device('browser', ('MTMR', 'MTML'))
     assert isinstance(dev, BrowserDevice) and dev.frame_id == 'world'

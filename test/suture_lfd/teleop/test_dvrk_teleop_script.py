@@ -1,0 +1,157 @@
+"""
+The dVRK's own teleoperation script's way of working, against ``simulator`` + ``mtms``.
+
+``dvrk_teleop_client.py`` works as jhu-dvrk/dvrk_python ``scripts/dvrk_teleoperation.py`` does
+(latched state commands sent as its node starts, a 5 ms loop whose getters refuse data older
+than 20 ms, plain pose arithmetic between MTM ``measured_cp`` and PSM ``setpoint_cp``) and runs in
+a process of its own, as the script does; both nodes run with their default configuration. The
+test is the operator at the viewer's browser input (``viewer/input/*``) and watches PSM1.
+"""
+
+import math
+from pathlib import Path
+import sys
+import time
+
+from geometry_msgs.msg import PoseStamped
+from harness import wait_for
+import numpy as np
+from sim_bridge.ros import conversions as cv
+from teleop_rig import STATE, BrowserOperator, SceneWatch, stream
+
+CLIENT = Path(__file__).with_name('dvrk_teleop_client.py')
+RUN_TIME = 60.0
+
+
+class ClientLog:
+    """What the client process printed: its states, errors and failures."""
+
+    def __init__(self, proc):
+        self.proc = proc
+
+    def lines(self, what):
+        return [line.split(' ', 1)[1] for line in self.proc.log().splitlines()
+                if line.startswith(what + ' ')]
+
+    def state(self):
+        states = self.lines('STATE')
+        return states[-1] if states else None
+
+    def errors(self):
+        return self.lines('FAIL')
+
+    def stale(self):
+        """The getters' data-age errors (each one would have stopped the dVRK's script)."""
+        return self.lines('ERROR')
+
+
+class Setpoints:
+    """PSM1 ``setpoint_cp`` and ``measured_cp`` (the camera frame) with their arrival times."""
+
+    def __init__(self, node):
+        self.history = []
+        self.measured = None
+        node.create_subscription(PoseStamped, 'PSM1/setpoint_cp', self._on_setpoint, STATE)
+        node.create_subscription(PoseStamped, 'PSM1/measured_cp',
+                                 lambda m: setattr(self, 'measured', m), STATE)
+
+    def _on_setpoint(self, msg):
+        self.history.append((time.monotonic(), cv.matrix_from_pose(msg.pose)))
+
+    def since(self, t):
+        return [T for at, T in list(self.history) if at >= t]
+
+    def tool(self):
+        return cv.matrix_from_pose(self.measured.pose)
+
+
+def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(ros, launch):
+    sim = launch('simulator')                                  # the default configuration
+    mtms = launch('mtms')
+    node = ros.node('operator')
+    # a user starts the script once both nodes are up (the operator's node sees their topics)
+    assert wait_for(lambda: all(node.get_publishers_info_by_topic(t) for t in (
+        '/PSM1/operating_state', '/MTMR/operating_state')), 60.0), sim.log() + mtms.log()
+    client = ClientLog(launch(sys.executable, str(CLIENT), 'MTMR', 'PSM1'))
+    watch = SceneWatch(node, teleops=())
+    op = BrowserOperator(node)
+    psm = Setpoints(node)
+    assert wait_for(lambda: watch.ready() and op.connected(), timeout=30)
+
+    # both arms enabled and homed within 5 s of the script's start
+    assert wait_for(lambda: client.lines('HOMED') or client.errors(), 30.0), client.proc.log()
+    assert not client.errors(), client.errors()
+    homed = float(client.lines('HOMED')[0])   # checked at the end, with the data's age
+
+    # the operator at the viewer's input: the hand on PSM1's tool, gripper half open
+    op.handles['MTMR'] = watch.world('PSM1')
+    op.handles['MTML'] = watch.world('PSM2') if 'PSM2' in watch.base else np.eye(4)
+    op.grippers['MTMR'] = 0.6
+    started = time.monotonic()
+
+    def keep(seconds, during=None):
+        stream(op, seconds, rate=50.0, during=during)
+        assert not client.errors(), client.errors()
+
+    assert wait_for(lambda: (op.publish(), client.lines('FRAMES'))[1], 20.0), client.proc.log()
+    assert client.lines('FRAMES')[0] == 'HRSV ECM'   # no conversion: both camera-aligned
+    # aligned, then coag and a pinch: following
+    keep(1.0)
+    op.coag = True
+    keep(0.3)
+    for g in (0.8, 0.5, 0.7):
+        op.grippers['MTMR'] = g
+        keep(0.2)
+    deadline = time.monotonic() + 20.0
+    while client.state() != 'ENABLED' and time.monotonic() < deadline:
+        keep(0.1)
+    assert client.state() == 'ENABLED', client.proc.log()[-2000:]
+    keep(0.5)
+
+    right = watch.camera()[:3, 0]                  # image right, in world
+
+    def move_hand(d_world, seconds=1.0):
+        start = op.handles['MTMR'][:3, 3].copy()
+
+        def during(s):
+            op.handles['MTMR'] = op.handles['MTMR'].copy()
+            op.handles['MTMR'][:3, 3] = start + min(1.0, 1.25 * s) * d_world
+        keep(seconds, during)
+
+    for _ in range(2):
+        # a hand 2 cm right in the camera view: the tool 4 mm right in the ECM image
+        before = psm.tool()
+        move_hand(0.02 * right)
+        keep(0.8)
+        moved = psm.tool()[:3, 3] - before[:3, 3]
+        assert abs(np.linalg.norm(moved) - 0.004) <= 0.0005, moved
+        off = math.degrees(math.acos(min(1.0, moved[0] / np.linalg.norm(moved))))
+        assert off <= 3.0, (off, moved)
+
+        # clutch, the hand back 2 cm, release: the tool stays, then follows again
+        op.clutch = True
+        assert wait_for(lambda: (op.publish(), client.state() == 'CLUTCHED')[1], 10.0)
+        keep(0.2)
+        t_clutch = time.monotonic()
+        held = psm.history[-1][1]                  # where the PSM holds
+        move_hand(-0.02 * right)
+        op.clutch = False
+        deadline = time.monotonic() + 15.0
+        while client.state() != 'ENABLED' and time.monotonic() < deadline:
+            keep(0.1)
+        assert client.state() == 'ENABLED', client.proc.log()[-2000:]
+        keep(0.5)
+        jumps = [np.linalg.norm(T[:3, 3] - held[:3, 3]) for T in psm.since(t_clutch)]
+        assert max(jumps) < 0.0005, max(jumps)
+
+    # the rest of the minute: small hand motions, following throughout
+    k = 0
+    while time.monotonic() - started < RUN_TIME:
+        move_hand(0.004 * (-1) ** k * right, seconds=0.5)
+        k += 1
+    assert client.state() == 'ENABLED' and not client.errors(), client.proc.log()[-2000:]
+    assert client.proc.running() and sim.running() and mtms.running()
+    # the wall-clock claims: homed within 5 s, not one state older than four of the script's
+    # periods all along (each would have stopped the dVRK's script)
+    assert homed <= 5.0, f'both arms enabled and homed after {homed:.2f} s'
+    assert not client.stale(), client.stale()
