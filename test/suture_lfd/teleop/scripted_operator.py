@@ -74,9 +74,9 @@ class ScriptedOperator(DemonstratorNode):
             self.create_subscription(String, f'/{name}/current_state',
                                      lambda m, a=arm: self._teleop_state.__setitem__(a, m.data),
                                      LATCHED)
-        self._setpoint = {}
+        self._setpoint = {}           # in <ARM>_base, as every dVRK reports local/setpoint_cp
         for arm in MTM_OF:
-            self.create_subscription(PoseStamped, f'{arm}/setpoint_cp',
+            self.create_subscription(PoseStamped, f'{arm}/local/setpoint_cp',
                                      lambda m, a=arm: self._setpoint.__setitem__(
                                          a, cv.matrix_from_pose(m.pose)), STATE)
         self._hands, self._home, self._anchor, self._grippers = {}, {}, {}, {}
