@@ -156,12 +156,17 @@ class MtmsNode(Node):
         self.frame_id = DISPLAY_FRAME
         self._device_frame = self.device.frame_id
         self.frames = FrameTree()  # the camera in the device's frame, for devices not in it
+        # the camera's and the browser's streams: subscribed by a node no executor spins, read
+        # once per cycle (the newest sample of each)
+        self._inputs = rclpy.create_node(f'{self.get_name()}_inputs', context=self.context,
+                                         use_global_arguments=False,  # names resolved here
+                                         start_parameter_services=False)
+        self._polled = []
         if self._device_frame != CAMERA_FRAME:
             if not cfg.camera:
                 raise ValueError(f'parameter camera must name the ECM: the {cfg.device} gives '
                                  f'poses in {self._device_frame!r}, seen from the camera')
-            self.create_subscription(PoseStamped, f'{cfg.camera}/measured_cp',
-                                     self._on_camera, qos.STREAM)
+            self._poll_input(PoseStamped, f'{cfg.camera}/measured_cp', self._on_camera)
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      qos.STATIC_TF)
         t = self._now()
@@ -174,11 +179,6 @@ class MtmsNode(Node):
         self._busy = {}
         self._active_until = -1.0      # s: the cycle runs at the full rate until then
         self._period_ns = None
-        # the browser's hand streams: subscribed by a node no executor spins, read per cycle
-        self._inputs = rclpy.create_node(f'{self.get_name()}_inputs', context=self.context,
-                                         use_global_arguments=False,  # names resolved here
-                                         start_parameter_services=False)
-        self._polled = []
         self._intakes = {}
         for name in cfg.mtms:
             T0 = np.eye(4)
