@@ -20,6 +20,7 @@ NODES = {
     'teleop': 'suture_lfd.nodes.executables:teleop',
     'mtms': 'suture_lfd.nodes.executables:mtms',
     'viewer': 'suture_lfd.nodes.executables:viewer',
+    'perception': 'suture_lfd.nodes.executables:perception',
 }
 CLI = {
     'suture-lfd': 'suture_lfd.cli:main',

@@ -775,7 +775,7 @@ class Arm:
         self._ratio = r
         self._emit('ratio', r)
 
-    def set_base_frame(self, pose, frame_id=None):
+    def set_base_frame(self, pose, frame_id=None, checked=False):
         """
         Set the base frame: ``measured_cp = base_frame @ local_measured_cp``.
 
@@ -786,15 +786,22 @@ class Arm:
         frame_id : str, optional
             Name of the new reference frame (the ``measured_cp`` frame id); default keeps the
             current one.
+        checked : bool
+            ``pose`` is a rigid float matrix of the caller's own making, taken as it is (the
+            simulation's camera frame, set again at every step the ECM moves); default: it is
+            checked, and a bad one is an ``error`` event.
 
         """
-        try:
-            T = check_pose(pose, name='set_base_frame pose')
-        except ValueError as exc:
-            self._message('error', f'{self.name}: {exc}')
-            return
+        if checked:
+            T = pose
+        else:
+            try:
+                T = check_pose(pose, name='set_base_frame pose')
+            except ValueError as exc:
+                self._message('error', f'{self.name}: {exc}')
+                return
         self._base_frame = _read_only(T)
-        self._base_is_identity = bool(np.array_equal(T, np.eye(4)))
+        self._base_is_identity = False if checked else bool(np.array_equal(T, np.eye(4)))
         if frame_id:
             self._reference_frame = str(frame_id)
 

@@ -46,19 +46,19 @@ import numpy as np
 from sim_bridge import bullet
 from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.control import Observation
 from sim_bridge.geometry import invert_transform
+from sim_bridge.kinematic_errors import draw_arm_errors
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
+from sim_bridge.observers import GroundTruthObserver
 from sim_bridge.paths import config_path
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
-from sim_bridge.scene.markers import marker_frame
 from sim_bridge.scene.phantom import build_phantom
 from sim_bridge.scene.scene_config import SceneConfig, load_scene_config, phantom_from_argument
-from sim_bridge.scene.scoring import ThrowScorer
 from sim_bridge.scene.thread import ThreadChain, ThreadDynamicsConfig
 from sim_bridge.scene.tissue import TissueTracker
 from sim_bridge.scene.world import World, WorldConfig
+from sim_bridge.task import SuturingTask
 
 _LOG = logging.getLogger(__name__)
 
@@ -166,6 +166,11 @@ class SimulationConfig:
     psm_rest_jp, ecm_rest_jp : tuple of float or None
         Where the PSMs / the ECM stand when a scene starts, before ``home`` (rad / m); None:
         at the homing goal (batch runs), so that ``home`` takes one step.
+    kinematic_error_level : float
+        Class (mm) of the PSMs' hidden kinematic errors (:mod:`sim_bridge.kinematic_errors`);
+        0: perfect kinematics.
+    kinematic_error_seed : int
+        Seed of the errors' draw (fixed for the life of the simulation, as a robot's are).
 
     """
 
@@ -179,6 +184,8 @@ class SimulationConfig:
     arm: ArmConfig = field(default_factory=ArmConfig)
     psm_rest_jp: tuple[float, ...] | None = None
     ecm_rest_jp: tuple[float, ...] | None = None
+    kinematic_error_level: float = 0.0
+    kinematic_error_seed: int = 0
 
 
 def load_simulation_config(world_path=None, scene_path=None):
@@ -260,21 +267,30 @@ class Simulation:
         :func:`sim_bridge.scene.scene_config.load_phantom_file`) or a phantom configuration.
     gui : bool
         Open a PyBullet GUI window instead of a DIRECT client (ignored with ``client``).
+    kinematic_errors : dict of str to sim_bridge.kinematic_errors.ArmError, optional
+        The PSMs' hidden kinematic errors; default: drawn at ``kinematic_error_level`` of the
+        configuration from ``default_rng(kinematic_error_seed)``.
 
     Attributes
     ----------
     arms : dict of str to Arm
         ``'PSM1'``, ``'PSM2'``, ``'ECM'``; :meth:`reset` replaces the Arm objects in this dict.
     world : World
-        PyBullet bodies.
+        PyBullet bodies (the arms where they truly are).
     phantom : sim_bridge.scene.phantom.Phantom
     grasp : GraspManager
     tissue : TissueTracker
     camera : StereoCamera
+    task : sim_bridge.task.SuturingTask
+        Target pair, ground truth and scoring.
+    observer : object
+        What :meth:`observation` asks (``observe() -> Observation``); default:
+        :class:`sim_bridge.observers.GroundTruthObserver`.
 
     """
 
-    def __init__(self, config=None, rng=None, client=None, phantom='synthetic', gui=False):
+    def __init__(self, config=None, rng=None, client=None, phantom='synthetic', gui=False,
+                 kinematic_errors=None):
         self.config = config or load_simulation_config()
         cfg = self.config
         self._own_client = client is None
@@ -290,13 +306,26 @@ class Simulation:
         self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
                            self.thread_geometry, client)
         self.camera = StereoCamera(cfg.camera, client)
+        self.camera.make_shiny(self.world.needle_body)
         self._dt = cfg.world.physics_step
         self._thread_every = _needs_steps(cfg.loop.thread_period, self._dt, 'thread_period')
         self._collision_every = _needs_steps(cfg.loop.collision_period, self._dt,
                                              'collision_period')
         self._rest_steps = max(1, int(round(cfg.loop.rest_time / self._dt)))
-        self._T_world_base = dict(self.world.T_world_base)
+        if kinematic_errors is None:
+            kinematic_errors = draw_arm_errors(cfg.kinematic_error_level,
+                                               np.random.default_rng(cfg.kinematic_error_seed),
+                                               PSMS)
+        # Only arms with a nonzero error take the slower path of a true pose of their own.
+        self._errors = {k: e for k, e in kinematic_errors.items() if not e.is_zero}
+        self._T_world_base_true = dict(self.world.T_world_base)
+        # What the robot believes (its registration): the frames it reports and is commanded in.
+        self._T_world_base = {k: (self._errors[k].T_believed_true @ T if k in self._errors
+                                  else T) for k, T in self._T_world_base_true.items()}
         self._T_base_world = {k: invert_transform(v) for k, v in self._T_world_base.items()}
+        self.task = SuturingTask(self.phantom, cfg.scene.scoring, self._emit,
+                                 lambda: self._T_needle)
+        self.observer = GroundTruthObserver(self)
         self.grasp = GraspManager(cfg.grasp, self.needle_geometry, PSMS)
         self.tissue = TissueTracker(self.phantom, self.needle_geometry, cfg.scene.tissue)
         # Highest point of the tissue (world z): far above it nothing can touch the tissue.
@@ -357,7 +386,6 @@ class Simulation:
         self._contact = dict.fromkeys(PSMS, False)
         self._contact_checked = dict.fromkeys(PSMS)  # joints and jaw of the last check
         self._collisions = 0
-        self._last_score = None
         self._needle_mode = 'resting'
         self._still_steps = 0
         self._release_height = None
@@ -447,15 +475,47 @@ class Simulation:
         return {name: self.arms[name].jaw_measured_jp for name in PSMS}
 
     def _tool_pose(self, name):
-        """Tool-tip pose in ``world`` (read-only), computed again only when the arm moved."""
+        """Return the true tool-tip pose in ``world`` (read-only), new only when the arm moved."""
         local = self.arms[name].local_measured_cp_view  # the same array while the arm is still
         cached = self._tool_cache.get(name)
         if cached is not None and cached[0] is local:
             return cached[1]
-        T = self._T_world_base[name] @ local
+        if name in self._errors:
+            q = self._true_jp(name, self.arms[name])
+            T = self._T_world_base_true[name] @ self.kinematics[name].fk(q)
+        else:
+            T = self._T_world_base[name] @ local
         T.flags.writeable = False
         self._tool_cache[name] = (local, T)
         return T
+
+    def reported_tool_pose(self, name):
+        """
+        Tool-tip pose of an arm in ``world`` as the robot reports it (its own kinematics).
+
+        ``T_world_base_believed @ local_measured_cp``: what ``measured_cp`` says, consistent
+        with the arm's commands; the true pose (:meth:`tool_pose`) differs by the hidden
+        kinematic error.
+
+        Parameters
+        ----------
+        name : str
+            Arm name.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+
+        """
+        if name not in self._errors:
+            return self._tool_pose(name).copy()
+        return self._T_world_base[name] @ self.arms[name].local_measured_cp_view
+
+    def _true_jp(self, name, arm):
+        """Joints where an arm truly is: its measured joints plus its hidden offsets."""
+        error = self._errors.get(name)
+        q = arm.measured_jp
+        return q if error is None else q + error.joint_offset
 
     def _follow_camera(self):
         """
@@ -467,9 +527,14 @@ class Simulation:
         if local is self._camera_local:
             return
         self._camera_local = local
-        T_camera_world = invert_transform(self._tool_pose('ECM'))
+        T = self._tool_pose('ECM')
+        T_camera_world = np.eye(4)
+        R_t = T[:3, :3].T
+        T_camera_world[:3, :3] = R_t
+        T_camera_world[:3, 3] = -(R_t @ T[:3, 3])
         for name in PSMS:
-            self.arms[name].set_base_frame(T_camera_world @ self._T_world_base[name], 'ECM')
+            self.arms[name].set_base_frame(T_camera_world @ self._T_world_base[name], 'ECM',
+                                           checked=True)
 
     def _emit(self, kind, **data):
         self._events.append(SimEvent(self.time, kind, data))
@@ -576,9 +641,9 @@ class Simulation:
             self._release_height = None
             self._dropped = False
             self.world.set_needle_collisions(False)
-            self.scorer.on_grasp(t, ev.arm)
+            self.task.scorer.on_grasp(t, ev.arm)
         else:
-            self.scorer.on_release(t, ev.arm)
+            self.task.scorer.on_release(t, ev.arm)
         self._emit(ev.kind, arm=ev.arm, leader=ev.leader, distance=ev.distance)
         self._report_score()
 
@@ -593,7 +658,7 @@ class Simulation:
             if self.tissue.in_tissue:
                 # the tissue holds it where it is, but no instrument does: a dropped needle
                 self._needle_mode = 'tissue'
-                self.scorer.on_drop(self.time)
+                self.task.scorer.on_drop(self.time)
                 self._emit('drop', fall=0.0, in_tissue=True)
                 self._report_score()
             else:
@@ -606,7 +671,7 @@ class Simulation:
         fall = self._release_height - self._T_needle[2, 3]
         if not self._dropped and fall > self.config.loop.drop_distance:
             self._dropped = True
-            self.scorer.on_drop(self.time)
+            self.task.scorer.on_drop(self.time)
             self._emit('drop', fall=float(fall))
             self._report_score()
         linear, angular = world.needle_speed()
@@ -632,7 +697,7 @@ class Simulation:
         self._release_height = float(T1[2, 3])
 
     def _on_tissue_event(self, t, ev):
-        self.scorer.on_tissue_event(ev)
+        self.task.scorer.on_tissue_event(ev)
         self._emit(ev.kind, point=ev.point, distance_to_marker=ev.distance_to_marker,
                    marker=ev.marker_name, deviation=ev.deviation)
         self._report_score()
@@ -656,7 +721,7 @@ class Simulation:
                 self._contact[name] = False
                 self._contact_checked[name] = None
                 continue
-            q, jaw = arm.measured_jp, arm.jaw_measured_jp
+            q, jaw = self._true_jp(name, arm), arm.jaw_measured_jp
             checked = (q.tobytes(), jaw)
             if checked == self._contact_checked[name]:
                 continue  # the instrument has not moved since the last check: same contact
@@ -666,17 +731,13 @@ class Simulation:
             touching = depth > depth_limit
             if touching and not self._contact[name]:
                 self._collisions += 1
-                self.scorer.on_collision(t, name)
+                self.task.scorer.on_collision(t, name)
                 self._emit('collision', arm=name, depth=depth)
                 self._report_score()
             self._contact[name] = touching
 
     def _report_score(self):
-        result = self.scorer.result(self.time)
-        key = (result.score, tuple(sorted(result.subtasks.items())))
-        if key != self._last_score:
-            self._last_score = key
-            self._emit('score', score=result)
+        self.task.report_score(self.time)
 
     # ------------------------------------------------------------------ commands
     def apply(self, command):
@@ -715,17 +776,10 @@ class Simulation:
             Pair name (``'synth1'`` .. ``'synth4'``, ``'scan1'`` ..).
 
         """
-        if name not in self.phantom.markers:
-            raise ValueError(f'unknown marker pair {name!r}; the phantom has '
-                             f'{sorted(self.phantom.markers)}')
-        self._pair = self.phantom.markers[name]
+        self.task.start(name, self.time, self.grasp.holders)
         self.tissue.reset()
         self.tissue.set_target_pair(name)
         self.tissue.update(self.time, self._T_needle)
-        self.scorer = ThrowScorer(self.config.scene.scoring, t_start=self.time)
-        for arm in self.grasp.holders:
-            self.scorer.on_grasp(self.time, arm)
-        self._last_score = None
 
     def attach_needle(self, arm, T_tool_needle=None):
         """
@@ -746,14 +800,19 @@ class Simulation:
         self._needle_mode = 'held'
         self._T_needle = self.grasp.needle_pose(self._tool_pose(arm))
         self._T_needle_prev = self._T_needle.copy()
-        self.scorer.on_grasp(self.time, arm)
+        self.task.scorer.on_grasp(self.time, arm)
         self.tissue.update(self.time, self._T_needle)
 
     # ------------------------------------------------------------------ observation and state
     @property
     def target_pair(self):
         """The target :class:`~sim_bridge.scene.phantom.MarkerPair` (world frame)."""
-        return self._pair
+        return self.task.pair
+
+    @property
+    def scorer(self):
+        """The current throw's :class:`~sim_bridge.scene.scoring.ThrowScorer` (the task's)."""
+        return self.task.scorer
 
     @property
     def needle_mode(self):
@@ -762,21 +821,17 @@ class Simulation:
 
     def observation(self):
         """
-        Return what a controller sees now.
+        Return what a controller sees now: what :attr:`observer` makes of the scene.
 
         Returns
         -------
         sim_bridge.control.Observation
-            Tool poses and jaws of both PSMs, needle pose, holders, target pair, arm bases. The
-            tool poses are read-only arrays shared with the simulation (kept until an arm
-            moves): copy one to change it.
+            With the default ground-truth observer: tool poses and jaws of both PSMs, needle
+            pose, holders, target pair, arm bases, all true. The tool poses are read-only
+            arrays shared with the simulation (kept until an arm moves): copy one to change it.
 
         """
-        return Observation(t=self.time,
-                           T_world_tool={n: self._tool_pose(n) for n in PSMS},
-                           jaw=self._jaws(), T_world_needle=self._T_needle.copy(),
-                           holders=self.grasp.holders, pair=self._pair,
-                           T_world_base=dict(self._T_world_base))
+        return self.observer.observe()
 
     def score(self):
         """
@@ -787,7 +842,7 @@ class Simulation:
         sim_bridge.scene.scoring.ThrowScore
 
         """
-        return self.scorer.result(self.time)
+        return self.task.score(self.time)
 
     def pop_events(self):
         """
@@ -804,7 +859,7 @@ class Simulation:
     # ------------------------------------------------------------------ ground truth
     def needle_pose(self):
         """Needle frame in ``world``, shape (4, 4)."""
-        return self._T_needle.copy()
+        return self.task.needle_pose()
 
     def needle_tip(self):
         """Needle tip position (m, ``world``), shape (3,)."""
@@ -816,7 +871,26 @@ class Simulation:
 
     def T_world_base(self, arm):  # noqa: N802 (the project names poses T_a_b)
         """
-        RCM frame ``<ARM>_base`` of an arm in ``world``.
+        RCM frame ``<ARM>_base`` of an arm in ``world``, where it truly is.
+
+        Parameters
+        ----------
+        arm : str
+            ``'PSM1'``, ``'PSM2'`` or ``'ECM'``.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+
+        """
+        return self._T_world_base_true[arm].copy()
+
+    def believed_base(self, arm):
+        """
+        RCM frame of an arm in ``world`` as the robot believes it (after its registration).
+
+        The arms report their poses (``measured_cp``) and take Cartesian commands in this frame;
+        it differs from :meth:`T_world_base` by the arm's hidden registration error.
 
         Parameters
         ----------
@@ -832,30 +906,22 @@ class Simulation:
 
     def phantom_pose(self):
         """Phantom frame in ``world``, shape (4, 4)."""
-        return self.phantom.T_world_phantom.copy()
+        return self.task.phantom_pose()
 
     def marker_poses(self):
         """
-        Frames of the red markers in ``world``.
+        Frames of the red markers in ``world`` (:meth:`sim_bridge.task.SuturingTask.marker_poses`).
 
         Returns
         -------
         dict of str to ndarray, shape (4, 4)
-            ``'<pair>.entry'`` and ``'<pair>.exit'``: origin at the marker centre on the
-            surface, ``z`` the surface normal, ``x`` towards the pair's other marker.
 
         """
-        out = {}
-        for pair in self.phantom.markers.values():
-            for which, point, normal, other in (
-                    ('entry', pair.entry, pair.entry_normal, pair.exit),
-                    ('exit', pair.exit, pair.exit_normal, pair.entry)):
-                out[f'{pair.name}.{which}'] = marker_frame(point, normal, other)
-        return out
+        return self.task.marker_poses()
 
     def tool_pose(self, arm):
         """
-        Tool-tip (``measured_cp``) pose of an arm in ``world``.
+        Tool-tip pose of an arm in ``world``, where it truly is.
 
         Parameters
         ----------
@@ -875,7 +941,7 @@ class Simulation:
         """Copy arm joints, jaw angles, needle pose and thread into PyBullet (for drawing)."""
         world = self.world
         for name, arm in self.arms.items():
-            world.set_arm_joints(name, arm.measured_jp,
+            world.set_arm_joints(name, self._true_jp(name, arm),
                                  arm.jaw_measured_jp if name in PSMS else None)
         if self._needle_mode != 'free':
             world.set_needle_pose(self._T_needle)

@@ -12,7 +12,14 @@ All poses are in ``world`` (z up, phantom at the origin; SI units):
   and ``ECM -> ECM_left|right_optical``;
 - ``sim/visualization`` (visualization_msgs/MarkerArray): needle arc, thread, red markers, tool
   tips;
-- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8) and ``ECM/left|right/camera_info``.
+- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8), ``ECM/left|right/camera_info`` (a
+  rectified pair: the right ``P`` has ``-fx * baseline``) and, when asked for,
+  ``ECM/left|right/depth`` (32FC1, m); rendered only while someone subscribes.
+
+In physical mode the ground truth is for the evaluation only: the needle, phantom, marker and
+base topics and ``sim/visualization`` move under ``/evaluation/`` (:func:`truth_topic`), ``/tf``
+carries the arms only and ``/tf_static`` the arms' bases as the robot believes them (its
+registration) and the camera's optical frames.
 
 The node calls these publishers from its one executor thread; they skip topics nobody reads.
 """
@@ -27,10 +34,30 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 WORLD = 'world'
+EVALUATION = '/evaluation/'
 _RED = (0.85, 0.05, 0.05, 1.0)
 _SILVER = (0.75, 0.75, 0.8, 1.0)
 _THREAD = (0.2, 0.3, 0.9, 1.0)
 _TOOL = (0.1, 0.8, 0.2, 1.0)
+
+
+def truth_topic(name, physical):
+    """
+    Return the name a ground-truth topic has: ``/evaluation/<name>`` in physical mode.
+
+    Parameters
+    ----------
+    name : str
+        Relative topic name (``'sim/needle/measured_cp'``).
+    physical : bool
+        Physical mode: the truth is published for the evaluation only.
+
+    Returns
+    -------
+    str
+
+    """
+    return EVALUATION + name if physical else name
 
 
 class SceneTopics:
@@ -41,26 +68,39 @@ class SceneTopics:
     ----------
     node : rclpy.node.Node
     sim : sim_bridge.simulation.Simulation
+    depth : bool
+        Publish the metric depth images too.
+    physical : bool
+        Physical mode: ground truth under ``/evaluation/`` only, none on ``/tf``.
 
     """
 
-    def __init__(self, node, sim):
+    def __init__(self, node, sim, depth=False, physical=False):
         self._node = node
         self._sim = sim
+        self._physical = physical
         pub = node.create_publisher
-        self._needle = pub(PoseStamped, 'sim/needle/measured_cp', qos.STATE)
-        self._phantom = pub(PoseStamped, 'sim/phantom/measured_cp', qos.LATCHED)
-        self._bases = {a: pub(PoseStamped, f'sim/{a}/base_frame', qos.LATCHED) for a in ARMS}
+
+        def truth(name):
+            return truth_topic(name, physical)
+
+        self._needle = pub(PoseStamped, truth('sim/needle/measured_cp'), qos.STATE)
+        self._phantom = pub(PoseStamped, truth('sim/phantom/measured_cp'), qos.LATCHED)
+        self._bases = {a: pub(PoseStamped, truth(f'sim/{a}/base_frame'), qos.LATCHED)
+                       for a in ARMS}
         self._markers = {}
         for key in sim.marker_poses():
             pair, which = key.split('.')
-            self._markers[key] = pub(PoseStamped, f'sim/markers/{pair}/{which}', qos.LATCHED)
+            self._markers[key] = pub(PoseStamped, truth(f'sim/markers/{pair}/{which}'),
+                                     qos.LATCHED)
         self._tf = pub(TFMessage, '/tf', qos.STATE)
         self._tf_static = pub(TFMessage, '/tf_static', qos.LATCHED)
-        self._viz = pub(MarkerArray, 'sim/visualization', qos.STATE)
+        self._viz = pub(MarkerArray, truth('sim/visualization'), qos.STATE)
         self._images = {s: pub(Image, f'ECM/{s}/image_raw', qos.IMAGES) for s in ('left', 'right')}
         self._infos = {s: pub(CameraInfo, f'ECM/{s}/camera_info', qos.IMAGES)
                        for s in ('left', 'right')}
+        self._depths = ({s: pub(Image, f'ECM/{s}/depth', qos.IMAGES) for s in ('left', 'right')}
+                        if depth else {})
 
     def publish_latched(self, stamp):
         """Publish the scene's fixed frames (after start-up and after a reset)."""
@@ -71,11 +111,15 @@ class SceneTopics:
         markers = sim.marker_poses()
         for key, pub in self._markers.items():
             pub.publish(cv.pose_stamped(markers[key], WORLD, stamp))
-        transforms = [cv.transform_stamped(sim.T_world_base(a), WORLD, f'{a}_base', stamp)
-                      for a in ARMS]
-        transforms.append(cv.transform_stamped(sim.phantom_pose(), WORLD, 'phantom', stamp))
-        transforms += [cv.transform_stamped(T, WORLD, key.replace('.', '_'), stamp)
-                       for key, T in markers.items()]
+        if self._physical:  # what the robot believes; no phantom or markers
+            transforms = [cv.transform_stamped(sim.believed_base(a), WORLD, f'{a}_base', stamp)
+                          for a in ARMS]
+        else:
+            transforms = [cv.transform_stamped(sim.T_world_base(a), WORLD, f'{a}_base', stamp)
+                          for a in ARMS]
+            transforms.append(cv.transform_stamped(sim.phantom_pose(), WORLD, 'phantom', stamp))
+            transforms += [cv.transform_stamped(T, WORLD, key.replace('.', '_'), stamp)
+                           for key, T in markers.items()]
         camera = sim.camera
         transforms += [cv.transform_stamped(camera.T_tip_left, 'ECM', 'ECM_left_optical', stamp),
                        cv.transform_stamped(camera.T_tip_right, 'ECM', 'ECM_right_optical',
@@ -95,7 +139,8 @@ class SceneTopics:
         sim = self._sim
         transforms = [cv.transform_stamped(arm.measured_cp, arm.reference_frame, name, stamp)
                       for name, arm in sim.arms.items()]
-        transforms.append(cv.transform_stamped(sim.needle_pose(), WORLD, 'needle', stamp))
+        if not self._physical:
+            transforms.append(cv.transform_stamped(sim.needle_pose(), WORLD, 'needle', stamp))
         self._tf.publish(cv.tf_message(transforms))
 
     def publish_visualization(self, stamp):
@@ -119,13 +164,17 @@ class SceneTopics:
     def publish_camera(self, stamp):
         """Render and publish the stereo pair and its calibration (only if someone listens)."""
         listening = any(p.get_subscription_count() for p in (*self._images.values(),
-                                                              *self._infos.values()))
+                                                              *self._infos.values(),
+                                                              *self._depths.values()))
         if not listening:
             return
         frame = self._sim.render()
         camera = self._sim.camera
-        for side, rgb in (('left', frame.left_rgb), ('right', frame.right_rgb)):
+        for side, rgb, depth in (('left', frame.left_rgb, frame.left_depth),
+                                 ('right', frame.right_rgb, frame.right_depth)):
             frame_id = f'ECM_{side}_optical'
             self._images[side].publish(cv.image_message(rgb, frame_id, stamp))
             self._infos[side].publish(cv.camera_info_message(camera.camera_info(side), frame_id,
                                                              stamp))
+            if side in self._depths and depth is not None:
+                self._depths[side].publish(cv.depth_message(depth, frame_id, stamp))

@@ -22,6 +22,15 @@ camera (:mod:`sim_bridge.nodes.scene_topics`), each arm's URDF on ``<ARM>/robot_
 - ``sim/reset`` (std_srvs/Trigger): restart the scene (arms DISABLED at rest, needle on the pad;
   the needle start is seeded with ``seed + number of resets``).
 
+Physical mode (``physical: true``): the node shows only what a physical dVRK shows. The scene's
+ground truth (needle, markers, phantom, the arms' true bases, the scene events and the
+visualization) is published only under ``/evaluation/`` (``/evaluation/sim/needle/measured_cp``,
+``/evaluation/sim/events``, ...), which the pipeline's nodes never read; ``/tf`` carries no
+needle and ``/tf_static`` the arms' bases as the robot believes them (no phantom or markers).
+``kinematic_error_level`` (mm class, 0: none) gives the PSMs hidden, seeded kinematic errors
+(:mod:`sim_bridge.kinematic_errors`): the arms report poses consistent with their commands while
+the tools are really elsewhere.
+
 Arms keep the dVRK's operating-state timings by default: ``enable`` powers up for
 ``power_up_time`` before ENABLED, and ``home`` moves an arm from its rest pose (``psm_rest_jp``,
 ``ecm_rest_jp``: retracted) to the homing goal in seconds, busy meanwhile; ``power_up_time: 0``
@@ -68,7 +77,7 @@ from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
-from sim_bridge.nodes.scene_topics import SceneTopics
+from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
@@ -110,7 +119,12 @@ class SimulatorConfig:
         State publishing rate (Hz of simulation time); the dVRK publishes at 100 Hz.
     tf_rate, visualization_rate, camera_rate : float
         Rates (Hz of simulation time) of ``/tf``, ``sim/visualization`` and the stereo images;
-        0 = off.
+        0 = off. The pair is rendered only while someone subscribes to it.
+    camera_width, camera_height : int
+        Image size (pixels) of the stereo pair; 0: ``world.yaml``'s (the field of view is
+        kept).
+    camera_depth : bool
+        Also publish each eye's metric depth (``ECM/<eye>/depth``, 32FC1, m).
     clock_start : float
         Simulator clock (s) when the simulation starts; < 0: the wall clock at start-up.
     tick : float
@@ -143,6 +157,12 @@ class SimulatorConfig:
         camera frame ``ECM``, the ECM in ``world``, the set-up joints' ``SUJ/*`` topics),
         ``base`` (each arm in its RCM frame ``<ARM>_base``), ``''``: ``world.frames`` of
         ``config/world.yaml``.
+    physical : bool
+        Publish the ground truth only under ``/evaluation/`` (see the module docstring).
+    kinematic_error_level : float
+        Class (mm, >= 0) of the PSMs' hidden kinematic errors; 0: perfect kinematics.
+    kinematic_error_seed : int
+        Seed of the kinematic errors' draw.
 
     """
 
@@ -155,6 +175,9 @@ class SimulatorConfig:
     tf_rate: float = 50.0
     visualization_rate: float = 10.0
     camera_rate: float = 0.0
+    camera_width: int = 0
+    camera_height: int = 0
+    camera_depth: bool = False
     clock_start: float = -1.0
     tick: float = 0.002
     max_lag: float = 0.25
@@ -167,6 +190,9 @@ class SimulatorConfig:
     psm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     ecm_rest_jp: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
     frames: str = ''
+    physical: bool = False
+    kinematic_error_level: float = 0.0
+    kinematic_error_seed: int = 0
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -180,6 +206,10 @@ class SimulatorConfig:
                 raise ValueError(f'parameter {name} must be >= 0 Hz (0: off), got {value}')
         for name in ('tick', 'max_lag'):
             check_positive(getattr(self, name), f'parameter {name} (s)')
+        for name in ('camera_width', 'camera_height'):
+            if getattr(self, name) < 0:
+                raise ValueError(f"parameter {name} must be >= 0 pixels (0: world.yaml's), "
+                                 f'got {getattr(self, name)}')
         if not (math.isfinite(self.power_up_time) and self.power_up_time >= 0):
             raise ValueError(f'parameter power_up_time must be >= 0 s (0: at once), '
                              f'got {self.power_up_time}')
@@ -191,6 +221,9 @@ class SimulatorConfig:
         if self.frames not in ('', *FRAMES):
             raise ValueError(f"parameter frames must be 'cart', 'base' or '' (world.yaml's), "
                              f'got {self.frames!r}')
+        if not (math.isfinite(self.kinematic_error_level) and self.kinematic_error_level >= 0):
+            raise ValueError(f'parameter kinematic_error_level must be >= 0 (mm class, 0: no '
+                             f'error), got {self.kinematic_error_level}')
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
                              f'got {self.tracking!r}')
@@ -263,7 +296,12 @@ class Simulator(_QuietEndpoints, Node):
             sim_config,
             arm=replace(sim_config.arm, tracking=cfg.tracking, tool_present=cfg.tool_present,
                         power_up_time=float(cfg.power_up_time)),
-            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None), **rest)
+            loop=replace(sim_config.loop, target_pair=cfg.target_pair or None),
+            kinematic_error_level=float(cfg.kinematic_error_level),
+            kinematic_error_seed=int(cfg.kinematic_error_seed),
+            camera=replace(sim_config.camera, depth=cfg.camera_depth,
+                           width=cfg.camera_width or sim_config.camera.width,
+                           height=cfg.camera_height or sim_config.camera.height), **rest)
         self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
                               phantom=cfg.phantom)
         self._resets = 0
@@ -294,7 +332,9 @@ class Simulator(_QuietEndpoints, Node):
         self._clock_wall, self._clock_period = -math.inf, 1.0 / cfg.clock_rate - 1e-4
 
         self._clock_pub = self.create_publisher(ClockMsg, '/clock', qos.CLOCK)
-        self._events_pub = self.create_publisher(StringStamped, 'sim/events', qos.SCENE_EVENTS)
+        self._events_pub = self.create_publisher(StringStamped, truth_topic('sim/events',
+                                                                            cfg.physical),
+                                                 qos.SCENE_EVENTS)
         self._stats_pub = self.create_publisher(String, 'sim/stats', qos.COMMANDS)
         # who runs the simulation, so that a client on this machine tells a starved simulator
         # (silent, but its process exists) from a dead one (sim_bridge.ros.peer)
@@ -310,9 +350,9 @@ class Simulator(_QuietEndpoints, Node):
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
                                    lock=self.locked, stamp_floor_ns=wall,
-                                   T_world_base=self.sim.T_world_base(name), suj=cart)
+                                   T_world_base=self.sim.believed_base(name), suj=cart)
                      for name in ARMS}
-        self.scene = SceneTopics(self, self.sim)
+        self.scene = SceneTopics(self, self.sim, depth=cfg.camera_depth, physical=cfg.physical)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)
         self.create_service(Trigger, 'sim/reset', self._on_reset)
         self.robot_descriptions = RobotDescriptions(self, self.sim)

@@ -27,6 +27,10 @@ way in-process and over ROS. Typical use in a node's timer::
         command = controller.step(client.observation('synth1'))
         client.send(command, cv.stamp_from_seconds(command.t))
 
+The client refuses to read the evaluation's ground truth: a topic it would subscribe to that
+resolves (after remapping) under ``/evaluation/``, where a simulator in physical mode publishes
+the truth, raises :class:`ValueError` naming it.
+
 Frames: ``world``; ``<ARM>_base``; poses 4x4; metres, radians, seconds. The arms' frames are
 converted here, once, so a controller sees ``world`` whatever frame the arms report in: the tool
 pose is ``T_world_base @ local/measured_cp`` (``local/*`` is in ``<ARM>_base`` on every dVRK);
@@ -50,6 +54,7 @@ from sim_bridge.scene.phantom import MarkerPair
 from std_msgs.msg import String
 
 PSMS = ('PSM1', 'PSM2')
+EVALUATION = '/evaluation/'  # the ground truth a simulator keeps for the evaluation
 STATE_COMMAND_PERIOD = 2.0  # s of wall time between repeated enable/home commands
 
 
@@ -113,7 +118,7 @@ class SimClient:
         self._command = {a: pub(StringStamped, f'{a}/state_command', qos.STATE_COMMAND)
                          for a in self.arms}
         self._target = pub(String, 'sim/target_pair', qos.STREAM)
-        sub = node.create_subscription
+        sub = self._subscribe
         for a in self.arms:
             sub(PoseStamped, f'{a}/measured_cp', lambda m, a=a: self._on_cp(a, m), qos.STREAM)
             sub(PoseStamped, f'{a}/local/measured_cp', lambda m, a=a: self._on_local(a, m),
@@ -129,6 +134,15 @@ class SimClient:
                 qos.LATCHED)
         sub(PoseStamped, 'sim/needle/measured_cp', self._on_needle, qos.STREAM)
         sub(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
+
+    def _subscribe(self, msg_type, topic, callback, profile):
+        """Subscribe on the node, refusing a topic that resolves into the evaluation's truth."""
+        resolved = self.node.resolve_topic_name(topic)
+        if resolved.startswith(EVALUATION):
+            raise ValueError(f'{topic} resolves to {resolved}: the ground truth under '
+                             f'{EVALUATION} is for the evaluation only; a controller must not '
+                             f'read it (remove the remapping)')
+        return self.node.create_subscription(msg_type, topic, callback, profile)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -191,7 +205,7 @@ class SimClient:
         for name in dict.fromkeys(n for n in names if n):
             self.markers[name] = {}
             for which in ('entry', 'exit'):
-                self._marker_subs.append(self.node.create_subscription(
+                self._marker_subs.append(self._subscribe(
                     PoseStamped, f'sim/markers/{name}/{which}',
                     lambda m, n=name, w=which: self.markers[n].__setitem__(
                         w, cv.matrix_from_pose(m.pose)), qos.LATCHED))

@@ -306,17 +306,81 @@ def image_message(rgb, frame_id, stamp):
     stamp : builtin_interfaces/Time
 
     """
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-    height, width = rgb.shape[:2]
+    return _image(np.ascontiguousarray(rgb, dtype=np.uint8), 'rgb8', frame_id, stamp)
+
+
+def _image(array, encoding, frame_id, stamp):
+    """Return a ``sensor_msgs/Image`` of a C-contiguous array (rows of ``strides[0]`` bytes)."""
+    height, width = array.shape[:2]
     msg = Image()
     msg.header.frame_id = frame_id
     msg.header.stamp = stamp
     msg.height, msg.width = int(height), int(width)
-    msg.encoding = 'rgb8'
+    msg.encoding = encoding
     msg.is_bigendian = 0
-    msg.step = int(3 * width)
-    msg.data = rgb.tobytes()
+    msg.step = int(array.strides[0])
+    msg.data = array.tobytes()
     return msg
+
+
+def depth_message(depth, frame_id, stamp):
+    """
+    Return a ``sensor_msgs/Image`` (``32FC1``, metres) of a metric depth image.
+
+    Parameters
+    ----------
+    depth : ndarray, shape (height, width)
+        Camera-frame ``z`` (m) per pixel, row 0 at the top; ``inf`` where nothing is seen.
+    frame_id : str
+        Optical frame of the camera.
+    stamp : builtin_interfaces/Time
+
+    """
+    return _image(np.ascontiguousarray(depth, dtype='<f4'), '32FC1', frame_id, stamp)
+
+
+def rgb_from_image(msg, width=None, height=None):
+    """
+    Return the ``(height, width, 3)`` uint8 RGB array of a ``sensor_msgs/Image``.
+
+    Parameters
+    ----------
+    msg : sensor_msgs/Image
+        ``rgb8`` or ``bgr8``, rows of ``step`` bytes.
+    width, height : int, optional
+        Size the image must have (its ``camera_info``'s).
+
+    Raises
+    ------
+    ValueError
+        For another encoding, a size other than ``width`` x ``height`` or too little data;
+        the message says which.
+
+    """
+    if msg.encoding not in ('rgb8', 'bgr8'):
+        raise ValueError(f'image encoding {msg.encoding!r} is not supported: send rgb8 or bgr8')
+    w, h = int(msg.width), int(msg.height)
+    if width is not None and (w, h) != (int(width), int(height)):
+        raise ValueError(f'image is {w}x{h} but camera_info says {width}x{height}')
+    step = int(msg.step)
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    if step < 3 * w or data.size < step * h:
+        raise ValueError(f'image data too short: {data.size} bytes for {h} rows of {step} '
+                         f'bytes ({w}x{h} {msg.encoding})')
+    rgb = data[:step * h].reshape(h, step)[:, :3 * w].reshape(h, w, 3)
+    return np.ascontiguousarray(rgb[:, :, ::-1] if msg.encoding == 'bgr8' else rgb)
+
+
+def camera_info_arrays(msg):
+    """
+    Return a ``sensor_msgs/CameraInfo``'s size, ``K`` (3, 3) and ``P`` (3, 4) as a dict.
+
+    The keys are those of :func:`suture_lfd.perception.stereo.stereo_from_camera_info`:
+    ``width``, ``height``, ``K``, ``P``.
+    """
+    return {'width': int(msg.width), 'height': int(msg.height),
+            'K': np.asarray(msg.k, dtype=float).reshape(3, 3),
+            'P': np.asarray(msg.p, dtype=float).reshape(3, 4)}
 
 
 def camera_info_message(info, frame_id, stamp):

@@ -15,12 +15,20 @@ Camera frames (optical convention, as ROS ``sensor_msgs/CameraInfo`` and OpenCV 
 - Distortion model ``plumb_bob`` with all coefficients zero (the renderer is an ideal pinhole).
 
 Rendering uses PyBullet's CPU renderer (``ER_TINY_RENDERER``) through an injected client; depth is
-metric: the ``z`` coordinate (m) of the surface point seen in each pixel, in the camera frame.
+metric: the ``z`` coordinate (m) of the surface point seen in each pixel, in the camera frame, and
+is computed only when asked for (``depth``).
+
+Image realism (all off by default, seeded): the light's direction jittered per frame
+(``light_jitter``), a specular needle (``specular``, the renderer's specular coefficient for
+bodies made shiny with :meth:`StereoCamera.make_shiny`), a Gaussian blur (``blur_sigma``, the
+optics' point spread) and Gaussian sensor noise (``noise_std``, grey levels), drawn from
+``numpy.random.default_rng(seed)`` frame after frame.
 """
 
 from dataclasses import dataclass
 import math
 
+import cv2
 import numpy as np
 from sim_bridge.bullet import pybullet
 
@@ -50,6 +58,19 @@ class CameraConfig:
         Clipping distances (m) of the renderer; depth outside them is not seen.
     light_direction : tuple of float
         Direction (world frame) towards the light for shading.
+    depth : bool
+        Compute metric depth images (a physical endoscope gives none; off saves the
+        conversion).
+    noise_std : float
+        Standard deviation of Gaussian sensor noise (grey levels of 255); 0 = none.
+    blur_sigma : float
+        Standard deviation (pixels) of a Gaussian blur; 0 = none.
+    light_jitter : float
+        Standard deviation (rad) of a per-frame random tilt of the light direction; 0 = none.
+    specular : float
+        Specular coefficient of the light on shiny bodies (:meth:`StereoCamera.make_shiny`).
+    seed : int
+        Seed of the realism's random numbers.
 
     """
 
@@ -64,6 +85,12 @@ class CameraConfig:
     near: float = 0.01
     far: float = 1.0
     light_direction: tuple[float, float, float] = (0.2, -0.3, 1.0)
+    depth: bool = True
+    noise_std: float = 0.0
+    blur_sigma: float = 0.0
+    light_jitter: float = 0.0
+    specular: float = 0.0
+    seed: int = 0
 
     def __post_init__(self):
         if self.width < 2 or self.height < 2:
@@ -79,6 +106,10 @@ class CameraConfig:
         if not 0.0 < self.near < self.far:
             raise ValueError(
                 f'camera near/far must satisfy 0 < near < far, got {self.near}, {self.far}')
+        for name in ('noise_std', 'blur_sigma', 'light_jitter', 'specular'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'camera {name} must be >= 0 (0: off), got {value}')
 
 
 @dataclass(frozen=True)
@@ -121,9 +152,9 @@ class StereoFrame:
     ----------
     left_rgb, right_rgb : ndarray, shape (height, width, 3), uint8
         Colour images, row 0 at the top.
-    left_depth, right_depth : ndarray, shape (height, width), float32
+    left_depth, right_depth : ndarray, shape (height, width), float32, or None
         Metric depth (m): camera-frame ``z`` of the surface in each pixel; ``inf`` where
-        nothing is closer than ``far``.
+        nothing is closer than ``far``; None when the camera computes no depth.
     T_world_left, T_world_right : ndarray, shape (4, 4)
         Optical frames of the two cameras in ``world``.
 
@@ -164,6 +195,24 @@ class StereoCamera:
         self.T_tip_left[0, 3] = -0.5 * c.baseline
         self.T_tip_right = np.eye(4)
         self.T_tip_right[0, 3] = 0.5 * c.baseline
+        self._rng = np.random.default_rng(c.seed)
+        self._light = np.asarray(c.light_direction, dtype=float)
+        self._realistic = bool(c.noise_std or c.blur_sigma or c.light_jitter)
+
+    def make_shiny(self, body, link=-1):
+        """
+        Give a body a white specular colour, lit with ``specular`` (no effect when it is 0).
+
+        Parameters
+        ----------
+        body : int
+            PyBullet body id (the needle).
+        link : int
+            Link index (-1: the base).
+
+        """
+        if self.config.specular > 0.0 and self._client is not None:
+            self._client.changeVisualShape(body, link, specularColor=[1.0, 1.0, 1.0])
 
     # ------------------------------------------------------------------ intrinsics
     @property
@@ -258,7 +307,24 @@ class StereoCamera:
         P[3, 2] = -1.0
         return P.T.reshape(-1).tolist()
 
-    def render_view(self, T_world_camera):
+    def _light_direction(self):
+        """Return the light's direction for the next frame (jittered when ``light_jitter`` > 0)."""
+        if not self.config.light_jitter:
+            return self._light.tolist()
+        tilt = self._rng.normal(0.0, self.config.light_jitter, 3)
+        return (self._light + np.linalg.norm(self._light) * tilt).tolist()
+
+    def _degrade(self, rgb):
+        """Blur and noise of the optics and the sensor (seeded), on a uint8 RGB image."""
+        c = self.config
+        if c.blur_sigma > 0.0:
+            rgb = cv2.GaussianBlur(rgb, (0, 0), c.blur_sigma)
+        if c.noise_std > 0.0:
+            noisy = rgb + self._rng.normal(0.0, c.noise_std, rgb.shape)
+            rgb = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        return rgb
+
+    def render_view(self, T_world_camera, light_direction=None):
         """
         Render one camera's colour and metric depth images.
 
@@ -266,30 +332,41 @@ class StereoCamera:
         ----------
         T_world_camera : array_like, shape (4, 4)
             Optical frame of the camera in ``world``.
+        light_direction : sequence of float, optional
+            Direction (world) towards the light; default: the configured one (jittered).
 
         Returns
         -------
         rgb : ndarray, shape (height, width, 3), uint8
-            Colour image, row 0 at the top.
-        depth : ndarray, shape (height, width), float32
-            Camera-frame ``z`` (m) of the surface seen in each pixel; ``inf`` beyond ``far``.
+            Colour image, row 0 at the top (blurred and noisy when so configured).
+        depth : ndarray, shape (height, width), float32, or None
+            Camera-frame ``z`` (m) of the surface seen in each pixel; ``inf`` beyond ``far``;
+            None when ``depth`` is off.
 
         """
         if self._client is None:
             raise ValueError('StereoCamera was built without a PyBullet client; pass client=')
         c = self.config
+        if light_direction is None:
+            light_direction = self._light_direction()
         T_gl = np.asarray(T_world_camera, dtype=float) @ _OPTICAL_TO_GL
         view = np.linalg.inv(T_gl)
+        light = {'lightSpecularCoeff': c.specular} if c.specular > 0.0 else {}
         _, _, rgba, depth_buffer, _ = self._client.getCameraImage(
             c.width, c.height, viewMatrix=view.T.reshape(-1).tolist(),
-            projectionMatrix=self._projection, lightDirection=list(c.light_direction),
+            projectionMatrix=self._projection, lightDirection=list(light_direction),
             shadow=0, renderer=pybullet.ER_TINY_RENDERER,
-            flags=pybullet.ER_NO_SEGMENTATION_MASK)
+            flags=pybullet.ER_NO_SEGMENTATION_MASK, **light)
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(c.height, c.width, 4)
+        rgb = rgba[:, :, :3].copy()
+        if self._realistic:
+            rgb = self._degrade(rgb)
+        if not c.depth:
+            return rgb, None
         d = np.asarray(depth_buffer, dtype=np.float64).reshape(c.height, c.width)
         depth = c.far * c.near / (c.far - (c.far - c.near) * d)
         depth[d >= 1.0] = np.inf
-        return rgba[:, :, :3].copy(), depth.astype(np.float32)
+        return rgb, depth.astype(np.float32)
 
     def render(self, T_world_tip):
         """
@@ -307,7 +384,8 @@ class StereoCamera:
 
         """
         T_left, T_right = self.camera_poses(T_world_tip)
-        left_rgb, left_depth = self.render_view(T_left)
-        right_rgb, right_depth = self.render_view(T_right)
+        light = self._light_direction()  # one light for both eyes
+        left_rgb, left_depth = self.render_view(T_left, light)
+        right_rgb, right_depth = self.render_view(T_right, light)
         return StereoFrame(left_rgb=left_rgb, left_depth=left_depth, right_rgb=right_rgb,
                            right_depth=right_depth, T_world_left=T_left, T_world_right=T_right)

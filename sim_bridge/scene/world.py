@@ -230,6 +230,52 @@ def transform_from_bullet(position, quaternion):
     return T
 
 
+def _wire_mesh(needle, n_arc=48, n_ring=12):
+    """
+    Return the needle's wire as a closed triangle mesh in the needle frame, for drawing.
+
+    A tube of the wire's radius along the arc with flat ends (PyBullet's CPU renderer draws
+    capsules in shape arrays far thicker than their radius, so the drawn needle is a mesh).
+
+    Returns
+    -------
+    vertices : ndarray, shape (n, 3)
+    normals : ndarray, shape (n, 3)
+    indices : list of int
+        Counter-clockwise triangles seen from outside.
+
+    """
+    r = 0.5 * needle.wire_diameter
+    s = np.linspace(0.0, 1.0, n_arc + 1)
+    centre = needle.point_at(s)
+    radial = centre / needle.radius
+    theta = np.linspace(0.0, 2.0 * math.pi, n_ring, endpoint=False)
+    z = np.array([0.0, 0.0, 1.0])
+    ring = (np.cos(theta)[None, :, None] * radial[:, None, :]
+            + np.sin(theta)[None, :, None] * z[None, None, :])  # (n_arc + 1, n_ring, 3)
+    vertices = (centre[:, None, :] + r * ring).reshape(-1, 3)
+    normals = ring.reshape(-1, 3)
+    indices = []
+    for i in range(n_arc):
+        for j in range(n_ring):
+            a, b = i * n_ring + j, i * n_ring + (j + 1) % n_ring
+            c, d = a + n_ring, b + n_ring
+            indices += [a, c, b, b, c, d]
+    tangent = needle.tangent_at(np.array([0.0, 1.0]))
+    caps = []
+    for k, (row, direction) in enumerate(((0, -tangent[0]), (n_arc, tangent[1]))):
+        first = len(vertices) + sum(len(c[0]) for c in caps)
+        ring_vertices = vertices[row * n_ring:(row + 1) * n_ring]
+        cap_vertices = np.vstack([centre[row], ring_vertices])
+        caps.append((cap_vertices, np.tile(direction, (n_ring + 1, 1))))
+        for j in range(n_ring):
+            a, b = first + 1 + j, first + 1 + (j + 1) % n_ring
+            indices += [first, b, a] if k == 0 else [first, a, b]
+    vertices = np.vstack([vertices] + [c[0] for c in caps])
+    normals = np.vstack([normals] + [c[1] for c in caps])
+    return vertices, normals, indices
+
+
 def _arc_mass_properties(points, mass):
     """Centre of mass, principal axes and inertias of a wire through ``points`` (n, 3)."""
     mid = 0.5 * (points[1:] + points[:-1])
@@ -474,7 +520,11 @@ class World:
             R = Rotation.align_vectors([axis / length], [[0.0, 0.0, 1.0]])[0]
             parts.append((pybullet.GEOM_CAPSULE, {'radius': r, 'height': length},
                           (0.5 * (a + b)).tolist(), R.as_quat().tolist()))
-        vis, col = self._build_compound(parts, cfg.needle_rgba)
+        _, col = self._build_compound(parts, cfg.needle_rgba)
+        vertices, normals, indices = _wire_mesh(g)
+        vis = c.createVisualShape(pybullet.GEOM_MESH, vertices=vertices.tolist(),
+                                  indices=indices, normals=normals.tolist(),
+                                  rgbaColor=list(cfg.needle_rgba))
         com, axes, moments = _arc_mass_properties(g.arc_points(64), g.mass)
         self._T_needle_com = np.eye(4)
         self._T_needle_com[:3, :3] = axes

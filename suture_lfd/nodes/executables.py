@@ -32,6 +32,9 @@ teleop = Executable(
 mtms = Executable(
     'mtms', 'suture_lfd.nodes.mtms:MtmsNode', config_file='mtms.yaml',
     example='mtms --ros-args -p device:=browser')
+perception = Executable(
+    'perception', 'suture_lfd.nodes.perception:PerceptionNode', config_file='perception.yaml',
+    example='perception --ros-args -p rate:=5.0')
 _viewer = Executable(
     'viewer', 'suture_lfd.nodes.viewer:Viewer', config_file='viewer.yaml',
     example='viewer --host 127.0.0.1 --port 8080 --ros-args -p phantom:=scanned')

@@ -29,6 +29,7 @@ import math
 import numpy as np
 from sim_bridge.control import ExpertConfig
 from sim_bridge.geometry import matrix_from_quaternion, pose_from_transform
+from sim_bridge.observers import PhysicalObserver
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.grasps import GraspPlanner
 from suture_lfd.planning.plan import PlanFollower
@@ -45,6 +46,7 @@ from suture_lfd.skill import (
     learn_skill,
     training_data_from_demonstration,
 )
+from suture_lfd.skill.perceived import PerceivedScene
 
 __all__ = ['METHODS', 'Method', 'ThrowSkill', 'TrainingData', 'learn_skill',
            'training_data_from_demonstration', 'ExecutorConfig', 'ThrowExecutor',
@@ -520,7 +522,7 @@ def _event_dict(ev):
 
 
 def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, control_period=0.01,
-                  next_pair=None, observer=None):
+                  next_pair=None, observer=None, physical=False):
     """
     Execute one throw of a skill on a marker pair of an in-process simulation.
 
@@ -549,6 +551,12 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     observer : callable, optional
         Called without arguments at every controller step, after the command is chosen (a
         replay sampler reads the scene then).
+    physical : bool
+        Execute on what a physical dVRK provides (:class:`sim_bridge.observers.PhysicalObserver`
+        with :class:`suture_lfd.skill.perceived.PerceivedScene`): the arms' reported poses, the
+        markers and the needle from the stereo pair, each grasp measured when a jaw closes.
+        A throw whose markers or needle cannot be seen at the start is not pushed: score 0,
+        ``failure`` says what was not seen.
 
     Returns
     -------
@@ -565,6 +573,43 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
                          f'{sorted(sim.phantom.markers)}')
     pair = start_episode(sim, pair_name, seed)
     sim.pop_events()
+    if physical:
+        previous = sim.observer
+        perception = PerceivedScene(pair_name, pair.index, sim.needle_geometry)
+        sim.observer = PhysicalObserver(sim, perception)
+        try:
+            return _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
+                                            control_period, next_pair, observer)
+        finally:
+            sim.observer = previous
+    return _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair,
+                    observer)
+
+
+def _not_executed(pair_name, failure, executor=None):
+    """Outcome of a throw that could not start (score 0, the reason kept)."""
+    return ThrowOutcome(pair=pair_name, score=0.0, subtasks=dict.fromkeys(SUBTASKS, False),
+                        duration=0.0, failure=failure, entry_error_mm=math.nan,
+                        exit_error_mm=math.nan, executed={},
+                        rollouts={} if executor is None else dict(executor.rollouts),
+                        targets={} if executor is None else dict(executor.targets),
+                        subtask_times={}, events=[], score_detail=None)
+
+
+def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config, control_period,
+                             next_pair, observer):
+    """Check that the markers and the needle are seen, then execute on the perceived pair."""
+    seen = perception.markers(sim)
+    if seen is None:
+        return _not_executed(pair_name, f'not seen: the markers of pair {pair_name}')
+    if sim.observation().T_world_needle is None:
+        return _not_executed(pair_name, 'not seen: the needle')
+    return _execute(sim, skill, pair_name, seen, timeout, config, control_period, next_pair,
+                    observer)
+
+
+def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer):
+    """Execute a throw on ``pair`` (as the controller sees it) from the started episode."""
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
@@ -577,11 +622,7 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     except ValueError as exc:
         # No reachable grasp carries the needle along the rollouts on this pair: the throw
         # cannot be executed (score 0, the reason kept).
-        return ThrowOutcome(pair=pair_name, score=0.0, subtasks=dict.fromkeys(SUBTASKS, False),
-                            duration=0.0, failure=f'unreachable: {exc}',
-                            entry_error_mm=math.nan, exit_error_mm=math.nan, executed={},
-                            rollouts=dict(executor.rollouts), targets=dict(executor.targets),
-                            subtask_times={}, events=[], score_detail=None)
+        return _not_executed(pair_name, f'unreachable: {exc}', executor)
     run_episode(sim, executor, control_period, stepper=recorder, timeout=timeout, reset=False)
     result = sim.score()
     events = [_event_dict(ev) for ev in sim.pop_events()]

@@ -77,3 +77,21 @@ def test_bad_settings_name_the_key():
         CameraConfig(near=0.5, far=0.1)
     with pytest.raises(ValueError, match="'left' or 'right'"):
         StereoCamera().camera_info('middle')
+
+
+def test_realism_is_seeded_and_depth_is_computed_only_when_asked(client):
+    shape = client.createVisualShape(pybullet.GEOM_SPHERE, radius=0.003, rgbaColor=[1, 0, 0, 1])
+    client.createMultiBody(0.0, -1, shape, [0.0, 0.0, 0.08])
+    ideal = StereoCamera(CameraConfig(width=160, height=120, depth=False), client)
+    frame = ideal.render(np.eye(4))
+    assert frame.left_depth is None and frame.right_depth is None
+    config = CameraConfig(width=160, height=120, noise_std=4.0, blur_sigma=0.8,
+                          light_jitter=0.2, seed=3)
+    a = StereoCamera(config, client).render(np.eye(4))
+    b = StereoCamera(config, client).render(np.eye(4))
+    assert np.array_equal(a.left_rgb, b.left_rgb)  # the same seed, the same images
+    assert a.left_depth is not None
+    diff = a.left_rgb.astype(float) - frame.left_rgb
+    assert 2.0 < diff[:20, :20].std() < 8.0  # noise on the flat background
+    with pytest.raises(ValueError, match='noise_std'):
+        CameraConfig(noise_std=-1.0)

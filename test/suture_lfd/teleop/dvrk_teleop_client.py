@@ -17,6 +17,7 @@ getter's data-age error: the script stops there, this client skips the cycle), `
 it runs until SIGINT.
 """
 
+import gc
 import math
 import sys
 import threading
@@ -274,7 +275,12 @@ def main(mtm_name, psm_name):
     node = rclpy.create_node('dvrk_python_teleoperation')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
+    def spin():
+        try:
+            executor.spin()
+        except ExternalShutdownException:   # SIGINT shut the context down: the end
+            pass
+    spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
     script = None
     try:
@@ -300,6 +306,7 @@ def main(mtm_name, psm_name):
         say('FRAMES', f"{mtm.cp['measured_cp'].msg.header.frame_id} "
                       f"{psm.cp['setpoint_cp'].msg.header.frame_id}")
         script = TeleopScript(node, mtm, psm)
+        gc.freeze()   # what start-up built stays out of the cyclic collector's full passes
         script.run()
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -1,0 +1,126 @@
+"""
+Observers: what a controller of the simulated scene is allowed to see.
+
+A controller (the scripted expert, the demonstrator, the DMP executor) reads an
+:class:`~sim_bridge.control.Observation` made by an observer, never the scene itself:
+
+- :class:`GroundTruthObserver`: the scene's truth (true tool poses, the needle, which arm holds
+  it, the target pair, the true arm bases) -- the simulation's results as they always were;
+- :class:`PhysicalObserver`: what a physical dVRK provides -- the arms' own reports
+  (``measured_js/cp`` through their believed bases, jaws) and, for the needle, the markers and
+  the grasp, an estimator working on the ECM's stereo images (perception), asked only when the
+  controller needs it.
+
+Frames: ``world``; poses 4x4 ``T_world_*``; SI units.
+"""
+
+from typing import Protocol
+
+from sim_bridge.control import Observation
+
+PSMS = ('PSM1', 'PSM2')
+
+
+class GroundTruthObserver:
+    """
+    The scene's ground truth, as a controller with perfect knowledge would see it.
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+
+    """
+
+    def __init__(self, sim):
+        self._sim = sim
+
+    def observe(self):
+        """
+        Return the observation now.
+
+        Returns
+        -------
+        sim_bridge.control.Observation
+            True tool poses (read-only arrays shared with the simulation, kept until an arm
+            moves) and jaws of both PSMs, the true needle pose, its holders, the target pair
+            and the true arm bases.
+
+        """
+        sim = self._sim
+        return Observation(t=sim.time,
+                           T_world_tool={n: sim._tool_pose(n) for n in PSMS},
+                           jaw={n: sim.arms[n].jaw_measured_jp for n in PSMS},
+                           T_world_needle=sim._T_needle.copy(),
+                           holders=sim.grasp.holders, pair=sim.task.pair,
+                           T_world_base=dict(sim._T_world_base_true))
+
+
+class SceneEstimator(Protocol):
+    """
+    What a physical observer asks about the scene: estimates from the robot's own sensors.
+
+    Methods
+    -------
+    estimate(sim, arm_state)
+        Return ``(T_world_needle, holders, pair)``: the needle's estimated pose (ndarray (4, 4),
+        or None when it cannot be seen well enough), the arms believed to hold it, and the
+        target pair as perceived (a :class:`~sim_bridge.scene.phantom.MarkerPair`-like object).
+        ``arm_state`` is the observation's arm part (reported tool poses, jaws, joints).
+
+    """
+
+    def estimate(self, sim, arm_state):
+        """Estimate the needle, its holders and the target pair."""
+
+
+class PhysicalObserver:
+    """
+    What a physical dVRK provides: the arms' own reports and estimates from the endoscope.
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+    estimator : SceneEstimator
+        Needle, holders and target pair from the stereo images (rendered by the estimator
+        through ``sim.render()`` only when it needs them).
+
+    """
+
+    def __init__(self, sim, estimator):
+        self._sim = sim
+        self._estimator = estimator
+
+    def arm_state(self):
+        """
+        Return the arms' reports: an :class:`Observation` without needle, holders or pair.
+
+        Returns
+        -------
+        sim_bridge.control.Observation
+            ``T_world_tool``: each PSM's ``measured_cp`` through its believed base;
+            ``T_world_base``: the believed bases; ``q``: the measured joints.
+
+        """
+        sim = self._sim
+        return Observation(t=sim.time,
+                           T_world_tool={n: sim.reported_tool_pose(n) for n in PSMS},
+                           jaw={n: sim.arms[n].jaw_measured_jp for n in PSMS},
+                           T_world_needle=None, holders=(), pair=None,
+                           T_world_base={n: sim.believed_base(n) for n in sim.arms},
+                           q={n: sim.arms[n].measured_jp for n in PSMS})
+
+    def observe(self):
+        """
+        Return the observation now: arm reports plus the estimator's needle, holders and pair.
+
+        Returns
+        -------
+        sim_bridge.control.Observation
+            ``T_world_needle`` is None when the estimator cannot see the needle.
+
+        """
+        arms = self.arm_state()
+        needle, holders, pair = self._estimator.estimate(self._sim, arms)
+        return Observation(t=arms.t, T_world_tool=arms.T_world_tool, jaw=arms.jaw,
+                           T_world_needle=needle, holders=tuple(holders), pair=pair,
+                           T_world_base=arms.T_world_base, q=arms.q)

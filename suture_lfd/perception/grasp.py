@@ -1,0 +1,113 @@
+"""
+The grasp: where the needle sits in the holding jaw, from a few frames of perception.
+
+A grasp, regrasp or handover fixes the needle in the jaw; its pose there, ``T_tool_needle``, is
+what turns the tool pose the arm reports into the needle's pose while it is held (the prior of
+:meth:`suture_lfd.perception.needle.NeedleTracker.estimate`). It is estimated once after each
+grasp from a few frames: per frame the tool pose (the arm's kinematics carried into the camera
+frame) and the needle's estimate, ``T_tool_needle = inv(T_camera_tool) T_camera_needle``, averaged
+(positions: the mean; rotations: the chordal L2 mean of
+:meth:`scipy.spatial.transform.Rotation.mean`) over the frames whose estimate was found, each
+weighted by ``1 / (residual_px + 0.1)``.
+
+Frames: camera = the left optical frame; tool = the PSM tool-tip frame (``measured_cp``'s); metres.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+@dataclass(frozen=True, eq=False)
+class GraspEstimate:
+    """
+    The needle's pose in the holding jaw.
+
+    Attributes
+    ----------
+    T_tool_needle : ndarray, shape (4, 4)
+        Needle frame in the tool-tip frame (m).
+    spread_position : float
+        RMS distance (m) of the frames' needle origins from the mean.
+    spread_angle : float
+        RMS angle (rad) of the frames' needle orientations from the mean.
+    n_frames : int
+        Frames that were used (estimates found).
+
+    """
+
+    T_tool_needle: np.ndarray
+    spread_position: float
+    spread_angle: float
+    n_frames: int
+
+
+def estimate_grasp(tool_poses, estimates):
+    """
+    Estimate the grasp ``T_tool_needle`` from a few frames of one grasp.
+
+    Parameters
+    ----------
+    tool_poses : sequence of array_like, shape (4, 4)
+        Tool-tip pose of the holding arm per frame, in the camera frame.
+    estimates : sequence of suture_lfd.perception.needle.NeedleEstimate
+        The needle's estimate of the same frames.
+
+    Returns
+    -------
+    GraspEstimate
+
+    Raises
+    ------
+    ValueError
+        When the lengths differ or no frame has a found estimate.
+
+    """
+    tool_poses = list(tool_poses)
+    estimates = list(estimates)
+    if len(tool_poses) != len(estimates):
+        raise ValueError(f'estimate_grasp needs one tool pose per estimate, got '
+                         f'{len(tool_poses)} and {len(estimates)}')
+    grasps, weights = [], []
+    for T_tool, est in zip(tool_poses, estimates):
+        if not est.found:
+            continue
+        T_tool = np.asarray(T_tool, dtype=float)
+        if T_tool.shape != (4, 4):
+            raise ValueError(f'tool pose must be 4x4, got shape {T_tool.shape}')
+        R = T_tool[:3, :3]
+        T = np.eye(4)
+        T[:3, :3] = R.T @ est.pose_camera[:3, :3]
+        T[:3, 3] = R.T @ (est.pose_camera[:3, 3] - T_tool[:3, 3])
+        grasps.append(T)
+        weights.append(1.0 / (est.residual_px + 0.1))
+    if not grasps:
+        raise ValueError(f'estimate_grasp: none of the {len(estimates)} frames has a found '
+                         f'needle estimate')
+    w = np.asarray(weights) / np.sum(weights)
+    positions = np.array([T[:3, 3] for T in grasps])
+    rotations = Rotation.from_matrix(np.array([T[:3, :3] for T in grasps]))
+    mean_rotation = rotations.mean(weights=w)
+    mean_position = w @ positions
+    result = np.eye(4)
+    result[:3, :3] = mean_rotation.as_matrix()
+    result[:3, 3] = mean_position
+    spread_p = float(np.sqrt(w @ np.sum((positions - mean_position) ** 2, axis=1)))
+    spread_a = float(np.sqrt(w @ (mean_rotation.inv() * rotations).magnitude() ** 2))
+    return GraspEstimate(T_tool_needle=result, spread_position=spread_p, spread_angle=spread_a,
+                         n_frames=len(grasps))
+
+
+def needle_prior(T_camera_tool, grasp):
+    """
+    Return where a held needle should be: ``T_camera_tool @ grasp.T_tool_needle`` (4, 4).
+
+    Parameters
+    ----------
+    T_camera_tool : array_like, shape (4, 4)
+        Tool-tip pose of the holding arm in the camera frame.
+    grasp : GraspEstimate
+
+    """
+    return np.asarray(T_camera_tool, dtype=float) @ grasp.T_tool_needle

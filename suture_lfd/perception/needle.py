@@ -1,0 +1,544 @@
+"""
+The needle's 6-DoF pose from a stereo pair: its pixels, then a fit of the projected arc.
+
+Method
+------
+1. **Pixels.** The needle is the scene's unsaturated, bright (metal) thing
+   (:func:`suture_lfd.perception.images.metal_mask`). Each image becomes a cost field that is
+   lowest on the centre line of the needle's pixels and grows with the distance from them:
+   the (slightly blurred) distance in pixels to the centre line of the needle's pixels, whose
+   ridge is where they lie farthest from other pixels (OpenCV distance transforms).
+2. **Start.** With a prior (the tool pose and the grasp while the needle is held, the last
+   estimate while it lies free) the fit starts there. Without one, the needle is detected: in
+   each image the elongated blobs of needle pixels, their two ends and the bulge of their arc,
+   triangulated and aligned with the arc's tail, middle and tip (both ways round).
+3. **Fit.** ``n_points`` points of the arc (radius 10.18 mm, 120 deg; the scene's
+   :class:`sim_bridge.scene.needle.NeedleGeometry`) are projected into both images with the
+   camera model and the pose is moved until they lie on the centre lines
+   (:func:`scipy.optimize.least_squares`, a soft-L1 loss so that the hidden parts of the arc
+   pull little). Arc points whose pixels fall on an instrument (``tools``: jaws, wrist,
+   shaft, from the arm's kinematics) are left out in that image.
+4. **Trust.** A point is *seen* when it lies on needle pixels in an image. The residual is the
+   RMS distance (pixels) of the points seen in both images from the centre line, the visible
+   share the fraction of arc points seen in both. An estimate is ``found`` only when enough of
+   the arc is seen in both images (``min_visible``) and it fits them closely
+   (``max_residual``); otherwise it says why.
+5. **Which end is the tip.** The arc is symmetric: turned half a turn about its middle radius,
+   tail and tip swap with the same image. Without a prior, the end nearer the thread's pixels is
+   the tail; with one, the pose nearer the prior is kept.
+
+Size: one tracker whose detection, fit and trust measures share the arc's model and its
+projections; what the images say about a wire is in :mod:`suture_lfd.perception.wire_images`,
+the pose helpers in :mod:`suture_lfd.perception.arc_poses`.
+
+Frames: ``pose_camera`` is ``T_camera_needle`` (4, 4) in the camera (left optical) frame of
+:mod:`suture_lfd.perception.stereo`; the needle frame is :mod:`sim_bridge.scene.needle`'s (origin
+at the arc centre, arc in the x-y plane, tail at 180 deg, tip at 60 deg). Lengths in metres,
+image distances in pixels.
+"""
+
+from dataclasses import dataclass
+import math
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from sim_bridge.scene.needle import NeedleGeometry
+from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
+from suture_lfd.perception.images import check_image
+from suture_lfd.perception.wire_images import (
+    WireImage,
+    hidden_in_images,
+    runs,
+    sample,
+    tool_capsules,
+)
+
+_OUT_OF_VIEW = 30.0  # cost (pixels) of an arc point outside an image
+_BEYOND = np.arange(0.5, 4.6, 1.0)  # pixels past a wire's end where the thread is looked for
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """
+    Settings of the needle tracker.
+
+    Attributes
+    ----------
+    n_points : int
+        Arc points projected in the fit.
+    blur : float
+        Gaussian blur (pixels) of the cost field.
+    loss_scale : float
+        Distance (pixels) beyond which an arc point pulls less (soft-L1 loss).
+    seen_distance : float
+        Largest distance (pixels) of a seen arc point from the needle's pixels.
+    min_visible : float
+        Smallest share of arc points seen in both images for an estimate.
+    max_residual : float
+        Largest residual (pixels) of an estimate.
+    partial_below : float
+        Visible share under which an estimate is flagged ``partial``.
+    jaw_length, jaw_radius : float
+        An instrument's jaws (m): a capsule from the tool-tip origin along tool ``z``.
+    shaft_length, shaft_radius : float
+        Its wrist and shaft (m): a capsule from the tool-tip origin back along ``-z``. Arc
+        points whose pixels fall on either are hidden in that image.
+    profile_half_length, profile_step : float
+        Reach and sampling step (pixels) of the search for the wire's edges across the arc.
+    refine_iterations : int
+        Gauss-Newton iterations on the edges.
+    huber : float
+        Offset (pixels) beyond which an edge pulls less.
+    max_support_tilt : float
+        Largest angle (rad) between a free needle's plane and the surface it lies on.
+    ambiguity, ambiguity_distance : float
+        Another pose at least ``ambiguity_distance`` (m, mean over base, middle and tip) away
+        whose cost is within ``ambiguity`` (pixels) makes a detection ambiguous.
+    end_gate : float
+        Largest offset (pixels) of a seen end of the wire from the arc's projected end.
+    end_weight : float
+        Weight of an end against one point across the arc.
+    min_blob_area : int
+        Smallest blob (pixels) that may be a needle when detecting without a prior.
+    min_elongation : float
+        Smallest length-to-width ratio of such a blob.
+
+    """
+
+    n_points: int = 40
+    blur: float = 1.0
+    loss_scale: float = 2.0
+    seen_distance: float = 1.5
+    min_visible: float = 0.3
+    max_residual: float = 1.5
+    partial_below: float = 0.85
+    jaw_length: float = 0.0105
+    jaw_radius: float = 0.0025
+    shaft_length: float = 0.06
+    shaft_radius: float = 0.0045
+    profile_half_length: float = 12.0
+    profile_step: float = 0.5
+    refine_iterations: int = 30
+    huber: float = 1.0
+    max_support_tilt: float = math.radians(35.0)
+    ambiguity: float = 0.15
+    ambiguity_distance: float = 0.001
+    end_gate: float = 5.0
+    end_weight: float = 4.0
+    min_blob_area: int = 40
+    min_elongation: float = 5.0
+
+    def __post_init__(self):
+        if self.n_points < 8:
+            raise ValueError(f'tracker n_points must be >= 8, got {self.n_points}')
+        for name in ('loss_scale', 'seen_distance', 'max_residual', 'jaw_length',
+                     'jaw_radius', 'shaft_length', 'shaft_radius'):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f'tracker {name} must be > 0, got {getattr(self, name)}')
+        if not 0.0 < self.min_visible <= 1.0:
+            raise ValueError(f'tracker min_visible must be in (0, 1], got {self.min_visible}')
+
+
+@dataclass(frozen=True, eq=False)
+class NeedleEstimate:
+    """
+    What the stereo pair says about the needle.
+
+    Attributes
+    ----------
+    found : bool
+        A pose that can be trusted; False means "not found" (``reason`` says why) and
+        ``pose_camera`` is then only the best fit, not an estimate.
+    pose_camera : ndarray, shape (4, 4) or None
+        ``T_camera_needle`` (m, camera = left optical frame); None when nothing was fitted.
+    residual_px : float
+        RMS distance (pixels) of the arc points seen in both images from the needle's centre
+        line; ``inf`` when none is seen.
+    visible_share : float
+        Share of the arc seen in both images (0-1).
+    visible_left, visible_right : float
+        Share of the arc seen in each image.
+    partial : bool
+        Part of the arc is hidden (jaws, tissue, image border): ``visible_share`` under
+        ``partial_below``.
+    reason : str
+        Why the estimate is not found (empty when found).
+
+    """
+
+    found: bool
+    pose_camera: np.ndarray | None
+    residual_px: float
+    visible_share: float
+    visible_left: float = 0.0
+    visible_right: float = 0.0
+    partial: bool = False
+    reason: str = ''
+
+    def points_camera(self, geometry=None):
+        """Return the base (tail), middle and tip (3, 3) in the camera frame (m), or None."""
+        if self.pose_camera is None:
+            return None
+        g = geometry or NeedleGeometry()
+        p = g.point_at(np.array([0.0, 0.5, 1.0]))
+        return p @ self.pose_camera[:3, :3].T + self.pose_camera[:3, 3]
+
+
+class NeedleTracker:
+    """
+    Needle pose from a rectified stereo pair, with a residual and visibility.
+
+    Parameters
+    ----------
+    geometry : sim_bridge.scene.needle.NeedleGeometry, optional
+        The needle (default: radius 10.18 mm, 120 deg arc, 1 mm wire).
+    config : TrackerConfig, optional
+
+    Examples
+    --------
+    >>> tracker = NeedleTracker()
+    >>> estimate = tracker.estimate(left, right, stereo)            # lying free: detect
+    >>> estimate = tracker.estimate(left, right, stereo, prior=T_camera_tool @ T_tool_needle,
+    ...                             tools=[T_camera_tool])           # held: follow the jaw
+
+    """
+
+    def __init__(self, geometry=None, config=None):
+        self.geometry = geometry or NeedleGeometry()
+        self.config = config or TrackerConfig()
+        self._model = self.geometry.arc_points(self.config.n_points)
+        self._flip = flip_transform(self.geometry)
+        self._tangents = self.geometry.tangent_at(np.linspace(0.0, 1.0, self.config.n_points))
+        c = self.config
+        self._steps = np.arange(-c.profile_half_length, c.profile_half_length + 1e-9,
+                                c.profile_step)
+        # units of the fit's variables: rotation as arc length at the radius, translation in
+        # mm, so that one unit of either moves the arc about a millimetre
+        self._scale = np.array([1.0 / (1000.0 * self.geometry.radius)] * 3 + [1e-3] * 3)
+
+    # ------------------------------------------------------------------ fields
+    # ------------------------------------------------------------------ fit
+    def _project(self, T, stereo):
+        points = self._model @ T[:3, :3].T + T[:3, 3]
+        return points, *stereo.project(points)
+
+    def _residuals(self, x, T0, stereo, fields, keep):
+        R = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
+        t = T0[:3, 3] + x[3:] * self._scale[3:]
+        points = self._model[keep] @ R.T + t
+        z = points[:, 2]
+        if np.any(z <= 1e-4):
+            return np.full(2 * int(keep.sum()), _OUT_OF_VIEW)
+        uv_l, uv_r = stereo.project(points)
+        r_l = sample(fields[0].cost, uv_l)
+        r_r = sample(fields[1].cost, uv_r)
+        r = np.concatenate([r_l, r_r])
+        return np.where(np.isnan(r), _OUT_OF_VIEW, r)
+
+    def _fit(self, T0, stereo, fields, hidden):
+        keep = ~hidden.any(axis=0)
+        if keep.sum() < 4:
+            return T0
+        result = least_squares(self._residuals, np.zeros(6), args=(T0, stereo, fields, keep),
+                               loss='soft_l1', f_scale=self.config.loss_scale, method='trf',
+                               diff_step=0.02, x_scale=1.0, max_nfev=60, xtol=1e-4,
+                               ftol=1e-6)
+        x = result.x
+        T = np.eye(4)
+        T[:3, :3] = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
+        T[:3, 3] = T0[:3, 3] + x[3:] * self._scale[3:]
+        return T
+
+    def _profiles(self, T, stereo, fields, hidden):
+        """
+        Where the wire is seen around each projected arc point, in both images.
+
+        For every arc point the mask is sampled along the normal of the projected arc; the run
+        of needle pixels through the point (or the nearest one) gives two edges to a sub-pixel
+        (the mask's 0.5 crossings), and their middle the centre's offset along the normal. At
+        the tail and the tip the mask is also sampled along the arc, outwards: where the run
+        ends is the end's offset (kept only within ``end_gate`` pixels: an end hidden in the
+        tissue or under the thread would pull the arc along itself).
+
+        Returns
+        -------
+        list of (index, direction, offset, valid) per image: the arc point (k,), the unit image
+        direction (k, 2) and the offset (k,) pixels along it; rows 0..n-1 are the normals, the
+        last two the tail and the tip.
+
+        """
+        c = self.config
+        n = len(self._model)
+        points = self._model @ T[:3, :3].T + T[:3, 3]
+        tangents = self._tangents @ T[:3, :3].T
+        ahead = points + 1e-4 * tangents
+        width = self.geometry.wire_diameter * stereo.fx / points[:, 2]
+        index = np.concatenate([np.arange(n), [0, n - 1]])
+        steps = self._steps
+        out = []
+        for side, field in enumerate(fields):
+            uv = stereo.project(points)[side]
+            direction = stereo.project(ahead)[side] - uv
+            direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+            normal = np.column_stack([-direction[:, 1], direction[:, 0]])
+            dirs = np.vstack([normal, -direction[:1], direction[-1:]])
+            origin = uv[index]
+            samples = origin[:, None, :] + steps[None, :, None] * dirs[:, None, :]
+            profile = sample(field.soft, samples.reshape(-1, 2)).reshape(len(index),
+                                                                           len(steps))
+            profile = np.nan_to_num(profile, nan=0.0)
+            edges, valid = runs(profile[:n], steps, c.profile_step)
+            wide = edges[1] - edges[0]
+            valid &= ~hidden[side] & (wide >= 0.5 * width) & (wide <= 1.6 * width + 1.0)
+            offset = np.where(valid, 0.5 * (edges[0] + edges[1]), 0.0)
+            ends, ends_valid = runs(profile[n:], steps, c.profile_step, closed=False)
+            ends_valid &= ~hidden[side, [0, n - 1]] & (np.abs(ends[1]) <= c.end_gate)
+            # an end that runs into the thread (tied to the tail) is hidden, not seen
+            beyond = (origin[n:, None, :] + (ends[1][:, None, None] + _BEYOND[None, :, None])
+                      * dirs[n:, None, :])
+            thread = sample(field.thread_soft, beyond.reshape(-1, 2)).reshape(2, -1)
+            ends_valid &= ~(np.nan_to_num(thread, nan=0.0) > 0.25).any(axis=1)
+            offset = np.concatenate([offset, np.where(ends_valid, ends[1], 0.0)])
+            out.append((index, dirs, offset, np.concatenate([valid, ends_valid])))
+        return out
+
+    def _refine(self, T, stereo, fields, hidden):
+        """Gauss-Newton on the edges' offsets (Huber weights); returns the pose."""
+        c = self.config
+        n = len(self._model)
+        weight = np.ones(n + 2)
+        weight[n:] = c.end_weight
+        T = T.copy()
+        fx, fy, b = stereo.fx, stereo.fy, stereo.baseline
+        for _ in range(c.refine_iterations):
+            rows, rhs, weights = [], [], []
+            data = self._profiles(T, stereo, fields, hidden)
+            for side, (index, dirs, offset, valid) in enumerate(data):
+                if not valid.any():
+                    continue
+                points = self._model[index[valid]] @ T[:3, :3].T + T[:3, 3]
+                lever = points - T[:3, 3]
+                x, y, z = points[:, 0], points[:, 1], points[:, 2]
+                du = np.column_stack([fx / z, np.zeros_like(z),
+                                      (-fx * x + (fx * b if side else 0.0)) / z ** 2])
+                dv = np.column_stack([np.zeros_like(z), fy / z, -fy * y / z ** 2])
+                d = dirs[valid]
+                g = d[:, :1] * du + d[:, 1:] * dv  # d(offset along the direction)/dX
+                # dX/domega = -[lever]_x, dX/dtau = I
+                rows.append(np.hstack([np.cross(lever, g), g]))
+                r = offset[valid]
+                rhs.append(r)
+                weights.append(weight[valid] * np.minimum(1.0, c.huber / np.maximum(np.abs(r),
+                                                                                  1e-9)))
+            if not rows:
+                break
+            J = np.vstack(rows)
+            r = np.concatenate(rhs)
+            w = np.concatenate(weights)
+            A = J.T @ (w[:, None] * J)
+            A += 1e-6 * np.trace(A) * np.eye(6)
+            step = np.linalg.solve(A, J.T @ (w * r))
+            T[:3, :3] = rotvec_matrix(step[:3]) @ T[:3, :3]
+            T[:3, 3] = T[:3, 3] + step[3:]
+            if np.linalg.norm(step[3:]) < 2e-6 and np.linalg.norm(step[:3]) < 2e-4:
+                break
+        return T
+
+    def _score(self, T, stereo, fields, hidden):
+        """Residual (px), visible shares (both, left, right) of a pose."""
+        points = self._model @ T[:3, :3].T + T[:3, 3]
+        if np.any(points[:, 2] <= 1e-4):
+            return math.inf, 0.0, 0.0, 0.0
+        (_, _, off_l, ok_l), (_, _, off_r, ok_r) = self._profiles(T, stereo, fields, hidden)
+        n = len(self._model)
+        off_l, ok_l, off_r, ok_r = off_l[:n], ok_l[:n], off_r[:n], ok_r[:n]
+        both = ok_l & ok_r
+        share_l, share_r = ok_l.sum() / n, ok_r.sum() / n
+        if not both.any():
+            return math.inf, 0.0, share_l, share_r
+        off = np.concatenate([off_l[both], off_r[both]])
+        return float(np.sqrt(np.mean(off ** 2))), both.sum() / n, share_l, share_r
+
+    def _thread_near_tail(self, T, stereo, fields):
+        """Thread pixels near the tail minus near the tip, both images (a count)."""
+        g = self.geometry
+        ends = np.array([g.tail, g.tip]) @ T[:3, :3].T + T[:3, 3]
+        if np.any(ends[:, 2] <= 1e-4):
+            return 0
+        radius = max(3, int(round(0.002 * stereo.fx / ends[:, 2].mean())))
+        score = 0
+        for field, uv in zip(fields, stereo.project(ends)):
+            h, w = field.thread.shape
+            counts = []
+            for u, v in uv:
+                u0, v0 = int(round(u)), int(round(v))
+                if not (0 <= u0 < w and 0 <= v0 < h):
+                    counts.append(0)
+                    continue
+                window = field.thread[max(0, v0 - radius):v0 + radius + 1,
+                                      max(0, u0 - radius):u0 + radius + 1]
+                counts.append(int(np.count_nonzero(window)))
+            score += counts[0] - counts[1]
+        return score
+
+    # ------------------------------------------------------------------ detection
+    def _blobs(self, field, stereo):
+        """End, end and bulge pixels (3, 2) of the elongated needle blobs, largest first."""
+        c = self.config
+        mask = (field.mask > 0).astype(np.uint8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        order = np.argsort(-stats[1:, cv2.CC_STAT_AREA]) + 1
+        blobs = []
+        for label in order[:2]:
+            if stats[label, cv2.CC_STAT_AREA] < c.min_blob_area:
+                break
+            x, y, w, h = stats[label, :4]
+            sub = labels[y:y + h, x:x + w] == label
+            vs, us = np.nonzero(sub)
+            pts = np.column_stack([us + x, vs + y]).astype(float)
+            a = pts[np.argmax(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1))]
+            b = pts[np.argmax(np.sum((pts - a) ** 2, axis=1))]
+            length = float(np.linalg.norm(b - a))
+            width = 2.0 * float(np.max(cv2.distanceTransform(sub.astype(np.uint8), cv2.DIST_L2,
+                                                              3)))
+            if length < c.min_elongation * max(width, 1.0):
+                continue
+            ab = (b - a) / max(length, 1e-9)
+            normal = np.array([-ab[1], ab[0]])
+            offset = (pts - a) @ normal
+            bulge = pts[np.argmax(np.abs(offset))]
+            blobs.append(np.array([a, b, bulge]))
+        return blobs
+
+    def _detections(self, stereo, fields):
+        """Start poses from triangulated blob ends and bulges, each both ways round."""
+        g = self.geometry
+        model = g.point_at(np.array([0.0, 1.0, 0.5]))
+        starts = []
+        for bl in self._blobs(fields[0], stereo):
+            for br in self._blobs(fields[1], stereo):
+                for right in (br, br[[1, 0, 2]]):
+                    if np.abs(bl[:2, 1] - right[:2, 1]).max() > 6.0:
+                        continue
+                    points = stereo.triangulate(bl, right)
+                    if not np.all(np.isfinite(points)) or np.any(points[:, 2] <= 0.0):
+                        continue
+                    chord = np.linalg.norm(points[1] - points[0])
+                    if not 0.5 * g.chord < chord < 1.5 * g.chord:
+                        continue
+                    starts.append(kabsch(model, points))
+        return starts
+
+    # ------------------------------------------------------------------ the estimate
+    def estimate(self, left, right, stereo, prior=None, tools=(), support_normal=None):
+        """
+        Estimate the needle's pose in the camera frame from a rectified stereo pair.
+
+        Parameters
+        ----------
+        left, right : ndarray, shape (height, width, 3), uint8
+            RGB images of the left and right cameras (nothing else of the scene is used).
+        stereo : suture_lfd.perception.stereo.StereoModel
+            The pair's calibration (``camera_info``).
+        prior : array_like, shape (4, 4), optional
+            Where the needle is thought to be (``T_camera_needle``): the tool pose times the
+            grasp while held, the last estimate while it lies free; None: detect it.
+        tools : sequence of array_like, shape (4, 4)
+            Tool-tip poses (camera frame) of the instruments near the needle: the arc where
+            their jaws, wrist or shaft cover it in an image is not looked for there.
+        support_normal : array_like, shape (3,), optional
+            Normal (camera frame) of the surface a free needle lies on, e.g.
+            :attr:`suture_lfd.perception.markers.MarkerDetections.normal`: of the poses that
+            fit the images alike, one whose plane is within ``max_support_tilt`` of it is
+            taken. Without it (and without a prior) such a tie is "not found".
+
+        Returns
+        -------
+        NeedleEstimate
+
+        Raises
+        ------
+        ValueError
+            When an image is not uint8 RGB of the camera's size, or a pose is not 4x4.
+
+        """
+        c = self.config
+        left = check_image(left, stereo, 'left')
+        right = check_image(right, stereo, 'right')
+        fields = (WireImage(left, c.blur), WireImage(right, c.blur))
+        capsules = [k for T in tools for k in tool_capsules(
+            _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length, c.shaft_radius)]
+        if support_normal is not None:
+            support_normal = np.asarray(support_normal, dtype=float).reshape(3)
+            support_normal = support_normal / np.linalg.norm(support_normal)
+        if prior is not None:
+            starts = [_pose(prior, 'prior')]
+        else:
+            starts = self._detections(stereo, fields)
+            if not starts:
+                return NeedleEstimate(found=False, pose_camera=None, residual_px=math.inf,
+                                      visible_share=0.0, reason='no needle-like blob in both '
+                                                                'images')
+            # each detection and its mirror: the images tell them apart by a fraction of a
+            # pixel only
+            none = np.zeros((2, len(self._model)), bool)
+            starts = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
+                      for T0 in starts]
+            starts += [mirrored(T) for T in starts]
+        candidates = []
+        for T in starts:
+            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
+            T = self._refine(T, stereo, fields, hidden)
+            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
+            residual, share, share_l, share_r = self._score(T, stereo, fields, hidden)
+            trusted = share >= c.min_visible and residual <= c.max_residual
+            # the closest fit, a hidden tenth of the arc counting as 0.2 px
+            candidates.append((trusted, residual + 2.0 * (1.0 - share), T, residual, share,
+                               share_l, share_r))
+        if support_normal is not None:
+            # a needle lying free lies on the tissue: its plane near the surface's
+            on_surface = [k for k in candidates
+                          if abs(k[2][:3, 2] @ support_normal) >= math.cos(c.max_support_tilt)]
+            candidates = on_surface or candidates
+        candidates.sort(key=lambda k: (not k[0], k[1]))
+        _, cost, T, residual, share, share_l, share_r = candidates[0]
+        reason = ''
+        if prior is None:
+            # the flip of the best fit fits the images as well: the thread says which end
+            # is the tail
+            flipped = T @ self._flip
+            if self._thread_near_tail(flipped, stereo, fields) > self._thread_near_tail(
+                    T, stereo, fields):
+                T = flipped
+            rivals = [k for k in candidates[1:] if k[0] and k[1] <= cost + c.ambiguity
+                      and self._distance(k[2], T) > c.ambiguity_distance]
+            if rivals:
+                reason = (f'ambiguous: another pose {self._distance(rivals[0][2], T) * 1e3:.1f} '
+                          f'mm away fits the images as well (cost {rivals[0][1]:.2f} against '
+                          f'{cost:.2f} px)')
+        if share < c.min_visible:
+            reason = (f'too little of the needle seen in both images ({share:.0%} < '
+                      f'{c.min_visible:.0%})')
+        elif residual > c.max_residual:
+            reason = f'the arc does not fit the images (residual {residual:.2f} px)'
+        return NeedleEstimate(found=not reason, pose_camera=T, residual_px=residual,
+                              visible_share=float(share), visible_left=float(share_l),
+                              visible_right=float(share_r),
+                              partial=bool(share < c.partial_below), reason=reason)
+
+    def _distance(self, T_a, T_b):
+        """Mean distance (m) of the arcs' base, middle and tip, tail and tip either way."""
+        p = self.geometry.point_at(np.array([0.0, 0.5, 1.0]))
+        a = p @ T_a[:3, :3].T + T_a[:3, 3]
+        b = p @ T_b[:3, :3].T + T_b[:3, 3]
+        same = np.linalg.norm(a - b, axis=1).mean()
+        swapped = np.linalg.norm(a - b[::-1], axis=1).mean()
+        return float(min(same, swapped))
+
+
+def _pose(T, what):
+    array = np.asarray(T, dtype=float)
+    if array.shape != (4, 4) or not np.all(np.isfinite(array)):
+        raise ValueError(f'{what} must be a finite 4x4 transform, got shape {array.shape}')
+    return array

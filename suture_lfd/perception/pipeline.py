@@ -1,0 +1,108 @@
+"""
+One call per stereo pair: the markers, then the needle tracked from frame to frame.
+
+:class:`StereoPerception` is what a loop calls on each new pair (the ``perception`` node at its
+rate; an executor in-process): it finds the markers (their plane tells on which surface a free
+needle lies), then estimates the needle from the best prior it has -- the one the caller gives
+(tool pose times grasp while held), else its own last estimate while that is recent, else none
+(a detection) -- and falls back to a detection when a tracked estimate is lost.
+"""
+
+from dataclasses import dataclass
+
+from suture_lfd.perception.markers import MarkerConfig, detect_markers
+from suture_lfd.perception.needle import NeedleTracker
+
+
+@dataclass(frozen=True, eq=False)
+class PerceptionResult:
+    """
+    What one stereo pair showed.
+
+    Attributes
+    ----------
+    markers : suture_lfd.perception.markers.MarkerDetections or None
+        The markers (None when not looked for).
+    needle : suture_lfd.perception.needle.NeedleEstimate
+        The needle.
+    tracked : bool
+        The needle estimate started from the previous one.
+
+    """
+
+    markers: object
+    needle: object
+    tracked: bool
+
+
+class StereoPerception:
+    """
+    Markers and a tracked needle from successive stereo pairs.
+
+    Parameters
+    ----------
+    tracker : NeedleTracker, optional
+    marker_config : MarkerConfig, optional
+    track_timeout : float
+        Age (s) beyond which the last estimate is no prior any more.
+    markers : bool
+        Look for the markers (their plane helps detect a free needle).
+
+    """
+
+    def __init__(self, tracker=None, marker_config=None, track_timeout=1.0, markers=True):
+        self.tracker = tracker or NeedleTracker()
+        self.marker_config = marker_config or MarkerConfig()
+        self.track_timeout = float(track_timeout)
+        self.find_markers = bool(markers)
+        self._last = None  # (time, T_camera_needle) of the last found estimate
+        self._normal = None
+
+    def reset(self):
+        """Forget the tracked needle (after the scene changed)."""
+        self._last = None
+
+    def process(self, left, right, stereo, t, prior=None, tools=()):
+        """
+        Perceive one stereo pair.
+
+        Parameters
+        ----------
+        left, right : ndarray, shape (height, width, 3), uint8
+            Rectified RGB images.
+        stereo : suture_lfd.perception.stereo.StereoModel
+        t : float
+            Time (s) of the pair.
+        prior : array_like, shape (4, 4), optional
+            ``T_camera_needle`` known from elsewhere (tool pose times grasp); overrides
+            tracking.
+        tools : sequence of array_like, shape (4, 4)
+            Tool-tip poses (camera frame) of the instruments near the needle.
+
+        Returns
+        -------
+        PerceptionResult
+
+        Raises
+        ------
+        ValueError
+            When an image is not uint8 RGB of the camera's size.
+
+        """
+        markers = None
+        if self.find_markers:
+            markers = detect_markers(left, right, stereo, self.marker_config)
+            if markers.n_pairs:
+                self._normal = markers.normal
+        tracked = False
+        if prior is None and self._last is not None and t - self._last[0] <= self.track_timeout:
+            prior, tracked = self._last[1], True
+        est = self.tracker.estimate(left, right, stereo, prior=prior, tools=tools,
+                                    support_normal=None if prior is not None else self._normal)
+        if not est.found and tracked:
+            tracked = False
+            est = self.tracker.estimate(left, right, stereo, tools=tools,
+                                        support_normal=self._normal)
+        if est.found:
+            self._last = (t, est.pose_camera)
+        return PerceptionResult(markers=markers, needle=est, tracked=tracked)

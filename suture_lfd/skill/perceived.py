@@ -1,0 +1,223 @@
+"""
+The scene as the robot sees it: markers and needle from the ECM's stereo pair, in ``world``.
+
+A physical dVRK knows its camera's pose from the ECM's own kinematics, and the needle and the
+markers only from the endoscope's images. :class:`PerceivedScene` renders the in-process
+simulation's stereo pair (only when asked: rendering is the costly part), runs
+:mod:`suture_lfd.perception` on it and expresses the results in ``world`` through the ECM's
+reported pose -- never through the simulation's ground truth. It is the estimator of a
+:class:`sim_bridge.observers.PhysicalObserver`.
+
+Frames: ``world`` (as the robot believes it), the camera's left optical frame ``camera``; poses
+4x4; metres.
+"""
+
+from dataclasses import dataclass
+import logging
+
+import numpy as np
+from sim_bridge.scene.markers import MarkerPair
+from suture_lfd.perception import NeedleTracker, detect_markers, stereo_from_camera_info
+
+_LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class NeedleView:
+    """
+    One look at the needle.
+
+    Attributes
+    ----------
+    T_world_needle : ndarray, shape (4, 4) or None
+        The estimated needle pose; None when it cannot be seen well enough.
+    estimate : suture_lfd.perception.NeedleEstimate
+        The perception's full answer (residual, visible share, reason).
+
+    """
+
+    T_world_needle: np.ndarray | None
+    estimate: object
+
+
+class PerceivedScene:
+    """
+    Markers and needle from the simulated endoscope, in the robot's ``world``.
+
+    Parameters
+    ----------
+    pair_name : str
+        Name the target pair is given (``'synth1'``).
+    pair_index : int
+        1-based position of the target pair along the wound, as the camera sees the pairs
+        from left to right (the operator's "pair 1").
+    needle_geometry : sim_bridge.scene.needle.NeedleGeometry, optional
+        The needle's shape (default: perception's).
+
+    """
+
+    def __init__(self, pair_name, pair_index, needle_geometry=None):
+        self.pair_name = str(pair_name)
+        self.pair_index = int(pair_index)
+        self._tracker = NeedleTracker(needle_geometry)
+        self._stereo = None
+        self._pair = None
+        self._support_normal = None
+        self.renders = 0
+        self.reset()
+
+    # ------------------------------------------------------------------ images
+    def _look(self, sim):
+        """Render the stereo pair; return it with ``T_world_camera`` from the ECM's report."""
+        if self._stereo is None:
+            camera = sim.camera
+            self._stereo = stereo_from_camera_info(camera.camera_info('left'),
+                                                   camera.camera_info('right'))
+        frame = sim.render()
+        self.renders += 1
+        T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        return frame, T_world_camera
+
+    # ------------------------------------------------------------------ markers
+    def markers(self, sim):
+        """
+        Look for the target pair's markers.
+
+        Parameters
+        ----------
+        sim : sim_bridge.simulation.Simulation
+
+        Returns
+        -------
+        sim_bridge.scene.markers.MarkerPair or None
+            The perceived pair in ``world``; None when it is not seen.
+
+        """
+        frame, T = self._look(sim)
+        found = detect_markers(frame.left_rgb, frame.right_rgb, self._stereo)
+        i = self.pair_index - 1
+        if not 0 <= i < found.n_pairs:
+            _LOG.warning('pair %s: %d marker pairs seen, pair %d is not among them',
+                         self.pair_name, found.n_pairs, self.pair_index)
+            return None
+        entry_c, exit_c = found.entries[i], found.exits[i]
+        if not (np.isfinite(entry_c).all() and np.isfinite(exit_c).all()):
+            _LOG.warning('pair %s: a marker is not seen', self.pair_name)
+            return None
+        R, p = T[:3, :3], T[:3, 3]
+        normal = R @ found.normal
+        self._support_normal = found.normal
+        self._pair = MarkerPair(name=self.pair_name, entry=R @ entry_c + p, exit=R @ exit_c + p,
+                                normal=normal, entry_normal=normal, exit_normal=normal,
+                                index=self.pair_index)
+        return self._pair
+
+    # ------------------------------------------------------------------ needle
+    def needle(self, sim, prior=None, tools=()):
+        """
+        Look for the needle.
+
+        Parameters
+        ----------
+        sim : sim_bridge.simulation.Simulation
+        prior : array_like, shape (4, 4), optional
+            Where it is thought to be (``T_world_needle``).
+        tools : sequence of array_like, shape (4, 4)
+            Reported tool-tip poses (``world``) of the arms near it.
+
+        Returns
+        -------
+        NeedleView
+
+        """
+        frame, T = self._look(sim)
+        T_camera_world = np.linalg.inv(T)
+        prior_c = None if prior is None else T_camera_world @ np.asarray(prior, dtype=float)
+        tools_c = [T_camera_world @ np.asarray(t, dtype=float) for t in tools]
+        estimate = self._tracker.estimate(frame.left_rgb, frame.right_rgb, self._stereo,
+                                          prior=prior_c, tools=tools_c,
+                                          support_normal=self._support_normal)
+        if not estimate.found:
+            _LOG.info('needle not found: %s', estimate.reason)
+            return NeedleView(None, estimate)
+        return NeedleView(T @ estimate.pose_camera, estimate)
+
+    # ------------------------------------------------------------------ observer protocol
+    def reset(self):
+        """Forget the needle, its holders and their grasps (a new throw)."""
+        self._holders = []
+        self._grasps = {}
+        self._closed = {}
+        self._free_needle = None
+
+    def estimate(self, sim, arm_state):
+        """
+        Needle, holders and pair for a :class:`sim_bridge.observers.PhysicalObserver`.
+
+        The images are looked at only when something changes: at the first call (the markers
+        and the needle where it lies) and when the last holder lets go (where the needle lies
+        now). When a jaw closes near the needle's last known pose the arm holds it, its grasp
+        ``T_tool_needle`` measured against the arm's reported pose (which takes up the arm's
+        kinematic error where it works). Meanwhile a held needle is where the holder's
+        reported pose and grasp put it.
+
+        Returns
+        -------
+        tuple
+            ``(T_world_needle or None, holders, MarkerPair or None)``.
+
+        """
+        if self._pair is None:
+            self.markers(sim)
+        tools = arm_state.T_world_tool
+        if not self._holders and self._free_needle is None:
+            self._free_needle = self.needle(sim, tools=list(tools.values())).T_world_needle
+        for arm, jaw in arm_state.jaw.items():
+            closed = jaw < self.closed_below
+            was = self._closed.get(arm, closed)
+            self._closed[arm] = closed
+            if closed and not was and arm not in self._holders:
+                self._check_grasp(sim, arm, tools)
+            elif not closed and arm in self._holders:
+                held = self._held_needle(tools, arm)
+                self._holders.remove(arm)
+                self._grasps.pop(arm, None)
+                if not self._holders:
+                    view = self.needle(sim, prior=held, tools=list(tools.values()))
+                    self._free_needle = held if view.T_world_needle is None \
+                        else view.T_world_needle
+        needle = self._free_needle
+        if self._holders:
+            needle = self._held_needle(tools, self._holders[0])
+        return needle, tuple(self._holders), self._pair
+
+    closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
+    grasp_reach = 0.006  # m: a closed jaw this close to the needle's wire holds it
+
+    def _held_needle(self, tools, arm):
+        grasp = self._grasps.get(arm)
+        return None if grasp is None else np.asarray(tools[arm]) @ grasp
+
+    def _check_grasp(self, sim, arm, tools):
+        """
+        Decide whether the jaw that just closed holds the needle, and measure its grasp.
+
+        The needle is where it was last known (seen lying, or carried by the other holder):
+        the closing jaw hides most of it from the camera. A jaw closed within
+        :attr:`grasp_reach` of its wire holds it, with the grasp ``T_tool_needle`` taken
+        against the arm's reported pose. Without a last known pose the images are looked at.
+        """
+        prior = self._held_needle(tools, self._holders[0]) if self._holders else self._free_needle
+        if prior is None:
+            prior = self.needle(sim, tools=list(tools.values())).T_world_needle
+        if prior is None:
+            _LOG.warning('%s closed its jaw but the needle is not seen', arm)
+            return
+        T_tool = np.asarray(tools[arm], dtype=float)
+        wire = self._tracker.geometry.points_world(prior, 48)
+        gap = float(np.linalg.norm(wire - T_tool[:3, 3], axis=1).min())
+        if gap > self.grasp_reach:
+            _LOG.info('%s closed %.1f mm from the needle: not holding it', arm, 1e3 * gap)
+            return
+        self._holders.append(arm)
+        self._grasps[arm] = np.linalg.inv(T_tool) @ prior
