@@ -139,22 +139,23 @@ def measure(label, code, args, domain_id):
     node = rclpy.create_node('bench_teleop', context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    state = {'base': None, 'tool': {}}
+    state = {'base': None, 'tool': {}, 'camera': None}
     teleop_state = {}
     stages = {'MTMR/measured_cp': Stage(1.0), 'PSM1/servo_cp': Stage(5.0),
               'PSM1/setpoint_cp': Stage(5.0)}
 
     def on_stage(name):
         def callback(msg):
+            # every stage is in the camera frame (the MTM's display frame, the PSM's ECM on a
+            # patient cart) or in PSM1_base (an arm on its own): seen in world here
             t = time.monotonic()
             T = cv.matrix_from_pose(msg.pose)
-            if name != 'MTMR/measured_cp':
-                if state['base'] is None:
-                    return
-                T = state['base'] @ T
+            to_world = state['base'] if msg.header.frame_id == 'PSM1_base' else state['camera']
+            if to_world is None:
+                return
             st = stages[name]
             with st.lock:
-                st.seen.append((t, T[:3, 3].copy()))
+                st.seen.append((t, (to_world @ T)[:3, 3].copy()))
         return callback
 
     for name in STAGES:
@@ -167,9 +168,12 @@ def measure(label, code, args, domain_id):
         node.create_subscription(PoseStamped, f'sim/{arm}/base_frame',
                                  lambda m, a=arm: bases.__setitem__(a, cv.matrix_from_pose(
                                      m.pose)), LATCHED)
-        node.create_subscription(PoseStamped, f'{arm}/measured_cp',
+        node.create_subscription(PoseStamped, f'{arm}/local/measured_cp',   # in its base
                                  lambda m, a=arm: state['tool'].__setitem__(
                                      a, cv.matrix_from_pose(m.pose)), STATE)
+    node.create_subscription(PoseStamped, 'ECM/measured_cp',  # in world on a patient cart
+                             lambda m: state.__setitem__('camera', cv.matrix_from_pose(m.pose)),
+                             STATE)
     pubs = {m: (node.create_publisher(PoseStamped, f'viewer/input/{m}/pose', STATE),
                 node.create_publisher(Float64, f'viewer/input/{m}/gripper', STATE))
             for m in ('MTMR', 'MTML')}
@@ -180,8 +184,8 @@ def measure(label, code, args, domain_id):
     sent = []            # (send time, handle position s along the line)
     try:
         deadline = time.monotonic() + 300
-        while (len(bases) < 2 or len(state['tool']) < 2 or len(teleop_state) < 2) \
-                and time.monotonic() < deadline:
+        while (len(bases) < 2 or len(state['tool']) < 2 or len(teleop_state) < 2
+               or state['camera'] is None) and time.monotonic() < deadline:
             if any(p.poll() is not None for p in procs.values()):
                 sys.exit(f'a node exited at start-up; logs in {log_dir}')
             time.sleep(0.1)

@@ -61,6 +61,27 @@ def die_with_parent(sig=signal.SIGTERM):
     return _preexec
 
 
+def follow_parent(parent, sig=signal.SIGTERM):
+    """
+    Have this process receive ``sig`` when its parent ``parent`` dies (now, if it already has).
+
+    For a process that starts nodes of its own (a study's worker): its handler of ``sig`` stops
+    them, so that nothing outlives the process that started it all.
+
+    Parameters
+    ----------
+    parent : int
+        Pid of the parent this process must not outlive.
+    sig : int
+        Signal to receive.
+
+    """
+    if _PRCTL is not None:
+        _PRCTL(PR_SET_PDEATHSIG, int(sig))
+    if os.getppid() != parent:
+        os.kill(os.getpid(), sig)
+
+
 def popen(argv, **kwargs):
     """
     Start ``argv`` in a new session (its own process group) that dies with this process.

@@ -36,8 +36,9 @@ Parameters: ``config/mtms.yaml``.
 
 Nobody moving costs little: the cycle (device polling and the state topics) runs at ``rate``
 while something changes (a device input, a pose, a gripper, a pedal, a ``move_cp``) and for
-``idle_after`` s after, at ``idle_rate`` otherwise; an input from the browser brings the full
-rate back at once.
+``idle_after`` s after, at ``idle_rate`` otherwise. The browser's hand poses and grippers are
+read at the start of every cycle, the newest of each (no callback per sample); a new one brings
+the full rate back.
 """
 
 from dataclasses import dataclass
@@ -46,6 +47,7 @@ import sys
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, TwistStamped, WrenchStamped
 import numpy as np
+import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, Joy
 from sim_bridge import cdr
@@ -157,14 +159,19 @@ class MtmsNode(Node):
         self.frame_id = DISPLAY_FRAME
         self._device_frame = self.device.frame_id
         self.frames = FrameTree()  # the camera in the device's frame, for devices not in it
+        # the camera's and the browser's streams: subscribed by a node no executor spins, read
+        # once per cycle (the newest sample of each)
+        self._inputs = rclpy.create_node(f'{self.get_name()}_inputs', context=self.context,
+                                         use_global_arguments=False,  # names resolved here
+                                         start_parameter_services=False)
+        self._polled = []
         self._camera_key = None    # the camera pose message the frames hold
         self._T_display_device = None  # computed again when a frame changes
         if self._device_frame != CAMERA_FRAME:
             if not cfg.camera:
                 raise ValueError(f'parameter camera must name the ECM: the {cfg.device} gives '
                                  f'poses in {self._device_frame!r}, seen from the camera')
-            self.create_subscription(PoseStamped, f'{cfg.camera}/measured_cp',
-                                     self._on_camera, qos.STREAM)
+            self._poll_input(PoseStamped, f'{cfg.camera}/measured_cp', self._on_camera)
             self.create_subscription(TFMessage, '/tf_static', self._on_tf_static,
                                      qos.STATIC_TF)
         t = self._now()
@@ -214,10 +221,10 @@ class MtmsNode(Node):
             sub(WrenchStamped, f'{name}/body/servo_cf', lambda m: None, qos.STREAM)
             if cfg.device == 'browser':
                 prefix = cfg.browser_prefix
-                sub(PoseStamped, f'{prefix}/{name}/pose',
-                    lambda m, n=name: self._on_handle(n, m), qos.SENSOR)
-                sub(Float64, f'{prefix}/{name}/gripper',
-                    lambda m, n=name: self._on_gripper(n, m), qos.SENSOR)
+                self._poll_input(PoseStamped, f'{prefix}/{name}/pose',
+                                 lambda m, n=name: self._on_handle(n, m))
+                self._poll_input(Float64, f'{prefix}/{name}/gripper',
+                                 lambda m, n=name: self._on_gripper(n, m))
             self._publish_state(name)
         if cfg.device == 'browser':
             self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals,
@@ -343,6 +350,25 @@ class MtmsNode(Node):
             self.get_logger().warning(str(exc))
         self._wake()
 
+    def _poll_input(self, msg_type, name, handler):
+        """Subscribe to a device stream read at each cycle (newest sample) by ``handler``."""
+        sub = self._inputs.create_subscription(msg_type, self.resolve_topic_name(name),
+                                               lambda msg: None, qos.SENSOR)
+        self._polled.append((sub, handler))
+
+    def _read_inputs(self):
+        """Hand the newest sample of every device stream, if a new one came, to its handler."""
+        for sub, handler in self._polled:
+            msg = None
+            with sub.handle:
+                while True:
+                    taken = sub.handle.take_message(sub.msg_type, False)
+                    if taken is None:
+                        break
+                    msg = taken[0]
+            if msg is not None:
+                handler(msg)
+
     # --- the pace of the cycle --------------------------------------------------------------
 
     def _wake(self):
@@ -367,6 +393,7 @@ class MtmsNode(Node):
     # --- the cycle --------------------------------------------------------------------------
 
     def _on_timer(self):
+        self._read_inputs()
         t = self._now()
         dt = max(0.0, t - self._t)
         self._t = t
@@ -423,6 +450,7 @@ class MtmsNode(Node):
         self._pace(t < self._active_until)
 
     def destroy_node(self):
+        self._inputs.destroy_node()
         self.device.close()
         return super().destroy_node()
 

@@ -22,8 +22,9 @@ interrupted``.
 At rest the recorder costs next to nothing: the streamed topics (neither latched nor carried
 over: the arms' 100 Hz state and commands) are subscribed by a companion node that is spun only
 while recording. Their subscriptions stay matched in between, so DDS keeps their latest
-messages; a recording takes the ones received after it started (``received_timestamp``) and
-reads the sequence numbers of the older ones only to count gaps from there on.
+messages; a recording takes them in one pass at its start (after saying it records) and drops
+those received before it started (``received_timestamp``), reading their sequence numbers
+only to count gaps from there on.
 """
 
 from dataclasses import dataclass
@@ -210,6 +211,7 @@ class Recorder(Node):
         # the streamed topics' subscriptions: spun only while recording (see the module's doc)
         self._streams = rclpy.create_node(f'{self.get_name()}_streams',
                                           namespace=self.get_namespace(), context=self.context,
+                                          use_global_arguments=False,   # topics are absolute
                                           start_parameter_services=False)
         self._spinning_streams = False
         self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
@@ -345,9 +347,9 @@ class Recorder(Node):
             session.carried[topic] = 1
             session.put(topic, now, rawdata)
         self._session = session
-        self._spin_streams(True)
         self.get_logger().info(f'recording to {path}')
-        self._publish_status()
+        self._publish_status()        # at once: what DDS holds may take a while to go through
+        self._spin_streams(True)
         return path
 
     def stop(self, publish=True):
@@ -373,10 +375,23 @@ class Recorder(Node):
         if executor is None or on == self._spinning_streams:
             return
         if on:
+            self._take_held()
             executor.add_node(self._streams)
         else:
             executor.remove_node(self._streams)
         self._spinning_streams = on
+
+    def _take_held(self):
+        """Take what DDS holds of the streams in one pass (recording what came after start)."""
+        for sub in self._streams.subscriptions:
+            topic = sub.topic_name
+            carry = self.config.matches('carry_over', topic)
+            with sub.handle:
+                while True:
+                    taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    self._on_message(topic, carry, taken[0], taken[1])
 
     def destroy_node(self):
         self._spin_streams(False)

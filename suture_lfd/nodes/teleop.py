@@ -16,7 +16,11 @@ DISABLED) and ``~/following`` (std_msgs/Bool), latched; ``~/state_command``
 (crtk_msgs/StringStamped ``enable``/``disable``) starts and stops it, as the dVRK teleop
 components' topics. Run one per MTM/PSM pair, named like the dVRK's (``-r __node:=MTMR_PSM1``).
 Parameters: ``config/teleop.yaml``. The cycle runs at ``rate`` while the operator is present
-(coag) or the teleoperation follows or is clutched, at ``idle_rate`` otherwise.
+(coag), the teleoperation follows or is clutched, or for a second after the MTM's gripper moved
+(a pinch may come before coag), and at ``idle_rate`` otherwise. The state streams (the MTM's
+pose and gripper, the PSM's setpoint and jaw, the camera's pose) are read at the start of every
+cycle, the newest sample of each, as the dVRK's teleop reads its arms' state: no callback per
+sample, and none at all between the cycles of a teleop at rest.
 """
 
 import sys
@@ -24,6 +28,7 @@ import sys
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, WrenchStamped
 import numpy as np
+import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, Joy
 from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
@@ -63,16 +68,22 @@ class TeleopNode(Node):
         self._warned = set()
         m, p = cfg.mtm, cfg.psm
         sub = self.create_subscription
-        sub(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp, qos.LATEST)
-        sub(JointState, f'{m}/gripper/measured_js', self._on_gripper, qos.LATEST)
+        # the state streams: subscribed by a node no executor spins, read once per cycle
+        self._inputs = rclpy.create_node(f'{self.get_name()}_inputs', context=self.context,
+                                         use_global_arguments=False,  # names resolved here
+                                         start_parameter_services=False)
+        self._polled = []
+        poll = self._poll_input
+        poll(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp)
+        poll(JointState, f'{m}/gripper/measured_js', self._on_gripper)
         sub(OperatingState, f'{m}/operating_state',
             lambda msg: setattr(self, '_mtm_state', self._arm_state(msg)), qos.EVENTS)
-        sub(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp, qos.LATEST)
-        sub(JointState, f'{p}/jaw/setpoint_js', self._on_jaw, qos.LATEST)
+        poll(PoseStamped, f'{p}/setpoint_cp', self._on_psm_cp)
+        poll(JointState, f'{p}/jaw/setpoint_js', self._on_jaw)
         sub(OperatingState, f'{p}/operating_state',
             lambda msg: setattr(self, '_psm_state', self._arm_state(msg)), qos.EVENTS)
         if cfg.ecm:
-            sub(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp, qos.LATEST)
+            poll(PoseStamped, f'{cfg.ecm}/measured_cp', self._on_ecm_cp)
         sub(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
         sub(Joy, cfg.clutch_topic, self._on_clutch, qos.EVENTS)
         if cfg.operator_present_topic:
@@ -97,12 +108,32 @@ class TeleopNode(Node):
         self._following = pub(Bool, '~/following', qos.LATCHED)
         self._publish_state()
         self._period_ns = None
+        self._active_until = -1.0       # s: a gripper that moved keeps the full rate until then
         self._timer = self.create_timer(1.0 / cfg.idle_rate, self._on_timer)
         self._pace()
         self.get_logger().info(f'{m} -> {p} (scale {cfg.scale}, camera '
                                f'{cfg.ecm or "none"}, align_mtm {cfg.align_mtm})')
 
     # --- inputs -----------------------------------------------------------------------------
+
+    def _poll_input(self, msg_type, name, handler):
+        """Subscribe to a state stream read at each cycle (newest sample) by ``handler``."""
+        sub = self._inputs.create_subscription(msg_type, self.resolve_topic_name(name),
+                                               lambda msg: None, qos.LATEST)
+        self._polled.append((sub, handler))
+
+    def _read_inputs(self):
+        """Hand the newest sample of every state stream, if a new one came, to its handler."""
+        for sub, handler in self._polled:
+            msg = None
+            with sub.handle:
+                while True:
+                    taken = sub.handle.take_message(sub.msg_type, False)
+                    if taken is None:
+                        break
+                    msg = taken[0]
+            if msg is not None:
+                handler(msg)
 
     @staticmethod
     def _arm_state(msg):
@@ -145,7 +176,12 @@ class TeleopNode(Node):
 
     def _on_gripper(self, msg):
         if len(msg.position):
-            self._gripper = float(msg.position[0])
+            gripper = float(msg.position[0])
+            if gripper != self._gripper:
+                self._active_until = self._now() + 1.0
+                if self._period_ns != int(1e9 / self.config.rate):
+                    self._pace()
+            self._gripper = gripper
 
     def _on_jaw(self, msg):
         if len(msg.position):
@@ -187,6 +223,7 @@ class TeleopNode(Node):
         return R_C_M, R_C_P
 
     def _on_timer(self):
+        self._read_inputs()
         R_C_M, R_C_P = self._rotations()
         inp = TeleopInputs(
             t=self._now(), mtm_cp=self._mtm_cp, gripper=self._gripper, psm_cp=self._psm_cp,
@@ -203,7 +240,8 @@ class TeleopNode(Node):
     def _pace(self):
         """Run the cycle at ``rate`` while someone teleoperates, at ``idle_rate`` otherwise."""
         cfg = self.config
-        busy = self._present or self.teleop.state in (FOLLOWING, CLUTCHED)
+        busy = self._present or self.teleop.state in (FOLLOWING, CLUTCHED) \
+            or self._now() < self._active_until
         period_ns = int(1e9 / (cfg.rate if busy else cfg.idle_rate))
         if period_ns != self._period_ns:
             self._period_ns = period_ns
@@ -230,6 +268,10 @@ class TeleopNode(Node):
             pub.publish(Bool(data=bool(value)))
         elif kind == 'body_servo_cf':
             pub.publish(cv.wrench_stamped(value, '', stamp))
+
+    def destroy_node(self):
+        self._inputs.destroy_node()
+        return super().destroy_node()
 
     def _arm_name(self, arm):
         return self.config.mtm if arm == 'mtm' else self.config.psm

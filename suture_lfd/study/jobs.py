@@ -172,8 +172,9 @@ def init_worker(settings, ros=None):
         from suture_lfd.study.ros import RosThrows
 
         _worker.ros = RosThrows(ros, settings.out, settings.timeout)
-        if multiprocessing.parent_process() is not None:  # a worker: stop its nodes on SIGTERM
-            _worker.ros.install_sigterm()
+        parent = multiprocessing.parent_process()
+        if parent is not None:   # a worker: stop its nodes on SIGTERM and when the study dies
+            _worker.ros.install_sigterm(parent.pid)
 
 
 def close_worker():

@@ -43,7 +43,7 @@ import tempfile
 import time
 
 import numpy as np
-from sim_bridge.processes import kill_group, popen, stop_group
+from sim_bridge.processes import follow_parent, kill_group, popen, stop_group
 from suture_lfd.errors import RosThrowError
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
@@ -284,13 +284,20 @@ class RosThrows:
             self._lease = DomainLease(self.settings.domain_base, self.settings.avoid_domain)
         return self._lease.domain_id
 
-    def install_sigterm(self):
-        """In a worker process: stop the running nodes, then exit, on SIGTERM."""
+    def install_sigterm(self, parent=None):
+        """
+        In a worker process: stop the running nodes, then exit, on SIGTERM.
+
+        With ``parent`` (the pid of the study's process), the SIGTERM also comes when that
+        process dies, even by SIGKILL.
+        """
         def handler(signum, frame):
             self.stop_all()
             raise SystemExit(128 + signum)
 
         self._previous_sigterm = signal.signal(signal.SIGTERM, handler)
+        if parent is not None:
+            follow_parent(parent)
 
     def environment(self):
         """Return the nodes' environment: this worker's domain, DDS on this machine only."""

@@ -173,7 +173,10 @@ def test_workers_lease_different_domains(tmp_path):
     again.release()
 
 
-def test_ctrl_c_stops_the_study_and_its_nodes(tmp_path):
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGKILL], ids=['ctrl-c', 'sigkill'])
+def test_ctrl_c_or_a_kill_stops_the_study_and_its_nodes(tmp_path, sig):
+    # Ctrl-C: the study's process group; SIGKILL: the study's process alone (no clean-up of
+    # its own), after which its workers and their nodes must not live on
     out = tmp_path / 'interrupted'
     cmd = [sys.executable, '-m', 'suture_lfd.cli', 'study', '--out', str(out), *TINY,
            '--workers', '2', '--via-ros']
@@ -187,16 +190,21 @@ def test_ctrl_c_stops_the_study_and_its_nodes(tmp_path):
             workers = children({proc.pid})
             nodes = {p for p in children(workers) if 'simulator' in cmdline(p)}
             time.sleep(0.2)
-        nodes |= children(children({proc.pid}))
+        workers = children({proc.pid})
+        nodes |= children(workers)
         assert nodes, 'no node process started'
-        os.killpg(proc.pid, signal.SIGINT)   # Ctrl-C: the study's process group
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            os.kill(proc.pid, signal.SIGKILL)
+            nodes |= {w for w in workers if 'resource_tracker' not in cmdline(w)}
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert proc.returncode == 130, err[-3000:]
-    deadline = time.monotonic() + 15.0
+    assert proc.returncode == (130 if sig == signal.SIGINT else -signal.SIGKILL), err[-3000:]
+    deadline = time.monotonic() + 30.0
     while any(alive(p) for p in nodes) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not [p for p in nodes if alive(p)]

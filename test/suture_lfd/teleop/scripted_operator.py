@@ -6,13 +6,18 @@ Demonstrator`, built on the pipeline's expert planner): the tool poses and jaw a
 The operator reaches them the way a person at a dVRK console does, with the hands only: it moves
 the viewer's 6-DOF handles (``viewer/input/<MTM>/pose``, ``world``) and grippers, which the
 virtual MTMs and two ``teleop`` nodes turn into PSM motion at a fifth of the hand's. Its hands
-tremble (``TREMOR`` m at 8.7 Hz plus noise), except while the needle is in the tissue, which
-steadies them (as the synthetic subjects' model has it). When a hand leaves its ``WORKSPACE``
-(m around where it started), and before the needle goes into the tissue (subtasks ii and iv,
-during which it reaches ``IN_TISSUE_REACH`` times as far rather than let go), it presses the
-clutch pedal, brings both hands back and releases it. When a tool stays short of its goal
-it moves that hand to take up the error (``CORRECTION_GAIN``). It presses coag
-(``viewer/input/pedals``) to be present and pinches the grippers once so that the
+tremble (``TREMOR`` m at 8.7 Hz plus noise low-passed at ``NOISE_HZ``: a hand does not move at
+the 200 Hz of its samples), except while the needle is in the tissue, which steadies them (as
+the synthetic subjects' model has it). The needle is in the tissue from the simulator's
+``entry`` event to its ``extracted`` (or ``drop``) event, as the operator sees it, and during
+the plan's insertion and extraction (subtasks ii and iv): the tool lags the plan by the
+teleoperation's latency, so with the plan alone the hands trembled again while the tip was
+still at the exit, and it backed out of its puncture ("withdrawn") on a busy machine. When a
+hand leaves its ``WORKSPACE`` (m around where it started), and before the needle goes into the
+tissue (subtasks ii and iv, during which it reaches ``IN_TISSUE_REACH`` times as far rather
+than let go), it presses the clutch pedal, brings both hands back and releases it. When a
+tool stays short of its goal it moves that hand to take up the error (``CORRECTION_GAIN``). It
+presses coag (``viewer/input/pedals``) to be present and pinches the grippers once so that the
 teleoperation starts. The recorder's pedal is pressed before and after, as the demonstrator
 node does (its stages and result are this node's; only the hands differ).
 
@@ -40,6 +45,7 @@ SCALE = 0.2
 WORKSPACE = 0.05          # m of hand travel from the rest position before clutching
 TREMOR = 0.0004           # m amplitude of the hand's tremor at TREMOR_HZ
 TREMOR_HZ = 8.7
+NOISE_HZ = 12.0           # cut-off of the tremor's noise (a physiological tremor's band)
 RECENTRE_TIME = 0.4       # s to bring the hands back with the clutch pressed
 IN_TISSUE_REACH = 4.0     # times WORKSPACE a hand reaches while the needle is in the tissue
 CORRECTION_GAIN = 1.5     # 1/s: how fast the operator takes up an error it sees
@@ -54,6 +60,9 @@ class ScriptedOperator(DemonstratorNode):
         super().__init__()
         self._rng = np.random.default_rng(self.config.seed + 1000)
         self._phase = self._rng.uniform(0, 2 * np.pi, size=(2, 3))
+        self._noise = np.zeros((2, 3))
+        self._noise_t = None
+        self._in_tissue = False       # between the simulator's entry and extracted events
         self._jaw_map = GripperToJaw()
         self._hand_pub = {a: self.create_publisher(PoseStamped, f'viewer/input/{m}/pose', STATE)
                           for a, m in MTM_OF.items()}
@@ -65,9 +74,9 @@ class ScriptedOperator(DemonstratorNode):
             self.create_subscription(String, f'/{name}/current_state',
                                      lambda m, a=arm: self._teleop_state.__setitem__(a, m.data),
                                      LATCHED)
-        self._setpoint = {}
+        self._setpoint = {}           # in <ARM>_base, as every dVRK reports local/setpoint_cp
         for arm in MTM_OF:
-            self.create_subscription(PoseStamped, f'{arm}/setpoint_cp',
+            self.create_subscription(PoseStamped, f'{arm}/local/setpoint_cp',
                                      lambda m, a=arm: self._setpoint.__setitem__(
                                          a, cv.matrix_from_pose(m.pose)), STATE)
         self._hands, self._home, self._anchor, self._grippers = {}, {}, {}, {}
@@ -82,6 +91,14 @@ class ScriptedOperator(DemonstratorNode):
 
     # --- the operator's body ----------------------------------------------------------------
 
+    def _on_event(self, stamp, data):
+        kind = data.get('kind')
+        if kind == 'entry':
+            self._in_tissue = True
+        elif kind in ('extracted', 'drop'):
+            self._in_tissue = False
+        super()._on_event(stamp, data)
+
     def _press(self, topic, value):
         if topic == self.config.operator_pedal:
             self._coag = bool(value)
@@ -95,14 +112,20 @@ class ScriptedOperator(DemonstratorNode):
         stamp = self.get_clock().now().to_msg()
         t = self.get_clock().now().nanoseconds * 1e-9
         # the tissue steadies the hands while the needle is in it (as the subjects' model)
-        steady = self._dem is not None and self._dem.subtask in ('ii', 'iv')
+        steady = self._in_tissue or (self._dem is not None and self._dem.subtask in ('ii', 'iv'))
         amplitude = 0.0 if steady else TREMOR
+        dt = 0.0 if self._noise_t is None else max(0.0, t - self._noise_t)
+        self._noise_t = t
+        keep = np.exp(-2 * np.pi * NOISE_HZ * dt)        # first-order low-pass of white noise
+        self._noise = keep * self._noise + np.sqrt(1 - keep * keep) * self._rng.normal(
+            0.0, TREMOR * 0.25, (2, 3))
         for k, arm in enumerate(MTM_OF):
             if arm not in self._hands:
                 continue
             T = self._hands[arm].copy()
-            T[:3, 3] += amplitude * np.sin(2 * np.pi * TREMOR_HZ * t + self._phase[k]) \
-                + self._rng.normal(0.0, amplitude * 0.25, 3)
+            if amplitude:
+                T[:3, 3] += amplitude * np.sin(2 * np.pi * TREMOR_HZ * t + self._phase[k]) \
+                    + self._noise[k]
             self._hand_pub[arm].publish(cv.pose_stamped(T, 'world', stamp))
             self._grip_pub[arm].publish(Float64(data=self._grippers[arm]))
         msg = Joy()

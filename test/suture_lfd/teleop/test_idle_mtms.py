@@ -1,0 +1,63 @@
+"""
+The virtual MTMs at rest: a hand nobody moves costs few cycles, and the next input is taken
+(a real ``mtms`` process, browser back-end, beside the simulator whose ECM places the browser's
+handles in the display frame, over DDS on loopback).
+"""
+
+import time
+
+from geometry_msgs.msg import PoseStamped
+from harness import FAST_ARMS, wait_for
+import numpy as np
+from rclpy.qos import QoSProfile
+from sim_bridge.ros import conversions as cv
+from std_msgs.msg import Float64
+
+RATE, IDLE_RATE = 200.0, 10.0    # config/mtms.yaml
+START_TIMEOUT = 120.0            # s for a node to start on a loaded 2-core machine
+
+
+def test_a_virtual_mtm_nobody_moves_slows_to_its_idle_rate_and_wakes_at_the_first_input(
+        ros, launch):
+    sim = launch('simulator', '--ros-args', *FAST_ARMS)
+    proc = launch('mtms', '--ros-args', '-p', 'device:=browser', '-p', f'rate:={RATE}',
+                  '-p', f'idle_rate:={IDLE_RATE}', '-p', 'idle_after:=0.5')
+    node = ros.node('idle_probe')
+    seen = []                    # (receive time, position of MTMR's measured_cp)
+    node.create_subscription(PoseStamped, 'MTMR/measured_cp',
+                             lambda m: seen.append((time.monotonic(), np.array(
+                                 [m.pose.position.x, m.pose.position.y, m.pose.position.z]))),
+                             QoSProfile(depth=100))
+    hand = node.create_publisher(PoseStamped, 'viewer/input/MTMR/pose', QoSProfile(depth=10))
+    grip = node.create_publisher(Float64, 'viewer/input/MTMR/gripper', QoSProfile(depth=10))
+    assert wait_for(lambda: hand.get_subscription_count() > 0, START_TIMEOUT), proc.log()
+
+    def put(x):
+        T = np.eye(4)
+        T[:3, 3] = (x, 0.0, 0.15)
+        hand.publish(cv.pose_stamped(T, 'world', node.get_clock().now().to_msg()))
+        grip.publish(Float64(data=0.5))
+
+    # a hand is given, then left alone
+    assert wait_for(lambda: put(0.01) or seen, START_TIMEOUT, period=0.1), \
+        proc.log() + sim.log()[-2000:]
+    time.sleep(2.0)                                   # past idle_after: at rest
+    rest = seen[-1][1]
+    n0 = len(seen)
+    time.sleep(3.0)
+    at_rest = len(seen) - n0
+    # at most the idle rate (a busy machine only lowers it); the full rate would give 600
+    assert 0 < at_rest <= 3.0 * IDLE_RATE * 1.5, at_rest
+    # an input is taken: the MTM's pose follows the hand again
+    put(0.02)
+    assert wait_for(lambda: np.linalg.norm(seen[-1][1] - rest) > 0.005, 30.0), proc.log()
+    # and while the hand moves, the full rate is back: more samples than the idle rate allows
+    t_end = time.monotonic() + 2.0
+    n1 = len(seen)
+    x = 0.02
+    while time.monotonic() < t_end:
+        x += 1e-5
+        put(x)
+        time.sleep(1.0 / RATE)
+    assert len(seen) - n1 > 2.0 * IDLE_RATE * 1.5, len(seen) - n1
+    assert proc.running()
