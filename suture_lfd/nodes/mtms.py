@@ -35,8 +35,9 @@ and the console's ``/console/clutch``, ``/console/operator_present``, ``/console
 Parameters: ``config/mtms.yaml``.
 
 Nobody moving costs little: the cycle (device polling and the state topics) runs at ``rate``
-while something changes (a device input, a pose, a gripper, a pedal, a ``move_cp``) and for
-``idle_after`` s after, at ``idle_rate`` otherwise. The browser's hand poses and grippers are
+while an MTM is enabled (a client such as ``dvrk_teleoperation.py`` reads its state every 5 ms
+and takes anything older than 20 ms as a fault) or something changes (a device input, a pose, a
+gripper, a pedal, a ``move_cp``) and for ``idle_after`` s after, at ``idle_rate`` otherwise. The browser's hand poses and grippers are
 read at the start of every cycle, the newest of each (no callback per sample); a new one brings
 the full rate back.
 """
@@ -447,7 +448,10 @@ class MtmsNode(Node):
                     pubs['goal_reached'].publish(Bool(data=True))
         if changed:
             self._active_until = t + self.config.idle_after
-        self._pace(t < self._active_until)
+        # an enabled MTM streams at the full rate, as a powered console's does: a dVRK client
+        # (dvrk_teleoperation.py) takes data older than 4 of its 5 ms periods as a fault
+        self._pace(t < self._active_until
+                   or any(mtm.state == 'ENABLED' for mtm in self.mtms.values()))
 
     def destroy_node(self):
         self._inputs.destroy_node()
