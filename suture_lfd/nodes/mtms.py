@@ -37,9 +37,9 @@ Parameters: ``config/mtms.yaml``.
 Nobody moving costs little: the cycle (device polling and the state topics) runs at ``rate``
 while an MTM is enabled (a client such as ``dvrk_teleoperation.py`` reads its state every 5 ms
 and takes anything older than 20 ms as a fault) or something changes (a device input, a pose, a
-gripper, a pedal, a ``move_cp``) and for ``idle_after`` s after, at ``idle_rate`` otherwise. The browser's hand poses and grippers are
-read at the start of every cycle, the newest of each (no callback per sample); a new one brings
-the full rate back.
+gripper, a pedal, a ``move_cp``) and for ``idle_after`` s after, at ``idle_rate`` otherwise.
+The browser's hand poses and grippers are read at the start of every cycle, the newest of each
+(no callback per sample); a new one brings the full rate back.
 """
 
 from dataclasses import dataclass
