@@ -15,7 +15,14 @@ reachable from the network unless asked) and open the URL it prints. The page dr
 - every ``sim/visualization`` marker (LINE_STRIP, SPHERE_LIST; the thread among them);
 - the ECM's left image in its camera frustum when the simulator renders it
   (``ECM/left/image_raw``, ``camera_rate`` > 0);
-- ``sim/events`` as they happen, in the side panel.
+- ``sim/events`` as they happen, in the side panel;
+- what the ``perception`` node sees (parameter ``perception``: its namespace, ``''`` = off):
+  the estimated needle (``<perception>/needle/measured_cp``, left optical frame, placed in
+  ``world`` through ``/tf``) as an orange arc beside the true one, grey while
+  ``<perception>/needle/status`` says not found, its residual in the page's status line; the
+  perceived markers (``<perception>/markers/entries|exits``) as yellow spheres beside the red
+  ones (:mod:`suture_lfd.viewer.perceived`). A simulator in physical mode has no needle on
+  ``/tf``: the true needle is then drawn from ``/evaluation/sim/needle/measured_cp``.
 
 ``view: endoscope`` opens the page looking through the ECM's left camera (``/tf``
 ``ECM -> ECM_left_optical``, the camera model's vertical field of view), following it live;
@@ -25,7 +32,8 @@ It sends what changed to the page ``frame_rate`` times a second, and publishes
 ``viewer/stats`` (std_msgs/String, JSON, every ``stats_period`` s): ``frame_rate`` (frames sent
 per second), ``tf_rate`` (``/tf`` messages per second), ``clients`` (browsers connected) and
 ``cameras`` (each browser's view: ``position``, ``wxyz`` in the OpenCV convention, vertical
-``fov`` in rad, ``width`` and ``height`` in px).
+``fov`` in rad, ``width`` and ``height`` in px) and ``perception`` (what the page draws of it:
+:meth:`suture_lfd.viewer.perceived.PerceivedLayer.summary`).
 
 Contract with the virtual MTMs (browser input back-end)
 --------------------------------------------------------
@@ -58,7 +66,7 @@ import json
 import time
 
 from crtk_msgs.msg import StringStamped
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseArray, PoseStamped
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image, Joy
@@ -70,6 +78,7 @@ from std_msgs.msg import Float64, String
 from suture_lfd.viewer.assets import endoscope_fov, load_phantom, needle_arc
 from suture_lfd.viewer.controls import MtmControls
 from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, VIEWS, FrameClock, ViewerPage
+from suture_lfd.viewer.perceived import PerceivedLayer
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -102,6 +111,8 @@ class ViewerConfig:
         Teleop node names ``<MTM>_<PSM>``: which PSM each MTM drives, whose state is shown.
     recorder : str
         Name of the recorder node whose ``~/status`` is shown (``''``: none).
+    perception : str
+        Namespace of the perception node's outputs drawn beside the truth (``''``: none).
 
     """
 
@@ -115,6 +126,7 @@ class ViewerConfig:
     view: str = 'free'
     teleops: tuple[str, ...] = ('MTMR_PSM2', 'MTML_PSM1')
     recorder: str = 'recorder'
+    perception: str = 'perception'
 
     def __post_init__(self):
         if self.view not in VIEWS:
@@ -192,6 +204,9 @@ class Viewer(Node):
         self.create_subscription(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
         if self.config.images:
             self.create_subscription(Image, 'ECM/left/image_raw', self._on_image, qos.IMAGES)
+        self.perceived = None
+        if self.config.perception:
+            self._subscribe_perception(self.config.perception.rstrip('/'), points, diameter)
         self._stats = self.create_publisher(String, 'viewer/stats', qos.LATCHED)
         self.clock = FrameClock()
         self._tf_mark = (time.monotonic(), 0)
@@ -242,10 +257,60 @@ class Viewer(Node):
         if rgb is not None:
             self.page.scene.set_image(rgb)
 
+    def _subscribe_perception(self, ns, points, diameter):
+        self.perceived = PerceivedLayer(self.page.server.scene, self.page.scene.tf, points,
+                                        diameter)
+        self._perceived_markers = {}
+        self.create_subscription(PoseStamped, f'{ns}/needle/measured_cp', self._on_perceived,
+                                 qos.STATE)
+        self.create_subscription(String, f'{ns}/needle/status', self._on_perception_status,
+                                 qos.STATE)
+        # physical mode: the truth to compare with is published for the evaluation only
+        self.create_subscription(PoseStamped, '/evaluation/sim/needle/measured_cp',
+                                 self._on_true_needle, qos.STATE)
+        for side in ('entries', 'exits'):
+            self.create_subscription(PoseArray, f'{ns}/markers/{side}',
+                                     lambda msg, s=side: self._on_perceived_markers(s, msg),
+                                     qos.STATE)
+
+    def _on_perceived(self, msg):
+        try:
+            T = cv.matrix_from_pose(msg.pose)
+        except ValueError as exc:
+            self.get_logger().warning(f'{self.config.perception}/needle/measured_cp: {exc}',
+                                      throttle_duration_sec=5.0)
+            return
+        self.perceived.set_needle(msg.header.frame_id, T)
+
+    def _on_true_needle(self, msg):
+        if msg.header.frame_id == 'world':
+            self.page.scene.set_transform('world', 'needle', cv.matrix_from_pose(msg.pose))
+
+    def _on_perception_status(self, msg):
+        try:
+            status = json.loads(msg.data)
+            self.perceived.set_status(bool(status['found']), status.get('residual_px'))
+        except (ValueError, KeyError, TypeError) as exc:
+            self.get_logger().warning(f'{self.config.perception}/needle/status: not the '
+                                      f"perception node's JSON ({exc})",
+                                      throttle_duration_sec=5.0)
+
+    def _on_perceived_markers(self, side, msg):
+        self._perceived_markers[side] = [(p.position.x, p.position.y, p.position.z)
+                                         for p in msg.poses]
+        points = [p for pts in self._perceived_markers.values() for p in pts]
+        self.perceived.set_markers(msg.header.frame_id, np.array(points, float).reshape(-1, 3))
+
     # --- page ----------------------------------------------------------------------------------
 
     def _render(self):
-        self.clock.tick(self.page.render())
+        rendered = self.page.render()
+        if self.perceived is not None:
+            rendered = self.perceived.render() or rendered
+            text = self.perceived.status_text()
+            if self.page.status.content != text:
+                self.page.status.content = text
+        self.clock.tick(rendered)
         tf = self.page.scene.tf
         T_optical = tf.world('ECM_left_optical')
         if T_optical is not None:
@@ -297,6 +362,8 @@ class Viewer(Node):
         stats = {'frame_rate': round(self.clock.rate(), 2), 'tf_rate': round(tf_rate, 2),
                  'clients': self.page.connected_clients(), 'frames': self.clock.frames,
                  'cameras': self.page.client_cameras()}
+        if self.perceived is not None:
+            stats['perception'] = self.perceived.summary()
         self._stats.publish(String(data=json.dumps(stats)))
 
     # --- browser input -------------------------------------------------------------------------
