@@ -57,6 +57,7 @@ from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.intake import CommandIntake
 from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.polled import PolledInputs
 from std_msgs.msg import Bool, Empty, Float64, String
 from suture_lfd.nodes import executables
 from suture_lfd.teleop.devices import CAMERA_FRAME, PEDALS, open_device
@@ -165,7 +166,7 @@ class MtmsNode(Node):
         self._inputs = rclpy.create_node(f'{self.get_name()}_inputs', context=self.context,
                                          use_global_arguments=False,  # names resolved here
                                          start_parameter_services=False)
-        self._polled = []
+        self._polled = PolledInputs(self._inputs, self.resolve_topic_name)
         self._camera_key = None    # the camera pose message the frames hold
         self._T_display_device = None  # computed again when a frame changes
         if self._device_frame != CAMERA_FRAME:
@@ -353,22 +354,11 @@ class MtmsNode(Node):
 
     def _poll_input(self, msg_type, name, handler):
         """Subscribe to a device stream read at each cycle (newest sample) by ``handler``."""
-        sub = self._inputs.create_subscription(msg_type, self.resolve_topic_name(name),
-                                               lambda msg: None, qos.SENSOR)
-        self._polled.append((sub, handler))
+        self._polled.add(msg_type, name, handler, qos.SENSOR)
 
     def _read_inputs(self):
         """Hand the newest sample of every device stream, if a new one came, to its handler."""
-        for sub, handler in self._polled:
-            msg = None
-            with sub.handle:
-                while True:
-                    taken = sub.handle.take_message(sub.msg_type, False)
-                    if taken is None:
-                        break
-                    msg = taken[0]
-            if msg is not None:
-                handler(msg)
+        self._polled.read()
 
     # --- the pace of the cycle --------------------------------------------------------------
 

@@ -35,6 +35,7 @@ from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
+from sim_bridge.ros.polled import PolledInputs
 from std_msgs.msg import Bool, Empty, Header, String
 from suture_lfd.nodes import executables
 from suture_lfd.teleop.frames import FrameTree
@@ -72,7 +73,7 @@ class TeleopNode(Node):
         self._inputs = rclpy.create_node(f'{self.get_name()}_inputs', context=self.context,
                                          use_global_arguments=False,  # names resolved here
                                          start_parameter_services=False)
-        self._polled = []
+        self._polled = PolledInputs(self._inputs, self.resolve_topic_name)
         poll = self._poll_input
         poll(PoseStamped, f'{m}/measured_cp', self._on_mtm_cp)
         poll(JointState, f'{m}/gripper/measured_js', self._on_gripper)
@@ -118,22 +119,11 @@ class TeleopNode(Node):
 
     def _poll_input(self, msg_type, name, handler):
         """Subscribe to a state stream read at each cycle (newest sample) by ``handler``."""
-        sub = self._inputs.create_subscription(msg_type, self.resolve_topic_name(name),
-                                               lambda msg: None, qos.LATEST)
-        self._polled.append((sub, handler))
+        self._polled.add(msg_type, name, handler, qos.LATEST)
 
     def _read_inputs(self):
         """Hand the newest sample of every state stream, if a new one came, to its handler."""
-        for sub, handler in self._polled:
-            msg = None
-            with sub.handle:
-                while True:
-                    taken = sub.handle.take_message(sub.msg_type, False)
-                    if taken is None:
-                        break
-                    msg = taken[0]
-            if msg is not None:
-                handler(msg)
+        self._polled.read()
 
     @staticmethod
     def _arm_state(msg):
