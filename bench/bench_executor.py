@@ -19,12 +19,12 @@ import time
 
 from sim_bridge.simulation import Simulation
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
-from suture_lfd.skill import training_data
-from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw, learn_skill
+from suture_lfd.skill import learn_skill, training_data
+from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw
 
 
 class _Timed:

@@ -15,7 +15,8 @@ import tempfile
 import time
 
 from sim_bridge.simulation import Simulation
-from suture_lfd.skill.executor import execute_throw, learn_skill
+from suture_lfd.skill import learn_skill
+from suture_lfd.skill.executor import execute_throw
 from suture_lfd.viewer.filmstrip import write_filmstrip
 from suture_lfd.viewer.throw_replay import ThrowSampler, recording_from_file
 

@@ -50,8 +50,8 @@ import math
 import struct
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from sim_bridge.common.validation import check_positive
+from sim_bridge.common.geometry import matrix_from_quaternion
+from sim_bridge.common.validation import check_positive, check_quaternions
 from sim_bridge.kinematics import PsmKinematics, UnreachableError, check_pose
 from sim_bridge.trajectory import JointMotion
 
@@ -68,7 +68,6 @@ VALID_COMMANDS = {
 }
 JAW_NAMES = ('jaw',)  # the joint name of jaw/measured_js and jaw goals
 EVENT_KINDS = ('operating_state', 'goal_reached', 'error', 'warning', 'status', 'ratio')
-_QUATERNION_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -411,12 +410,9 @@ class Arm:
         if arr.shape == (7,):
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f'{command} goal contains NaN or infinite values')
-            norm = float(np.linalg.norm(arr[3:]))
-            if abs(norm - 1.0) > _QUATERNION_TOLERANCE:
-                raise ValueError(f'{command} orientation is not a unit quaternion '
-                                 f'(norm {norm:.6g})')
+            q = check_quaternions(arr[3:], f'{command} orientation')
             T = np.eye(4)
-            T[:3, :3] = Rotation.from_quat(arr[3:] / norm).as_matrix()
+            T[:3, :3] = matrix_from_quaternion(q)
             T[:3, 3] = arr[:3]
         else:
             T = check_pose(arr, name=f'{command} goal')

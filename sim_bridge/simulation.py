@@ -48,6 +48,7 @@ from sim_bridge.arm import Arm, ArmConfig
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.paths import config_path
+from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.kinematic_errors import draw_arm_errors
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.observers import GroundTruthObserver
@@ -62,8 +63,6 @@ from sim_bridge.task import SuturingTask
 
 _LOG = logging.getLogger(__name__)
 
-PSMS = ('PSM1', 'PSM2')
-ARMS = ('PSM1', 'PSM2', 'ECM')
 # Height (m) above the tissue's top within which the tissue tracker follows the needle.
 _TRACK_MARGIN = 0.01
 # A dropped needle that slides further than this (m) or tips its plane's normal below this

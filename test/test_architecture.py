@@ -8,6 +8,11 @@ The direction of imports, read from the source (AST, lazy imports inside functio
   fresh interpreter.)
 - Only the nodes and the ROS layer itself import the ROS layer.
 - No circle between subpackages (a subpackage, or a top-level module, is one unit).
+- The foundation (``sim_bridge.common``) imports nothing else of the project; the algorithms that
+  stand on it alone (``suture_lfd.dmp``, ``suture_lfd.segmentation``,
+  ``suture_lfd.demos.resampling``) import only the foundation and themselves.
+- A package's ``__init__.py`` is a face: its docstring, imports and ``__all__``, no functions,
+  classes or other statements.
 
 The last tests add a temporary module with one forbidden import to a copy of the tree and show
 that the check names it.
@@ -229,3 +234,115 @@ def test_a_private_import_in_a_temporary_module_is_named(tree):
         'from sim_bridge.common.geometry import _jinv_coefficient\n')
     assert private_imports(tree) == [
         'suture_lfd.dmp.probe imports _jinv_coefficient from sim_bridge.common.geometry']
+
+
+# --- the foundation ----------------------------------------------------------------------------
+
+FOUNDATION = 'sim_bridge.common'
+# The algorithms that stand on the foundation alone: readable, testable and reusable without
+# the simulator or the rest of the pipeline.
+ON_FOUNDATION = ('suture_lfd.dmp', 'suture_lfd.segmentation', 'suture_lfd.demos.resampling')
+
+
+def within(name, prefix):
+    """True if the dotted ``name`` is ``prefix`` or lies below it."""
+    return name == prefix or name.startswith(prefix + '.')
+
+
+def foundation_violations(root):
+    """Return each import that leaves the foundation or an algorithm that stands on it alone."""
+    found = []
+    for name, path in modules(root).items():
+        if within(name, FOUNDATION):
+            allowed, rule = (FOUNDATION,), f'{FOUNDATION} imports nothing else of the project'
+        else:
+            own = next((u for u in ON_FOUNDATION if within(name, u)), None)
+            if own is None:
+                continue
+            allowed, rule = (FOUNDATION, own), f'{own} imports only {FOUNDATION} and itself'
+        for target in sorted(set(imported_names(name, path))):
+            if target.split('.')[0] in PACKAGES and target not in PACKAGES \
+                    and not any(within(target, a) for a in allowed):
+                found.append(f'{name} imports {target}: {rule}')
+    return found
+
+
+def test_the_foundation_and_the_algorithms_on_it_import_only_the_foundation():
+    assert {FOUNDATION, *ON_FOUNDATION} <= set(modules(REPO))
+    assert foundation_violations(REPO) == []
+
+
+@pytest.mark.parametrize('where, source, message', [
+    ('sim_bridge/common/probe.py', 'from sim_bridge.arm import Arm\n',
+     'sim_bridge.common.probe imports sim_bridge.arm: sim_bridge.common imports nothing else '
+     'of the project'),
+    ('suture_lfd/dmp/probe.py', 'def f():\n    from suture_lfd.planning import waypoints\n',
+     'suture_lfd.dmp.probe imports suture_lfd.planning.waypoints: suture_lfd.dmp imports only '
+     'sim_bridge.common and itself'),
+    ('suture_lfd/segmentation/probe.py', 'from ..demos.demonstration import Demonstration\n',
+     'suture_lfd.segmentation.probe imports suture_lfd.demos.demonstration: '
+     'suture_lfd.segmentation imports only sim_bridge.common and itself'),
+])
+def test_an_import_off_the_foundation_in_a_temporary_module_is_named(tree, where, source,
+                                                                       message):
+    (tree / where).write_text(source)
+    assert foundation_violations(tree) == [message]
+
+
+def test_an_import_off_the_foundation_added_to_resampling_is_named(tree):
+    path = tree / 'suture_lfd/demos/resampling.py'
+    path.write_text(path.read_text() + 'from sim_bridge.simulation import Simulation\n')
+    (tree / 'suture_lfd/demos/probe.py').write_text(
+        'from sim_bridge.simulation import Simulation\n')
+    assert foundation_violations(tree) == [
+        'suture_lfd.demos.resampling imports sim_bridge.simulation: suture_lfd.demos.resampling '
+        'imports only sim_bridge.common and itself']
+
+
+# --- __init__.py files are faces ----------------------------------------------------------------
+
+def is_face_statement(node):
+    """True for what a face may hold: its docstring, imports and ``__all__``."""
+    if isinstance(node, (ast.Import, ast.ImportFrom)):
+        return True
+    if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) \
+            and isinstance(node.value.value, str):
+        return True
+    targets = node.targets if isinstance(node, ast.Assign) else \
+        [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
+    return bool(targets) and all(isinstance(t, ast.Name) and t.id == '__all__' for t in targets)
+
+
+def code_in_faces(root):
+    """Return each statement of an ``__init__.py`` that is more than a re-export, one line each."""
+    found = []
+    for name, path in modules(root).items():
+        if path.name != '__init__.py':
+            continue
+        for node in ast.parse(path.read_text(), filename=str(path)).body:
+            if not is_face_statement(node):
+                what = getattr(node, 'name', type(node).__name__)
+                found.append(f'{name}/__init__.py line {node.lineno} defines {what}: move it into '
+                             'a named module and re-export it')
+    return found
+
+
+def test_every_init_is_a_face():
+    assert code_in_faces(REPO) == []
+
+
+def test_code_in_a_temporary_face_is_named(tree):
+    path = tree / 'suture_lfd/dmp/__init__.py'
+    lines = path.read_text().count('\n')
+    path.write_text(path.read_text() + 'def helper():\n    return 1\n')
+    (tree / 'suture_lfd/probe').mkdir()
+    (tree / 'suture_lfd/probe/__init__.py').write_text(
+        '"""A probe."""\n\nfrom suture_lfd.dmp import PoseDmp\n\n__all__ = [\'PoseDmp\']\n'
+        'LIMIT = 3\n\n\nclass Thing:\n    pass\n')
+    assert code_in_faces(tree) == [
+        f'suture_lfd.dmp/__init__.py line {lines + 1} defines helper: move it into a named module '
+        'and re-export it',
+        'suture_lfd.probe/__init__.py line 6 defines Assign: move it into a named module and '
+        're-export it',
+        'suture_lfd.probe/__init__.py line 9 defines Thing: move it into a named module and '
+        're-export it']

@@ -1,8 +1,8 @@
 """
 The foundation both packages stand on.
 
-Geometry, validation, configuration files, paths, errors, CDR, child processes, the needle's
-geometry and the project's vocabulary.
+Geometry, validation, configuration files, ``.npz`` archives, paths, errors, CDR, child
+processes, the needle's geometry and the project's vocabulary.
 
 Nothing here imports the simulator (the rest of :mod:`sim_bridge`), the learning-from-
 demonstration package (:mod:`suture_lfd`) or ROS; ``test/test_architecture.py`` keeps it so.
@@ -14,6 +14,7 @@ demonstration package (:mod:`suture_lfd`) or ROS; ``test/test_architecture.py`` 
 - :mod:`~sim_bridge.common.errors`: the configuration error shared by both packages.
 - :mod:`~sim_bridge.common.cdr`: ROS 2 message bytes without rclpy.
 - :mod:`~sim_bridge.common.processes`: child processes that die with their parent.
+- :mod:`~sim_bridge.common.archive`: ``.npz`` files with a format tag and version.
 - :mod:`~sim_bridge.common.needle`: the suture needle's and thread's geometry.
 - :mod:`~sim_bridge.common.vocabulary`: arm names, subtasks, learnt tasks, tolerances.
 """

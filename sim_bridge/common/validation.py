@@ -6,6 +6,7 @@ code; the messages say which argument is wrong and what was expected.
 """
 
 from collections.abc import Sequence
+import math
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,8 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 """A float64 array: what every check returns, and what the numerical modules return."""
 
+#: How far a quaternion's norm may be from 1 and still count as a unit quaternion: the one
+#: tolerance of every check (clients round to float32, configuration files to a few digits).
 UNIT_NORM_TOLERANCE = 1e-3
 
 
@@ -128,6 +131,9 @@ def check_quaternions(Q: ArrayLike, name: str = 'Q', *, tolerance: float = UNIT_
         ``tolerance`` (a zero quaternion included).
 
     """
+    if isinstance(Q, np.ndarray) and Q.shape == (4,) or isinstance(Q, (list, tuple)) \
+            and len(Q) == 4 and all(isinstance(v, (int, float)) for v in Q):
+        return _check_one_quaternion(Q, name, tolerance, normalise)
     Q = check_array(Q, name)
     if Q.ndim == 0 or Q.shape[-1] != 4:
         raise ValueError(f'{name} must hold quaternions (x, y, z, w) on its last axis, '
@@ -142,6 +148,24 @@ def check_quaternions(Q: ArrayLike, name: str = 'Q', *, tolerance: float = UNIT_
     if normalise:
         return Q / norms[..., None]
     return Q
+
+
+def _check_one_quaternion(q: Sequence[float] | FloatArray, name: str, tolerance: float,
+                          normalise: bool) -> FloatArray:
+    """Check one quaternion with scalar arithmetic: the command paths check one per message."""
+    try:
+        x, y, z, w = (float(v) for v in q)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f'{name} must be a numeric quaternion (x, y, z, w) ({exc})') from exc
+    if not all(math.isfinite(v) for v in (x, y, z, w)):
+        raise ValueError(f'{name} must be finite (no NaN or inf), got {[x, y, z, w]}')
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if abs(norm - 1.0) > tolerance:
+        raise ValueError(f'{name} is not a unit quaternion (norm {norm:.6g}); expected '
+                         '(x, y, z, w) with norm 1')
+    if normalise:
+        return np.array((x / norm, y / norm, z / norm, w / norm))
+    return np.array((x, y, z, w))
 
 
 def check_positive(value: Any, name: str) -> float:

@@ -47,13 +47,13 @@ from geometry_msgs.msg import PoseStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.scene.phantom import MarkerPair
 from std_msgs.msg import String
 
-PSMS = ('PSM1', 'PSM2')
 EVALUATION = '/evaluation/'  # the ground truth a simulator keeps for the evaluation
 STATE_COMMAND_PERIOD = 2.0  # s of wall time between repeated enable/home commands
 

@@ -26,12 +26,10 @@ import numpy as np
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from sim_bridge.common.geometry import matrix_from_quaternion, quaternion_from_matrix
+from sim_bridge.common.validation import check_quaternions
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker
-
-# A commanded quaternion may deviate this much from unit norm (clients round to float32 etc.).
-UNIT_QUATERNION_TOLERANCE = 1e-3
 
 
 def stamp_from_seconds(t):
@@ -77,11 +75,8 @@ def matrix_from_pose(pose, what='pose'):
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
         raise ValueError(f'{what} has NaN or infinite values (position {p.tolist()}, '
                          f'orientation {q.tolist()})')
-    norm = float(np.linalg.norm(q))
-    if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
-        raise ValueError(f'{what} orientation is not a unit quaternion (norm {norm:.6g})')
     T = np.eye(4)
-    T[:3, :3] = matrix_from_quaternion(q / norm)
+    T[:3, :3] = matrix_from_quaternion(check_quaternions(q, f'{what} orientation'))
     T[:3, 3] = p
     return T
 

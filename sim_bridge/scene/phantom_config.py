@@ -8,8 +8,8 @@ The keys are those of the ``phantom`` sections of ``config/scene.yaml`` and of a
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from sim_bridge.common.validation import check_positive
+from sim_bridge.common.geometry import matrix_from_quaternion
+from sim_bridge.common.validation import check_positive, check_quaternions
 from sim_bridge.scene.mesh_placement import WoundSearch
 from sim_bridge.scene.phantom_shapes import ScannedShape
 
@@ -172,14 +172,13 @@ class PhantomConfig:
                              f'{self.resolution}')
         check_positive(self.mesh_resolution, 'phantom mesh_resolution (m)')
         check_positive(self.mesh_scale, 'phantom mesh_scale')
-        if abs(np.linalg.norm(self.quaternion) - 1.0) > 1e-6:
-            raise ValueError(f'phantom quaternion is not a unit quaternion (norm '
-                             f'{np.linalg.norm(self.quaternion):.6g})')
+        check_quaternions(self.quaternion, 'phantom quaternion')
 
     @property
     def T_world_phantom(self):  # noqa: N802 (the project names poses T_a_b)
         """Phantom pose in the world, shape (4, 4)."""
         T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(self.quaternion).as_matrix()
+        q = check_quaternions(self.quaternion, 'phantom quaternion')
+        T[:3, :3] = matrix_from_quaternion(q)
         T[:3, 3] = self.position
         return T

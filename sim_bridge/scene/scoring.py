@@ -49,8 +49,6 @@ import math
 
 from sim_bridge.common.validation import check_positive
 
-SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
-
 
 @dataclass(frozen=True)
 class ScoringConfig:

@@ -31,10 +31,10 @@ import math
 
 import numpy as np
 from sim_bridge.common.geometry import transform_from_pose
+from sim_bridge.common.vocabulary import PSMS, SUBTASKS
 from suture_lfd.assessment.motion import MotionConfig, motion_metrics, rests, speed_profile
 
-SUBTASK_NAMES = ('i', 'ii', 'iii', 'iv', 'v')
-ARMS = ('psm1', 'psm2')
+ARMS = tuple(psm.lower() for psm in PSMS)  # the demonstration's field prefixes
 MOTION_FIELDS = ('path_length_m', 'economy', 'rms_jerk', 'log_dimensionless_jerk',
                  'velocity_peaks', 'sparc', 'idle_s', 'movements')
 
@@ -217,7 +217,7 @@ def assess_demonstration(demo, segments, needle=None, config=None):
              else segments.boundaries())
     t = demo.t
     row = {'pair': demo.pair, 'task_time_s': float(t[-1] - t[0])}
-    for name, (a, b) in zip(SUBTASK_NAMES, times):
+    for name, (a, b) in zip(SUBTASKS, times):
         row[f't_{name}_s'] = float(b - a)
     poses = {'psm1': demo.psm1_pose, 'psm2': demo.psm2_pose}
     still = np.ones(len(t), bool)
@@ -339,7 +339,7 @@ def assess_bag(bag, segments=None, pair=None, needle=None, config=None):
 
         seg = segment_demonstration(demo)
     else:
-        from suture_lfd.segmentation.segments import SegmentFile
+        from suture_lfd.demos.segment_file import SegmentFile
 
         seg = SegmentFile.load(segments)
     return assess_demonstration(demo, seg, needle=needle, config=config)

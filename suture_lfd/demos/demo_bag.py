@@ -37,12 +37,12 @@ from sim_bridge.common.geometry import (
     pose_from_transform,
     transform_from_pose,
 )
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.scene.markers import marker_frame
 from suture_lfd import bags
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.resampling import resample_quaternions
 
-PSMS = ('PSM1', 'PSM2')
 POSE = 'geometry_msgs/msg/PoseStamped'
 JOINTS = 'sensor_msgs/msg/JointState'
 EVENTS = 'crtk_msgs/msg/StringStamped'

@@ -10,8 +10,8 @@ tag and version.
 from dataclasses import dataclass, fields
 
 import numpy as np
+from sim_bridge.common.archive import load_archive, save_archive
 from sim_bridge.common.validation import check_array, check_quaternions, check_times
-from suture_lfd.archive import load_archive, save_archive
 
 FORMAT = 'suture_lfd.demonstration'  # the files' format tag (kept when the module moved)
 FORMAT_VERSION = 1

@@ -26,6 +26,7 @@ import time
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Joy
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.ros import qos
 from sim_bridge.ros.client import SimClient
 from sim_bridge.ros.params import declare_config
@@ -34,8 +35,6 @@ from std_msgs.msg import String
 from suture_lfd.demos.cohort import load_cohort
 from suture_lfd.demos.demonstrator import Demonstrator
 from suture_lfd.nodes import executables
-
-PSMS = ('PSM1', 'PSM2')
 
 
 @dataclass(frozen=True)

@@ -63,6 +63,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge.common.geometry import pose_from_transform
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
@@ -74,8 +75,6 @@ from std_msgs.msg import Empty, String
 from suture_lfd.nodes import executables
 from suture_lfd.skill import ThrowSkill, learn_skill
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
-
-PSMS = ('PSM1', 'PSM2')
 
 
 @dataclass(frozen=True)

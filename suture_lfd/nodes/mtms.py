@@ -53,6 +53,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState, Joy
 from sim_bridge.common import cdr
 from sim_bridge.common.geometry import matrix_from_quaternion
+from sim_bridge.common.validation import check_quaternions
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.intake import CommandIntake
@@ -292,13 +293,12 @@ class MtmsNode(Node):
         self._wake()
 
     def _on_lock(self, name, msg):
-        q = np.array([msg.x, msg.y, msg.z, msg.w])
-        norm = float(np.linalg.norm(q))
-        if not np.all(np.isfinite(q)) or abs(norm - 1.0) > 1e-3:
-            self._reject(name, f'{name}: lock_orientation is not a unit quaternion '
-                               f'(norm {norm:.6g})')
+        try:
+            q = check_quaternions((msg.x, msg.y, msg.z, msg.w), f'{name}: lock_orientation')
+        except ValueError as exc:
+            self._reject(name, str(exc))
             return
-        self.mtms[name].lock_orientation(matrix_from_quaternion(q / norm), self._now())
+        self.mtms[name].lock_orientation(matrix_from_quaternion(q), self._now())
 
     # --- frames -------------------------------------------------------------------------------
 

@@ -5,7 +5,7 @@ Reads the bag named by the ``bag`` parameter
 (:func:`suture_lfd.demos.demo_bag.demonstration_from_bag`: tool, jaw, needle, marker and event
 topics of the simulator), cuts it into the five subtasks
 (:func:`suture_lfd.segmentation.segment_demonstration`), resamples the needle trajectories of tasks
-ii and iv and writes the :class:`suture_lfd.segmentation.segments.SegmentFile` to ``output``
+ii and iv and writes the :class:`suture_lfd.demos.segment_file.SegmentFile` to ``output``
 (default ``<bag>.segments.npz`` beside the bag). Publishes a JSON summary on ``~/result`` (latched)
 and exits: code 0 when the file was written, 1 when the bag could not be segmented (the error names
 the bag and what is missing). Parameters: ``config/segmenter.yaml``.
@@ -21,9 +21,9 @@ from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd.demos.demo_bag import demonstration_from_bag
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.nodes import executables
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
 
 
 @dataclass(frozen=True)

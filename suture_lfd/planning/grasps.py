@@ -17,9 +17,8 @@ import math
 
 import numpy as np
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.vocabulary import PSMS as ARMS
 from suture_lfd.planning.tracks import backed_off, dense_poses
-
-ARMS = ('PSM1', 'PSM2')
 
 # What decides whether the arms reach a throw, and where a user changes it.
 PROBE_STRIDE = 6  # carrying poses solved per candidate before its full path: every 6th

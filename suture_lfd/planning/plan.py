@@ -14,12 +14,12 @@ import logging
 
 import numpy as np
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.vocabulary import PSMS as ARMS
 from sim_bridge.control import Command
 from suture_lfd.planning.throw_geometry import ThrowArc
 
 _LOG = logging.getLogger(__name__)
 
-ARMS = ('PSM1', 'PSM2')
 LABELS = ('i', 'ii', 'iii', 'iv', 'v', 'done')
 
 

@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 from sim_bridge.common.geometry import matrix_from_quaternion, pose_from_transform
+from sim_bridge.common.vocabulary import SUBTASKS
 from sim_bridge.control import ExpertConfig
 from sim_bridge.observers import PhysicalObserver
 from suture_lfd.planning.episode import run_episode, start_episode
@@ -37,22 +38,11 @@ from suture_lfd.planning.throw import Carry, Follow, Hold, ThrowPaths, drive_gra
 from suture_lfd.planning.throw_geometry import ThrowArc
 from suture_lfd.planning.tracks import TimedNeedleMove, translated
 from suture_lfd.planning.waypoints import RigidPath, rotation_exp, rotation_log
-from suture_lfd.skill import (
-    METHODS,
-    Method,
-    PairGeometry,
-    ThrowSkill,
-    TrainingData,
-    learn_skill,
-    training_data_from_demonstration,
-)
+from suture_lfd.skill import PairGeometry, ThrowSkill
 from suture_lfd.skill.perceived import PerceivedScene
 
-__all__ = ['METHODS', 'Method', 'ThrowSkill', 'TrainingData', 'learn_skill',
-           'training_data_from_demonstration', 'ExecutorConfig', 'ThrowExecutor',
-           'ThrowOutcome', 'execute_throw', 'SUBTASKS']
+__all__ = ['ExecutorConfig', 'ThrowExecutor', 'ThrowOutcome', 'execute_throw']
 
-SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 
 # Grasp search along the needle (arc parameter: 0 tail, 1 tip): the span kept between the two
 # jaws (about 2.5 mm of wire), and the highest parameter (the jaw keeps off the point).

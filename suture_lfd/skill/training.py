@@ -9,10 +9,9 @@ from pathlib import Path
 
 import numpy as np
 from sim_bridge.common.validation import check_array
+from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.planning.suturing_frames import suture_frame
 from suture_lfd.planning.throw_geometry import ThrowArc
-
-TASKS = ('ii', 'iv')
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,7 +148,7 @@ def training_data(source):
 
     Parameters
     ----------
-    source : TrainingData, suture_lfd.segmentation.segments.SegmentFile, str or Path
+    source : TrainingData, suture_lfd.demos.segment_file.SegmentFile, str or Path
         Learning input (a path is read with ``SegmentFile.load``).
 
     Returns
@@ -159,7 +158,7 @@ def training_data(source):
     """
     if isinstance(source, TrainingData):
         return source
-    from suture_lfd.segmentation.segments import SUBTASK_NAMES, SegmentFile
+    from suture_lfd.demos.segment_file import SUBTASK_NAMES, SegmentFile
 
     if isinstance(source, (str, Path)):
         source = SegmentFile.load(source)

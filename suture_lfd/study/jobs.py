@@ -7,7 +7,7 @@ The two kinds of study job, run in-process on the package's simulation (no ROS).
     (:func:`suture_lfd.demos.demo_bag.write_demonstration_bag`, what the recorder node writes),
     read back (:func:`suture_lfd.demos.demo_bag.demonstration_from_bag`, what the segmenter node
     reads), segmented by the segmenter's code (:mod:`suture_lfd.segmentation`,
-    :mod:`suture_lfd.segmentation.segments`) and its segment file saved for the throws.
+    :mod:`suture_lfd.demos.segment_file`) and its segment file saved for the throws.
 ``throw`` (one per subject, method, pair learnt on and pair executed on)
     The skill is learnt from the segment file (:func:`suture_lfd.skill.learn_skill`) and
     executed on the test pair (:func:`suture_lfd.skill.executor.execute_throw`); on the pair it was
@@ -38,8 +38,9 @@ from pathlib import Path
 import shutil
 
 import numpy as np
+from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
-from suture_lfd.archive import save_archive
+from sim_bridge.common.vocabulary import SUBTASKS, TASKS
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
 
@@ -47,8 +48,6 @@ _LOG = logging.getLogger(__name__)
 # the demonstrated, rolled-out and executed needle curves of a regeneration throw (Fig. 7)
 TRAJECTORIES_FORMAT = 'suture_lfd.trajectories'
 TRAJECTORIES_FORMAT_VERSION = 1
-TASKS = ('ii', 'iv')
-SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 
 
 @dataclass(frozen=True)
@@ -331,7 +330,7 @@ def _through_bag(demo, bag, pair):
 
 def _save_segments(demo, segmentation, path, source='', subject=''):
     """Save what the throws learn from: the demonstration's segment file."""
-    from suture_lfd.segmentation.segments import make_segment_file
+    from suture_lfd.demos.segment_file import make_segment_file
 
     make_segment_file(demo, segmentation, source=source, subject=subject).save(path)
 

@@ -25,7 +25,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from suture_lfd.archive import load_archive
+from sim_bridge.common.archive import load_archive
 from suture_lfd.study import figures, tables
 
 THROW_COLUMNS = (

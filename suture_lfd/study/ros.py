@@ -44,9 +44,9 @@ import time
 
 import numpy as np
 from sim_bridge.common.processes import follow_parent, kill_group, popen, stop_group
+from sim_bridge.common.vocabulary import SUBTASKS
 from suture_lfd.errors import RosThrowError
 
-SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 MAX_DOMAIN_ID = 101   # highest ROS domain id whose ports stay clear of Linux's ephemeral range
 
 

@@ -41,6 +41,7 @@ import time
 
 import numpy as np
 from sim_bridge.common.configfile import ConfigError, load_yaml
+from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,
@@ -64,7 +65,6 @@ from suture_lfd.study.signals import stop_children, stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash
 
 SWEEP_FORMAT = 1
-TASKS = ('ii', 'iv')
 DESIGN_KEYS = ('quick', 'subjects', 'pairs', 'phantoms', 'cohort')
 #: Columns of ``sweep.csv`` after the cell's parameters: (column, summary path, scale).
 METRICS = (

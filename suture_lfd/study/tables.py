@@ -16,10 +16,9 @@ import math
 import warnings
 
 import numpy as np
+from sim_bridge.common.vocabulary import SUBTASKS, TASKS
 
-SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 GROUPS = ('experienced', 'naive')
-TASKS = ('ii', 'iv')
 ERROR_KINDS = (('pos', 'mm'), ('ori', 'deg'))
 ERROR_POINTS = ('start', 'goal', 'traj')
 

@@ -100,14 +100,15 @@ class TeleopConfig:
     orientation_tolerance: float = 5.0 * DEG
     start_gripper_threshold: float = 5.0 * DEG
     start_roll_threshold: float = 3.0 * DEG
-    gripper_zero: float = 0.0
-    gripper_max: float = 60.0 * DEG
-    jaw_min: float = -20.0 * DEG
-    jaw_max: float = 80.0 * DEG
-    jaw_at_gripper_zero: float = -20.0 * DEG
-    jaw_rate: float = 2.0 * math.pi
-    jaw_rate_back_from_clutch: float = 0.05 * math.pi
-    tolerance_back_from_clutch: float = 2.0 * DEG
+    # the gripper -> jaw map: GripperToJaw's defaults, stated there only
+    gripper_zero: float = GripperToJaw.gripper_zero
+    gripper_max: float = GripperToJaw.gripper_max
+    jaw_min: float = GripperToJaw.jaw_min
+    jaw_max: float = GripperToJaw.jaw_max
+    jaw_at_gripper_zero: float = GripperToJaw.jaw_at_gripper_zero
+    jaw_rate: float = GripperToJaw.jaw_rate
+    jaw_rate_back_from_clutch: float = GripperToJaw.jaw_rate_back_from_clutch
+    tolerance_back_from_clutch: float = GripperToJaw.tolerance_back_from_clutch
     enable_arms: bool = True
     command_retry: float = 10.0
     align_period: float = 10.0

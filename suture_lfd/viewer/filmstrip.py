@@ -13,10 +13,10 @@ import logging
 
 import numpy as np
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.vocabulary import PSMS
 from suture_lfd.viewer.throw_replay import world_poses
 
 LOG = logging.getLogger(__name__)
-PSMS = ('PSM1', 'PSM2')
 
 
 def frame_times(recording, n_frames=5):

@@ -20,12 +20,11 @@ import numpy as np
 from sim_bridge.common import cdr
 from sim_bridge.common.geometry import transform_from_pose
 from sim_bridge.common.validation import check_positive
+from sim_bridge.common.vocabulary import ARMS, SUBTASKS
 from suture_lfd import bags
-from suture_lfd.segmentation.segments import SegmentFile
+from suture_lfd.demos.segment_file import SegmentFile
 from suture_lfd.viewer.assets import phantom_of_pair
 
-ARMS = ('PSM1', 'PSM2', 'ECM')
-SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 SPEEDS = ('0.25', '0.5', '1', '2', '4', '8')
 PLAY_PERIOD = 1.0 / 30.0  # s of wall time between replay frames
 

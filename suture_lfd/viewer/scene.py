@@ -15,10 +15,9 @@ import threading
 
 import numpy as np
 from sim_bridge.common.geometry import quaternion_from_matrix
+from sim_bridge.common.vocabulary import ARMS
 
 WORLD = 'world'
-PSMS = ('PSM1', 'PSM2')
-ARMS = ('PSM1', 'PSM2', 'ECM')
 ARM_COLORS = {'PSM1': (40, 170, 60), 'PSM2': (40, 90, 210), 'ECM': (120, 120, 130)}
 SHAFT_OUTSIDE = 0.12  # m of instrument shaft drawn outside the RCM
 SHAFT_DIAMETER = 0.008  # m (an 8 mm instrument)

@@ -14,14 +14,14 @@ import json
 from pathlib import Path
 
 import numpy as np
+from sim_bridge.common.archive import load_archive, save_archive
 from sim_bridge.common.geometry import pose_from_transform, transform_from_pose
-from suture_lfd.archive import load_archive, save_archive
+from sim_bridge.common.vocabulary import PSMS
 from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
 
 FORMAT = 'suture_lfd.throw_replay'
 FORMAT_VERSION = 2  # 2: the version under the key 'format_version' of every archive
 SAMPLE_RATE = 20.0  # Hz of simulated time
-PSMS = ('PSM1', 'PSM2')
 
 
 def replay_name(job):

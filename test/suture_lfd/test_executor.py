@@ -5,16 +5,18 @@ import pytest
 from sim_bridge.common.geometry import compose_poses, pose_from_transform, quaternion_angle
 from sim_bridge.simulation import Simulation
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
-from suture_lfd.skill import PairGeometry, get_method, training_data
-from suture_lfd.skill.executor import (
+from suture_lfd.skill import (
     METHODS,
+    PairGeometry,
     ThrowSkill,
-    execute_throw,
+    get_method,
     learn_skill,
+    training_data,
     training_data_from_demonstration,
 )
+from suture_lfd.skill.executor import execute_throw
 from suture_lfd.study.metrics import (
     endpoint_errors,
     orientation_trajectory_error,

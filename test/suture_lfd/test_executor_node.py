@@ -18,9 +18,10 @@ from scipy.spatial.transform import Rotation
 from sim_bridge.ros.conversions import matrix_from_pose
 from std_msgs.msg import Empty, String
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
-from suture_lfd.skill.executor import execute_throw, learn_skill
+from suture_lfd.skill import learn_skill
+from suture_lfd.skill.executor import execute_throw
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -16,7 +16,8 @@ from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.planning.episode import start_episode
 from suture_lfd.planning.grasps import GraspPhase
 from suture_lfd.planning.waypoints import RigidPath
-from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw, learn_skill
+from suture_lfd.skill import learn_skill
+from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor, execute_throw
 
 DATA = Path(__file__).parent / 'data'
 

@@ -8,8 +8,8 @@ one of its inputs into ``/evaluation/`` is refused with a message naming the top
 
 import pytest
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
 
 
 @pytest.fixture(scope='module')

@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 import pytest
 from suture_lfd import bags
 from suture_lfd.demos.demo_bag import demonstration_from_bag
-from suture_lfd.segmentation.segments import SUBTASK_NAMES, SegmentFile
+from suture_lfd.demos.segment_file import SUBTASK_NAMES, SegmentFile
 import yaml
 
 REPO = Path(__file__).resolve().parents[2]

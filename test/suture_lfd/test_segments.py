@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 from sim_bridge.common.geometry import transform_from_pose
+from suture_lfd.demos.segment_file import FORMAT, SegmentFile, make_segment_file
 from suture_lfd.dmp import load_dmp_params
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import FORMAT, SegmentFile, make_segment_file
 
 
 @pytest.fixture(scope='module')

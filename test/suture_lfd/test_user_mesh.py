@@ -15,9 +15,10 @@ from sim_bridge.scene.scene_config import (
 )
 from sim_bridge.simulation import Simulation
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
-from suture_lfd.skill.executor import execute_throw, learn_skill
+from suture_lfd.skill import learn_skill
+from suture_lfd.skill.executor import execute_throw
 import trimesh
 
 SIZE, BASE, TOP = 0.154, 0.005, 0.0135  # a scanned suture pad: 154 x 154 x 13.5 mm

@@ -14,7 +14,7 @@ import sys
 from harness import wait_for
 import pytest
 from sim_bridge.common.processes import popen
-from suture_lfd.segmentation.segments import SUBTASK_NAMES, SegmentFile
+from suture_lfd.demos.segment_file import SUBTASK_NAMES, SegmentFile
 
 REPO = Path(__file__).resolve().parents[3]
 SCRIPTS = REPO / 'scripts'

@@ -5,9 +5,9 @@ read back into the viewer's recording; another file is refused with its name and
 
 import numpy as np
 import pytest
+from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import transform_from_pose
 from sim_bridge.simulation import Simulation
-from suture_lfd.archive import save_archive
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
 from suture_lfd.viewer.throw_replay import ThrowSampler, recording_from_file

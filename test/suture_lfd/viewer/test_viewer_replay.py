@@ -13,8 +13,8 @@ import pytest
 from sim_bridge.common.geometry import quaternion_angle
 from suture_lfd import bags
 from suture_lfd.demos.demo_bag import write_demonstration_bag
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
 from suture_lfd.viewer.show import open_replay
 
 

@@ -1,5 +1,5 @@
 """
-The ``.npz`` files of the pipeline: demonstrations, segments, DMPs and skills.
+The ``.npz`` files of the pipeline (demonstrations, segments, DMPs, skills) and their format tags.
 
 One way to write them with their format tag and version, and one way to read them back that
 names the file and the key in every error.
