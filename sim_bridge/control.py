@@ -1,8 +1,8 @@
 """
 The interface between the simulation and a controller of the two PSMs.
 
-A controller (the scripted expert, the demonstrator, the DMP executor) is called with an
-:class:`Observation` every control period and answers with a :class:`Command`;
+A :class:`Controller` (the scripted expert, the demonstrator, the DMP executor) is called with
+an :class:`Observation` every control period and answers with a :class:`Command`;
 :meth:`sim_bridge.simulation.Simulation.run` and the ROS nodes pass these along.
 :class:`ExpertConfig` holds the motion parameters of the scene's scripted expert (the ``expert``
 section of ``config/scene.yaml``); the planner itself is :mod:`suture_lfd.planning`.
@@ -11,6 +11,7 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 """
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from sim_bridge.common.validation import check_positive
@@ -189,3 +190,24 @@ class Command:
     T_world_tool: dict
     jaw: dict
     subtask: str
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """
+    What drives the two PSMs for a control loop: reset once, then one command per observation.
+
+    The scripted expert (:class:`suture_lfd.planning.expert.ScriptedExpert`), the demonstrator
+    and the DMP executor are controllers; :func:`suture_lfd.planning.episode.run_episode` and
+    the ROS nodes drive them alike.
+    """
+
+    def reset(self, obs: Observation) -> None:
+        """Start over from the observation ``obs`` (the first of the episode)."""
+
+    def step(self, obs: Observation) -> Command:
+        """Return the command for the next control period, given the latest observation."""
+
+    @property
+    def done(self) -> bool:
+        """Whether the controller has finished its task (the loop may stop)."""

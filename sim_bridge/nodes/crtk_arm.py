@@ -60,7 +60,7 @@ publication are one table of topics; split, each part would need the others' tab
 """
 
 from contextlib import nullcontext
-from functools import cached_property
+from functools import cached_property, partial
 
 from crtk_msgs.msg import OperatingState, StringStamped
 from crtk_msgs.srv import QueryForwardKinematics, QueryInverseKinematics, TriggerOperatingState
@@ -304,10 +304,8 @@ class CrtkArm:
         sub('servo_jf', JointState, lambda a, m: a.servo_jf(cv.raw_efforts(m), m.name))
         sub('move_jp', JointState, lambda a, m: a.move_jp(cv.raw_positions(m), m.name))
         sub('move_jr', JointState, lambda a, m: a.move_jr(cv.raw_positions(m), m.name))
-        sub('servo_cp', PoseStamped,
-            self._cartesian('servo_cp', lambda a, v, local: a.servo_cp(v, local=local)))
-        sub('move_cp', PoseStamped,
-            self._cartesian('move_cp', lambda a, v, local: a.move_cp(v, local=local)))
+        sub('servo_cp', PoseStamped, self._on_servo_cp)
+        sub('move_cp', PoseStamped, self._on_move_cp)
         sub('hold', Empty, lambda a, m: a.hold())
         sub('free', Empty, lambda a, m: a.free())
         sub('trajectory_j/set_ratio', Float64, lambda a, m: a.set_ratio(m.data))
@@ -339,42 +337,51 @@ class CrtkArm:
         srv(QueryInverseKinematics, f'{name}/inverse_kinematics', self._srv_ik)
         self._warned = set()
 
-    def _cartesian(self, topic, apply):
-        """
-        Return the handler of a Cartesian command: its pose in the frame its frame_id names.
+    def _on_servo_cp(self, arm, msg):
+        """Stream a Cartesian goal to ``arm``, in the frame the message's ``frame_id`` names."""
+        goal, local = self._cartesian_goal(arm, 'servo_cp', msg)
+        if goal is not None:
+            arm.servo_cp(goal, local=local)
 
-        ``apply(arm, pose, local)`` gets the goal in the arm's reference frame, or in
-        ``<ARM>_base`` when ``local``.
+    def _on_move_cp(self, arm, msg):
+        """Start a Cartesian move of ``arm``, in the frame the message's ``frame_id`` names."""
+        goal, local = self._cartesian_goal(arm, 'move_cp', msg)
+        if goal is not None:
+            arm.move_cp(goal, local=local)
+
+    def _cartesian_goal(self, arm, topic, msg):
         """
-        def handler(arm, msg):
-            frame = msg.header.frame_id
-            reference = arm.reference_frame
-            if not frame or frame == reference:
-                apply(arm, cv.vector_from_pose(msg.pose), False)
-                return
-            if frame == self.base_frame_id:
-                apply(arm, cv.vector_from_pose(msg.pose), True)
-                return
-            if frame == WORLD and self._T_base_world is not None:
-                convert, local = self._T_base_world, True
-            elif frame == VIEW_FRAME and reference == 'ECM':
-                convert, local = _T_ECM_VIEW, False
-            else:
-                frames = [repr(reference), repr(self.base_frame_id)]
-                if reference == 'ECM':
-                    frames.append(repr(VIEW_FRAME))
-                if self._T_base_world is not None:
-                    frames.append(repr(WORLD))
-                arm.reject_goal(topic, f'{self.name}: {topic} stamped in frame {frame!r} '
-                                       f'ignored: send it in {", ".join(frames)} or with an '
-                                       f"empty frame_id (the arm's reference frame)")
-                return
-            try:
-                T = cv.matrix_from_pose(msg.pose, what=f'{topic} pose')
-            except ValueError:
-                T = None  # the arm names what is wrong with the goal
-            apply(arm, cv.vector_from_pose(msg.pose) if T is None else convert @ T, local)
-        return handler
+        Return a Cartesian command's goal and whether it is in ``<ARM>_base``: ``(goal, local)``.
+
+        The goal is in the arm's reference frame (``local`` False) or in ``<ARM>_base``
+        (``local`` True). A pose the arm cannot take is passed on as it came (the arm names
+        what is wrong with it); a frame it does not know is rejected here: ``(None, False)``.
+        """
+        frame = msg.header.frame_id
+        reference = arm.reference_frame
+        if not frame or frame == reference:
+            return cv.vector_from_pose(msg.pose), False
+        if frame == self.base_frame_id:
+            return cv.vector_from_pose(msg.pose), True
+        if frame == WORLD and self._T_base_world is not None:
+            convert, local = self._T_base_world, True
+        elif frame == VIEW_FRAME and reference == 'ECM':
+            convert, local = _T_ECM_VIEW, False
+        else:
+            frames = [repr(reference), repr(self.base_frame_id)]
+            if reference == 'ECM':
+                frames.append(repr(VIEW_FRAME))
+            if self._T_base_world is not None:
+                frames.append(repr(WORLD))
+            arm.reject_goal(topic, f'{self.name}: {topic} stamped in frame {frame!r} '
+                                   f'ignored: send it in {", ".join(frames)} or with an '
+                                   f"empty frame_id (the arm's reference frame)")
+            return None, False
+        try:
+            T = cv.matrix_from_pose(msg.pose, what=f'{topic} pose')
+        except ValueError:  # the arm names what is wrong with the goal
+            return cv.vector_from_pose(msg.pose), local
+        return convert @ T, local
 
     @property
     def base_frame_id(self):
@@ -389,34 +396,50 @@ class CrtkArm:
         self._state[name] = (pub, build)
 
     def _subscribe(self, topic, msg_type, handler):
-        def callback(msg):
-            handler(self._get_arm(), msg)
-            self._on_command()
+        """
+        Subscribe ``handler(arm, msg)`` to the arm's command ``topic``.
+
+        Streamed commands (:data:`POLLED_COMMANDS`, when polled) wait in their subscription
+        until :meth:`take_commands`; the others are handled as they come, in the order their
+        senders published them (:meth:`_deliver_in_order`).
+        """
+        deliver = partial(self._deliver, handler)
+        name = f'{self.name}/{topic}'
         if self._polled_group is not None and topic in POLLED_COMMANDS:
-            sub = self._node.create_subscription(msg_type, f'{self.name}/{topic}', callback,
-                                                 qos.ARM_COMMANDS,
+            sub = self._node.create_subscription(msg_type, name, deliver, qos.ARM_COMMANDS,
                                                  callback_group=self._polled_group)
             self._polled.append((sub, 'jaw' if topic.startswith('jaw/') else 'arm'))
+        elif topic == 'state_command':
+            self.intakes[topic] = CommandIntake(
+                self._node, msg_type, name, partial(self._deliver_in_order, topic, deliver),
+                on_stale=partial(self._stale, topic))
         else:
-            def in_order(msg, sent):
-                # streamed commands sent before this one go first, those sent after it (already
-                # waiting too) after it: by the senders' publication stamps
-                with self._lock():
-                    later = self.take_commands(before_ns=sent)
-                    part = MOVES.get(topic)
-                    if part is None or sent is None or sent > self._streamed_ns[part]:
-                        callback(msg)
-                    for sub, streamed, newer, stamp in later:
-                        self._handle_streamed(sub, streamed, newer, stamp)
-            if topic == 'state_command':
-                self.intakes[topic] = CommandIntake(
-                    self._node, msg_type, f'{self.name}/{topic}', in_order,
-                    on_stale=lambda msg, age: self._stale(topic, msg, age))
-            else:
-                self._node.create_subscription(
-                    msg_type, f'{self.name}/{topic}',
-                    lambda msg, info: in_order(msg, info.get('source_timestamp')),
-                    qos.QUEUED_COMMANDS)
+            on_queued = partial(self._on_queued, topic, deliver)
+            self._node.create_subscription(msg_type, name, on_queued, qos.QUEUED_COMMANDS)
+
+    def _deliver(self, handler, msg):
+        """Hand a command message to the arm, then wake the simulator."""
+        handler(self._get_arm(), msg)
+        self._on_command()
+
+    def _on_queued(self, topic, deliver, msg, info):
+        """Receive a queued command with its message info (the sender's publication stamp)."""
+        self._deliver_in_order(topic, deliver, msg, info.get('source_timestamp'))
+
+    def _deliver_in_order(self, topic, deliver, msg, sent):
+        """
+        Deliver a queued command after the streamed ones its sender published before it.
+
+        Streamed commands sent before this one go first, those sent after it (already waiting
+        too) after it: by the senders' publication stamps ``sent`` (ns).
+        """
+        with self._lock():
+            later = self.take_commands(before_ns=sent)
+            part = MOVES.get(topic)
+            if part is None or sent is None or sent > self._streamed_ns[part]:
+                deliver(msg)
+            for sub, streamed, newer, stamp in later:
+                self._handle_streamed(sub, streamed, newer, stamp)
 
     def _stale(self, topic, msg, age):
         """Warn that a latched command written before the simulator started was dropped."""

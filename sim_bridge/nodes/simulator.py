@@ -81,6 +81,7 @@ from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
 from sim_bridge.scene.world import FRAMES
@@ -280,7 +281,7 @@ class _Locked:
         self.node.lock.release()
 
 
-class Simulator(_QuietEndpoints, Node):
+class Simulator(_QuietEndpoints, NodeHooks, Node):
     """The simulated dVRK: CRTK arms, scene ground truth, events, time."""
 
     def __init__(self):

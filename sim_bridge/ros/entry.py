@@ -26,13 +26,13 @@ The one ``main`` of every node executable: help, argument checks, signals, exit 
 7. calls the node's ``on_exit()`` (close files, stop threads), destroys the nodes and shuts
    rclpy down, in that order, so nothing publishes on a context that is gone.
 
-Optional parts of a node, all looked up by name: ``on_start()`` (called once the node is on
-its executor: threads of its own), ``companions`` (further nodes spun on the same executor),
-``run()`` (a job done in the main thread instead of spinning; returns the exit code),
-``finished``/``exit_code``, ``on_interrupt(signal_name)``, ``on_exit()``.
+The optional parts of a node are declared by :class:`NodeHooks`: a node class that needs one
+lists ``NodeHooks`` before ``rclpy.node.Node`` among its bases and overrides it; a node without
+it runs with the defaults (no companions, spin until stopped, nothing to do at the end).
 """
 
 import ast
+from collections.abc import Sequence
 from contextlib import contextmanager
 import gc
 import importlib
@@ -41,6 +41,7 @@ import re
 import signal
 import sys
 import textwrap
+from typing import Any
 
 from sim_bridge.common.configfile import load_yaml
 from sim_bridge.common.paths import config_path
@@ -51,6 +52,47 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _STARTUP_ERRORS = (ValueError, OSError, LookupError)
 _VALUE_WIDTH = 28  # characters of a default shown in --help
 _LINE = 99  # characters per line of --help
+
+
+class NodeHooks:
+    """
+    What :func:`run_node` calls on a node besides spinning it, with the defaults.
+
+    A node class that needs a hook lists this class before ``rclpy.node.Node`` among its bases
+    and overrides the hook.
+
+    Attributes
+    ----------
+    companions : sequence of rclpy.node.Node
+        Further nodes spun on the same executor and destroyed with this one.
+    finished : bool
+        Set by a node that ends by itself: the spin loop stops and :attr:`exit_code` is the
+        process's exit code.
+    exit_code : int
+        Exit code once :attr:`finished` (0: success).
+
+    """
+
+    companions: Sequence[Any] = ()
+    finished: bool = False
+    exit_code: int = 0
+
+    def run(self) -> int | None:
+        """
+        Do the node's job in the main thread instead of spinning it; return the exit code.
+
+        The default returns None: the node is spun.
+        """
+        return None
+
+    def on_start(self) -> None:
+        """Start what the node runs of its own (threads), once it is on its executor."""
+
+    def on_interrupt(self, signal_name: str) -> None:
+        """Stop commanding and write the result so far with outcome ``interrupted``."""
+
+    def on_exit(self) -> None:
+        """Release the node's resources (files, threads) before its ROS entities go."""
 
 
 class Interrupted(BaseException):  # noqa: N818 (a stop request, like KeyboardInterrupt)
@@ -261,12 +303,6 @@ def _error(name, message):
     print(f'{name}: error: {message}', file=sys.stderr, flush=True)
 
 
-def _call(node, method, *args):
-    function = getattr(node, method, None)
-    if function is not None:
-        function(*args)
-
-
 def run_node(make_node, name, args=None, *, doc='', config_file=None, example=None,
              spin_period=0.1):
     """
@@ -338,7 +374,7 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
     import rclpy.utilities
 
     context = rclpy.utilities.get_default_context()
-    nodes, node, executor = [], None, None
+    nodes, node, executor, hooks = [], None, None, NodeHooks()
     use_project_profile()  # before the participant exists (sim_bridge.ros.dds)
     try:
         rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -347,46 +383,48 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
         except _STARTUP_ERRORS as exc:
             _error(name, str(exc))
             return 2
-        nodes = [node, *getattr(node, 'companions', ())]
+        if isinstance(node, NodeHooks):
+            hooks = node
+        nodes = [node, *hooks.companions]
         unknown = [p for target, p in parameter_overrides(ros_args)
                    if target in (None, node.get_name()) and not node.has_parameter(p)]
         if unknown:
             _error(name, f'unknown parameter {unknown[0]!r}; see {name} --help')
             return 2
-        run = getattr(node, 'run', None)
-        if run is not None:
-            return run()
+        code = hooks.run()
+        if code is not None:
+            return code
         executor = SingleThreadedExecutor(context=context)
         for each in nodes:
             executor.add_node(each)
         _keep_start_up_objects()
-        _call(node, 'on_start')
+        hooks.on_start()
         with state.deferred():
             try:
-                while context.ok() and not getattr(node, 'finished', False):
+                while context.ok() and not hooks.finished:
                     executor.spin_once(timeout_sec=spin_period)
                     if state.signum is not None:
                         raise Interrupted(state.signum)
             except ExternalShutdownException:
                 pass
-        return getattr(node, 'exit_code', 0)
+        return hooks.exit_code
     except Interrupted as stop:
         if node is not None:
             state.raise_at_once = False  # the node writes its result: nothing may cut it short
             node.get_logger().info(f'stopped by {signal.Signals(stop.signum).name}')
-            _call(node, 'on_interrupt', signal.Signals(stop.signum).name)
+            hooks.on_interrupt(signal.Signals(stop.signum).name)
         return 128 + stop.signum
     finally:
         state.raise_at_once = False
-        _close(node, nodes, executor, context)
+        _close(node, hooks, nodes, executor, context)
 
 
-def _close(node, nodes, executor, context):
+def _close(node, hooks, nodes, executor, context):
     """Release the node's resources, then its ROS entities, then the context."""
     import rclpy
 
     if node is not None:
-        _call(node, 'on_exit')
+        hooks.on_exit()
     if executor is not None:
         executor.shutdown(timeout_sec=1.0)
     for each in reversed(nodes):

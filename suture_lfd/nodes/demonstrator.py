@@ -29,6 +29,7 @@ from sensor_msgs.msg import Joy
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.ros import qos
 from sim_bridge.ros.client import SimClient
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import String
@@ -68,7 +69,7 @@ class DemonstratorConfig:
             raise ValueError(f'parameter settle_time must be >= 0, got {self.settle_time}')
 
 
-class DemonstratorNode(Node):
+class DemonstratorNode(NodeHooks, Node):
     """One subject's throw over the CRTK topics of the simulator."""
 
     def __init__(self):

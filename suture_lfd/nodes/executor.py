@@ -68,6 +68,7 @@ from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.client import SimClient
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import ProcessWatch
 from sim_bridge.scene.scene_config import load_scene_config
@@ -109,7 +110,7 @@ class ExecutorNodeConfig:
             raise ValueError(f'parameter settle_time must be >= 0, got {self.settle_time}')
 
 
-class ExecutorNode(Node):
+class ExecutorNode(NodeHooks, Node):
     """Execute learnt throws on the simulator's CRTK topics."""
 
     def __init__(self):

@@ -22,6 +22,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd import bags
@@ -67,7 +68,7 @@ def playback_qos(profiles, depth):
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
-class Player(Node):
+class Player(NodeHooks, Node):
     """Replay a bag onto its topics."""
 
     def __init__(self):

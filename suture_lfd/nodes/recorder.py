@@ -44,6 +44,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import Joy
 from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -194,7 +195,7 @@ class BagSession:
         return summary
 
 
-class Recorder(Node):
+class Recorder(NodeHooks, Node):
     """Record demonstrations into rosbag2 bags, started and stopped on command."""
 
     def __init__(self):

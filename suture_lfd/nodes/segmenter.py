@@ -18,6 +18,7 @@ import sys
 
 from rclpy.node import Node
 from sim_bridge.ros import qos
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd.demos.demo_bag import demonstration_from_bag
@@ -82,7 +83,7 @@ def segment_bag(config):
             'durations': segments.durations}
 
 
-class Segmenter(Node):
+class Segmenter(NodeHooks, Node):
     """Segment one bag into a segment file."""
 
     def __init__(self):

@@ -73,6 +73,7 @@ from sensor_msgs.msg import Image, Joy
 from sim_bridge.common.geometry import transform_from_pose
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
+from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import Float64, String
 from suture_lfd.viewer.assets import endoscope_fov, load_phantom, needle_arc
@@ -159,7 +160,7 @@ def rgb_from_image(msg):
     return data.reshape(msg.height, msg.step)[:, :3 * msg.width].reshape(msg.height, msg.width, 3)
 
 
-class Viewer(Node):
+class Viewer(NodeHooks, Node):
     """The viewer node (see the module docstring)."""
 
     def __init__(self):

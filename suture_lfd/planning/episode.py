@@ -50,8 +50,8 @@ def run_episode(sim, controller, control_period, *, stepper=None, until=None, ti
     ----------
     sim : sim_bridge.simulation.Simulation
         The simulation, after :func:`start_episode`.
-    controller : object
-        ``step(obs) -> Command``, ``done`` and ``reset(obs)``.
+    controller : sim_bridge.control.Controller
+        ``reset(obs)``, ``step(obs) -> Command`` and ``done``.
     control_period : float
         Seconds of simulation between two commands.
     stepper : object, optional

@@ -6,9 +6,10 @@ given number of calls; the episode's clock and the arm's jaw show which commands
 """
 
 import pytest
-from sim_bridge.control import Command
+from sim_bridge.control import Command, Controller
 from sim_bridge.simulation import Simulation
 from suture_lfd.planning.episode import run_episode, start_episode
+from suture_lfd.planning.expert import ScriptedExpert
 
 PERIOD = 0.02
 
@@ -75,3 +76,14 @@ def test_a_stop_condition_and_a_timeout_end_the_loop_before_done(sim):
     elapsed = run_episode(sim, opener, PERIOD, timeout=3 * PERIOD, chunk=PERIOD, settle=1.0)
     assert elapsed == pytest.approx(3 * PERIOD) and not opener.done
     assert opener.made == 3  # no settling after a timeout unless asked
+
+
+def test_the_scripted_expert_is_a_controller_and_a_stepper_alone_is_not(sim):
+    class StepsOnly:
+        def step(self, obs):
+            return None
+
+    pair = next(iter(sim.phantom.markers.values()))
+    assert isinstance(ScriptedExpert(pair, sim.needle_geometry), Controller)
+    assert isinstance(Opener(1), Controller)
+    assert not isinstance(StepsOnly(), Controller)
