@@ -1,217 +1,47 @@
 """
-The simulated dVRK suturing scene: arms, world, grasping, tissue, scoring, time and events.
+The simulated dVRK suturing scene: physics, task and loop, behind one face.
 
-One :meth:`Simulation.step` is one fixed physics step (``world.physics_step``, 2 ms by default):
+The scene is split as dm_control splits an environment:
 
-1. every arm's state machine advances (:class:`sim_bridge.arm.Arm`: trajectories, joint
-   tracking within the dVRK velocity and acceleration limits);
-2. the jaws are read and the needle is grasped or released (:mod:`sim_bridge.scene.grasp`);
-3. the needle moves: held, it follows the leading tool exactly; free inside the tissue, it stays
-   where it is (the tissue holds it); free outside, PyBullet moves it under gravity until it
-   rests on the pad or the table (a fall of ``drop_distance`` reports a ``drop``, and so does
-   letting go of a needle in the tissue, ``in_tissue`` true);
-4. the tissue tracker looks for surface crossings of the tip (:mod:`sim_bridge.scene.tissue`) and
-the
-   throw scorer takes every event (:mod:`sim_bridge.scene.scoring`);
-5. every ``thread_period`` the thread follows the needle tail (the step is queued and runs when
-   the thread is next read: :meth:`sim_bridge.scene.thread.ThreadChain.follow`); every
-   ``collision_period`` the instrument ends are tested against the tissue (``collision``
-   events when contact starts).
+- the physics (:class:`sim_bridge.physics.ScenePhysics`): world, arms, needle, grasps, tissue
+  and thread, stepped at a fixed rate (the order of one step is in :mod:`sim_bridge.physics`);
+- the task (:class:`sim_bridge.task.SuturingTask`): the target pair, the ground truth and the
+  throw's scoring;
+- the loop (:class:`Simulation`, this module): the control period (:meth:`Simulation.run`), the
+  observer that says what a controller sees (:mod:`sim_bridge.observers`) and the scene's
+  events, which it hears from the physics, scores with the task and records.
 
-PyBullet holds the arms, needle and thread only for drawing and for the free needle's dynamics;
-their poses are copied into it when an image is rendered (:meth:`Simulation.render`) or when
-:meth:`Simulation.sync_world` is called, so a step costs no PyBullet calls unless the needle is
-falling.
+:class:`Simulation` is the face callers use: its attributes and methods are those the scene
+always had, each delegating to the part that owns it.
 
 Events (:class:`SimEvent`, stamped with simulation time): ``grasp``, ``release``, ``drop``,
 ``entry``, ``exit``, ``withdrawn``, ``extracted``, ``trauma``, ``collision``, ``score``.
 
 Frames: ``world`` (z up; phantom at the origin, see ``config/world.yaml``) unless a name says
-otherwise; poses are 4x4 ``T_world_*``; SI units. The arms' own Cartesian poses
-(:attr:`sim_bridge.arm.Arm.measured_cp`, what the CRTK topics report) follow ``world.frames``:
-``cart`` (a patient cart) puts each PSM's in the ECM camera frame ``ECM``, set again whenever the
-ECM moves, and the ECM's in ``world``; ``base`` leaves every arm in its RCM frame ``<ARM>_base``.
-Controllers never see those: :meth:`Simulation.observation` and :meth:`Simulation.apply` speak
-``world``. Time is simulation time in seconds, counted in
-whole physics steps, and the same seed gives bit-identical runs.
-
-Size: one physics step touches every part of the scene in a fixed order; the order is readable in
-one file and the step is the simulator's hot path.
+otherwise; poses are 4x4 ``T_world_*``; SI units. Controllers speak ``world`` only
+(:meth:`Simulation.observation` and :meth:`Simulation.apply`). Time is simulation time in
+seconds, counted in whole physics steps, and the same seed gives bit-identical runs.
 """
 
-from dataclasses import dataclass, field, replace
-import logging
+from dataclasses import dataclass
 
-import numpy as np
-from sim_bridge import bullet
-from sim_bridge.arm import Arm, ArmConfig
-from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.common.geometry import invert_transform
-from sim_bridge.common.paths import config_path
 from sim_bridge.common.vocabulary import ARMS, PSMS
-from sim_bridge.kinematic_errors import draw_arm_errors
-from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.observers import GroundTruthObserver
-from sim_bridge.scene.camera import CameraConfig, StereoCamera
-from sim_bridge.scene.grasp import GraspConfig, GraspManager
-from sim_bridge.scene.phantom import build_phantom
-from sim_bridge.scene.scene_config import SceneConfig, load_scene_config, phantom_from_argument
-from sim_bridge.scene.thread import ThreadChain, ThreadDynamicsConfig
-from sim_bridge.scene.tissue import TissueTracker
-from sim_bridge.scene.world import World, WorldConfig
+from sim_bridge.physics import ScenePhysics
+from sim_bridge.simulation_config import (
+    LoopConfig,
+    NeedleStart,
+    SimulationConfig,
+    load_simulation_config,
+    steps_per_period,
+)
 from sim_bridge.task import SuturingTask
 
-_LOG = logging.getLogger(__name__)
+__all__ = ['ARMS', 'EVENT_KINDS', 'PSMS', 'LoopConfig', 'NeedleStart', 'SimEvent', 'Simulation',
+           'SimulationConfig', 'load_simulation_config']
 
-# Height (m) above the tissue's top within which the tissue tracker follows the needle.
-_TRACK_MARGIN = 0.01
-# A dropped needle that slides further than this (m) or tips its plane's normal below this
-# cosine from world up is laid on the surface instead (see Simulation._settled_needle_start).
-_START_SLIDE = 0.003
-_START_UPRIGHT = 0.9
-# A resting needle's centre line may sit this much (m) closer to the tissue than its wire radius
-# before it is raised onto the surface (physics settles it within a few micrometres of it).
-_REST_TOLERANCE = 1e-4
 EVENT_KINDS = ('grasp', 'release', 'drop', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
                'collision', 'score')
-
-
-@dataclass(frozen=True)
-class NeedleStart:
-    """
-    Where the needle lies when a scene starts: flat on the pad, dropped and settled.
-
-    Attributes
-    ----------
-    position : (x, y)
-        World x-y (m) of the needle frame origin (the arc centre).
-    yaw : float
-        Turn (rad) of the needle about world z (needle z up).
-    position_jitter : float
-        Half-width (m) of the seeded uniform offset of ``position``.
-    yaw_jitter : float
-        Half-width (rad) of the seeded uniform offset of ``yaw``.
-    drop_height : float
-        Height (m) above the support the needle is released from.
-    settle_time : float
-        Simulated time (s) the needle gets to come to rest (not part of the scene's time).
-
-    """
-
-    position: tuple[float, float] = (0.012, -0.010)
-    yaw: float = 3.141592653589793
-    position_jitter: float = 0.001
-    yaw_jitter: float = 0.15
-    drop_height: float = 0.002
-    settle_time: float = 0.4
-
-
-@dataclass(frozen=True)
-class LoopConfig:
-    """
-    Settings of the simulation loop (``simulation`` section of ``config/world.yaml``).
-
-    Attributes
-    ----------
-    thread_period : float
-        Time (s) between thread updates; a multiple of the physics step.
-    collision_period : float
-        Time (s) between instrument-tissue contact checks; a multiple of the physics step.
-    collision_depth : float
-        Depth (m) an instrument point must reach below the tissue surface to be in contact.
-    drop_distance : float
-        Fall (m) of a released needle, below where it was released, that counts as a drop.
-    rest_speed : float
-        Speed (m/s) below which a free needle counts as still.
-    rest_time : float
-        Time (s) a free needle must stay still to be at rest (then physics stops moving it).
-    initial_jaw : float
-        PSM jaw angle (rad) when a scene starts.
-    needle_start : NeedleStart
-        Where the needle lies when a scene starts.
-    target_pair : str or None
-        Marker pair a scene starts aimed at (None: the phantom's first pair).
-
-    """
-
-    thread_period: float = 0.01
-    collision_period: float = 0.01
-    collision_depth: float = 0.0003
-    drop_distance: float = 0.003
-    rest_speed: float = 0.002
-    rest_time: float = 0.1
-    initial_jaw: float = 0.0
-    needle_start: NeedleStart = field(default_factory=NeedleStart)
-    target_pair: str | None = None
-
-
-@dataclass(frozen=True)
-class SimulationConfig:
-    """
-    Everything the simulation needs: ``config/world.yaml`` sections plus the scene.
-
-    Attributes
-    ----------
-    world : WorldConfig
-    grasp : GraspConfig
-    camera : CameraConfig
-    thread : ThreadDynamicsConfig
-    loop : LoopConfig
-    scene : SceneConfig
-    psm_tool : str or None
-        PSM instrument for :func:`sim_bridge.kinematics.psm_kinematics` (None: its default).
-    arm : ArmConfig
-        Arm options (tracking, power-up time); ``initial_jaw`` is taken from ``loop``.
-    psm_rest_jp, ecm_rest_jp : tuple of float or None
-        Where the PSMs / the ECM stand when a scene starts, before ``home`` (rad / m); None:
-        at the homing goal (batch runs), so that ``home`` takes one step.
-    kinematic_error_level : float
-        Class (mm) of the PSMs' hidden kinematic errors (:mod:`sim_bridge.kinematic_errors`);
-        0: perfect kinematics.
-    kinematic_error_seed : int
-        Seed of the errors' draw (fixed for the life of the simulation, as a robot's are).
-
-    """
-
-    world: WorldConfig = field(default_factory=WorldConfig)
-    grasp: GraspConfig = field(default_factory=GraspConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)
-    thread: ThreadDynamicsConfig = field(default_factory=ThreadDynamicsConfig)
-    loop: LoopConfig = field(default_factory=LoopConfig)
-    scene: SceneConfig = field(default_factory=SceneConfig)
-    psm_tool: str | None = None
-    arm: ArmConfig = field(default_factory=ArmConfig)
-    psm_rest_jp: tuple[float, ...] | None = None
-    ecm_rest_jp: tuple[float, ...] | None = None
-    kinematic_error_level: float = 0.0
-    kinematic_error_seed: int = 0
-
-
-def load_simulation_config(world_path=None, scene_path=None):
-    """
-    Read ``config/world.yaml`` and ``config/scene.yaml`` into a :class:`SimulationConfig`.
-
-    Parameters
-    ----------
-    world_path, scene_path : str or Path, optional
-        Files to read; default: the package's configuration files.
-
-    Returns
-    -------
-    SimulationConfig
-
-    """
-    world_path = config_path('world.yaml') if world_path is None else world_path
-    source = str(world_path)
-    data = load_yaml(world_path)
-    parts = {}
-    for key, cls in (('world', WorldConfig), ('grasp', GraspConfig), ('camera', CameraConfig),
-                     ('thread', ThreadDynamicsConfig), ('simulation', LoopConfig)):
-        mapping = section(data, key, source=source)
-        parts[key] = dataclass_from_mapping(cls, mapping, source=source, prefix=key)
-    return SimulationConfig(world=parts['world'], grasp=parts['grasp'], camera=parts['camera'],
-                            thread=parts['thread'], loop=parts['simulation'],
-                            scene=load_scene_config(scene_path))
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,14 +66,6 @@ class SimEvent:
     t: float
     kind: str
     data: dict
-
-
-def _needs_steps(period, dt, name):
-    steps = int(round(period / dt))
-    if steps < 1 or abs(steps * dt - period) > 1e-9:
-        raise ValueError(f'simulation {name} ({period} s) must be a positive multiple of the '
-                         f'physics step ({dt} s)')
-    return steps
 
 
 class Simulation:
@@ -272,6 +94,9 @@ class Simulation:
 
     Attributes
     ----------
+    physics : sim_bridge.physics.ScenePhysics
+        World, arms, needle, grasps, tissue and thread; the attributes below up to ``thread``
+        are its own.
     arms : dict of str to Arm
         ``'PSM1'``, ``'PSM2'``, ``'ECM'``; :meth:`reset` replaces the Arm objects in this dict.
     world : World
@@ -280,6 +105,7 @@ class Simulation:
     grasp : GraspManager
     tissue : TissueTracker
     camera : StereoCamera
+    thread : ThreadChain
     task : sim_bridge.task.SuturingTask
         Target pair, ground truth and scoring.
     observer : object
@@ -291,62 +117,78 @@ class Simulation:
     def __init__(self, config=None, rng=None, client=None, phantom='synthetic', gui=False,
                  kinematic_errors=None):
         self.config = config or load_simulation_config()
-        cfg = self.config
-        self._own_client = client is None
-        if client is None:
-            client = bullet.connect(gui=gui)
-        self.client = client
-        self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.needle_geometry = cfg.scene.needle
-        self.thread_geometry = cfg.scene.thread
-        self.phantom = self._build_phantom(phantom)
-        psm = psm_kinematics(cfg.psm_tool) if cfg.psm_tool else psm_kinematics()
-        self.kinematics = {'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
-        self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
-                           self.thread_geometry, client)
-        self.camera = StereoCamera(cfg.camera, client)
-        self.camera.make_shiny(self.world.needle_body)
-        self._dt = cfg.world.physics_step
-        self._thread_every = _needs_steps(cfg.loop.thread_period, self._dt, 'thread_period')
-        self._collision_every = _needs_steps(cfg.loop.collision_period, self._dt,
-                                             'collision_period')
-        self._rest_steps = max(1, int(round(cfg.loop.rest_time / self._dt)))
-        if kinematic_errors is None:
-            kinematic_errors = draw_arm_errors(cfg.kinematic_error_level,
-                                               np.random.default_rng(cfg.kinematic_error_seed),
-                                               PSMS)
-        # Only arms with a nonzero error take the slower path of a true pose of their own.
-        self._errors = {k: e for k, e in kinematic_errors.items() if not e.is_zero}
-        self._T_world_base_true = dict(self.world.T_world_base)
-        # What the robot believes (its registration): the frames it reports and is commanded in.
-        self._T_world_base = {k: (self._errors[k].T_believed_true @ T if k in self._errors
-                                  else T) for k, T in self._T_world_base_true.items()}
-        self._T_base_world = {k: invert_transform(v) for k, v in self._T_world_base.items()}
-        self.task = SuturingTask(self.phantom, cfg.scene.scoring, self._emit,
-                                 lambda: self._T_needle)
+        self.physics = ScenePhysics(self.config, self, rng=rng, client=client, phantom=phantom,
+                                    gui=gui, kinematic_errors=kinematic_errors)
+        self._events = []
+        self.task = SuturingTask(self.physics.phantom, self.config.scene.scoring, self._emit,
+                                 lambda: self.physics.T_needle)
         self.observer = GroundTruthObserver(self)
-        self.grasp = GraspManager(cfg.grasp, self.needle_geometry, PSMS)
-        self.tissue = TissueTracker(self.phantom, self.needle_geometry, cfg.scene.tissue)
-        # Highest point of the tissue (world z): far above it nothing can touch the tissue.
-        self._tissue_top = float(self.phantom.mesh_world().vertices[:, 2].max())
-        self._needle_reach = self.needle_geometry.radius + self.needle_geometry.wire_diameter
-        self._needle_tail = self.needle_geometry.tail
-        shape = cfg.world.instrument
-        self._instrument_reach = shape.jaw_length + shape.shaft_radius
-        self._thread_world = client.saveState()
-        self.arms = {}
         self.reset()
 
-    # ------------------------------------------------------------------ construction
-    def _build_phantom(self, phantom):
-        name, config = phantom_from_argument(self.config.scene, phantom)
-        return build_phantom(config, name=name)
+    # ------------------------------------------------------------------ the physics' parts
+    @property
+    def arms(self):
+        """Dict of str to Arm: ``'PSM1'``, ``'PSM2'``, ``'ECM'``."""
+        return self.physics.arms
+
+    @property
+    def world(self):
+        """World: the PyBullet bodies."""
+        return self.physics.world
+
+    @property
+    def phantom(self):
+        """sim_bridge.scene.phantom.Phantom: the phantom with its marker pairs."""
+        return self.physics.phantom
+
+    @property
+    def grasp(self):
+        """GraspManager: who holds the needle."""
+        return self.physics.grasp
+
+    @property
+    def tissue(self):
+        """TissueTracker: the needle's punctures of the tissue."""
+        return self.physics.tissue
+
+    @property
+    def camera(self):
+        """StereoCamera: the endoscope's stereo camera."""
+        return self.physics.camera
+
+    @property
+    def thread(self):
+        """ThreadChain: the suture thread (replaced by :meth:`reset`)."""
+        return self.physics.thread
+
+    @property
+    def kinematics(self):
+        """Dict of str to the arms' kinematics (PSM and ECM chains)."""
+        return self.physics.kinematics
+
+    @property
+    def needle_geometry(self):
+        """sim_bridge.common.needle.NeedleGeometry: the needle's shape."""
+        return self.physics.needle_geometry
+
+    @property
+    def thread_geometry(self):
+        """The thread's shape (``thread`` of the scene)."""
+        return self.physics.thread_geometry
+
+    @property
+    def client(self):
+        """The PyBullet client (None once closed)."""
+        return self.physics.client
+
+    @property
+    def rng(self):
+        """numpy.random.Generator: the scene's randomness (the needle start pose)."""
+        return self.physics.rng
 
     def close(self):
         """Disconnect the PyBullet client if the simulation created it."""
-        if self._own_client and self.client is not None:
-            self.client.disconnect()
-            self.client = None
+        self.physics.close()
 
     # ------------------------------------------------------------------ reset
     def reset(self, seed=None):
@@ -360,198 +202,28 @@ class Simulation:
             generator continues.
 
         """
-        if seed is not None:
-            self.rng = np.random.default_rng(seed)
-        cfg = self.config
-        self.client.restoreState(self._thread_world)
-        arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
-        self.arms.clear()
-        for name in ARMS:
-            config = arm_config if name in PSMS else replace(arm_config, initial_jaw=0.0)
-            rest = cfg.psm_rest_jp if name in PSMS else cfg.ecm_rest_jp
-            if rest is not None:
-                config = replace(config, initial_jp=tuple(rest))
-            self.arms[name] = Arm(name, self.kinematics[name], config)
-        self._arm_list = [self.arms[n] for n in ARMS]
-        self._tool_cache = {}
-        self._camera_local = None  # ECM tool tip (RCM frame) the PSMs' frames were set from
-        if cfg.world.frames == 'cart':
-            self.arms['ECM'].set_base_frame(self._T_world_base['ECM'], 'world')
-            self._follow_camera()
-        self._steps = 0
         self._events = []
-        self.grasp.reset()
-        self.tissue.reset()
-        self._contact = dict.fromkeys(PSMS, False)
-        self._contact_checked = dict.fromkeys(PSMS)  # joints and jaw of the last check
-        self._collisions = 0
-        self._needle_mode = 'resting'
-        self._still_steps = 0
-        self._release_height = None
-        self._dropped = False
-        self._T_needle = self._settled_needle_start()
-        self._T_needle_prev = self._T_needle.copy()
-        self.world.set_needle_collisions(False)
-        thread_nodes = self.thread_geometry.rest_points(self.needle_geometry, self._T_needle)
-        self.thread = ThreadChain(thread_nodes, self.thread_geometry.radius, cfg.thread)
-        for _ in range(int(round(cfg.loop.needle_start.settle_time / cfg.loop.thread_period))):
-            self.thread.follow(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
-        pairs = list(self.phantom.markers)
-        target = cfg.loop.target_pair if cfg.loop.target_pair is not None else pairs[0]
+        self.physics.reset(seed)
+        target = self.config.loop.target_pair
+        if target is None:
+            target = next(iter(self.phantom.markers))
         self.set_target_pair(target)
-        self.grasp.update(self._jaws(), self._tool_pose, self._T_needle)
+        self.physics.update_grasp()
 
-    def _settled_needle_start(self):
-        """Drop the needle flat onto the support at the seeded start pose and let it settle."""
-        start = self.config.loop.needle_start
-        xy = np.asarray(start.position, dtype=float)
-        xy = xy + self.rng.uniform(-start.position_jitter, start.position_jitter, 2)
-        yaw = start.yaw + self.rng.uniform(-start.yaw_jitter, start.yaw_jitter)
-        c, s = np.cos(yaw), np.sin(yaw)
-        T = np.eye(4)
-        T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-        T[:2, 3] = xy
-        wire = self.needle_geometry.points_world(T, 24)
-        top = float(self.world.support_height(wire[:, :2]).max())
-        T[2, 3] = top + 0.5 * self.needle_geometry.wire_diameter + start.drop_height
-        world = self.world
-        world.set_needle_pose(T)
-        world.set_needle_collisions(True)
-        for _ in range(int(round(start.settle_time / self._dt))):
-            world.step()
-        world.set_needle_collisions(False)
-        settled = world.needle_pose()
-        moved = np.linalg.norm(settled[:2, 3] - T[:2, 3])
-        if moved <= _START_SLIDE and settled[2, 2] >= _START_UPRIGHT:
-            return self._resting_on_tissue(settled)
-        # A curved or sloping pad lets the dropped needle slide off (or tunnel through a
-        # coarse collision mesh): lay it on the surface where it was dropped instead.
-        return self._resting_on_tissue(self._laid_on_support(T))
-
-    def _resting_on_tissue(self, T):
-        """
-        Return the resting pose ``T``, raised so that the wire lies on the tissue, not in it.
-
-        The collision mesh and the support height are coarser than the tissue surface the
-        tracker follows; on the scanned pad a needle laid on them could start with its tip
-        0.15 mm inside the tissue, and lifting it then counted as an exit and a puncture
-        (trauma on every throw that started so).
-        """
-        gap = 0.5 * self.needle_geometry.wire_diameter
-        for _ in range(3):  # the phantom is upright: its z is close to world z
-            deepest = self.tissue.wire_depth(T)
-            if deepest <= _REST_TOLERANCE - gap:
-                break
-            T = T.copy()
-            T[2, 3] += deepest + gap
-        self.world.set_needle_pose(T)
-        return T
-
-    def _laid_on_support(self, T):
-        """Lay the flat needle pose ``T`` on the support, tilted to its local plane, touching."""
-        geometry = self.needle_geometry
-        wire = geometry.points_world(T, 24)
-        heights = self.world.support_height(wire[:, :2])
-        A = np.column_stack([wire[:, :2], np.ones(len(wire))])
-        (a, b, _), *_ = np.linalg.lstsq(A, heights, rcond=None)
-        normal = np.array([-a, -b, 1.0]) / np.sqrt(a * a + b * b + 1.0)
-        axis = np.cross([0.0, 0.0, 1.0], normal)
-        sin, cos = np.linalg.norm(axis), normal[2]
-        R = np.eye(3)
-        if sin > 1e-12:
-            k = axis / sin
-            K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-            R = np.eye(3) + sin * K + (1.0 - cos) * K @ K
-        laid = T.copy()
-        laid[:3, :3] = R @ T[:3, :3]
-        wire = geometry.points_world(laid, 24)
-        gap = wire[:, 2] - self.world.support_height(wire[:, :2])
-        laid[2, 3] += 0.5 * geometry.wire_diameter - gap.min()
-        return laid
-
-    # ------------------------------------------------------------------ small helpers
-    def _jaws(self):
-        return {name: self.arms[name].jaw_measured_jp for name in PSMS}
-
-    def _tool_pose(self, name):
-        """Return the true tool-tip pose in ``world`` (read-only), new only when the arm moved."""
-        local = self.arms[name].local_measured_cp_view  # the same array while the arm is still
-        cached = self._tool_cache.get(name)
-        if cached is not None and cached[0] is local:
-            return cached[1]
-        if name in self._errors:
-            q = self._true_jp(name, self.arms[name])
-            T = self._T_world_base_true[name] @ self.kinematics[name].fk(q)
-        else:
-            T = self._T_world_base[name] @ local
-        T.flags.writeable = False
-        self._tool_cache[name] = (local, T)
-        return T
-
-    def reported_tool_pose(self, name):
-        """
-        Tool-tip pose of an arm in ``world`` as the robot reports it (its own kinematics).
-
-        ``T_world_base_believed @ local_measured_cp``: what ``measured_cp`` says, consistent
-        with the arm's commands; the true pose (:meth:`tool_pose`) differs by the hidden
-        kinematic error.
-
-        Parameters
-        ----------
-        name : str
-            Arm name.
-
-        Returns
-        -------
-        ndarray, shape (4, 4)
-
-        """
-        if name not in self._errors:
-            return self._tool_pose(name).copy()
-        return self._T_world_base[name] @ self.arms[name].local_measured_cp_view
-
-    def _true_jp(self, name, arm):
-        """Joints where an arm truly is: its measured joints plus its hidden offsets."""
-        error = self._errors.get(name)
-        q = arm.measured_jp
-        return q if error is None else q + error.joint_offset
-
-    def _follow_camera(self):
-        """
-        Patient-cart frames: put each PSM's reference frame on the ECM's camera frame ``ECM``.
-
-        Computed again only when the ECM has moved (its tool-tip array is replaced then).
-        """
-        local = self.arms['ECM'].local_measured_cp_view
-        if local is self._camera_local:
-            return
-        self._camera_local = local
-        T = self._tool_pose('ECM')
-        T_camera_world = np.eye(4)
-        R_t = T[:3, :3].T
-        T_camera_world[:3, :3] = R_t
-        T_camera_world[:3, 3] = -(R_t @ T[:3, 3])
-        for name in PSMS:
-            self.arms[name].set_base_frame(T_camera_world @ self._T_world_base[name], 'ECM',
-                                           checked=True)
-
-    def _emit(self, kind, **data):
-        self._events.append(SimEvent(self.time, kind, data))
-
-    # ------------------------------------------------------------------ time
+    # ------------------------------------------------------------------ time and the loop
     @property
     def dt(self):
         """Physics step (s)."""
-        return self._dt
+        return self.physics.dt
 
     @property
     def time(self):
         """Simulation time (s): whole physics steps since :meth:`reset`."""
-        return self._steps * self._dt
+        return self.physics.time
 
     def step(self, after_arms=None):
         """
-        Advance the scene by one physics step (see the module docstring for the order).
+        Advance the scene by one physics step (:meth:`sim_bridge.physics.ScenePhysics.step`).
 
         Parameters
         ----------
@@ -562,26 +234,7 @@ class Simulation:
             scene's work. :attr:`time` is already the step's end.
 
         """
-        dt = self._dt
-        self._steps += 1
-        t = self._steps * dt
-        for arm in self._arm_list:
-            arm.step(dt)
-        if self._camera_local is not None:
-            self._follow_camera()
-        if after_arms is not None:
-            after_arms()
-        for ev in self.grasp.update(self._jaws(), self._tool_pose, self._T_needle):
-            self._on_grasp_event(t, ev)
-        self._move_needle()
-        if self._needle_near_tissue():
-            for ev in self.tissue.update(t, self._T_needle):
-                self._on_tissue_event(t, ev)
-        if self._steps % self._thread_every == 0:
-            tail = self._T_needle[:3, :3] @ self._needle_tail + self._T_needle[:3, 3]
-            self.thread.follow(self._thread_every * dt, tail, self.world.support_height)
-        if self._steps % self._collision_every == 0:
-            self._check_contacts(t)
+        self.physics.step(after_arms)
 
     def run(self, seconds, controller=None, control_period=None):
         """
@@ -591,17 +244,17 @@ class Simulation:
         ----------
         seconds : float
             Duration (s); rounded to whole physics steps.
-        controller : object, optional
-            Anything with ``step(observation) -> Command`` (e.g.
-            :class:`suture_lfd.planning.expert.ScriptedExpert`); called every ``control_period``
-            and its command applied with :meth:`apply`.
+        controller : sim_bridge.control.Controller, optional
+            Its ``step(observation) -> Command`` is called every ``control_period`` and the
+            command applied with :meth:`apply` (e.g.
+            :class:`suture_lfd.planning.expert.ScriptedExpert`).
         control_period : float, optional
             Time (s) between controller calls (default: every physics step); a multiple of the
             physics step.
 
         """
-        n = int(round(seconds / self._dt))
-        every = 1 if control_period is None else _needs_steps(control_period, self._dt,
+        n = int(round(seconds / self.dt))
+        every = 1 if control_period is None else steps_per_period(control_period, self.dt,
                                                                'control_period')
         for k in range(n):
             if controller is not None and k % every == 0:
@@ -618,122 +271,52 @@ class Simulation:
             Longest simulated time (s) to wait.
 
         """
-        for arm in self._arm_list:
+        for arm in self.physics.arm_list:
             arm.state_command('enable')
             if arm.operating_state.state == 'ENABLED':
                 arm.state_command('home')
-        for _ in range(int(round(timeout / self._dt))):
-            states = [arm.operating_state for arm in self._arm_list]
+        for _ in range(int(round(timeout / self.dt))):
+            states = [arm.operating_state for arm in self.physics.arm_list]
             if all(s.state == 'ENABLED' and s.is_homed and not s.is_busy for s in states):
                 return
-            for arm, s in zip(self._arm_list, states):
+            for arm, s in zip(self.physics.arm_list, states):
                 if s.state == 'ENABLED' and not s.is_homed and not s.is_busy:
                     arm.state_command('home')  # powered up after a power-up time
             self.step()
-        raise RuntimeError(f'arms not homed after {timeout} s: '
-                           + ', '.join(f'{a.name} {a.operating_state}' for a in self._arm_list))
+        raise RuntimeError(f'arms not homed after {timeout} s: ' + ', '.join(
+            f'{a.name} {a.operating_state}' for a in self.physics.arm_list))
 
-    # ------------------------------------------------------------------ grasp and needle
-    def _on_grasp_event(self, t, ev):
+    # ------------------------------------------------------------------ the physics' events
+    def on_grasp_event(self, t, ev):
+        """Score and record a grasp or release of the needle."""
         if ev.kind == 'grasp':
-            self._needle_mode = 'held'
-            self._release_height = None
-            self._dropped = False
-            self.world.set_needle_collisions(False)
             self.task.scorer.on_grasp(t, ev.arm)
         else:
             self.task.scorer.on_release(t, ev.arm)
         self._emit(ev.kind, arm=ev.arm, leader=ev.leader, distance=ev.distance)
         self._report_score()
 
-    def _move_needle(self):
-        leader = self.grasp.leader
-        self._T_needle_prev = self._T_needle
-        if leader is not None:
-            self._T_needle = self.grasp.needle_pose(self._tool_pose(leader))
-            return
-        if self._needle_mode == 'held':
-            # just released by every arm
-            if self.tissue.in_tissue:
-                # the tissue holds it where it is, but no instrument does: a dropped needle
-                self._needle_mode = 'tissue'
-                self.task.scorer.on_drop(self.time)
-                self._emit('drop', fall=0.0, in_tissue=True)
-                self._report_score()
-            else:
-                self._start_falling()
-        if self._needle_mode != 'free':
-            return
-        world = self.world
-        world.step()
-        self._T_needle = world.needle_pose()
-        fall = self._release_height - self._T_needle[2, 3]
-        if not self._dropped and fall > self.config.loop.drop_distance:
-            self._dropped = True
-            self.task.scorer.on_drop(self.time)
-            self._emit('drop', fall=float(fall))
-            self._report_score()
-        linear, angular = world.needle_speed()
-        slow = linear < self.config.loop.rest_speed and angular * self.needle_geometry.radius \
-            < self.config.loop.rest_speed
-        self._still_steps = self._still_steps + 1 if slow else 0
-        if self._still_steps >= self._rest_steps:
-            self._needle_mode = 'resting'
-            world.set_needle_collisions(False)
+    def on_drop(self, t, **data):
+        """Score and record a drop of the needle (``fall``, ``in_tissue``)."""
+        self.task.scorer.on_drop(t)
+        self._emit('drop', **data)
+        self._report_score()
 
-    def _start_falling(self):
-        """Hand the released needle to PyBullet with the velocity it had in the jaw."""
-        dt = self._dt
-        T0, T1 = self._T_needle_prev, self._T_needle
-        v = (T1[:3, 3] - T0[:3, 3]) / dt
-        dR = T1[:3, :3] @ T0[:3, :3].T
-        angle_axis = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
-        w = 0.5 * angle_axis / dt
-        self.world.set_needle_pose(T1, v, w)
-        self.world.set_needle_collisions(True)
-        self._needle_mode = 'free'
-        self._still_steps = 0
-        self._release_height = float(T1[2, 3])
-
-    def _on_tissue_event(self, t, ev):
+    def on_tissue_event(self, t, ev):
+        """Score and record a crossing of the tissue surface by the needle tip."""
         self.task.scorer.on_tissue_event(ev)
         self._emit(ev.kind, point=ev.point, distance_to_marker=ev.distance_to_marker,
                    marker=ev.marker_name, deviation=ev.deviation)
         self._report_score()
 
-    def _needle_near_tissue(self):
-        """
-        Whether the tissue tracker must look: the needle is in or within ~1 cm of the tissue.
+    def on_collision(self, t, arm, depth):
+        """Score and record the start of an instrument's contact with the tissue."""
+        self.task.scorer.on_collision(t, arm)
+        self._emit('collision', arm=arm, depth=depth)
+        self._report_score()
 
-        A needle entirely higher than ``margin`` above the tissue's highest point cannot cross
-        the surface within a step, so the tracker (which only reacts to crossings and to
-        punctures it holds) has nothing to see.
-        """
-        lowest = self._T_needle[2, 3] - self._needle_reach
-        return self.tissue.in_tissue or lowest < self._tissue_top + _TRACK_MARGIN
-
-    def _check_contacts(self, t):
-        depth_limit = self.config.loop.collision_depth
-        for name in PSMS:
-            arm = self.arms[name]
-            if self._tool_pose(name)[2, 3] - self._instrument_reach > self._tissue_top:
-                self._contact[name] = False
-                self._contact_checked[name] = None
-                continue
-            q, jaw = self._true_jp(name, arm), arm.jaw_measured_jp
-            checked = (q.tobytes(), jaw)
-            if checked == self._contact_checked[name]:
-                continue  # the instrument has not moved since the last check: same contact
-            self._contact_checked[name] = checked
-            points = self.world.instrument_points(name, q, jaw)
-            depth = float(self.phantom.penetration(points).max())
-            touching = depth > depth_limit
-            if touching and not self._contact[name]:
-                self._collisions += 1
-                self.task.scorer.on_collision(t, name)
-                self._emit('collision', arm=name, depth=depth)
-                self._report_score()
-            self._contact[name] = touching
+    def _emit(self, kind, **data):
+        self._events.append(SimEvent(self.time, kind, data))
 
     def _report_score(self):
         self.task.report_score(self.time)
@@ -741,11 +324,7 @@ class Simulation:
     # ------------------------------------------------------------------ commands
     def apply(self, command):
         """
-        Send a controller's command to the arms.
-
-        Tool targets ``T_world_tool`` become each PSM's ``servo_cp`` (expressed in the arm's
-        RCM frame ``<ARM>_base``), jaw targets its ``jaw_servo_jp``; None entries are skipped.
-        Invalid targets (NaN, inf, unreachable) are rejected by the arm as ``error`` events.
+        Send a controller's command to the arms (:meth:`sim_bridge.physics.ScenePhysics.apply`).
 
         Parameters
         ----------
@@ -753,17 +332,7 @@ class Simulation:
             Targets per arm (``world`` frame).
 
         """
-        for name, T in (command.T_world_tool or {}).items():
-            if T is None:
-                continue
-            arm = self.arms[name]
-            T = np.asarray(T, dtype=float)
-            if T.shape == (4, 4) and np.isfinite(T).all():
-                T = self._T_base_world[name] @ T
-            arm.servo_cp(T, local=True)  # the arm rejects malformed goals with an error event
-        for name, jaw in (command.jaw or {}).items():
-            if jaw is not None:
-                self.arms[name].jaw_servo_jp(jaw)
+        self.physics.apply(command)
 
     def set_target_pair(self, name):
         """
@@ -776,9 +345,7 @@ class Simulation:
 
         """
         self.task.start(name, self.time, self.grasp.holders)
-        self.tissue.reset()
-        self.tissue.set_target_pair(name)
-        self.tissue.update(self.time, self._T_needle)
+        self.physics.aim_tissue(name)
 
     def attach_needle(self, arm, T_tool_needle=None):
         """
@@ -792,15 +359,8 @@ class Simulation:
             Grasp; default: the needle's canonical grasp.
 
         """
-        if arm not in PSMS:
-            raise ValueError(f'attach_needle needs a PSM, got {arm!r}')
-        G = self.needle_geometry.T_tool_needle if T_tool_needle is None else T_tool_needle
-        self.grasp.attach(arm, G)
-        self._needle_mode = 'held'
-        self._T_needle = self.grasp.needle_pose(self._tool_pose(arm))
-        self._T_needle_prev = self._T_needle.copy()
+        self.physics.attach_needle(arm, T_tool_needle)
         self.task.scorer.on_grasp(self.time, arm)
-        self.tissue.update(self.time, self._T_needle)
 
     # ------------------------------------------------------------------ observation and state
     @property
@@ -816,7 +376,7 @@ class Simulation:
     @property
     def needle_mode(self):
         """``'held'``, ``'tissue'`` (free, held by the tissue), ``'free'`` or ``'resting'``."""
-        return self._needle_mode
+        return self.physics.needle_mode
 
     def observation(self):
         """
@@ -862,46 +422,19 @@ class Simulation:
 
     def needle_tip(self):
         """Needle tip position (m, ``world``), shape (3,)."""
-        return self._T_needle[:3, :3] @ self.needle_geometry.tip + self._T_needle[:3, 3]
+        return self.physics.needle_tip()
 
     def thread_points(self):
         """Thread node positions (m, ``world``), shape (n_segments + 1, 3), node 0 at the tail."""
-        return self.thread.nodes
+        return self.physics.thread_points()
 
     def T_world_base(self, arm):  # noqa: N802 (the project names poses T_a_b)
-        """
-        RCM frame ``<ARM>_base`` of an arm in ``world``, where it truly is.
-
-        Parameters
-        ----------
-        arm : str
-            ``'PSM1'``, ``'PSM2'`` or ``'ECM'``.
-
-        Returns
-        -------
-        ndarray, shape (4, 4)
-
-        """
-        return self._T_world_base_true[arm].copy()
+        """RCM frame ``<ARM>_base`` of ``arm`` in ``world``, where it truly is, (4, 4)."""
+        return self.physics.T_world_base(arm)
 
     def believed_base(self, arm):
-        """
-        RCM frame of an arm in ``world`` as the robot believes it (after its registration).
-
-        The arms report their poses (``measured_cp``) and take Cartesian commands in this frame;
-        it differs from :meth:`T_world_base` by the arm's hidden registration error.
-
-        Parameters
-        ----------
-        arm : str
-            ``'PSM1'``, ``'PSM2'`` or ``'ECM'``.
-
-        Returns
-        -------
-        ndarray, shape (4, 4)
-
-        """
-        return self._T_world_base[arm].copy()
+        """RCM frame of ``arm`` in ``world`` as the robot believes it (its registration)."""
+        return self.physics.believed_base(arm)
 
     def phantom_pose(self):
         """Phantom frame in ``world``, shape (4, 4)."""
@@ -919,36 +452,37 @@ class Simulation:
         return self.task.marker_poses()
 
     def tool_pose(self, arm):
-        """
-        Tool-tip pose of an arm in ``world``, where it truly is.
+        """Tool-tip pose of ``arm`` in ``world``, where it truly is: a (4, 4) copy."""
+        return self.physics.tool_pose(arm)
 
-        Parameters
-        ----------
-        arm : str
-            Arm name.
+    def reported_tool_pose(self, name):
+        """Tool-tip pose of an arm in ``world`` as the robot reports it (its kinematics)."""
+        return self.physics.reported_tool_pose(name)
 
-        Returns
-        -------
-        ndarray, shape (4, 4)
-            A copy (the observation's poses are shared, read-only arrays).
+    # what the ground-truth observer (sim_bridge.observers) reads of the scene: the physics' own
+    def _tool_pose(self, name):
+        return self.physics._tool_pose(name)
 
-        """
-        return self._tool_pose(arm).copy()
+    @property
+    def _T_needle(self):  # noqa: N802 (the project names poses T_a_b)
+        return self.physics.T_needle
+
+    @property
+    def _T_world_base_true(self):  # noqa: N802 (the project names poses T_a_b)
+        return self.physics.T_world_base_true
+
+    @property
+    def _errors(self):
+        return self.physics.errors
 
     # ------------------------------------------------------------------ drawing
     def sync_world(self):
         """Copy arm joints, jaw angles, needle pose and thread into PyBullet (for drawing)."""
-        world = self.world
-        for name, arm in self.arms.items():
-            world.set_arm_joints(name, self._true_jp(name, arm),
-                                 arm.jaw_measured_jp if name in PSMS else None)
-        if self._needle_mode != 'free':
-            world.set_needle_pose(self._T_needle)
-        world.set_thread_points(self.thread.nodes)
+        self.physics.sync_world()
 
     def camera_pose(self):
         """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4) (a copy)."""
-        return self._tool_pose('ECM').copy()
+        return self.physics.camera_pose()
 
     def render(self):
         """
@@ -960,5 +494,4 @@ class Simulation:
             Left/right colour and metric depth images and camera poses.
 
         """
-        self.sync_world()
-        return self.camera.render(self.camera_pose())
+        return self.physics.render()
