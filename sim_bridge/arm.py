@@ -40,8 +40,9 @@ PSM (6 joints) reaches position and orientation, and an unreachable pose is an `
 Frames: ``measured_cp = base_frame @ local_measured_cp``, ``local_measured_cp`` being the tool tip
 in the RCM frame ``<ARM>_base`` (DH chain and tooltip offset). Units are SI.
 
-Size: one arm's state machine, commands and per-step motion share its state on the simulator's hot
-path; they stay in one file for speed.
+Size: one class, the arm's whole CRTK surface: its twenty-odd commands all check their input
+against the same state (operating state, limits, frames, the running motion) that :meth:`Arm.step`
+advances and the state properties read; cut apart, one object would live in several files.
 """
 
 from dataclasses import dataclass

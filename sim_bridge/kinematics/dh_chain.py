@@ -14,8 +14,9 @@ dVRK arms) is
 
 Units are SI (metres, radians); poses are 4x4 homogeneous matrices ``T_a_b``.
 
-Size: forward kinematics, link frames and Jacobians share the scalar per-link arithmetic of the hot
-path, kept in one file for speed.
+Size: one chain class whose forward kinematics, link frames and Jacobians run over the same
+per-link parameters and scalar arithmetic, with the input checks they share; the Pinocchio model
+beside it is the same chain for the cross-check.
 """
 
 from collections.abc import Iterable, Sequence
