@@ -1,5 +1,5 @@
 """
-mypy on the annotated public API: geometry, validation, kinematics, robot model and the DMP.
+mypy on the annotated public API: the foundation, kinematics, robot model and the DMP.
 
 The settings are the ``[mypy]`` sections of ``setup.cfg`` (every function annotated, no
 implicit ``Optional``; PyBullet and the other untyped libraries are taken as ``Any``). A second
@@ -14,8 +14,7 @@ import textwrap
 from harness import REPO
 
 # The modules whose public API is annotated, checked with every function typed.
-ANNOTATED = ('sim_bridge/common/geometry.py', 'sim_bridge/common/validation.py',
-             'sim_bridge/kinematics',
+ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics',
              'sim_bridge/robot_model.py', 'suture_lfd/dmp')
 
 

@@ -5,14 +5,18 @@ One way to write them with their format tag and version, and one way to read the
 names the file and the key in every error.
 """
 
+from collections.abc import Mapping
 import os
 from pathlib import Path
+from typing import Any
 import zipfile
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def save_archive(path, arrays, fmt, version, *, compressed=False):
+def save_archive(path: str | os.PathLike[str], arrays: Mapping[str, ArrayLike], fmt: str,
+                 version: int, *, compressed: bool = False) -> None:
     """
     Write ``arrays`` to an ``.npz`` file with the keys ``format`` and ``format_version``.
 
@@ -35,13 +39,15 @@ def save_archive(path, arrays, fmt, version, *, compressed=False):
     """
     path = Path(path)
     arrays = {'format': np.array(fmt), 'format_version': np.array(version), **arrays}
+    save: Any = np.savez_compressed if compressed else np.savez
     tmp = path.with_name(path.name + '.part')
     with open(tmp, 'wb') as handle:
-        (np.savez_compressed if compressed else np.savez)(handle, **arrays)
+        save(handle, **arrays)
     os.replace(tmp, path)
 
 
-def load_archive(path, fmt, version, what):
+def load_archive(path: str | os.PathLike[str], fmt: str, version: int,
+                 what: str) -> dict[str, np.ndarray]:
     """
     Read an ``.npz`` file written by :func:`save_archive` and check its tag and version.
 

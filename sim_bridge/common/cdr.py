@@ -14,10 +14,12 @@ message builders make the same messages (the tests read these bytes back with rc
 again with rosbags). No ROS imports: bag writing runs without ROS.
 """
 
+from collections.abc import Sequence
 import functools
 import struct
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 _CDR_LE = b'\x00\x01\x00\x00'
 _HEADER = struct.Struct('<iII')          # stamp sec, nanosec, frame_id length (with its NUL)
@@ -28,20 +30,20 @@ _NS = 1_000_000_000
 
 
 @functools.lru_cache(maxsize=256)
-def _frame_tail(frame_id, alignment):
+def _frame_tail(frame_id: str, alignment: int) -> tuple[int, bytes]:
     """Return the frame_id's CDR string length (with NUL) and bytes padded to ``alignment``."""
     frame = frame_id.encode('utf-8') + b'\x00'
     used = 12 + len(frame)               # body bytes after stamp + length + string
     return len(frame), frame + bytes(-used % alignment)
 
 
-def _cdr_header(ns, frame_id, alignment):
+def _cdr_header(ns: int, frame_id: str, alignment: int) -> bytes:
     """Return the encapsulation and a Header of stamp ``ns`` (int), padded to ``alignment``."""
     length, tail = _frame_tail(frame_id, alignment)
     return _CDR_LE + _HEADER.pack(ns // _NS, ns % _NS, length) + tail
 
 
-def pose_stamped(ns, frame_id, pose):
+def pose_stamped(ns: int, frame_id: str, pose: Sequence[float]) -> bytes:
     """
     Return the CDR bytes of a ``geometry_msgs/PoseStamped``.
 
@@ -58,7 +60,7 @@ def pose_stamped(ns, frame_id, pose):
     return _cdr_header(ns, frame_id, 8) + _POSE7.pack(*pose)
 
 
-def vector6_stamped(ns, frame_id, v):
+def vector6_stamped(ns: int, frame_id: str, v: ArrayLike) -> bytes:
     """
     Return the CDR bytes of a ``geometry_msgs/TwistStamped`` or ``WrenchStamped``.
 
@@ -69,7 +71,7 @@ def vector6_stamped(ns, frame_id, v):
 
 
 @functools.lru_cache(maxsize=64)
-def string_sequence(names):
+def string_sequence(names: tuple[str, ...]) -> bytes:
     """Return the CDR bytes of a ``string[]`` (tuple of str), from a 4-byte aligned offset."""
     out = bytearray(_U32.pack(len(names)))
     for name in names:
@@ -79,7 +81,7 @@ def string_sequence(names):
     return bytes(out)
 
 
-def _append_doubles(out, values):
+def _append_doubles(out: bytearray, values: Sequence[float]) -> None:
     """Append a ``float64[]`` to ``out`` (a CDR body without its 4-byte header)."""
     out += bytes(-len(out) % 4)
     out += _U32.pack(len(values))
@@ -88,7 +90,8 @@ def _append_doubles(out, values):
         out += struct.pack(f'<{len(values)}d', *values)
 
 
-def joint_state(ns, names, position=(), velocity=(), effort=()):
+def joint_state(ns: int, names: tuple[str, ...], position: Sequence[float] = (),
+                velocity: Sequence[float] = (), effort: Sequence[float] = ()) -> bytes:
     """
     Return the CDR bytes of a ``sensor_msgs/JointState`` (frame_id empty, as the dVRK's).
 
@@ -107,7 +110,7 @@ def joint_state(ns, names, position=(), velocity=(), effort=()):
     return _CDR_LE + bytes(body)
 
 
-def jacobian_array(J):
+def jacobian_array(J: ArrayLike) -> bytes:
     """
     Return the CDR bytes of a ``(6, n)`` Jacobian as a ``std_msgs/Float64MultiArray``.
 
@@ -137,7 +140,7 @@ _CDR_LE_KIND = b'\x00\x01'           # encapsulation kind CDR_LE (options ignore
 _DOUBLE = struct.Struct('<d')
 
 
-def _read_header(raw):
+def _read_header(raw: bytes) -> tuple[float, str, int] | None:
     """(stamp seconds, frame_id, offset after it from the CDR body start) or None."""
     if len(raw) < 16 or raw[:2] != _CDR_LE_KIND:
         return None
@@ -148,7 +151,7 @@ def _read_header(raw):
     return sec + nanosec * 1e-9, raw[16:end - 1].decode('utf-8', 'replace'), end - 4
 
 
-def pose_stamped_fields(raw):
+def pose_stamped_fields(raw: bytes) -> tuple[float, str, tuple[float, ...]] | None:
     """
     Read a geometry_msgs/PoseStamped from CDR bytes without building a message object.
 
@@ -169,7 +172,7 @@ def pose_stamped_fields(raw):
     return stamp, frame, _POSE7.unpack_from(raw, 4 + at)
 
 
-def joint_state_first_position(raw):
+def joint_state_first_position(raw: bytes) -> tuple[float, float] | None:
     """
     Read the stamp and ``position[0]`` of a sensor_msgs/JointState from CDR bytes.
 

@@ -5,17 +5,22 @@ Every component takes a frozen dataclass; this module is the one place that read
 which key of which file is wrong and what was expected.
 """
 
+from collections.abc import Mapping
 from dataclasses import MISSING, fields, is_dataclass
 import math
+import os
 from pathlib import Path
 import types
 import typing
+from typing import Any, TypeVar
 
 from sim_bridge.common.errors import ConfigError
 import yaml
 
+_T = TypeVar('_T')
 
-def load_yaml(path):
+
+def load_yaml(path: str | os.PathLike[str]) -> Any:
     """
     Read a YAML file into a mapping.
 
@@ -52,7 +57,7 @@ def load_yaml(path):
     return data
 
 
-def section(data, key, *, source):
+def section(data: Any, key: str, *, source: str) -> dict[str, Any]:
     """
     Return ``data[key]`` as a mapping, or raise a ConfigError naming the file and key.
 
@@ -83,11 +88,11 @@ def section(data, key, *, source):
     return node
 
 
-def _type_name(tp):
+def _type_name(tp: Any) -> str:
     return getattr(tp, '__name__', None) or str(tp).replace('typing.', '')
 
 
-def _coerce(value, tp, *, source, key):
+def _coerce(value: Any, tp: Any, *, source: str, key: str) -> Any:
     """Check ``value`` against the annotation ``tp`` and return it converted."""
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
@@ -105,7 +110,7 @@ def _coerce(value, tp, *, source, key):
             except ConfigError as exc:
                 errors.append(str(exc))
         raise ConfigError(errors[0] if errors else f'{source}: key {key!r} may not be null')
-    if is_dataclass(tp):
+    if isinstance(tp, type) and is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(
                 f'{source}: key {key!r} must be a mapping for {tp.__name__}, '
@@ -154,7 +159,8 @@ def _coerce(value, tp, *, source, key):
     raise ConfigError(f'{source}: key {key!r} must be {_type_name(tp)}, got {value!r}')
 
 
-def dataclass_from_mapping(cls, mapping, *, source, prefix=''):
+def dataclass_from_mapping(cls: type[_T], mapping: Mapping[str, Any] | None, *, source: str,
+                           prefix: str = '') -> _T:
     """
     Build the frozen dataclass ``cls`` from a mapping, checking every key.
 
@@ -182,7 +188,7 @@ def dataclass_from_mapping(cls, mapping, *, source, prefix=''):
     if not isinstance(mapping, dict):
         raise ConfigError(f'{source}: key {prefix or "<top>"!r} must be a mapping')
     hints = typing.get_type_hints(cls)
-    known = {f.name: f for f in fields(cls) if f.init}
+    known = {f.name: f for f in fields(cls) if f.init}  # type: ignore[arg-type]
     dotted = (prefix + '.') if prefix else ''
     unknown = sorted(set(mapping) - set(known))
     if unknown:

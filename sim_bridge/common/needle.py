@@ -46,13 +46,15 @@ All lengths are metres, angles radians unless a name ends in ``_deg``.
 
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
-from sim_bridge.common.validation import check_positive
+from sim_bridge.common.validation import FloatArray, check_positive
 
 
-def _rot_x(angle):
+def _rot_x(angle: float) -> FloatArray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
@@ -88,7 +90,7 @@ class NeedleGeometry:
     grasp_depth: float = 0.006
     mass: float = 0.0005
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_positive(self.radius, 'needle radius (m)')
         if not 0.0 < self.arc_deg < 360.0:
             raise ValueError(f'needle arc_deg must be in (0, 360), got {self.arc_deg}')
@@ -103,31 +105,31 @@ class NeedleGeometry:
 
     # ------------------------------------------------------------------ angles and parameters
     @property
-    def arc(self):
+    def arc(self) -> float:
         """Arc angle (rad)."""
         return math.radians(self.arc_deg)
 
     @property
-    def tail_angle(self):
+    def tail_angle(self) -> float:
         """Polar angle (rad) of the tail in the needle frame (pi)."""
         return math.pi
 
     @property
-    def tip_angle(self):
+    def tip_angle(self) -> float:
         """Polar angle (rad) of the tip in the needle frame (pi - arc)."""
         return math.pi - self.arc
 
     @property
-    def length(self):
+    def length(self) -> float:
         """Arc length (m) of the needle centre line."""
         return self.radius * self.arc
 
     @property
-    def chord(self):
+    def chord(self) -> float:
         """Straight tail-to-tip distance (m): ``2 R sin(arc / 2)`` (17.63 mm by default)."""
         return 2.0 * self.radius * math.sin(self.arc / 2.0)
 
-    def angle_at(self, s):
+    def angle_at(self, s: ArrayLike) -> Any:
         """
         Polar angle (rad) in the needle frame of arc parameter ``s``.
 
@@ -145,7 +147,7 @@ class NeedleGeometry:
         phi = math.pi - np.asarray(s, dtype=float) * self.arc
         return float(phi) if phi.ndim == 0 else phi
 
-    def s_of_angle(self, phi):
+    def s_of_angle(self, phi: ArrayLike) -> Any:
         """
         Arc parameter of the polar angle ``phi`` (rad), unwrapped about the arc middle.
 
@@ -170,7 +172,7 @@ class NeedleGeometry:
         return float(s) if np.ndim(s) == 0 else s
 
     # ------------------------------------------------------------------ points in the needle frame
-    def point_at(self, s):
+    def point_at(self, s: ArrayLike) -> FloatArray:
         """
         Point(s) of the arc centre line in the needle frame.
 
@@ -190,7 +192,7 @@ class NeedleGeometry:
                         np.zeros_like(phi)], axis=-1)
         return pts
 
-    def tangent_at(self, s):
+    def tangent_at(self, s: ArrayLike) -> FloatArray:
         """
         Return unit tangent(s) of the arc, pointing from tail towards tip, in the needle frame.
 
@@ -208,7 +210,7 @@ class NeedleGeometry:
         phi = math.pi - np.asarray(s, dtype=float) * self.arc
         return np.stack([np.sin(phi), -np.cos(phi), np.zeros_like(phi)], axis=-1)
 
-    def arc_points(self, n=24):
+    def arc_points(self, n: int = 24) -> FloatArray:
         """
         Evenly spaced points of the arc centre line, tail to tip, in the needle frame.
 
@@ -228,26 +230,26 @@ class NeedleGeometry:
         return self.point_at(np.linspace(0.0, 1.0, n))
 
     @property
-    def tip(self):
+    def tip(self) -> FloatArray:
         """Tip position (m) in the needle frame, shape (3,)."""
         return self.point_at(1.0)
 
     @property
-    def tail(self):
+    def tail(self) -> FloatArray:
         """Tail position (m) in the needle frame, shape (3,)."""
         return self.point_at(0.0)
 
     @property
-    def tip_direction(self):
+    def tip_direction(self) -> FloatArray:
         """Unit direction (needle frame) in which the tip points (tangent at s = 1)."""
         return self.tangent_at(1.0)
 
     @property
-    def tail_direction(self):
+    def tail_direction(self) -> FloatArray:
         """Unit direction (needle frame) leaving the tail away from the needle (-tangent at 0)."""
         return -self.tangent_at(0.0)
 
-    def points_world(self, T_world_needle, n=24):
+    def points_world(self, T_world_needle: ArrayLike, n: int = 24) -> FloatArray:
         """
         Arc points in the world frame.
 
@@ -268,7 +270,7 @@ class NeedleGeometry:
         return self.arc_points(n) @ T[:3, :3].T + T[:3, 3]
 
     # ------------------------------------------------------------------ distances to the arc
-    def distance_to_circle(self, points_needle):
+    def distance_to_circle(self, points_needle: ArrayLike) -> FloatArray:
         """
         Distance from points to the needle's full circle (centre line), needle frame.
 
@@ -287,7 +289,7 @@ class NeedleGeometry:
         rho = np.hypot(p[..., 0], p[..., 1])
         return np.hypot(rho - self.radius, p[..., 2])
 
-    def distance_to_arc(self, points_needle):
+    def distance_to_arc(self, points_needle: ArrayLike) -> FloatArray:
         """
         Distance from points to the needle arc (the 120 deg segment, not the full circle).
 
@@ -311,7 +313,8 @@ class NeedleGeometry:
         return np.where(inside, d_circle, np.minimum(d_tail, d_tip))
 
     # ------------------------------------------------------------------ grasps
-    def grasp_transform(self, s=None, roll=0.0, flip=False, depth=None):
+    def grasp_transform(self, s: float | None = None, roll: float = 0.0, flip: bool = False,
+                        depth: float | None = None) -> FloatArray:
         """
         Tool-tip pose of a grasp, ``T_tool_needle`` (tool-tip frame <- needle frame).
 
@@ -348,7 +351,7 @@ class NeedleGeometry:
         return invert_transform(T_needle_tool)
 
     @property
-    def T_tool_needle(self):  # noqa: N802 (the project names poses T_a_b)
+    def T_tool_needle(self) -> FloatArray:  # noqa: N802 (the project names poses T_a_b)
         """Canonical grasp ``T_tool_needle`` (4, 4): ``grasp_transform(grasp_s, roll=0)``."""
         return self.grasp_transform()
 
@@ -379,7 +382,7 @@ class ThreadGeometry:
     joint_limit_deg: float = 30.0
     mass: float = 0.0002
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_positive(self.segment_length, 'thread segment_length (m)')
         if not 0.0 < self.radius < self.segment_length:
             raise ValueError(
@@ -393,11 +396,11 @@ class ThreadGeometry:
         check_positive(self.mass, 'thread mass (kg)')
 
     @property
-    def n_segments(self):
+    def n_segments(self) -> int:
         """Number of capsule segments (``round(length / segment_length)``, at least 1)."""
         return max(1, int(round(self.length / self.segment_length)))
 
-    def rest_points(self, needle, T_world_needle):
+    def rest_points(self, needle: NeedleGeometry, T_world_needle: ArrayLike) -> FloatArray:
         """
         Joint positions of a straight thread leaving the needle tail, world frame.
 

@@ -12,7 +12,7 @@ import sys
 PACKAGE = 'suture_lfd'
 
 
-def share_dir():
+def share_dir() -> Path:
     """
     Return the package's share directory (holding ``config/``).
 
@@ -39,7 +39,7 @@ def share_dir():
         + ', '.join(str(c) for c in candidates))
 
 
-def config_path(name):
+def config_path(name: str) -> Path:
     """
     Return the path of an installed configuration file.
 

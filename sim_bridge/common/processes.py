@@ -14,16 +14,18 @@ SIGKILL. Whatever is left of the process group afterwards is killed, so no child
 leader.
 """
 
+from collections.abc import Callable, Sequence
 import ctypes
 import os
 import signal
 import subprocess
+from typing import Any
 
 ESCALATION = ((signal.SIGINT, None), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0))
 PR_SET_PDEATHSIG = 1    # linux/prctl.h
 
 
-def _libc_prctl():
+def _libc_prctl() -> Callable[..., int] | None:
     """Return libc's ``prctl`` (looked up once, in the parent: the child only calls it)."""
     try:
         return ctypes.CDLL(None, use_errno=True).prctl
@@ -34,7 +36,7 @@ def _libc_prctl():
 _PRCTL = _libc_prctl()
 
 
-def die_with_parent(sig=signal.SIGTERM):
+def die_with_parent(sig: int = signal.SIGTERM) -> Callable[[], None]:
     """
     Return a ``preexec_fn`` that makes the child receive ``sig`` when its parent dies.
 
@@ -52,7 +54,7 @@ def die_with_parent(sig=signal.SIGTERM):
     """
     parent = os.getpid()
 
-    def _preexec():
+    def _preexec() -> None:
         if _PRCTL is not None:
             _PRCTL(PR_SET_PDEATHSIG, int(sig))
         if os.getppid() != parent:     # the parent died before the request took effect
@@ -61,7 +63,7 @@ def die_with_parent(sig=signal.SIGTERM):
     return _preexec
 
 
-def follow_parent(parent, sig=signal.SIGTERM):
+def follow_parent(parent: int, sig: int = signal.SIGTERM) -> None:
     """
     Have this process receive ``sig`` when its parent ``parent`` dies (now, if it already has).
 
@@ -82,7 +84,7 @@ def follow_parent(parent, sig=signal.SIGTERM):
         os.kill(os.getpid(), sig)
 
 
-def popen(argv, **kwargs):
+def popen(argv: Sequence[str], **kwargs: Any) -> subprocess.Popen:
     """
     Start ``argv`` in a new session (its own process group) that dies with this process.
 
@@ -103,7 +105,7 @@ def popen(argv, **kwargs):
                             **kwargs)
 
 
-def kill_group(popen):
+def kill_group(popen: subprocess.Popen) -> None:
     """Send SIGKILL to what is left of the process group led by ``popen`` (if anything)."""
     try:
         os.killpg(popen.pid, signal.SIGKILL)
@@ -111,7 +113,7 @@ def kill_group(popen):
         pass
 
 
-def stop_group(popen, timeout=10.0):
+def stop_group(popen: subprocess.Popen, timeout: float = 10.0) -> int | None:
     """
     Stop the process group led by ``popen`` and return the leader's exit code.
 
