@@ -349,15 +349,9 @@ class Simulation:
 
     def attach_needle(self, arm, T_tool_needle=None):
         """
-        Put the needle in a PSM's jaw (scene setup): closes the jaw, no grasp event.
+        Put the needle in a PSM's jaw and score the grasp from now on, without a grasp event.
 
-        Parameters
-        ----------
-        arm : str
-            ``'PSM1'`` or ``'PSM2'``.
-        T_tool_needle : array_like, shape (4, 4), optional
-            Grasp; default: the needle's canonical grasp.
-
+        The arguments are those of :meth:`sim_bridge.physics.ScenePhysics.attach_needle`.
         """
         self.physics.attach_needle(arm, T_tool_needle)
         self.task.scorer.on_grasp(self.time, arm)
