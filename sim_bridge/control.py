@@ -121,7 +121,7 @@ class ExpertConfig:
     tilt_std_deg: float = 0.0
     speed_scale: float = 1.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('tool_speed', 'tool_angular_speed', 'tool_acceleration',
                      'tool_angular_acceleration', 'drive_speed', 'speed_scale', 'roll_step_deg'):
             check_positive(getattr(self, name), f'expert {name}')

@@ -9,6 +9,8 @@ Frames: ``world`` (z up); SI units.
 """
 
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from sim_bridge.arm import ArmConfig
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
@@ -131,7 +133,8 @@ class SimulationConfig:
     kinematic_error_seed: int = 0
 
 
-def load_simulation_config(world_path=None, scene_path=None):
+def load_simulation_config(world_path: str | Path | None = None,
+                           scene_path: str | Path | None = None) -> SimulationConfig:
     """
     Read ``config/world.yaml`` and ``config/scene.yaml`` into a :class:`SimulationConfig`.
 
@@ -148,7 +151,7 @@ def load_simulation_config(world_path=None, scene_path=None):
     world_path = config_path('world.yaml') if world_path is None else world_path
     source = str(world_path)
     data = load_yaml(world_path)
-    parts = {}
+    parts: dict[str, Any] = {}
     for key, cls in (('world', WorldConfig), ('grasp', GraspConfig), ('camera', CameraConfig),
                      ('thread', ThreadDynamicsConfig), ('simulation', LoopConfig)):
         mapping = section(data, key, source=source)
@@ -158,7 +161,7 @@ def load_simulation_config(world_path=None, scene_path=None):
                             scene=load_scene_config(scene_path))
 
 
-def steps_per_period(period, dt, name):
+def steps_per_period(period: float, dt: float, name: str) -> int:
     """
     Return how many physics steps of ``dt`` (s) make ``period`` (s).
 

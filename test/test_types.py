@@ -1,5 +1,6 @@
 """
-mypy on the annotated public API: the foundation, kinematics, robot model and the DMP.
+mypy on the annotated public API: the foundation, kinematics, robot model, control contract,
+simulation configuration, DMP, segmentation and resampling.
 
 The settings are the ``[mypy]`` sections of ``setup.cfg`` (every function annotated, no
 implicit ``Optional``; PyBullet and the other untyped libraries are taken as ``Any``). A second
@@ -14,8 +15,9 @@ import textwrap
 from harness import REPO
 
 # The modules whose public API is annotated, checked with every function typed.
-ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics',
-             'sim_bridge/robot_model.py', 'suture_lfd/dmp')
+ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_model.py',
+             'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'suture_lfd/dmp',
+             'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
 
 
 def run_mypy(paths, cache_dir):

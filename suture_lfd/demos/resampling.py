@@ -10,14 +10,15 @@ Times in s, positions in any length unit (m in this package), quaternions (x, y,
 """
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import make_interp_spline
 from sim_bridge.common.geometry import quaternion_sign_continuous, quaternion_slerp
-from sim_bridge.common.validation import check_array, check_quaternions, check_times
+from sim_bridge.common.validation import FloatArray, check_array, check_quaternions, check_times
 
 QUINTIC_MIN_POINTS = 6
 
 
-def uniform_times(T, n_pts):
+def uniform_times(T: ArrayLike, n_pts: int) -> FloatArray:
     """
     Return ``n_pts`` evenly spaced times spanning ``T``.
 
@@ -40,7 +41,7 @@ def uniform_times(T, n_pts):
     return np.linspace(T[0], T[-1], int(n_pts))
 
 
-def _query_times(T, T_new):
+def _query_times(T: FloatArray, T_new: ArrayLike) -> FloatArray:
     T_new = check_array(T_new, 'T_new', shape=(None,))
     if T_new.size and (T_new.min() < T[0] - 1e-12 or T_new.max() > T[-1] + 1e-12):
         raise ValueError(f'T_new must lie within [{T[0]!r}, {T[-1]!r}] s (no extrapolation), '
@@ -48,7 +49,7 @@ def _query_times(T, T_new):
     return np.clip(T_new, T[0], T[-1])
 
 
-def resample_positions(T, P, T_new):
+def resample_positions(T: ArrayLike, P: ArrayLike, T_new: ArrayLike) -> FloatArray:
     """
     Return positions at new times by a quintic interpolating spline (C4, ``k = 5``).
 
@@ -73,7 +74,7 @@ def resample_positions(T, P, T_new):
     return make_interp_spline(T, P, k=5, axis=0)(T_new)
 
 
-def resample_quaternions(T, Q, T_new):
+def resample_quaternions(T: ArrayLike, Q: ArrayLike, T_new: ArrayLike) -> FloatArray:
     """
     Return orientations at new times by SLERP between the neighbouring samples.
 
@@ -101,7 +102,8 @@ def resample_quaternions(T, Q, T_new):
     return quaternion_slerp(Q[k], Q[k + 1], u, shortest_path=True)
 
 
-def resample_poses(T, P, Q, n_pts=None, T_new=None):
+def resample_poses(T: ArrayLike, P: ArrayLike, Q: ArrayLike, n_pts: int | None = None,
+                   T_new: ArrayLike | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
     """
     Return a pose trajectory resampled to ``n_pts`` evenly spaced times (or to ``T_new``).
 
@@ -132,6 +134,7 @@ def resample_poses(T, P, Q, n_pts=None, T_new=None):
         raise ValueError('give exactly one of n_pts and T_new')
     T = check_times(T, 'T', min_points=QUINTIC_MIN_POINTS)
     if T_new is None:
+        assert n_pts is not None  # exactly one was given
         T_new = uniform_times(T, n_pts)
     P_new = resample_positions(T, check_array(P, 'P', shape=(T.size, 3)), T_new)
     return np.asarray(T_new, dtype=float), P_new, resample_quaternions(T, Q, T_new)

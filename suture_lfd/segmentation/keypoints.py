@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.signal import butter, sosfiltfilt
 from sim_bridge.common.geometry import (
     quaternion_conjugate,
@@ -26,6 +27,7 @@ from sim_bridge.common.geometry import (
 )
 from sim_bridge.common.needle import NeedleGeometry
 from sim_bridge.common.validation import (
+    FloatArray,
     check_array,
     check_positive,
     check_quaternions,
@@ -81,7 +83,7 @@ class SegmentationConfig:
     entered_depth: float = 0.0005
     needle: NeedleGeometry = field(default_factory=NeedleGeometry)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('cutoff_hz', 'threshold', 'hysteresis', 'onset_level', 'noise_factor'):
             check_positive(getattr(self, name), f'SegmentationConfig.{name}')
         if self.threshold >= 1.0 or self.hysteresis > 1.0 or self.onset_level >= 0.25:
@@ -121,12 +123,12 @@ class Segment:
     end_time: float
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         """float: ``end_time - start_time``, s."""
         return self.end_time - self.start_time
 
 
-def angular_velocity(T, Q):
+def angular_velocity(T: ArrayLike, Q: ArrayLike) -> FloatArray:
     """
     Return the angular velocity of an orientation trajectory (frame of the quaternions).
 
@@ -153,7 +155,7 @@ def angular_velocity(T, Q):
     return out
 
 
-def _low_pass(T, X, cutoff_hz):
+def _low_pass(T: FloatArray, X: FloatArray, cutoff_hz: float) -> FloatArray:
     """Zero-phase low-pass of the columns of X sampled at T (resampled to a uniform grid)."""
     dt = float(np.median(np.diff(T)))
     grid = np.arange(T[0], T[-1] + 0.5 * dt, dt)
@@ -164,7 +166,8 @@ def _low_pass(T, X, cutoff_hz):
     return np.column_stack([np.interp(T, grid, u) for u in uniform.T])
 
 
-def activity(T, P, Q=None, config=None):
+def activity(T: ArrayLike, P: ArrayLike, Q: ArrayLike | None = None,
+             config: SegmentationConfig | None = None) -> FloatArray:
     """
     Return the tool activity ``|v| + k |omega|`` from low-pass filtered velocities.
 
@@ -201,13 +204,13 @@ def activity(T, P, Q=None, config=None):
     return out
 
 
-def _runs(mask):
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return (starts, ends) inclusive index pairs of the True runs of a boolean vector."""
     edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
 
 
-def _crossing(T, a, i, j, level):
+def _crossing(T: FloatArray, a: FloatArray, i: int, j: int, level: float) -> float:
     """Return the time where ``a`` crosses ``level`` between samples i and j (linear)."""
     if a[j] == a[i]:
         return float(T[j])
@@ -215,7 +218,8 @@ def _crossing(T, a, i, j, level):
     return float(T[i] + min(max(u, 0.0), 1.0) * (T[j] - T[i]))
 
 
-def _flank_time(T, a, start, outer, outward, low, high):
+def _flank_time(T: FloatArray, a: FloatArray, start: int, outer: int, outward: int, low: float,
+                high: float) -> float:
     """
     Return the extrapolated zero-activity time of one flank of a motion.
 
@@ -247,7 +251,7 @@ def _flank_time(T, a, start, outer, outward, low, high):
     return min(max(t_zero, bound_a), bound_b)
 
 
-def nearest_index(T, t):
+def nearest_index(T: FloatArray, t: float) -> int:
     k = int(np.searchsorted(T, t))
     if k >= T.size:
         return T.size - 1
@@ -256,7 +260,8 @@ def nearest_index(T, t):
     return k
 
 
-def velocity_keypoints(T, P, Q=None, config=None):
+def velocity_keypoints(T: ArrayLike, P: ArrayLike, Q: ArrayLike | None = None,
+                       config: SegmentationConfig | None = None) -> list[Segment]:
     """
     Return the motions of one tool: onsets and offsets from its filtered activity.
 
@@ -299,7 +304,7 @@ def velocity_keypoints(T, P, Q=None, config=None):
         after = starts[k + 1] if k + 1 < starts.size else T.size - 1
         spans.append([_flank_time(T, a, s, before, -1, flank_low, flank_high),
                       _flank_time(T, a, e, after, +1, flank_low, flank_high)])
-    merged = []
+    merged: list[list[float]] = []
     for t0, t1 in spans:
         if merged and t0 - merged[-1][1] < config.min_rest_s:
             merged[-1][1] = max(merged[-1][1], t1)

@@ -101,14 +101,14 @@ class Segmentation:
     psm1_motions: tuple = ()
     psm2_motions: tuple = ()
 
-    def __getitem__(self, name):
+    def __getitem__(self, name: str) -> Segment:
         """Return the subtask called ``name`` (``'i'`` .. ``'v'``)."""
         for subtask in self.subtasks:
             if subtask.name == name:
                 return subtask
         raise KeyError(f'no subtask {name!r}; expected one of {[s.name for s in self.subtasks]}')
 
-    def boundaries(self):
+    def boundaries(self) -> np.ndarray:
         """
         Return the start and end times of the subtasks.
 
@@ -121,11 +121,12 @@ class Segmentation:
         return np.array([[s.start_time, s.end_time] for s in self.subtasks])
 
 
-def _grasp(holds, jaw, closed):
+def _grasp(holds: np.ndarray, jaw: np.ndarray, closed: float) -> np.ndarray:
     return holds if holds.any() else jaw < closed
 
 
-def _edge(flags, T, after, rising, name, meaning):
+def _edge(flags: np.ndarray, T: np.ndarray, after: float, rising: bool, name: str,
+          meaning: str) -> float:
     """Return the first time after ``after`` where ``flags`` rises (or falls)."""
     change = np.flatnonzero(np.diff(flags.astype(np.int8)) == (1 if rising else -1)) + 1
     change = change[T[change] > after]
@@ -135,7 +136,7 @@ def _edge(flags, T, after, rising, name, meaning):
     return float(T[change[0]])
 
 
-def _tip_depth(demo, t, config):
+def _tip_depth(demo: DemoRecord, t: float, config: SegmentationConfig) -> float:
     """Depth (m) of the needle tip below the pair's surface plane at time ``t`` (< 0 above)."""
     k = nearest_index(demo.t, t)
     pose = demo.needle_pose[k]
@@ -143,7 +144,8 @@ def _tip_depth(demo, t, config):
     return -float(np.dot(tip - demo.entry, demo.normal))
 
 
-def segment_demonstration(demo, config=None):
+def segment_demonstration(demo: DemoRecord,
+                          config: SegmentationConfig | None = None) -> Segmentation:
     """
     Cut one demonstration into the five suturing subtasks.
 
@@ -215,7 +217,7 @@ def segment_demonstration(demo, config=None):
         raise ValueError('no motion after the extraction: no hand-over (subtask v) found')
     last_motion = max(later, key=lambda m: m.end_time)
 
-    def make(k, start_time, end_time):
+    def make(k: int, start_time: float, end_time: float) -> Segment:
         return Segment(SUBTASKS[k][0], nearest_index(T, start_time),
                        nearest_index(T, end_time), float(start_time), float(end_time))
 
