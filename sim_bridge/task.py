@@ -12,9 +12,12 @@ gives it.
 Frames: ``world`` (z up, phantom at the origin); poses 4x4 ``T_world_*``; SI units.
 """
 
+from collections.abc import Callable, Iterable
+
 import numpy as np
 from sim_bridge.scene.markers import marker_frame
-from sim_bridge.scene.scoring import ThrowScorer
+from sim_bridge.scene.phantom import MarkerPair, Phantom
+from sim_bridge.scene.scoring import ScoringConfig, ThrowScore, ThrowScorer
 
 
 class SuturingTask:
@@ -35,17 +38,18 @@ class SuturingTask:
 
     """
 
-    def __init__(self, phantom, scoring, emit, needle_pose):
+    def __init__(self, phantom: Phantom, scoring: ScoringConfig, emit: Callable[..., None],
+                 needle_pose: Callable[[], np.ndarray]) -> None:
         self.phantom = phantom
         self._scoring = scoring
         self._emit = emit
         self._needle_pose = needle_pose
-        self._pair = None
-        self.scorer = None
-        self._last_score = None
+        self._pair: MarkerPair | None = None
+        self.scorer: ThrowScorer | None = None
+        self._last_score: tuple | None = None
 
     # ------------------------------------------------------------------ target and scoring
-    def start(self, name, t, holders):
+    def start(self, name: str, t: float, holders: Iterable[str]) -> None:
         """
         Aim the throw at a marker pair and start its scoring afresh at time ``t``.
 
@@ -68,7 +72,7 @@ class SuturingTask:
             self.scorer.on_grasp(t, arm)
         self._last_score = None
 
-    def report_score(self, t):
+    def report_score(self, t: float) -> None:
         """Emit a ``score`` event if the score or a subtask's outcome changed at time ``t``."""
         result = self.scorer.result(t)
         key = (result.score, tuple(sorted(result.subtasks.items())))
@@ -76,7 +80,7 @@ class SuturingTask:
             self._last_score = key
             self._emit('score', score=result)
 
-    def score(self, t):
+    def score(self, t: float) -> ThrowScore:
         """
         Score of the current throw at time ``t``.
 
@@ -89,19 +93,19 @@ class SuturingTask:
 
     # ------------------------------------------------------------------ ground truth
     @property
-    def pair(self):
+    def pair(self) -> MarkerPair | None:
         """The target :class:`~sim_bridge.scene.phantom.MarkerPair` (``world``)."""
         return self._pair
 
-    def needle_pose(self):
+    def needle_pose(self) -> np.ndarray:
         """Needle frame in ``world``, shape (4, 4) (a copy)."""
         return np.array(self._needle_pose())
 
-    def phantom_pose(self):
+    def phantom_pose(self) -> np.ndarray:
         """Phantom frame in ``world``, shape (4, 4) (a copy)."""
         return self.phantom.T_world_phantom.copy()
 
-    def marker_poses(self):
+    def marker_poses(self) -> dict[str, np.ndarray]:
         """
         Frames of the red markers in ``world``.
 

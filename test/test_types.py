@@ -1,6 +1,6 @@
 """
 mypy on the annotated public API: the foundation, kinematics, robot model, control contract,
-simulation configuration, DMP, segmentation and resampling.
+simulation configuration, task, DMP, segmentation and resampling.
 
 The settings are the ``[mypy]`` sections of ``setup.cfg`` (every function annotated, no
 implicit ``Optional``; PyBullet and the other untyped libraries are taken as ``Any``). A second
@@ -16,7 +16,8 @@ from harness import REPO
 
 # The modules whose public API is annotated, checked with every function typed.
 ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_model.py',
-             'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'suture_lfd/dmp',
+             'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'sim_bridge/task.py',
+             'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
 
 
