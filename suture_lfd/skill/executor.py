@@ -46,6 +46,7 @@ from suture_lfd.skill import (
     learn_skill,
     training_data_from_demonstration,
 )
+from suture_lfd.skill.arm_registration import CorrectedController, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
 
 __all__ = ['METHODS', 'Method', 'ThrowSkill', 'TrainingData', 'learn_skill',
@@ -522,7 +523,7 @@ def _event_dict(ev):
 
 
 def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, control_period=0.01,
-                  next_pair=None, observer=None, physical=False):
+                  next_pair=None, observer=None, physical=False, correction=True):
     """
     Execute one throw of a skill on a marker pair of an in-process simulation.
 
@@ -557,6 +558,12 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
         markers and the needle from the stereo pair, each grasp measured when a jaw closes.
         A throw whose markers or needle cannot be seen at the start is not pushed: score 0,
         ``failure`` says what was not seen.
+    correction : bool
+        In physical mode, close the loop on what the camera sees
+        (:mod:`suture_lfd.skill.arm_registration`: each PSM registered against the endoscope
+        once per simulation, its tool seen where it truly is and commanded there; the needle
+        looked at again whenever the arms let go of it). False: open loop on the arms' own
+        kinematics, the scene perceived at the start only. Ignored in ground-truth mode.
 
     Returns
     -------
@@ -571,15 +578,17 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     if pair_name not in sim.phantom.markers:
         raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                          f'{sorted(sim.phantom.markers)}')
+    kinematic = register_arms(sim) if physical and correction else None
     pair = start_episode(sim, pair_name, seed)
     sim.pop_events()
     if physical:
         previous = sim.observer
-        perception = PerceivedScene(pair_name, pair.index, sim.needle_geometry)
-        sim.observer = PhysicalObserver(sim, perception)
+        perception = PerceivedScene(pair_name, pair.index, sim.needle_geometry,
+                                    look_again=correction)
+        sim.observer = PhysicalObserver(sim, perception, correction=kinematic)
         try:
             return _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
-                                            control_period, next_pair, observer)
+                                            control_period, next_pair, observer, kinematic)
         finally:
             sim.observer = previous
     return _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair,
@@ -597,7 +606,7 @@ def _not_executed(pair_name, failure, executor=None):
 
 
 def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config, control_period,
-                             next_pair, observer):
+                             next_pair, observer, kinematic):
     """Check that the markers and the needle are seen, then execute on the perceived pair."""
     seen = perception.markers(sim)
     if seen is None:
@@ -605,17 +614,19 @@ def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
     if sim.observation().T_world_needle is None:
         return _not_executed(pair_name, 'not seen: the needle')
     return _execute(sim, skill, pair_name, seen, timeout, config, control_period, next_pair,
-                    observer)
+                    observer, kinematic)
 
 
-def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer):
+def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer,
+             kinematic=None):
     """Execute a throw on ``pair`` (as the controller sees it) from the started episode."""
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
                              config=config, next_pair=nxt)
-    recorder = _Recorder(executor, observer)
+    controller = executor if kinematic is None else CorrectedController(executor, kinematic)
+    recorder = _Recorder(controller, observer)
     t_start = sim.time
     try:
         executor.reset(sim.observation())

@@ -53,12 +53,16 @@ class PerceivedScene:
         from left to right (the operator's "pair 1").
     needle_geometry : sim_bridge.common.needle.NeedleGeometry, optional
         The needle's shape (default: perception's).
+    look_again : bool
+        Look at the needle again when the arms let go of it (False: only at the start; a
+        dropped needle is then believed where it was let go).
 
     """
 
-    def __init__(self, pair_name, pair_index, needle_geometry=None):
+    def __init__(self, pair_name, pair_index, needle_geometry=None, look_again=True):
         self.pair_name = str(pair_name)
         self.pair_index = int(pair_index)
+        self.look_again = bool(look_again)
         self._tracker = NeedleTracker(needle_geometry)
         self._stereo = None
         self._pair = None
@@ -182,10 +186,12 @@ class PerceivedScene:
                 held = self._held_needle(tools, arm)
                 self._holders.remove(arm)
                 self._grasps.pop(arm, None)
-                if not self._holders:
+                if not self._holders and self.look_again:
                     view = self.needle(sim, prior=held, tools=list(tools.values()))
                     self._free_needle = held if view.T_world_needle is None \
                         else view.T_world_needle
+                elif not self._holders:
+                    self._free_needle = held
         needle = self._free_needle
         if self._holders:
             needle = self._held_needle(tools, self._holders[0])
