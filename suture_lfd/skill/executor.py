@@ -222,6 +222,12 @@ class ThrowExecutor:
         Settings.
     next_pair : sim_bridge.scene.phantom.MarkerPair, optional
         Pair of the next throw (PSM2 ends above it).
+    look : callable, optional
+        ``look(arm, obs) -> T_tool_needle or None``: look at the needle ``arm`` holds and
+        return its grasp as seen. Given, the executor closes its loop where the skill needs
+        it: when PSM2 has carried the needle above the insertion start, the grasp is measured
+        again and the rest of the approach brings the needle -- its tip onto the entry marker
+        -- where the rollout starts, as seen.
 
     Attributes
     ----------
@@ -235,7 +241,7 @@ class ThrowExecutor:
     """
 
     def __init__(self, skill, pair, needle_geometry, kinematics=None, config=None,
-                 next_pair=None):
+                 next_pair=None, look=None):
         self.executor_config = ExecutorConfig() if config is None else config
         self.config = self.executor_config.script
         if not isinstance(skill, ThrowSkill):
@@ -250,6 +256,9 @@ class ThrowExecutor:
         self.targets = {}
         self.plan_ = None
         self.follower = None
+        self.look = look
+        self._above = None
+        self._checks = []
 
     # ------------------------------------------------------------------ planning
     def rollout_paths(self):
@@ -356,6 +365,7 @@ class ThrowExecutor:
 
         """
         paths = self.rollout_paths()
+        self._above = paths.above
         return plan_throw(obs, self.grasps, ThrowArc(self.pair, self.needle), paths, self.config)
 
     # ------------------------------------------------------------------ control
@@ -369,6 +379,15 @@ class ThrowExecutor:
         self.plan_ = self.plan(obs)
         self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
         self._sent = {}
+        self._checks = [] if self.look is None else self._checkpoints()
+
+    def _checkpoints(self):
+        """Plan times (s) and arms at which to look at the held needle: above the insertion."""
+        for seg in self.plan_.segments['PSM2']:
+            if seg.carries_needle and seg.t0 > 0.0 \
+                    and np.allclose(seg.needle(seg.t0), self._above, atol=1e-9):
+                return [(seg.t0, 'PSM2')]
+        return []
 
     @property
     def done(self):
@@ -411,6 +430,11 @@ class ThrowExecutor:
                     e_o = math.acos(max(-1.0, min(1.0, c_ang))) ** 2
                     slow = 1.0 + cfg.phase_stop_position * e_p + cfg.phase_stop_orientation * e_o
                     follower.offset += dt * (1.0 - 1.0 / slow)
+        if self._checks and follower.tau(obs.t) >= self._checks[0][0]:
+            _, arm = self._checks.pop(0)
+            grasp = self.look(arm, obs) if arm in obs.holders else None
+            if grasp is not None:
+                follower.set_grasp(arm, grasp)
         cmd = follower.step(obs)
         if not cfg.resend_unchanged:
             tools = cmd.T_world_tool  # the follower's new dict, this command's own
@@ -614,17 +638,21 @@ def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
     if sim.observation().T_world_needle is None:
         return _not_executed(pair_name, 'not seen: the needle')
     return _execute(sim, skill, pair_name, seen, timeout, config, control_period, next_pair,
-                    observer, kinematic)
+                    observer, kinematic, perception if kinematic is not None else None)
 
 
 def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer,
-             kinematic=None):
+             kinematic=None, perception=None):
     """Execute a throw on ``pair`` (as the controller sees it) from the started episode."""
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
+    look = None
+    if perception is not None:
+        def look(arm, obs):
+            return perception.look_at_grasp(sim, arm, obs.T_world_tool)
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
-                             config=config, next_pair=nxt)
+                             config=config, next_pair=nxt, look=look)
     controller = executor if kinematic is None else CorrectedController(executor, kinematic)
     recorder = _Recorder(controller, observer)
     t_start = sim.time
