@@ -9,9 +9,11 @@ in its frame (the left optical frame, ``<camera>_left_optical``):
 
 - ``perception/needle/measured_cp`` (geometry_msgs/PoseStamped): the needle's pose, when found;
 - ``perception/needle/status`` (std_msgs/String, JSON): ``found``, ``residual_px``,
-  ``visible_share``, ``visible_left``, ``visible_right``, ``partial``, ``tracked``, ``reason``;
+  ``visible_share``, ``visible_left``, ``visible_right``, ``partial``, ``tracked``, ``reason``,
+  ``stamp`` (s, the pair's stamp: a client matches it with the pose);
 - ``perception/markers/entries``, ``perception/markers/exits`` (geometry_msgs/PoseArray):
-  pair ``i`` along the wound at index ``i`` (NaN where not seen), orientation identity.
+  pair ``i`` along the wound at index ``i`` (NaN where not seen); each pose's ``z`` axis is the
+  normal of the plane through the dots (towards the camera).
 
 An image with another encoding, or a size that does not match its ``camera_info``, is refused
 with an error in the log and on ``perception/needle/status`` (``error``); the node goes on with
@@ -114,15 +116,28 @@ class PerceptionNode(Node):
             'found': est.found, 'residual_px': _finite(est.residual_px),
             'visible_share': est.visible_share, 'visible_left': est.visible_left,
             'visible_right': est.visible_right, 'partial': est.partial,
-            'tracked': result.tracked, 'reason': est.reason})))
+            'tracked': result.tracked, 'reason': est.reason,
+            'stamp': cv.seconds_from_stamp(stamp)})))
         if result.markers is not None:
+            x, y, z, w = _z_to(result.markers.normal)
             for pub, points in ((self._entries, result.markers.entries),
                                 (self._exits, result.markers.exits)):
                 msg = PoseArray()
                 msg.header.stamp, msg.header.frame_id = stamp, frame
                 msg.poses = [Pose(position=Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                                  orientation=Quaternion(w=1.0)) for p in points]
+                                  orientation=Quaternion(x=x, y=y, z=z, w=w)) for p in points]
                 pub.publish(msg)
+
+
+def _z_to(normal):
+    """Return the shortest rotation taking ``z`` to the unit ``normal``, ``(x, y, z, w)``."""
+    n = [float(v) for v in normal]
+    w = 1.0 + n[2]
+    if w < 1e-9:  # the normal points along -z: half a turn about x
+        return 1.0, 0.0, 0.0, 0.0
+    q = (-n[1], n[0], 0.0, w)  # z x n, 1 + z . n
+    norm = math.sqrt(sum(c * c for c in q))
+    return tuple(c / norm for c in q)
 
 
 def _finite(value):
