@@ -177,13 +177,13 @@ class ExecutorNode(Node):
     def _on_clock(self, msg):
         self.watchdog.clock(cv.seconds_from_stamp(msg.clock), time.monotonic())
 
-    def _feed_needle(self, seen):
+    def _feed_needle(self, stamp, T_camera_needle, status):
         if self._feed is not None:
-            self._feed.needle_seen(*seen)
+            self._feed.needle_seen(stamp, T_camera_needle, status)
 
-    def _feed_markers(self, seen):
+    def _feed_markers(self, stamp, entries, exits, normal):
         if self._feed is not None:
-            self._feed.markers_seen(*seen)
+            self._feed.markers_seen(stamp, entries, exits, normal)
 
     def _on_process(self, msg):
         try:

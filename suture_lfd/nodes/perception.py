@@ -34,6 +34,7 @@ from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd.nodes import executables
 from suture_lfd.perception import StereoPerception, stereo_from_camera_info
+from suture_lfd.skill.perceived_feed import normal_quaternion
 
 SIDES = ('left', 'right')
 
@@ -119,7 +120,7 @@ class PerceptionNode(Node):
             'tracked': result.tracked, 'reason': est.reason,
             'stamp': cv.seconds_from_stamp(stamp)})))
         if result.markers is not None:
-            x, y, z, w = _z_to(result.markers.normal)
+            x, y, z, w = normal_quaternion(result.markers.normal)
             for pub, points in ((self._entries, result.markers.entries),
                                 (self._exits, result.markers.exits)):
                 msg = PoseArray()
@@ -127,17 +128,6 @@ class PerceptionNode(Node):
                 msg.poses = [Pose(position=Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
                                   orientation=Quaternion(x=x, y=y, z=z, w=w)) for p in points]
                 pub.publish(msg)
-
-
-def _z_to(normal):
-    """Return the shortest rotation taking ``z`` to the unit ``normal``, ``(x, y, z, w)``."""
-    n = [float(v) for v in normal]
-    w = 1.0 + n[2]
-    if w < 1e-9:  # the normal points along -z: half a turn about x
-        return 1.0, 0.0, 0.0, 0.0
-    q = (-n[1], n[0], 0.0, w)  # z x n, 1 + z . n
-    norm = math.sqrt(sum(c * c for c in q))
-    return tuple(c / norm for c in q)
 
 
 def _finite(value):

@@ -17,6 +17,7 @@ optical frame, x right, y down, z forward); poses 4x4; metres, seconds (the mess
 
 from dataclasses import dataclass
 import logging
+import math
 import re
 
 import numpy as np
@@ -66,6 +67,21 @@ def pair_index_from_name(name):
         raise ValueError(f'pair name {name!r} does not end in its position along the wound '
                          '(1, 2, ...): give the pair index as well')
     return int(match.group(1))
+
+
+def normal_quaternion(normal):
+    """
+    Return the shortest rotation taking ``z`` to a unit ``normal``, ``(x, y, z, w)``.
+
+    The marker messages carry the plane's normal as their poses' ``z`` axis.
+    """
+    n = [float(v) for v in normal]
+    w = 1.0 + n[2]
+    if w < 1e-9:  # the normal points along -z: half a turn about x
+        return 1.0, 0.0, 0.0, 0.0
+    q = (-n[1], n[0], 0.0, w)  # z x n, 1 + z . n
+    norm = math.sqrt(sum(c * c for c in q))
+    return tuple(c / norm for c in q)
 
 
 class PerceptionFeed(PerceivedScene):
