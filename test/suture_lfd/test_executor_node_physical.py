@@ -91,3 +91,26 @@ def test_in_physical_mode_the_executor_completes_a_throw_on_crtk_and_perception_
     # the whole throw long, it read none of the truth
     subs = subscriptions() or subs
     assert not [t for t in subs if t.startswith('/evaluation/')], sorted(subs)
+
+
+def test_in_physical_mode_the_demonstrator_reads_no_truth(launch, ros):
+    sim = launch('simulator', '--ros-args', *FAST_ARMS, '-p', 'physical:=true',
+                 '-p', 'visualization_rate:=0.0')
+    demonstrator = launch('demonstrator', '--ros-args', '-p', 'physical:=true',
+                          '-p', 'recorder_status:=', '-p', 'startup_timeout:=600.0')
+    probe = ros.node('physical_demonstrator_probe')
+
+    def subscriptions():
+        try:
+            return dict(probe.get_subscriber_names_and_types_by_node('demonstrator', '/'))
+        except Exception:  # noqa: BLE001 (the node is not in the graph yet)
+            return {}
+
+    assert ros.wait_for(lambda: '/perception/needle/measured_cp' in subscriptions(), 120.0), \
+        (sim.log()[-2000:], demonstrator.log()[-4000:])
+    subs = subscriptions()
+    truth = [t for t in subs if t.startswith('/evaluation/')
+             or (t.startswith('/sim/') and t not in ALLOWED_SIM)]
+    assert not truth, sorted(subs)
+    assert '/PSM1/local/measured_cp' in subs and '/tf_static' in subs, sorted(subs)
+    assert demonstrator.running(), demonstrator.log()
