@@ -97,6 +97,9 @@ class PerceptionFeed(PerceivedScene):
         left to right.
     needle_geometry : sim_bridge.common.needle.NeedleGeometry, optional
         The needle's shape (for deciding whether a closing jaw holds it).
+    grasp_reach : float, optional
+        Distance (m) from the needle's wire within which a closing jaw holds it (default:
+        :attr:`suture_lfd.skill.perceived.PerceivedScene.grasp_reach`).
 
     Attributes
     ----------
@@ -105,8 +108,12 @@ class PerceptionFeed(PerceivedScene):
 
     """
 
-    def __init__(self, pair_name, pair_index, needle_geometry=None):
+    def __init__(self, pair_name, pair_index, needle_geometry=None, grasp_reach=None):
         super().__init__(pair_name, pair_index, needle_geometry)
+        if grasp_reach is not None:
+            if not grasp_reach > 0:
+                raise ValueError(f'grasp_reach must be > 0 m, got {grasp_reach}')
+            self.grasp_reach = float(grasp_reach)
         self.T_world_camera = None
         self._markers_c = None   # (stamp, entries (n, 3), exits (n, 3), normal (3,)) camera
         self._needle_c = None    # (stamp, T_camera_needle or None, NeedleStatus)

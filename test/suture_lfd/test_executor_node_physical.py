@@ -47,8 +47,10 @@ def test_in_physical_mode_the_executor_completes_a_throw_on_crtk_and_perception_
     # Rendering holds the simulator's loop up (a second or more on a loaded machine): images
     # once a simulated second, and the loop catches up afterwards instead of skipping ahead.
     perception = launch('perception', '--ros-args', '-p', 'rate:=2.0')
+    # after a render the simulator's loop catches up in a burst, in which /clock may run a few
+    # state periods ahead of the arms' queued measured_cp: a silent arm takes 1 s here
     executor = launch('executor', '--ros-args', '-p', f'segments:={segments}',
-                      '-p', 'physical:=true', '-p', 'pair:=synth1')
+                      '-p', 'physical:=true', '-p', 'pair:=synth1', '-p', 'stale_timeout:=1.0')
     probe = ros.node('physical_executor_probe')
     scores, results = [], []
 
