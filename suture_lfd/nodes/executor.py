@@ -330,7 +330,7 @@ class ExecutorNode(Node):
 
     # --- the sequence -----------------------------------------------------------------------
 
-    def _on_timer(self):  # noqa: C901 (one stage per branch)
+    def _on_timer(self):
         cfg = self.config
         stage = self._stage
         if stage not in ('preparing', 'running', 'settling'):
