@@ -356,18 +356,7 @@ class ExecutorNode(Node):
                         self._last_target = time.monotonic()
                         self.sim.select_pair(self._pair)
                     return
-                try:
-                    obs = self.sim.observation(self._pair)
-                    self._executor = ThrowExecutor(
-                        self.skill, obs.pair, self._scene.needle, kinematics=self._kinematics,
-                        config=ExecutorConfig(script=self._scene.expert,
-                                              phase_stopping=cfg.phase_stopping))
-                    self._executor.reset(obs)
-                except ValueError as exc:
-                    self._halt('failed', f'cannot plan the throw on {self._pair}: {exc}',
-                               planning_error=str(exc))
-                    return
-                self._begin(obs)
+                self._begin(self.sim.observation(self._pair))
                 return
             if not cfg.home or self._waited() > cfg.prepare_timeout:
                 self._fail('arms not enabled and homed')
