@@ -27,6 +27,14 @@ way in-process and over ROS. Typical use in a node's timer::
         command = controller.step(client.observation('synth1'))
         client.send(command, cv.stamp_from_seconds(command.t))
 
+With ``physical=True`` (a physical dVRK, or the simulator in physical mode) the client reads
+only what a robot provides: none of the ``sim/`` ground truth (no needle, markers or scene
+events; :attr:`SimClient.holders` stays empty), the bases ``T_world_<ARM>_base`` (PSMs and ECM)
+from ``/tf_static`` as the robot's registration places them, the camera's optical frames
+``ECM -> ECM_left_optical`` from there too, and the ECM's ``local/measured_cp``, so
+:meth:`SimClient.camera_pose` gives the camera in ``world``. :meth:`SimClient.observation` then
+has no needle, holders or pair: a perception estimator adds them.
+
 The client refuses to read the evaluation's ground truth: a topic it would subscribe to that
 resolves (after remapping) under ``/evaluation/``, where a simulator in physical mode publishes
 the truth, raises :class:`ValueError` naming it.
@@ -53,6 +61,7 @@ from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.scene.phantom import MarkerPair
 from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 
 EVALUATION = '/evaluation/'  # the ground truth a simulator keeps for the evaluation
 STATE_COMMAND_PERIOD = 2.0  # s of wall time between repeated enable/home commands
@@ -73,6 +82,8 @@ class SimClient:
         JSON mapping), after :attr:`holders` is updated.
     on_measured_cp : callable, optional
         Called as ``on_measured_cp(arm, stamp_s)`` after each ``measured_cp`` is stored.
+    physical : bool
+        Read only what a physical dVRK provides (see the module's docstring).
 
     Attributes
     ----------
@@ -95,9 +106,11 @@ class SimClient:
 
     """
 
-    def __init__(self, node, arms=PSMS, *, on_event=None, on_measured_cp=None):
+    def __init__(self, node, arms=PSMS, *, on_event=None, on_measured_cp=None, physical=False):
         self.node = node
         self.arms = tuple(arms)
+        self.physical = bool(physical)
+        self.optical = {}  # 'ECM_left_optical' -> T_ECM_optical (physical mode, /tf_static)
         self.tools, self.q, self.jaw, self.state = {}, {}, {}, {}
         self.local = {}
         self._T_ref_base = {}  # arm -> (stamp_s, T_ref_base) of the newest matching pair
@@ -129,11 +142,17 @@ class SimClient:
                 qos.STREAM)
             sub(OperatingState, f'{a}/operating_state',
                 lambda m, a=a: self.state.__setitem__(a, m), qos.LATCHED)
-            sub(PoseStamped, f'sim/{a}/base_frame',
-                lambda m, a=a: self.bases.__setitem__(a, cv.matrix_from_pose(m.pose)),
-                qos.LATCHED)
-        sub(PoseStamped, 'sim/needle/measured_cp', self._on_needle, qos.STREAM)
-        sub(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
+            if not self.physical:
+                sub(PoseStamped, f'sim/{a}/base_frame',
+                    lambda m, a=a: self.bases.__setitem__(a, cv.matrix_from_pose(m.pose)),
+                    qos.LATCHED)
+        if self.physical:
+            sub(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
+            sub(PoseStamped, 'ECM/local/measured_cp', lambda m: self._on_local('ECM', m),
+                qos.STREAM)
+        else:
+            sub(PoseStamped, 'sim/needle/measured_cp', self._on_needle, qos.STREAM)
+            sub(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
 
     def _subscribe(self, msg_type, topic, callback, profile):
         """Subscribe on the node, refusing a topic that resolves into the evaluation's truth."""
@@ -155,7 +174,17 @@ class SimClient:
 
     def _on_local(self, arm, msg):
         self.local[arm] = (cv.seconds_from_stamp(msg.header.stamp), cv.matrix_from_pose(msg.pose))
-        self._pair_frames(arm)
+        if arm in self.arms:
+            self._pair_frames(arm)
+
+    def _on_tf_static(self, msg):
+        """Keep the bases ``world -> <ARM>_base`` and the camera's ``ECM -> *_optical``."""
+        for t in msg.transforms:
+            parent, child = t.header.frame_id, t.child_frame_id
+            if parent == 'world' and child.endswith('_base'):
+                self.bases[child[:-len('_base')]] = cv.matrix_from_transform(t.transform)
+            elif parent == 'ECM' and child.endswith('_optical'):
+                self.optical[child] = cv.matrix_from_transform(t.transform)
 
     def _pair_frames(self, arm):
         """Keep ``T_ref_base`` of the newest measured_cp and local/measured_cp of one stamp."""
@@ -217,7 +246,16 @@ class SimClient:
         return len(self.markers.get(name, ())) == 2
 
     def ready(self, pairs=()):
-        """Return True once the arms' state, base frames, needle and pairs' markers came."""
+        """
+        Return True once the arms' state, base frames, needle and pairs' markers came.
+
+        In physical mode: the arms' state, their bases and the camera's pose (no needle and no
+        markers: those come from perception).
+        """
+        if self.physical:
+            return self.camera_pose() is not None and all(
+                a in self.tools and a in self.bases and a in self.jaw and a in self.state
+                and self._placed(a) for a in self.arms)
         return (all(self.has_pair(p) for p in pairs) and self.needle is not None and all(
             a in self.tools and a in self.bases and a in self.jaw and a in self.state
             and self._placed(a) for a in self.arms))
@@ -250,6 +288,17 @@ class SimClient:
             T = self.local[arm][1]  # in <ARM>_base on every dVRK
         return self.bases[arm] @ T
 
+    def camera_pose(self, optical='ECM_left_optical'):
+        """
+        Return the camera's pose ``T_world_<optical>`` as the robot reports it, or None.
+
+        ``T_world_ECM_base @ ECM local/measured_cp @ T_ECM_optical``: the ECM's registration, its
+        own kinematics and the camera's calibration (physical mode; None until all three came).
+        """
+        if 'ECM' not in self.bases or 'ECM' not in self.local or optical not in self.optical:
+            return None
+        return self.bases['ECM'] @ self.local['ECM'][1] @ self.optical[optical]
+
     def marker_pair(self, name):
         """Return a watched pair as a :class:`sim_bridge.scene.phantom.MarkerPair` (world)."""
         entry, exit_ = self.markers[name]['entry'], self.markers[name]['exit']
@@ -270,7 +319,8 @@ class SimClient:
         Returns
         -------
         sim_bridge.control.Observation
-            Time is the newest ``measured_cp`` stamp of the arms.
+            Time is the newest ``measured_cp`` stamp of the arms. In physical mode (or with
+            ``pair`` None) without needle, holders or pair: the arms' reports only.
 
         """
         q = {a: np.asarray(self.q[a].position, dtype=float) for a in self.arms
@@ -281,7 +331,8 @@ class SimClient:
             jaw={a: float(self.jaw[a].position[0]) if len(self.jaw[a].position) else 0.0
                  for a in self.arms},
             T_world_needle=self.needle, holders=tuple(sorted(self.holders)),
-            pair=self.marker_pair(pair), T_world_base=dict(self.bases), q=q or None)
+            pair=None if pair is None else self.marker_pair(pair),
+            T_world_base={a: T for a, T in self.bases.items() if a in self.arms}, q=q or None)
 
     # --- commands -----------------------------------------------------------------------------
 
@@ -322,6 +373,10 @@ class SimClient:
                 elif not s.is_homed and not s.is_busy:
                     self.state_command(a, 'home')
         return False
+
+    def target_matched(self):
+        """Return True when a subscriber (the simulator) takes ``sim/target_pair``."""
+        return self._target.get_subscription_count() > 0
 
     def select_pair(self, name):
         """Ask the simulator to make ``name`` the target pair (``sim/target_pair``)."""

@@ -15,6 +15,14 @@ recorder's toggle, ``/footpedals/camera`` through its ``emulate`` topic) and wai
 record pedal again and wait until the recorder has closed its bag; publish the result on
 ``~/result`` (std_msgs/String JSON, latched: subject, pair, duration, score, bag) and exit (exit
 code 0 for a throw scored 1.0; ``published`` counts the commands sent per topic).
+
+Physical mode (``physical: true``): the subject sees what a robot shows. No ``sim/`` truth topic
+is read: the arms and the camera's pose come from the CRTK topics and ``/tf_static`` (as the
+executor's, :class:`sim_bridge.ros.client.SimClient` with ``physical=True``), the pair (and
+``next_pair``) from the ``perception`` node's markers by their position along the wound (the
+number the pair's name ends in), the needle from its needle pose, each grasp measured when a
+jaw closes (:class:`suture_lfd.skill.perceived_feed.PerceptionFeed`). The score is the
+evaluation's: the result's ``score`` is None and a completed throw exits with code 0.
 Parameters: ``config/demonstrator.yaml``.
 """
 
@@ -36,6 +44,8 @@ from std_msgs.msg import String
 from suture_lfd.demos.cohort import load_cohort
 from suture_lfd.demos.demonstrator import Demonstrator
 from suture_lfd.nodes import executables
+from suture_lfd.nodes.perception_topics import PerceptionTopics
+from suture_lfd.skill.perceived_feed import PerceptionFeed, pair_index_from_name
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,7 @@ class DemonstratorConfig:
     timeout: float = 120.0
     startup_timeout: float = 60.0
     exit_when_done: bool = True
+    physical: bool = False
 
     def __post_init__(self):
         for name in ('rate', 'lag_tolerance', 'lag_tolerance_rad', 'timeout',
@@ -93,8 +104,15 @@ class DemonstratorNode(NodeHooks, Node):
         self._t_start = self._t_done = None
         self._dem = None
         self._scene = load_scene_config()
-        self.sim = SimClient(self, PSMS, on_event=self._on_event)
-        self.sim.watch_pairs([cfg.pair, cfg.next_pair])
+        self.sim = SimClient(self, PSMS, on_event=self._on_event, physical=cfg.physical)
+        self._feeds = {}
+        if cfg.physical:
+            self._feeds = {name: PerceptionFeed(name, pair_index_from_name(name),
+                                                self._scene.needle)
+                           for name in (cfg.pair, cfg.next_pair) if name}
+            PerceptionTopics(self, on_needle=self._on_needle, on_markers=self._on_markers)
+        else:
+            self.sim.watch_pairs([cfg.pair, cfg.next_pair])
         self._result = self.create_publisher(String, '~/result', qos.LATCHED)
         self._pedals = {}
         self._pressed = 0.0
@@ -120,6 +138,42 @@ class DemonstratorNode(NodeHooks, Node):
             self._pair_confirmed = True
         elif kind == 'score':
             self._score = data.get('score')
+
+    def _on_needle(self, stamp, T_camera_needle, status):
+        for feed in self._feeds.values():
+            feed.needle_seen(stamp, T_camera_needle, status)
+
+    def _on_markers(self, stamp, entries, exits, normal):
+        for feed in self._feeds.values():
+            feed.markers_seen(stamp, entries, exits, normal)
+
+    def _observe(self):
+        """Return the subject's observation: the simulator's topics, or arms plus perception."""
+        if not self.config.physical:
+            return self.sim.observation(self.config.pair)
+        feed = self._feeds[self.config.pair]
+        feed.camera_moved(self.sim.camera_pose())
+        return feed.observe(self.sim.observation(None))
+
+    def _next_pair(self):
+        name = self.config.next_pair
+        if not name:
+            return None
+        if not self.config.physical:
+            return self.sim.marker_pair(name)
+        feed = self._feeds[name]
+        feed.camera_moved(self.sim.camera_pose())
+        return feed.markers()
+
+    def _ready(self):
+        cfg = self.config
+        if not self.config.physical:
+            return self.sim.ready([cfg.pair, cfg.next_pair] if cfg.next_pair else [cfg.pair])
+        if not self.sim.ready():
+            return False
+        obs = self._observe()
+        return obs.pair is not None and obs.T_world_needle is not None and (
+            not cfg.next_pair or self._next_pair() is not None)
 
     def _on_recorder(self, msg):
         try:
@@ -161,7 +215,8 @@ class DemonstratorNode(NodeHooks, Node):
         line = json.dumps(result, sort_keys=True)
         self._result.publish(String(data=line))
         print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
-        self.exit_code = 0 if ok and value == 1.0 else 1
+        scored = value == 1.0 or (self.config.physical and value is None)
+        self.exit_code = 0 if ok and scored else 1
         log = self.get_logger().info if self.exit_code == 0 else self.get_logger().error
         log(f'throw on {self.config.pair} by {self.subject.name} {outcome}'
             f'{": " + why if why else ""} (score {value})')
@@ -182,10 +237,13 @@ class DemonstratorNode(NodeHooks, Node):
         if stage == 'finished':
             return
         if stage == 'waiting':
-            if self.sim.ready([cfg.pair, cfg.next_pair] if cfg.next_pair else [cfg.pair]):
+            if self._ready():
                 self._enter('homing')
             elif self._waited() > cfg.startup_timeout:
-                self._finish(False, 'simulator topics missing (is the simulator running?)')
+                self._finish(False, 'perception outputs or arm topics missing (are the '
+                                    'perception node and the simulator running?)'
+                             if cfg.physical else
+                             'simulator topics missing (is the simulator running?)')
             return
         if stage == 'homing':
             if self.sim.homed():
@@ -222,19 +280,23 @@ class DemonstratorNode(NodeHooks, Node):
                 self._enter('target')
             return
         if stage == 'target':
-            if self._pair_confirmed or self._waited() > 5.0:
-                obs = self.sim.observation(cfg.pair)
+            confirmed = self._pair_confirmed or (cfg.physical and self._waited() > 1.0
+                                                 and self.sim.target_matched())
+            if confirmed or self._waited() > 5.0:
+                if cfg.physical:
+                    self.sim.select_pair(cfg.pair)  # matched by now: this one arrives
+                obs = self._observe()
                 self._dem = Demonstrator(
                     self.subject, obs.pair, self._scene.needle,
                     rng=np.random.default_rng([self.subject.trial_seed(cfg.pair), cfg.seed]),
-                    next_pair=self.sim.marker_pair(cfg.next_pair) if cfg.next_pair else None,
+                    next_pair=self._next_pair(),
                     expert_config=self._scene.expert, lag_tolerance=cfg.lag_tolerance,
                     lag_tolerance_rad=cfg.lag_tolerance_rad)
                 self._dem.reset(obs)
                 self._t_start = obs.t
                 self._enter('running')
             return
-        obs = self.sim.observation(cfg.pair)
+        obs = self._observe()
         if stage == 'running':
             self.sim.send(self._dem.step(obs), self.get_clock().now().to_msg())
             if self._dem.done:

@@ -12,25 +12,28 @@ scripted, ii and iv from the DMPs through the measured grasp, streamed as ``<ARM
 ``sim/<ARM>/base_frame``, ``sim/needle/measured_cp``, ``sim/markers/<pair>/entry|exit`` and
 ``sim/events`` (grasps, score).
 
+Physical mode (``physical: true``, for a physical dVRK or the simulator's ``physical:=true``):
+the node reads only what a dVRK provides and never a ``sim/`` truth topic. The arms come from
+their CRTK topics (``measured_cp`` in the camera frame, ``local/measured_cp`` in
+``<ARM>_base``), the bases and the camera's optical frame from ``/tf_static``, the camera's pose
+from ``ECM/local/measured_cp``; the markers and the needle from the ``perception`` node
+(``perception/markers/entries|exits``, ``perception/needle/measured_cp`` and ``status``), through
+:class:`suture_lfd.skill.perceived_feed.PerceptionFeed`, which measures each grasp when a jaw
+closes. The pair is found in the markers by its position along the wound (``pair_index``, or
+the number the pair's name ends in). Before the throw starts the node waits for the markers and
+the needle seen after the arms were homed; a throw whose markers or needle are not seen within
+``prepare_timeout`` is not pushed: it fails with ``not seen: ...``. The score is the
+evaluation's (not read here): the outcome's ``score`` is None.
+
 It stops commanding and reports when an arm stops answering, when an arm leaves ``ENABLED``
-(a fault), on ``~/stop`` (std_msgs/Empty), or after ``timeout`` s. The watchdog tells a dead
-arm from a slow machine by the simulator's own clock (``/clock``, read whether or not the node
-runs with ``use_sim_time``):
-
-- an arm is silent when ``/clock`` advanced by more than ``stale_timeout`` simulation seconds
-  since its last ``measured_cp`` was handled (ten times that once the commands are done and the
-  throw settles): the simulation runs but the arm does not answer. A machine too busy to run
-  the simulator or this node for a while stops both the clock and the arms, so it never counts;
-- the simulator is dead when neither ``/clock`` nor any ``measured_cp`` has arrived for
-  ``clock_timeout`` seconds of wall time (not counting ticks this node itself came late to).
-  On the same machine the simulator's process tells more (``sim/process``,
-  :mod:`sim_bridge.ros.peer`): once it has exited the simulator is dead as soon as the topics
-  have been quiet for ``stale_timeout`` s of wall time; while it exists (starved of CPU by a
-  busier process, or stopped) the throw waits for it, up to ``starved_timeout`` s of silence.
-
-Without any ``/clock`` message the silence is estimated from the wall time since the last
-``measured_cp`` and the rate the simulation clock was advancing over the last second, and a
-stall longer than ``stale_timeout`` cannot be told from a dead simulator.
+(a fault), on ``~/stop`` (std_msgs/Empty), or after ``timeout`` s. The watchdog
+(:class:`suture_lfd.skill.watchdog.ArmWatchdog`) tells a dead arm from a slow machine by the
+simulator's own clock (``/clock``, read whether or not the node runs with ``use_sim_time``):
+an arm is silent when ``/clock`` advanced by more than ``stale_timeout`` simulation seconds since
+its last ``measured_cp``; the simulator is dead when neither ``/clock`` nor any ``measured_cp``
+came for ``clock_timeout`` s of wall time; on the same machine the simulator's process
+(``sim/process``, :mod:`sim_bridge.ros.peer`) tells a starved simulator (waited for up to
+``starved_timeout`` s) from an exited one.
 
 ``~/status`` (std_msgs/String JSON, latched) carries the state (``idle``, ``preparing``,
 ``running``, ``settling``, ``done``, ``stopped``, ``failed``), the pair and the reason;
@@ -50,10 +53,8 @@ start-up and exits (code 0 for a throw scored 1.0), as a shell script wants. Par
 ``config/executor.yaml``.
 """
 
-from collections import deque
 from dataclasses import dataclass
 import json
-import math
 import os
 from pathlib import Path
 import sys
@@ -74,8 +75,11 @@ from sim_bridge.ros.peer import ProcessWatch
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.nodes import executables
+from suture_lfd.nodes.perception_topics import PerceptionTopics
 from suture_lfd.skill import ThrowSkill, learn_skill
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
+from suture_lfd.skill.perceived_feed import PerceptionFeed, pair_index_from_name
+from suture_lfd.skill.watchdog import ArmWatchdog
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,8 @@ class ExecutorNodeConfig:
     phase_stopping: bool = False
     exit_when_done: bool = False
     result_file: str = ''
+    physical: bool = False
+    pair_index: int = 0
 
     def __post_init__(self):
         if not self.segments and not self.skill:
@@ -108,6 +114,9 @@ class ExecutorNodeConfig:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.settle_time < 0:
             raise ValueError(f'parameter settle_time must be >= 0, got {self.settle_time}')
+        if self.pair_index < 0:
+            raise ValueError(f'parameter pair_index must be >= 0 (0: from the pair name), got '
+                             f'{self.pair_index}')
 
 
 class ExecutorNode(NodeHooks, Node):
@@ -125,13 +134,8 @@ class ExecutorNode(NodeHooks, Node):
         self._kinematics = psm_kinematics()
         self.finished = False
         self.exit_code = 0
-        self._arrival = {}       # arm -> wall time (monotonic) of the last measured_cp
-        self._sim_rate = 1.0     # simulation seconds per wall second, from measured_cp stamps
-        self._rate_window = deque()
-        self._clock_t = None     # newest /clock (s of simulator clock)
-        self._clock_wall = None  # wall time (monotonic) /clock last advanced
-        self._clock_handled = -math.inf  # wall time (monotonic) a /clock was last handled
-        self._heard = {}         # arm -> /clock (s) when its last measured_cp was handled
+        self.watchdog = ArmWatchdog(PSMS, cfg.rate, cfg.stale_timeout, cfg.clock_timeout,
+                                    cfg.starved_timeout)
         self._pair_stamp = None  # simulator clock (s) when the simulator selected the pair
         self._executed = {}      # 'ii' / 'iv' -> [(t, needle pose 7-vector)] measured
         self._score = None
@@ -142,17 +146,19 @@ class ExecutorNode(NodeHooks, Node):
         self._executor = None
         self._t_start = self._t_done = None
         self._last_obs_t = None
-        self._last_tick = time.monotonic()
         self._sent = 0
         self.sim = SimClient(self, PSMS, on_event=self._on_event,
-                             on_measured_cp=self._on_measured_cp)
+                             on_measured_cp=self._on_measured_cp, physical=cfg.physical)
+        self._feed = None        # PerceptionFeed of the throw (physical mode)
+        self._perceived = (PerceptionTopics(self, on_needle=self._feed_needle,
+                                            on_markers=self._feed_markers)
+                           if cfg.physical else None)
         self._status = self.create_publisher(String, '~/status', qos.LATCHED)
         self._result = self.create_publisher(String, '~/result', qos.LATCHED)
         self.create_subscription(ClockMsg, '/clock', self._on_clock, qos.CLOCK_LATEST)
         self.create_subscription(String, '~/execute', self._on_execute, qos.STREAM)
         self.create_subscription(Empty, '~/stop', self._on_stop, qos.STREAM)
         self._simulator = None   # ProcessWatch of the simulator, from sim/process
-        self._starved_said = False
         self.create_subscription(String, 'sim/process', self._on_process, qos.LATCHED)
         # A steady (wall) clock: the watchdog must run when the simulation clock has stopped.
         self.create_timer(1.0 / cfg.rate, self._on_timer,
@@ -166,34 +172,18 @@ class ExecutorNode(NodeHooks, Node):
     # --- inputs -----------------------------------------------------------------------------
 
     def _on_measured_cp(self, arm, stamp):
-        now = time.monotonic()
-        if arm == PSMS[0]:
-            # Simulation seconds per wall second over the last second of arrivals (bursts of
-            # queued messages would make a per-message estimate wild).
-            window = self._rate_window
-            window.append((now, stamp))
-            while now - window[0][0] > 1.0:
-                window.popleft()
-            wall, advance = now - window[0][0], stamp - window[0][1]
-            if wall > 0.2 and advance > 0.0:
-                self._sim_rate = min(max(advance / wall, 0.05), 100.0)
-        self._arrival[arm] = now
-        self._heard[arm] = stamp if self._clock_t is None else max(stamp, self._clock_t)
+        self.watchdog.measured(arm, stamp, time.monotonic())
 
     def _on_clock(self, msg):
-        t = cv.seconds_from_stamp(msg.clock)
-        now = time.monotonic()
-        if self._clock_t is not None and t > self._clock_t \
-                and now - self._clock_handled > 5.0 / self.config.rate:
-            # The first /clock after a while without one: this node (or the simulator) was
-            # held up, and the measured_cp that came meanwhile are still queued behind it. The
-            # jump is no sign of silent arms.
-            for a in self._heard:
-                self._heard[a] += t - self._clock_t
-        self._clock_handled = now
-        if self._clock_t is None or t > self._clock_t:
-            self._clock_t = t
-            self._clock_wall = now
+        self.watchdog.clock(cv.seconds_from_stamp(msg.clock), time.monotonic())
+
+    def _feed_needle(self, stamp, T_camera_needle, status):
+        if self._feed is not None:
+            self._feed.needle_seen(stamp, T_camera_needle, status)
+
+    def _feed_markers(self, stamp, entries, exits, normal):
+        if self._feed is not None:
+            self._feed.markers_seen(stamp, entries, exits, normal)
 
     def _on_process(self, msg):
         try:
@@ -256,7 +246,17 @@ class ExecutorNode(NodeHooks, Node):
         self._pair_stamp = None
         self._executor = None
         self._t_start = self._t_done = None
-        self.sim.watch_pairs([pair])
+        self._seen_after = None
+        if self.config.physical:
+            try:
+                index = self.config.pair_index or pair_index_from_name(pair)
+            except ValueError as exc:
+                self._warn(f'execute {pair!r} ignored: {exc} (parameter pair_index)')
+                return
+            self._feed = PerceptionFeed(pair, index, self._scene.needle)
+            self._perceived.replay(self._feed)
+        else:
+            self.sim.watch_pairs([pair])
         self.sim.select_pair(pair)
         self._last_target = time.monotonic()
         self.get_logger().info(f'executing the {self.skill.method.name} skill learnt on '
@@ -265,33 +265,6 @@ class ExecutorNode(NodeHooks, Node):
 
     def _send(self, command, t):
         self._sent += self.sim.send(command, cv.stamp_from_seconds(t))
-
-    def _silence(self):
-        """
-        Return the silence of the arms: ``(simulation s, wall s or None)``.
-
-        The first is the simulation time ``/clock`` advanced since the oldest last PSM
-        ``measured_cp`` was handled (without ``/clock``: estimated from the wall time and the
-        simulation rate); the second the wall time since anything came from the simulator
-        (``/clock`` or a ``measured_cp``; None without ``/clock``). Wall time during which this
-        node itself was busy (a tick that came late, e.g. while planning) is not held against
-        the simulator: messages that arrived meanwhile are still queued, so the wall counts
-        restart at the late tick.
-        """
-        now = time.monotonic()
-        late = now - self._last_tick > 5.0 / self.config.rate
-        self._last_tick = now
-        if late:
-            for a in PSMS:
-                self._arrival[a] = max(self._arrival.get(a, now), now - 1.0 / self.config.rate)
-            if self._clock_wall is not None:
-                self._clock_wall = max(self._clock_wall, now - 1.0 / self.config.rate)
-        if self._clock_t is None:
-            return max((now - self._arrival.get(a, -math.inf)) * self._sim_rate
-                       for a in PSMS), None
-        silence = max(self._clock_t - self._heard.get(a, -math.inf) for a in PSMS)
-        heard = max([self._clock_wall] + [self._arrival.get(a, -math.inf) for a in PSMS])
-        return max(silence, 0.0), now - heard
 
     def _result_record(self, state, reason):
         score = self._score if isinstance(self._score, dict) else None
@@ -342,7 +315,9 @@ class ExecutorNode(NodeHooks, Node):
         self._stage_wall = time.monotonic()
         self._publish_status(state, reason, **extra)
         if self.config.exit_when_done or self.config.pair:
-            self.exit_code = 0 if state == 'done' and record['score'] == 1.0 else 1
+            # in physical mode the score is the evaluation's: a complete throw is a success here
+            scored = record['score'] == 1.0 or (self.config.physical and record['score'] is None)
+            self.exit_code = 0 if state == 'done' and scored else 1
             self.finished = True
 
     def on_interrupt(self, signal_name):
@@ -355,7 +330,7 @@ class ExecutorNode(NodeHooks, Node):
 
     # --- the sequence -----------------------------------------------------------------------
 
-    def _on_timer(self):  # noqa: C901 (one stage per branch)
+    def _on_timer(self):
         cfg = self.config
         stage = self._stage
         if stage not in ('preparing', 'running', 'settling'):
@@ -369,6 +344,9 @@ class ExecutorNode(NodeHooks, Node):
                                f'({missing} not received in {cfg.prepare_timeout} s)')
                 return
             if self.sim.homed():
+                if self.config.physical:
+                    self._prepare_physical()
+                    return
                 if not self._pair_confirmed:
                     if self._waited() > cfg.prepare_timeout:
                         self._fail(f'the simulator did not confirm pair {self._pair!r}')
@@ -378,76 +356,33 @@ class ExecutorNode(NodeHooks, Node):
                         self._last_target = time.monotonic()
                         self.sim.select_pair(self._pair)
                     return
-                try:
-                    obs = self.sim.observation(self._pair)
-                    self._executor = ThrowExecutor(
-                        self.skill, obs.pair, self._scene.needle, kinematics=self._kinematics,
-                        config=ExecutorConfig(script=self._scene.expert,
-                                              phase_stopping=cfg.phase_stopping))
-                    self._executor.reset(obs)
-                except ValueError as exc:
-                    self._halt('failed', f'cannot plan the throw on {self._pair}: {exc}',
-                               planning_error=str(exc))
-                    return
-                self._t_start = self._last_obs_t = obs.t
-                self._subtask = None
-                self._sent = 0
-                self._executed = {}
-                self._enter('running', f'throw on {self._pair} started')
+                self._begin(self.sim.observation(self._pair))
                 return
             if not cfg.home or self._waited() > cfg.prepare_timeout:
                 self._fail('arms not enabled and homed')
                 return
             self.sim.enable_and_home()
             return
-        silence, quiet = self._silence()
-        # While commanding, 100 ms of silence stops the throw; once the commands are done
-        # (settling) a silent arm is only reported if it lasts ten times longer.
-        if silence > cfg.stale_timeout * (1.0 if stage == 'running' else 10.0):
-            last = min(self.sim.tools[a][0] for a in PSMS)
-            self._halt('stopped', f'no measured_cp for {silence * 1e3:.0f} ms of simulation '
-                                  f'time (last at t = {last:.3f} s): the arms stopped answering',
-                       silence_s=silence, last_measured_t=last)
+        last = min(self.sim.tools[a][0] for a in PSMS)
+        verdict = self.watchdog.check(time.monotonic(), last, settling=stage == 'settling',
+                                      process=self._simulator)
+        if verdict is not None and verdict.halt:
+            self._halt('stopped', verdict.reason, **verdict.details)
             return
-        alive = None
-        if quiet is not None and quiet > cfg.stale_timeout and self._simulator is not None:
-            alive = self._simulator.alive()
-        elif quiet is not None and quiet <= cfg.stale_timeout:
-            self._starved_said = False
-        if quiet is not None and quiet > cfg.clock_timeout and alive \
-                and quiet <= cfg.starved_timeout:
-            if not self._starved_said:   # its process runs: starved of CPU, not dead
-                self._starved_said = True
-                self.get_logger().warning(
-                    f'no /clock and no measured_cp for {quiet:.2f} s, but the simulator '
-                    f'process {self._simulator.pid} runs: waiting for it (starved_timeout '
-                    f'{cfg.starved_timeout:g} s)')
-        elif quiet is not None and (quiet > cfg.clock_timeout or alive is False):
-            last = min(self.sim.tools[a][0] for a in PSMS)
-            if alive is False:
-                self._halt('stopped', f'the simulator process {self._simulator.pid} exited: no '
-                                      f'/clock and no measured_cp for {quiet:.2f} s of wall '
-                                      f'time (last measured_cp at t = {last:.3f} s)',
-                           silence_s=silence, wall_silence_s=quiet, last_measured_t=last)
-                return
-            self._halt('stopped', f'no /clock and no measured_cp for {quiet:.2f} s of wall time '
-                                  f'(last measured_cp at t = {last:.3f} s, {silence * 1e3:.0f} '
-                                  'ms of simulation time before the clock stopped): the '
-                                  'simulator stopped', silence_s=silence, wall_silence_s=quiet,
-                       last_measured_t=last)
-            return
+        if verdict is not None:
+            self.get_logger().warning(verdict.reason)
         fault = self.sim.fault()
         if fault is not None:
             self._halt('stopped', f'arm fault: {fault}')
             return
-        obs = self.sim.observation(self._pair)
-        if obs.t == self._last_obs_t and stage == 'running':
+        if max(self.sim.tools[a][0] for a in PSMS) == self._last_obs_t and stage == 'running':
             return  # nothing new measured since the last command
+        obs = self._observe()
         self._last_obs_t = obs.t
         if stage == 'running':
             command = self._executor.step(obs)
             self._send(command, obs.t)
-            if command.subtask in ('ii', 'iv'):
+            if command.subtask in ('ii', 'iv') and obs.T_world_needle is not None:
                 self._executed.setdefault(command.subtask, []).append(
                     (obs.t, pose_from_transform(obs.T_world_needle)))
             if command.subtask != self._subtask:
@@ -464,6 +399,73 @@ class ExecutorNode(NodeHooks, Node):
             return
         if obs.t - self._t_done >= cfg.settle_time:
             self._halt('done', 'throw complete')
+
+    def _observe(self):
+        """Return the observation: the simulator's topics, or the arms plus perception."""
+        if not self.config.physical:
+            return self.sim.observation(self._pair)
+        self._feed.camera_moved(self.sim.camera_pose())
+        return self._feed.observe(self.sim.observation(None))
+
+    def _begin(self, obs):
+        """Plan the throw on what ``obs`` shows and start commanding."""
+        cfg = self.config
+        try:
+            self._executor = ThrowExecutor(
+                self.skill, obs.pair, self._scene.needle, kinematics=self._kinematics,
+                config=ExecutorConfig(script=self._scene.expert,
+                                      phase_stopping=cfg.phase_stopping))
+            self._executor.reset(obs)
+        except ValueError as exc:
+            self._halt('failed', f'cannot plan the throw on {self._pair}: {exc}',
+                       planning_error=str(exc))
+            return
+        self._t_start = self._last_obs_t = obs.t
+        self._subtask = None
+        self._sent = 0
+        self._executed = {}
+        self._enter('running', f'throw on {self._pair} started')
+
+    def _prepare_physical(self):
+        """
+        Homed, in physical mode: select the pair, wait to see markers and needle, then start.
+
+        The simulator's confirmation of the pair is a truth event (not read here): the pair is
+        sent again every second until a subscriber has been matched for a second. The markers
+        and the needle must have been seen in an image taken after the arms were homed (an arm
+        moving in may have hidden them before).
+        """
+        now = time.monotonic()
+        if not self._pair_confirmed:
+            if self.sim.target_matched() and now - self._last_target > 1.0:
+                self._pair_confirmed = True
+            elif now - self._last_target > 1.0:
+                self._last_target = now
+                self.sim.select_pair(self._pair)
+            if not self._pair_confirmed:
+                if self._waited() > self.config.prepare_timeout:
+                    self._fail(f'no subscriber to sim/target_pair in '
+                               f'{self.config.prepare_timeout} s')
+                return
+        arms = self.sim.observation(None)
+        if self._seen_after is None:
+            self._seen_after = arms.t
+            self._last_target = now
+            self.sim.select_pair(self._pair)  # once more, now that the arms are in place
+        missing = self._feed.seen_since(self._seen_after)
+        obs = None if missing else self._observe()
+        if obs is not None and obs.pair is None:
+            missing = [f'the markers of pair {self._pair} (index '
+                       f'{self._feed.pair_index} along the wound)']
+        elif obs is not None and obs.T_world_needle is None:
+            missing = ['the needle']
+        if missing:
+            if self._waited() > self.config.prepare_timeout:
+                self._halt('failed', f'not seen: {", ".join(missing)} (within '
+                                     f'{self.config.prepare_timeout} s: is the perception '
+                                     'node running on the endoscope?)')
+            return
+        self._begin(obs)
 
     def _waited(self):
         return time.monotonic() - self._stage_wall

@@ -9,9 +9,11 @@ in its frame (the left optical frame, ``<camera>_left_optical``):
 
 - ``perception/needle/measured_cp`` (geometry_msgs/PoseStamped): the needle's pose, when found;
 - ``perception/needle/status`` (std_msgs/String, JSON): ``found``, ``residual_px``,
-  ``visible_share``, ``visible_left``, ``visible_right``, ``partial``, ``tracked``, ``reason``;
+  ``visible_share``, ``visible_left``, ``visible_right``, ``partial``, ``tracked``, ``reason``,
+  ``stamp`` (s, the pair's stamp: a client matches it with the pose);
 - ``perception/markers/entries``, ``perception/markers/exits`` (geometry_msgs/PoseArray):
-  pair ``i`` along the wound at index ``i`` (NaN where not seen), orientation identity.
+  pair ``i`` along the wound at index ``i`` (NaN where not seen); each pose's ``z`` axis is the
+  normal of the plane through the dots (towards the camera).
 
 An image with another encoding, or a size that does not match its ``camera_info``, is refused
 with an error in the log and on ``perception/needle/status`` (``error``); the node goes on with
@@ -32,6 +34,7 @@ from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
 from suture_lfd.nodes import executables
 from suture_lfd.perception import StereoPerception, stereo_from_camera_info
+from suture_lfd.skill.perceived_feed import normal_quaternion
 
 SIDES = ('left', 'right')
 
@@ -114,14 +117,16 @@ class PerceptionNode(Node):
             'found': est.found, 'residual_px': _finite(est.residual_px),
             'visible_share': est.visible_share, 'visible_left': est.visible_left,
             'visible_right': est.visible_right, 'partial': est.partial,
-            'tracked': result.tracked, 'reason': est.reason})))
+            'tracked': result.tracked, 'reason': est.reason,
+            'stamp': cv.seconds_from_stamp(stamp)})))
         if result.markers is not None:
+            x, y, z, w = normal_quaternion(result.markers.normal)
             for pub, points in ((self._entries, result.markers.entries),
                                 (self._exits, result.markers.exits)):
                 msg = PoseArray()
                 msg.header.stamp, msg.header.frame_id = stamp, frame
                 msg.poses = [Pose(position=Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                                  orientation=Quaternion(w=1.0)) for p in points]
+                                  orientation=Quaternion(x=x, y=y, z=z, w=w)) for p in points]
                 pub.publish(msg)
 
 

@@ -3,7 +3,9 @@ Segmenter node: a demonstration bag in, a segment file for the executor out.
 
 Reads the bag named by the ``bag`` parameter
 (:func:`suture_lfd.demos.demo_bag.demonstration_from_bag`: tool, jaw, needle, marker and event
-topics of the simulator), cuts it into the five subtasks
+topics of the simulator; a bag recorded in physical mode, without those, through
+:func:`suture_lfd.skill.physical_demo.demonstration_from_physical_bag`: the arms' reports and
+the perception node's needle and markers), cuts it into the five subtasks
 (:func:`suture_lfd.segmentation.segment_demonstration`), resamples the needle trajectories of tasks
 ii and iv and writes the :class:`suture_lfd.demos.segment_file.SegmentFile` to ``output``
 (default ``<bag>.segments.npz`` beside the bag). Publishes a JSON summary on ``~/result`` (latched)
@@ -21,10 +23,12 @@ from sim_bridge.ros import qos
 from sim_bridge.ros.entry import NodeHooks
 from sim_bridge.ros.params import declare_config
 from std_msgs.msg import String
+from suture_lfd import bags
 from suture_lfd.demos.demo_bag import demonstration_from_bag
 from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.nodes import executables
 from suture_lfd.segmentation import segment_demonstration
+from suture_lfd.skill.physical_demo import demonstration_from_physical_bag, is_physical_bag
 
 
 @dataclass(frozen=True)
@@ -66,8 +70,13 @@ def segment_bag(config):
     """
     if not config.bag:
         raise ValueError('parameter bag is empty: name the demonstration bag to segment')
-    demo = demonstration_from_bag(config.bag, pair=config.pair or None,
-                                  sample_rate=config.sample_rate)
+    if is_physical_bag(bags.bag_summary(config.bag).topics):
+        # recorded on what a dVRK provides: the needle as perceived
+        demo = demonstration_from_physical_bag(config.bag, pair=config.pair or None,
+                                               sample_rate=config.sample_rate)
+    else:
+        demo = demonstration_from_bag(config.bag, pair=config.pair or None,
+                                      sample_rate=config.sample_rate)
     try:
         segmentation = segment_demonstration(demo)
     except ValueError as exc:

@@ -1,0 +1,246 @@
+"""
+The scene as a robot's perception outputs show it: markers and needle from messages, in ``world``.
+
+On a physical dVRK (or the simulator in physical mode) a separate perception process reads the
+endoscope's stereo pair and publishes the needle's pose and the markers in the left optical
+frame. :class:`PerceptionFeed` keeps the newest of those outputs and the camera's pose as the
+robot reports it, and answers the same questions as the in-process
+:class:`suture_lfd.skill.perceived.PerceivedScene` (whose grasp bookkeeping it shares): the
+target pair, where the needle lies, which arm holds it. So the one
+:class:`suture_lfd.skill.executor.ThrowExecutor` runs on it as in-process, driven by
+:meth:`PerceptionFeed.observe` from the arms' own reports. It never renders and never reads the
+simulation: a node converts the messages and hands them over.
+
+Frames: ``world`` (as the robot believes it: its bases' registration), ``camera`` (the left
+optical frame, x right, y down, z forward); poses 4x4; metres, seconds (the messages' stamps).
+"""
+
+from dataclasses import dataclass
+import logging
+import math
+import re
+
+import numpy as np
+from sim_bridge.control import Observation
+from sim_bridge.scene.markers import MarkerPair
+from suture_lfd.skill.perceived import NeedleView, PerceivedScene
+
+_LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class NeedleStatus:
+    """
+    The perception's word on one look at the needle (its ``status`` message).
+
+    Attributes
+    ----------
+    found : bool
+    reason : str
+        Why it was not found ('' when found).
+    residual_px : float or None
+        Mean reprojection residual of the fit (pixels).
+
+    """
+
+    found: bool
+    reason: str = ''
+    residual_px: float | None = None
+
+
+def pair_index_from_name(name):
+    """
+    Return the 1-based position along the wound a pair name gives (``'synth3'`` -> 3).
+
+    Parameters
+    ----------
+    name : str
+
+    Raises
+    ------
+    ValueError
+        If the name does not end in a positive number (name the index instead).
+
+    """
+    match = re.search(r'(\d+)$', str(name))
+    if match is None or int(match.group(1)) < 1:
+        raise ValueError(f'pair name {name!r} does not end in its position along the wound '
+                         '(1, 2, ...): give the pair index as well')
+    return int(match.group(1))
+
+
+def normal_quaternion(normal):
+    """
+    Return the shortest rotation taking ``z`` to a unit ``normal``, ``(x, y, z, w)``.
+
+    The marker messages carry the plane's normal as their poses' ``z`` axis.
+    """
+    n = [float(v) for v in normal]
+    w = 1.0 + n[2]
+    if w < 1e-9:  # the normal points along -z: half a turn about x
+        return 1.0, 0.0, 0.0, 0.0
+    q = (-n[1], n[0], 0.0, w)  # z x n, 1 + z . n
+    norm = math.sqrt(sum(c * c for c in q))
+    return tuple(c / norm for c in q)
+
+
+class PerceptionFeed(PerceivedScene):
+    """
+    Markers and needle from perception outputs, in the robot's ``world``.
+
+    Parameters
+    ----------
+    pair_name : str
+        Name the target pair is given (``'synth1'``).
+    pair_index : int
+        1-based position of the target pair along the wound, as the camera sees the pairs from
+        left to right.
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry, optional
+        The needle's shape (for deciding whether a closing jaw holds it).
+    grasp_reach : float, optional
+        Distance (m) from the needle's wire within which a closing jaw holds it (default:
+        :attr:`suture_lfd.skill.perceived.PerceivedScene.grasp_reach`).
+
+    Attributes
+    ----------
+    T_world_camera : ndarray, shape (4, 4) or None
+        The camera's pose as the robot reports it (set with :meth:`camera_moved`).
+
+    """
+
+    def __init__(self, pair_name, pair_index, needle_geometry=None, grasp_reach=None):
+        super().__init__(pair_name, pair_index, needle_geometry)
+        if grasp_reach is not None:
+            if not grasp_reach > 0:
+                raise ValueError(f'grasp_reach must be > 0 m, got {grasp_reach}')
+            self.grasp_reach = float(grasp_reach)
+        self.T_world_camera = None
+        self._markers_c = None   # (stamp, entries (n, 3), exits (n, 3), normal (3,)) camera
+        self._needle_c = None    # (stamp, T_camera_needle or None, NeedleStatus)
+
+    # ------------------------------------------------------------------ inputs
+    def camera_moved(self, T_world_camera):
+        """Take the camera's newest pose (``world``, from the ECM's report)."""
+        self.T_world_camera = np.asarray(T_world_camera, dtype=float)
+
+    def markers_seen(self, stamp, entries, exits, normal):
+        """
+        Take one look at the markers.
+
+        Parameters
+        ----------
+        stamp : float
+            Stamp of the image pair (s).
+        entries, exits : array_like, shape (n, 3)
+            Entry and exit dots of the pairs along the wound (``camera``), NaN where not seen.
+        normal : array_like, shape (3,)
+            Unit normal of the dots' plane (``camera``, towards the camera).
+
+        """
+        entries = np.asarray(entries, dtype=float).reshape(-1, 3)
+        exits = np.asarray(exits, dtype=float).reshape(-1, 3)
+        if entries.shape != exits.shape:
+            raise ValueError(f'{len(entries)} entries but {len(exits)} exits: the marker '
+                             'arrays must pair up')
+        self._markers_c = (float(stamp), entries, exits, np.asarray(normal, dtype=float))
+
+    def needle_seen(self, stamp, T_camera_needle, status):
+        """
+        Take one look at the needle.
+
+        Parameters
+        ----------
+        stamp : float
+            Stamp of the image pair (s).
+        T_camera_needle : array_like, shape (4, 4) or None
+            The needle's pose (``camera``); None when it was not found.
+        status : NeedleStatus
+
+        """
+        T = None if T_camera_needle is None else np.asarray(T_camera_needle, dtype=float)
+        self._needle_c = (float(stamp), T, status)
+
+    def seen_since(self, stamp):
+        """Return what was not seen at or after ``stamp`` (``'markers'``, ``'needle'``)."""
+        missing = []
+        if self._markers_c is None or self._markers_c[0] < stamp:
+            missing.append('markers')
+        if self._needle_c is None or self._needle_c[0] < stamp:
+            missing.append('needle')
+        return missing
+
+    # ------------------------------------------------------------------ looks
+    def markers(self, sim=None):
+        """
+        Return the target pair as last seen (``world``), or None when it is not seen.
+
+        Parameters
+        ----------
+        sim : None
+            Unused (the looks come from messages).
+
+        """
+        if self._markers_c is None or self.T_world_camera is None:
+            return None
+        _, entries, exits, normal_c = self._markers_c
+        i = self.pair_index - 1
+        if not 0 <= i < len(entries):
+            _LOG.warning('pair %s: %d marker pairs seen, pair %d is not among them',
+                         self.pair_name, len(entries), self.pair_index)
+            return None
+        if not (np.isfinite(entries[i]).all() and np.isfinite(exits[i]).all()):
+            _LOG.warning('pair %s: a marker is not seen', self.pair_name)
+            return None
+        T = self.T_world_camera
+        R, p = T[:3, :3], T[:3, 3]
+        normal = R @ normal_c
+        self._support_normal = normal_c
+        self._pair = MarkerPair(name=self.pair_name, entry=R @ entries[i] + p,
+                                exit=R @ exits[i] + p, normal=normal, entry_normal=normal,
+                                exit_normal=normal, index=self.pair_index)
+        return self._pair
+
+    def needle(self, sim=None, prior=None, tools=()):
+        """
+        Return the needle as last seen (``world``).
+
+        Parameters
+        ----------
+        sim, prior, tools
+            Unused: the perception process tracks the needle on its own.
+
+        Returns
+        -------
+        suture_lfd.skill.perceived.NeedleView
+
+        """
+        if self._needle_c is None or self.T_world_camera is None:
+            return NeedleView(None, NeedleStatus(False, 'no perception output yet'))
+        _, T_c, status = self._needle_c
+        if T_c is None:
+            _LOG.info('needle not found: %s', status.reason)
+            return NeedleView(None, status)
+        return NeedleView(self.T_world_camera @ T_c, status)
+
+    # ------------------------------------------------------------------ observer
+    def observe(self, arms):
+        """
+        Return the controller's observation: the arms' reports plus the perceived scene.
+
+        Parameters
+        ----------
+        arms : sim_bridge.control.Observation
+            The arms' own reports (``T_world_tool`` through their believed bases, jaws,
+            joints); its needle, holders and pair are ignored.
+
+        Returns
+        -------
+        sim_bridge.control.Observation
+            ``T_world_needle`` None when the needle is not known; ``pair`` None when the markers
+            are not seen.
+
+        """
+        needle, holders, pair = self.estimate(None, arms)
+        return Observation(t=arms.t, T_world_tool=arms.T_world_tool, jaw=arms.jaw,
+                           T_world_needle=needle, holders=tuple(holders), pair=pair,
+                           T_world_base=arms.T_world_base, q=arms.q)
