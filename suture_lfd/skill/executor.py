@@ -522,7 +522,7 @@ def _event_dict(ev):
 
 
 def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, control_period=0.01,
-                  next_pair=None, observer=None, physical=False):
+                  next_pair=None, observer=None, physical=False, correction=True):
     """
     Execute one throw of a skill on a marker pair of an in-process simulation.
 
@@ -557,6 +557,10 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
         markers and the needle from the stereo pair, each grasp measured when a jaw closes.
         A throw whose markers or needle cannot be seen at the start is not pushed: score 0,
         ``failure`` says what was not seen.
+    correction : bool
+        In physical mode, let the executor close its loop on what it sees (the default);
+        False: open loop on the arms' own kinematics. Reserved: the executor runs open loop
+        until its correction is built.
 
     Returns
     -------
