@@ -344,8 +344,12 @@ def demo_job(job):
         record['failure'] = (f'the recorder did not see the needle in {unseen} of '
                              f'{len(run.demo.t)} samples')
         return record
+    target = out / job['segments']
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(target.stem + '.part' + target.suffix)
     try:
         segmentation = segment_demonstration(demo)
+        _save_segments(demo, segmentation, tmp, source=job['bag'], subject=job['subject'])
     except ValueError as exc:
         if physical is None:
             raise
@@ -355,10 +359,6 @@ def demo_job(job):
         return record
     for seg in segmentation.subtasks:
         record[f't_{seg.name}'] = float(seg.duration)
-    target = out / job['segments']
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(target.stem + '.part' + target.suffix)
-    _save_segments(demo, segmentation, tmp, source=job['bag'], subject=job['subject'])
     os.replace(tmp, target)
     record['ok'] = True
     return record
