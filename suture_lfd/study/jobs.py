@@ -317,7 +317,7 @@ def demo_job(job):
         sim, own = _simulation(job['phantom'], s.demo_physics_step), False
         link = None
     else:
-        from suture_lfd.demos.physical import TeleoperatedRobot
+        from suture_lfd.study.teleoperated import TeleoperatedRobot
 
         sim, own = _physical_simulation(job['phantom'], s.demo_physics_step, physical)
         link = TeleoperatedRobot(sim, job['pair'])

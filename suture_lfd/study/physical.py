@@ -11,7 +11,7 @@ on|off|both``, ``--no-correction`` for ``off``):
   job's own seed (``error_seed``); the scene seed is the ground-truth job's, so the two modes
   differ only by the robot;
 - a demonstration is teleoperated through the robot and recorded as the robot sees it
-  (:mod:`suture_lfd.demos.physical`: the arms' reports, the needle and markers from the
+  (:mod:`suture_lfd.study.teleoperated`: the arms' reports, the needle and markers from the
   endoscope); it depends on the level, not on the correction, so the variants of a level share
   their demonstrations;
 - a throw is executed on the arms' reports and perception
