@@ -21,8 +21,14 @@ demonstration), so its CPU per job is the default study's, and the default study
 estimated from it (``est. full s``: wall time per job times the default study's 1,360 jobs, an
 overestimate by the report and start-up time, which do not grow with the jobs).
 
+``--physical L`` measures physical mode instead (issue target: CPU per job at most 1.5x ground
+truth): the design's ground-truth study, then the same design with ``--physical --error-level
+L`` in the same folder, so that it runs only its physical-mode jobs (the ground-truth ones are
+reused); each row's CPU per job is over the jobs it ran, and the ratio physical / ground truth
+is printed (``--correction off`` among ``--args`` for open loop).
+
 Usage: ``python bench/bench_study.py [--workers 2] [--full | --subjects N] [--before REF]
-[--engines local dask]``
+[--engines local dask] [--physical L]``
 """
 
 import argparse
@@ -62,9 +68,16 @@ def _children_cpu():
     return usage.ru_utime + usage.ru_stime
 
 
-def run(label, design, workers, engine='local', code=None):
-    """Run one study; return its wall time, jobs and CPU."""
-    with tempfile.TemporaryDirectory() as tmp:
+def run(label, design, workers, engine='local', code=None, folder=None):
+    """
+    Run one study; return its wall time, jobs and CPU.
+
+    ``folder``: the report folder to run in (default a new temporary one); only the jobs this
+    run adds to its results file are counted.
+    """
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = str(folder) if folder is not None else scratch
+        before = _stored(tmp)
         cmd = [sys.executable, '-m', 'suture_lfd.cli', 'study', '--out', tmp, *design,
                '--workers', str(workers)]
         if engine != 'local':
@@ -81,10 +94,25 @@ def run(label, design, workers, engine='local', code=None):
             raise SystemExit(f'{label}: the study failed:\n{result.stderr[-2000:]}')
         # results.jsonl; results-<hash>.jsonl for a --before revision of the earlier format
         (path,) = [*Path(tmp).glob('results.jsonl'), *Path(tmp).glob('results-*.jsonl')]
-        records = [json.loads(line) for line in path.read_text().splitlines()]
+        records = [json.loads(line) for line in path.read_text().splitlines()][before:]
     return {'label': label, 'jobs': len(records), 'wall_s': wall, 'cpu_s': cpu,
             'errors': sum(1 for r in records if r.get('error')),
             'simulated_s': sum(r.get('time_s') or 0.0 for r in records)}
+
+
+def _stored(folder):
+    """Records already in a folder's results file (0 for none)."""
+    path = Path(folder) / 'results.jsonl'
+    return len(path.read_text().splitlines()) if path.exists() else 0
+
+
+def physical_rows(design, workers, level):
+    """Ground truth, then physical mode at ``level`` in the same folder (its own jobs only)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        ground = run('ground truth', design, workers, folder=tmp)
+        physical = run(f'physical L{level:g}', design + ['--physical', '--error-level',
+                                                          f'{level:g}'], workers, folder=tmp)
+    return [ground, physical]
 
 
 def main():
@@ -99,6 +127,9 @@ def main():
                              'mix of jobs; estimates its wall time)')
     parser.add_argument('--before', default=None,
                         help='git revision whose code runs the same design (local engine)')
+    parser.add_argument('--physical', type=float, default=None, metavar='L',
+                        help='compare physical mode at error level L with ground truth '
+                             '(instead of the engines)')
     parser.add_argument('--args', nargs=argparse.REMAINDER, default=[],
                         help='more study options (e.g. --methods paper)')
     args = parser.parse_args()
@@ -107,7 +138,10 @@ def main():
     else:
         design = (FULL if args.full else QUICK) + args.args
     machine = _machine()
-    rows = [run(e, design, args.workers, engine=e) for e in args.engines]
+    if args.physical is not None:
+        rows = physical_rows(design, args.workers, args.physical)
+    else:
+        rows = [run(e, design, args.workers, engine=e) for e in args.engines]
     if args.before:
         with tempfile.TemporaryDirectory() as tmp:
             tree = Path(tmp) / 'before'
@@ -134,6 +168,11 @@ def main():
     if 'local' in by and 'dask' in by:
         print(f'dask / local wall time: {by["dask"]["wall_s"] / by["local"]["wall_s"]:.3f} '
               '(target <= 1.10)')
+    if args.physical is not None:
+        g, p = rows
+        print(f'CPU per job, physical / ground truth: {p["cpu_s"] / p["jobs"]:.3f} / '
+              f'{g["cpu_s"] / g["jobs"]:.3f} s = '
+              f'{(p["cpu_s"] / p["jobs"]) / (g["cpu_s"] / g["jobs"]):.3f} (target <= 1.50)')
     before = [r for r in rows if r['label'].startswith('before')]
     if before and 'local' in by:
         b, a = before[0], by['local']

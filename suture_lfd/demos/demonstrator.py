@@ -40,6 +40,7 @@ and imperfections; it is on the per-step path being made faster, so it stays one
 from dataclasses import dataclass, replace
 import logging
 import math
+from typing import Protocol
 
 import numpy as np
 from sim_bridge.common.geometry import pose_from_transform
@@ -58,6 +59,8 @@ _LOG = logging.getLogger(__name__)
 DEFAULT_LAG_TOLERANCE = 0.0005
 DEFAULT_LAG_TOLERANCE_RAD = 0.05
 _WANDER_SINES = 3
+# A needle pose the recorder did not see (position and quaternion NaN).
+_NOT_SEEN = np.full(7, np.nan)
 _HOVER_TIME = 0.15   # s the tip hovers above the entry before it is pressed in
 _LOWER_TIME = 0.55   # s to press it in (slow: peak speed ~2 mm/s, below a motion's threshold)
 
@@ -473,7 +476,7 @@ def _pair_rng(subject, pair_name, seed, attempt):
 
 def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeout=60.0,
                       attempts=3, next_pair=None, expert_config=None, require_success=True,
-                      command_rate=None):
+                      command_rate=None, link=None):
     """
     Run a subject's throw on a pair in-process and sample it (with score and labels).
 
@@ -507,6 +510,12 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     command_rate : float, optional
         Commands per second (default ``sample_rate``); the sample period must divide the
         command period.
+    link : RobotLink, optional
+        Physical mode: the subject still watches the scene, but its commands reach the arms
+        through ``link.command`` and the record is what ``link.record()`` observes (what a
+        recorder gets from the robot); ``link.start()`` at every attempt's start. Default: the
+        subject's commands go to the arms as they are and the record is the subject's own
+        observation (ground truth).
 
     Returns
     -------
@@ -536,7 +545,7 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     run = None
     for attempt in range(max(1, int(attempts))):
         run = _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout,
-                         nxt, config)
+                         nxt, config, link)
         if run.score.score >= 1.0:
             return run
         failures.append(f'attempt {attempt + 1}: score {run.score.score} '
@@ -548,11 +557,38 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     return run
 
 
+class RobotLink(Protocol):
+    """
+    How a subject's commands reach a robot, and what a recorder on that robot observes.
+
+    Methods
+    -------
+    start()
+        A new attempt begins (the scene was just reset).
+    command(cmd)
+        Return the :class:`~sim_bridge.control.Command` the arms get for the subject's.
+    record()
+        Return the :class:`~sim_bridge.control.Observation` the recorder writes now (its
+        ``T_world_needle`` None when the needle is not seen).
+
+    """
+
+    def start(self):
+        """Begin an attempt."""
+
+    def command(self, cmd):
+        """Return the command the arms get."""
+
+    def record(self):
+        """Return the observation recorded now."""
+
+
 class _Recorder:
     """Record every sample of a demonstration; ask the subject for a command every few."""
 
-    def __init__(self, demonstrator, per_command):
+    def __init__(self, demonstrator, per_command, link=None):
         self.demonstrator, self.per_command, self.sample = demonstrator, per_command, 0
+        self.link = link
         self.rows = {'t': [], 'psm1': [], 'psm2': [], 'j1': [], 'j2': [], 'needle': [], 'h1': [],
                      'h2': [], 'label': []}
 
@@ -560,12 +596,17 @@ class _Recorder:
         dem, rows = self.demonstrator, self.rows
         cmd = dem.step(obs) if self.sample % self.per_command == 0 else None
         self.sample += 1
+        if self.link is not None:
+            if cmd is not None:
+                cmd = self.link.command(cmd)
+            obs = self.link.record()
         rows['t'].append(obs.t)
         rows['psm1'].append(pose_from_transform(obs.T_world_tool['PSM1']))
         rows['psm2'].append(pose_from_transform(obs.T_world_tool['PSM2']))
         rows['j1'].append(obs.jaw['PSM1'])
         rows['j2'].append(obs.jaw['PSM2'])
-        rows['needle'].append(pose_from_transform(obs.T_world_needle))
+        rows['needle'].append(_NOT_SEEN if obs.T_world_needle is None
+                              else pose_from_transform(obs.T_world_needle))
         rows['h1'].append('PSM1' in obs.holders)
         rows['h2'].append('PSM2' in obs.holders)
         rows['label'].append(dem.subtask)
@@ -573,14 +614,16 @@ class _Recorder:
 
 
 def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
-               config):
+               config, link=None):
     scene_seed = int(seed) + 1000 * attempt
     pair = start_episode(sim, pair_name, scene_seed)
     sim.pop_events()
+    if link is not None:
+        link.start()
     dem = Demonstrator(subject, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM2'],
                        rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
                        expert_config=config)
-    recorder = _Recorder(dem, per_command)
+    recorder = _Recorder(dem, per_command, link)
     run_episode(sim, dem, every * sim.dt, stepper=recorder, timeout=timeout, settle=0.0,
                 reset=False, stop_at_done=True)
     if not dem.done:
@@ -589,6 +632,9 @@ def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeo
                                  f'{dem.subtask})')
     events = sim.pop_events()
     rows = recorder.rows
+    seen = None if link is None else link.record().pair
+    if seen is not None:  # the recorder's markers: as the robot perceives them
+        pair = seen
     demo = Demonstration(
         t=np.array(rows['t']), psm1_pose=np.array(rows['psm1']),
         psm2_pose=np.array(rows['psm2']), psm1_jaw=np.array(rows['j1']),

@@ -40,7 +40,7 @@ import shutil
 import numpy as np
 from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
-from sim_bridge.common.vocabulary import SUBTASKS, TASKS
+from sim_bridge.common.vocabulary import PSMS, SUBTASKS, TASKS
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
 
@@ -221,6 +221,30 @@ def _simulation(phantom, step=None, spec=None):
     return sims[phantom, step]
 
 
+def _physical_simulation(phantom, step, physical):
+    """
+    Return a simulation of a phantom for a physical-mode job, and whether it is the job's own.
+
+    ``physical``: the job's ``{'error_level': mm class, 'error_seed': seed}``. Level 0 is the
+    worker's shared simulation (perfect kinematics: nothing to draw); any other level a new
+    simulation with the arms' hidden errors drawn from the job's seed, to be closed after the
+    job (a robot's errors last its life; a job is a robot of its own).
+    """
+    level = float(physical['error_level'])
+    if level == 0.0:
+        return _simulation(phantom, step), False
+    from sim_bridge.simulation import Simulation, load_simulation_config
+
+    s = _settings()
+    config = load_simulation_config()
+    loop = replace(config.loop, thread_period=s.thread_period,
+                   collision_period=max(s.collision_period, step))
+    config = replace(config, world=replace(config.world, physics_step=float(step)), loop=loop,
+                     kinematic_error_level=level,
+                     kinematic_error_seed=int(physical['error_seed']))
+    return Simulation(config, phantom=phantom, rng=np.random.default_rng(0)), True
+
+
 def _subject(name, seed=None):
     """Return a subject of the cohort drawn with ``seed`` (default: the settings' seed)."""
     s = _settings()
@@ -286,32 +310,65 @@ def demo_job(job):
     s = _settings()
     out = Path(s.out)
     subject = _subject(job['subject'], job.get('cohort_seed'))
-    sim = _simulation(job['phantom'], s.demo_physics_step)
-    run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
-                            sample_rate=s.sample_rate, command_rate=s.command_rate,
-                            timeout=s.timeout,
-                            attempts=s.demo_attempts, next_pair=job.get('next_pair'),
-                            require_success=False)
+    physical = job.get('physical')
+    if physical is None:
+        sim, own = _simulation(job['phantom'], s.demo_physics_step), False
+        link = None
+    else:
+        from suture_lfd.study.teleoperated import TeleoperatedRobot
+
+        sim, own = _physical_simulation(job['phantom'], s.demo_physics_step, physical)
+        link = TeleoperatedRobot(sim, job['pair'])
+    try:
+        run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
+                                sample_rate=s.sample_rate, command_rate=s.command_rate,
+                                timeout=s.timeout,
+                                attempts=s.demo_attempts, next_pair=job.get('next_pair'),
+                                require_success=False, link=link)
+        # a robot's recorder writes its arms as it believes them: measured_cp through the
+        # believed bases
+        bases = None if link is None else {arm: sim.believed_base(arm) for arm in PSMS}
+    finally:
+        if own:
+            sim.close()
     record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),
               'failure': run.score.failure, 'time_s': float(run.score.time_s), 'ok': False}
-    demo = _through_bag(run.demo, out / job['bag'], job['pair'])
+    demo = _through_bag(run.demo, out / job['bag'], job['pair'], bases)
     if run.score.score < 1.0:
         record['failure'] = f'no successful demonstration: {run.score.failure}'
         return record
-    segmentation = segment_demonstration(demo)
-    for seg in segmentation.subtasks:
-        record[f't_{seg.name}'] = float(seg.duration)
+    unseen = int(np.isnan(run.demo.needle_pose).any(axis=1).sum())
+    if unseen:
+        record['failure'] = (f'the recorder did not see the needle in {unseen} of '
+                             f'{len(run.demo.t)} samples')
+        return record
     target = out / job['segments']
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(target.stem + '.part' + target.suffix)
-    _save_segments(demo, segmentation, tmp, source=job['bag'], subject=job['subject'])
+    try:
+        segmentation = segment_demonstration(demo)
+        _save_segments(demo, segmentation, tmp, source=job['bag'], subject=job['subject'])
+    except ValueError as exc:
+        if physical is None:
+            raise
+        # on what the robot saw, a demonstration the segmenter cannot read is a result (the
+        # perceived grasps miss one), not a fault to run again
+        record['failure'] = f'not segmentable from what the robot recorded: {exc}'
+        return record
+    for seg in segmentation.subtasks:
+        record[f't_{seg.name}'] = float(seg.duration)
     os.replace(tmp, target)
     record['ok'] = True
     return record
 
 
-def _through_bag(demo, bag, pair):
-    """Write the demonstration as the recorder would and read it back as the segmenter does."""
+def _through_bag(demo, bag, pair, base_frames=None):
+    """
+    Write the demonstration as the recorder would and read it back as the segmenter does.
+
+    ``base_frames``: the arms' ``T_world_base`` the recorder writes (default
+    ``config/world.yaml``'s).
+    """
     from suture_lfd.demos.demo_bag import (
         default_base_frames,
         demonstration_from_bag,
@@ -324,7 +381,7 @@ def _through_bag(demo, bag, pair):
     state = _state()
     if state.base_frames is None:  # config/world.yaml's arm bases, read once per process
         state.base_frames = default_base_frames()
-    write_demonstration_bag(bag, demo, base_frames=state.base_frames)
+    write_demonstration_bag(bag, demo, base_frames=base_frames or state.base_frames)
     return demonstration_from_bag(bag, pair=pair)
 
 
@@ -455,7 +512,23 @@ def throw_job(job):
     path = str(out / job['segments'])
     skill = _skill(path, job['method'], job.get('dmp'))
     ros = _state().ros
-    if ros is None:
+    physical = job.get('physical')
+    if physical is not None:
+        sim, own = _physical_simulation(job['test_phantom'], s.physics_step, physical)
+        try:
+            sampler = ThrowSampler(sim)
+            outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
+                                    timeout=s.timeout, control_period=s.control_period,
+                                    observer=sampler, physical=True,
+                                    correction=bool(physical['correction']))
+            markers = sim.phantom.markers
+            record['replay'] = f'{job["folder"]}/{replay_name(job)}'
+            record['replay_bytes'] = sampler.save(out / record['replay'], job['test_pair'],
+                                                  outcome.events, outcome.subtask_times)
+        finally:
+            if own:
+                sim.close()
+    elif ros is None:
         sim = (_simulation(job['test_key'], spec=spec) if spec is not None
                else _simulation(job['test_phantom']))
         sampler = ThrowSampler(sim)

@@ -35,13 +35,12 @@ import logging
 import os
 from pathlib import Path
 import shlex
-import signal
 import sys
 import time
 import zlib
 
 import numpy as np
-from suture_lfd.study import held_out
+from suture_lfd.study import held_out, physical
 from suture_lfd.study.digest import code_digest, file_digest
 from suture_lfd.study.engine import (
     CodeMismatchError,
@@ -54,7 +53,7 @@ from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_jo
 from suture_lfd.study.keys import BOOKKEEPING, demo_ids, with_ids
 from suture_lfd.study.pool import PoolError
 from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import stop_children, stop_on_signals
+from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash, earlier_format_files
 
 _LOG = logging.getLogger(__name__)
@@ -100,6 +99,7 @@ def add_arguments(parser):
                              "cohort's best accepted one on that pair (cohort); off: no "
                              'assessment')
     held_out.add_arguments(parser)
+    physical.add_arguments(parser)
     parser.add_argument('--plan', action='store_true',
                         help='write the configuration (subjects, seeds, jobs) and stop')
     parser.add_argument('--report-only', action='store_true',
@@ -179,6 +179,7 @@ def build_config(args):
     else:
         methods = list(METHODS)
     held = held_out.held_out_config(args, phantoms, args.seed)
+    physical_mode = physical.physical_config(args)
     settings = JobSettings(out='', cohort_path=str(cohort_path), cohort_seed=args.seed)
     files = {name: file_digest(config_path(name))
              for name in ('scene.yaml', 'world.yaml', 'dmp.yaml', 'kinematics.yaml')
@@ -212,6 +213,7 @@ def build_config(args):
         'code': code_digest(),
         **extra,
         **({'held_out': held} if held else {}),
+        **({'physical': physical_mode} if physical_mode else {}),
     }
 
 
@@ -220,7 +222,7 @@ def hashed_config(config):
     # held-out throws are keyed by their geometry: the fixed-pair results stay shared
     return {k: v for k, v in config.items()
             if k not in ('cohort_file', 'method_descriptions', 'quick', 'held_out',
-                         'assessment')}
+                         'assessment', 'physical')}
 
 
 def plan_jobs(config):
@@ -368,13 +370,22 @@ def run_study(args, stream=None):
     config['hash'] = digest
     demos, throws = plan_jobs(config)
     held_jobs = with_ids(held_out.plan_held_out(config, job_seed), config, demo_ids(demos))
+    phys_demos, phys_throws = [], []
+    if config.get('physical'):
+        phys_demos, phys_throws = physical.plan_physical(config['physical'], demos, throws,
+                                                         job_seed, config['seed'])
+        phys_demos = with_ids(phys_demos, config)
+        phys_throws = with_ids(phys_throws, config, demo_ids(phys_demos))
     (out / 'config.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
-    jobs = demos + throws + held_jobs
+    jobs = demos + throws + held_jobs + phys_demos + phys_throws
     total = len(jobs)
     print(f'study {digest}: {len(config["subjects"])} subjects, '
           f'{sum(len(p) for p in config["phantoms"].values())} pairs, methods '
           f'{", ".join(config["methods"])}: {len(demos)} demonstrations + {len(throws)} '
           f'throws' + (f' + {len(held_jobs)} held-out throws' if held_jobs else '')
+          + (f'; physical mode ({len(physical.variants(config["physical"]))} variants): '
+             f'{len(phys_demos)} demonstrations + {len(phys_throws)} throws'
+             if phys_demos else '')
           + f'; results in {out}', file=stream, flush=True)
     if args.plan:
         (out / 'jobs.json').write_text(json.dumps(jobs, indent=1) + '\n')
@@ -404,7 +415,7 @@ def run_study(args, stream=None):
                     print(f'study: jobs run on the {engine.describe()} '
                           f'({session.n_workers()} workers)', file=stream, flush=True)
                 where = session or engine
-                run_stages_on(where, [demos], run_job, store, workers=workers,
+                run_stages_on(where, [demos + phys_demos], run_job, store, workers=workers,
                               progress=progress, initializer=init_worker,
                               initargs=(settings,))
                 if held_jobs:  # fewer than the matrix's throws: their figure comes first
@@ -414,27 +425,27 @@ def run_study(args, stream=None):
                 run_stages_on(where, [attach_demos(throws, store, demos)], run_job, store,
                               workers=workers, progress=progress, initializer=init_worker,
                               initargs=(settings, ros))
+                if phys_throws:  # in-process, whatever --via-ros says
+                    run_stages_on(where, [attach_demos(phys_throws, store, phys_demos)],
+                                  run_job, store, workers=workers, progress=progress,
+                                  initializer=init_worker, initargs=(settings,))
             except (CodeMismatchError, EngineError, PoolError) as exc:
                 progress.finish()
                 print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
                 status = 1
             except KeyboardInterrupt as exc:
-                interrupted = getattr(exc, 'signum', signal.SIGINT)
+                interrupted = signal_of(exc)
             finally:
                 if session is not None:
                     session.close(stop=interrupted is not None)
                 close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
             if interrupted is not None:
-                progress.finish()
-                stop_children()  # whatever the engine left: no process of the run outlives it
-                print(f'study interrupted: {progress.done}/{total} jobs stored in '
-                      f'{store.path.name}; run the same command again to resume', file=stream,
-                      flush=True)
-                return 128 + interrupted  # 130, or 143 for SIGTERM
+                return end_interrupted('study', progress, total, store, interrupted, stream)
         ran = progress.done - progress.resumed
         wall = time.monotonic() - t0
         records = ordered_records(store, demos + throws)
         held_records = ordered_records(store, held_jobs)
+        phys_records = ordered_records(store, phys_demos + phys_throws)
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())
     run_info = {'command': command.strip(), 'workers': workers, 'engine': engine.describe(),
                 'jobs_run': ran, 'resumed': reused, 'results_file': store.path.name,
@@ -444,8 +455,11 @@ def run_study(args, stream=None):
     path = report_writer.write_report(out, records, config, run_info)
     if held_jobs:
         _write_held_out(out, path, records, held_records, config)
-    missing = total - len(records) - len(held_records)
-    print(f'report: {path} ({len(records) + len(held_records)}/{total} jobs'
+    if config.get('physical'):
+        _write_physical(out, path, records, phys_records, config, run_info)
+    stored = len(records) + len(held_records) + len(phys_records)
+    missing = total - stored
+    print(f'report: {path} ({stored}/{total} jobs'
           + (f', {missing} missing' if missing else '') + f'; {ran} run, {reused} reused; '
           f'{wall:.1f} s)', file=stream, flush=True)
     return status
@@ -487,6 +501,29 @@ def _write_held_out(out, report, records, held_records, config):
         json.dumps(held_out.summarise(records, ok), indent=1, sort_keys=True) + '\n')
     with open(report, 'a') as f:
         f.write('\n' + '\n'.join(held_out.report_section(records, ok, config)) + '\n')
+
+
+def _write_physical(out, report, ground_records, records, config, run_info):
+    """Write a report per physical-mode variant and the main report's physical section."""
+    from suture_lfd.study.report import summarise, write_csv, write_report
+
+    ground_truth = summarise(ground_records)
+    variant_config = {**config, 'assessment': 'off'}
+    summaries = {}
+    for name, level, correction in physical.variants(config['physical']):
+        folder = out / 'physical' / name
+        folder.mkdir(parents=True, exist_ok=True)
+        mine = physical.variant_records(records, name, level)
+        write_report(folder, mine, variant_config, run_info)
+        summaries[level, correction] = summarise(mine)
+    curve = None
+    if len(summaries) > 1:
+        rows = physical.curve_rows(summaries, ground_truth)
+        write_csv(out / 'physical_curve.csv', rows, physical.CURVE_COLUMNS)
+        curve = physical.curve_figure(rows, out / 'physical_curve.png').name
+    lines = physical.report_section(summaries, ground_truth, config['physical'], curve)
+    with open(report, 'a') as f:
+        f.write('\n' + '\n'.join(lines) + '\n')
 
 
 def _study_argv():

@@ -228,6 +228,48 @@ def stop_children(grace=STOP_GRACE_S):
     return len(others)
 
 
+def signal_of(exc):
+    """
+    Return the signal that stopped a run, from the :class:`KeyboardInterrupt` it raised.
+
+    An :class:`Interrupted` carries its signal; a plain :class:`KeyboardInterrupt` (Ctrl-C
+    before the handlers were installed) is SIGINT.
+    """
+    return int(getattr(exc, 'signum', signal.SIGINT))
+
+
+def end_interrupted(what, progress, total, store, signum, stream):
+    """
+    End a run stopped by a signal: stop what is left of it, say so, return the exit status.
+
+    Parameters
+    ----------
+    what : str
+        ``'study'`` or ``'sweep'``.
+    progress : suture_lfd.study.runner.Progress
+        The run's progress (its line is ended; its count is the jobs stored).
+    total : int
+        Jobs of the whole run.
+    store : suture_lfd.study.store.ResultStore
+        Where the finished jobs are stored.
+    signum : int
+        The signal (:func:`signal_of`).
+    stream : file-like
+        Where the line goes.
+
+    Returns
+    -------
+    int
+        ``128 + signum``: 130 for SIGINT, 143 for SIGTERM.
+
+    """
+    progress.finish()
+    stop_children()  # whatever the engine left: no process of the run outlives it
+    print(f'{what} interrupted: {progress.done}/{total} jobs stored in {store.path.name}; run '
+          'the same command again to resume', file=stream, flush=True)
+    return 128 + int(signum)
+
+
 def wait_gone(processes, deadline):
     """Wait until every ``multiprocessing.Process`` has exited or ``deadline`` (monotonic)."""
     for process in processes:

@@ -61,7 +61,7 @@ from suture_lfd.study.run import (
     stored_note,
 )
 from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import stop_children, stop_on_signals
+from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash
 
 SWEEP_FORMAT = 1
@@ -459,18 +459,13 @@ def run_sweep(args, stream=None):
             print(f'suture-lfd sweep: error: {exc}', file=sys.stderr, flush=True)
             status = 1
         except KeyboardInterrupt as exc:
-            interrupted = getattr(exc, 'signum', 2)
+            interrupted = signal_of(exc)
         finally:
             if session is not None:
                 session.close(stop=interrupted is not None)
             close_worker()
         if interrupted is not None:
-            progress.finish()
-            stop_children()  # whatever the engine left: no process of the run outlives it
-            print(f'sweep interrupted: {progress.done}/{total} jobs stored in '
-                  f'{store.path.name}; run the same command again to resume', file=stream,
-                  flush=True)
-            return 128 + interrupted  # 130, or 143 for SIGTERM
+            return end_interrupted('sweep', progress, total, store, interrupted, stream)
         ran = progress.done - progress.resumed
         records = ordered_records(store, demos + throws)
     wall = time.monotonic() - t0

@@ -1,0 +1,361 @@
+"""
+The study in physical mode: the same design on what a physical dVRK provides.
+
+``--physical`` runs, beside the study's ground-truth jobs (reused when stored), the same
+demonstrations and throws in physical mode, in-process, once per *variant*: an error level
+(``--error-level``, a mm class of :mod:`sim_bridge.kinematic_errors`, several as a
+comma-separated list) and whether the executor corrects on what it sees (``--correction
+on|off|both``, ``--no-correction`` for ``off``):
+
+- every job's simulation has the PSMs' hidden kinematic errors at the level, drawn from the
+  job's own seed (``error_seed``); the scene seed is the ground-truth job's, so the two modes
+  differ only by the robot;
+- a demonstration is teleoperated through the robot and recorded as the robot sees it
+  (:mod:`suture_lfd.study.teleoperated`: the arms' reports, the needle and markers from the
+  endoscope); it depends on the level, not on the correction, so the variants of a level share
+  their demonstrations;
+- a throw is executed on the arms' reports and perception
+  (:func:`suture_lfd.skill.executor.execute_throw` with ``physical=True``).
+
+Physical jobs carry ``physical`` (level, error seed and, for a throw, the correction) and
+``folder`` in their fields, so their ``id`` s (:mod:`suture_lfd.study.keys`) never meet a
+ground-truth job's, and the ground-truth jobs are planned exactly as without ``--physical``
+(same ``id`` s, the same ``throws.csv``). Each variant gets a full study report in
+``physical/<variant>/``; the main report gets a "Physical mode" section: Tables II-IV of each
+variant beside ground-truth mode and the paper, and, with more than one level or correction, the
+curve of generality against the error level (``physical_curve.png``, ``physical_curve.csv``).
+"""
+
+import math
+
+from suture_lfd.study import tables
+
+#: The levels of the issue's curve (mm class).
+CURVE_LEVELS = (0.0, 1.0, 3.0, 5.0)
+CURVE_COLUMNS = ('method', 'correction', 'error_level', 'generality_experienced',
+                 'generality_naive', 'generality_overall', 'ground_truth_overall', 'ratio',
+                 'regeneration_success', 'throws')
+
+
+def add_arguments(parser):
+    """Add the physical-mode options to the study's argparse parser."""
+    parser.add_argument('--physical', action='store_true',
+                        help='also run the study in physical mode: hidden kinematic errors, '
+                             'demonstrations recorded and throws executed on what the robot '
+                             'reports and the endoscope shows; reported beside ground truth')
+    parser.add_argument('--error-level', default='3', metavar='L[,L...]',
+                        help='kinematic error class(es) of --physical, mm (default 3; '
+                             f'{",".join(_text(v) for v in CURVE_LEVELS)} draws the curve)')
+    parser.add_argument('--correction', choices=('on', 'off', 'both'), default='on',
+                        help='with --physical: the executor closes its loop on what it sees '
+                             "(on, default), runs open loop on the arms' kinematics (off), or "
+                             'both side by side')
+    parser.add_argument('--no-correction', dest='correction', action='store_const',
+                        const='off', help='the same as --correction off')
+
+
+def _text(value):
+    return f'{value:g}'
+
+
+def physical_config(args):
+    """
+    Return the physical-mode part of a study configuration, or None without ``--physical``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Options of :func:`add_arguments`.
+
+    Returns
+    -------
+    dict or None
+        ``levels`` (mm class, in the given order) and ``corrections`` (bool).
+
+    Raises
+    ------
+    ValueError
+        A level that is not a finite number >= 0.
+
+    """
+    if not getattr(args, 'physical', False):
+        return None
+    levels = []
+    for part in str(getattr(args, 'error_level', '3')).split(','):
+        try:
+            level = float(part)
+        except ValueError:
+            level = math.nan
+        if not (math.isfinite(level) and level >= 0.0):
+            raise ValueError(f'--error-level takes mm classes >= 0 separated by commas, got '
+                             f'{part.strip()!r}')
+        if level not in levels:
+            levels.append(level)
+    correction = getattr(args, 'correction', 'on')
+    corrections = {'on': [True], 'off': [False], 'both': [True, False]}[correction]
+    return {'levels': levels, 'corrections': corrections}
+
+
+def variant_name(level, correction):
+    """Return the folder name of a variant: ``level-3`` (corrected) or ``level-3-open``."""
+    return f'level-{_text(level)}' + ('' if correction else '-open')
+
+
+def variants(physical):
+    """Return ``[(name, level, correction)]`` of a physical configuration, in order."""
+    return [(variant_name(level, c), level, c)
+            for level in physical['levels'] for c in physical['corrections']]
+
+
+def plan_physical(physical, demos, throws, job_seed, seed):
+    """
+    Return the physical-mode jobs made from the ground-truth ones (without ``id``).
+
+    Parameters
+    ----------
+    physical : dict
+        Output of :func:`physical_config`.
+    demos, throws : list of dict
+        The study's ground-truth jobs (:func:`suture_lfd.study.run.plan_jobs`).
+    job_seed : callable
+        ``(study seed, key) -> seed``: the errors' seed of a job.
+    seed : int
+        The study seed.
+
+    Returns
+    -------
+    demos, throws : list of dict
+        Per level its demonstrations (``physical/level-L/...``), per variant its throws,
+        learning from the demonstrations of their level.
+
+    """
+    out_demos, out_throws = [], []
+    strip = ('id',)
+    for level in physical['levels']:
+        where = f'physical/{variant_name(level, True)}'
+        for job in demos:
+            key = f'{where}/{job["key"]}'
+            out_demos.append({
+                **{k: v for k, v in job.items() if k not in strip}, 'key': key,
+                'folder': where, 'bag': f'{where}/{job["bag"]}',
+                'segments': f'{where}/{job["segments"]}',
+                'physical': {'error_level': level, 'error_seed': job_seed(seed, key)}})
+    for name, level, correction in variants(physical):
+        where = f'physical/{name}'
+        demo_where = f'physical/{variant_name(level, True)}'
+        for job in throws:
+            key = f'{where}/{job["key"]}'
+            trajectories = job.get('trajectories')
+            out_throws.append({
+                **{k: v for k, v in job.items() if k not in strip}, 'key': key,
+                'folder': where, 'demo_key': f'{demo_where}/{job["demo_key"]}',
+                'trajectories': f'{where}/{trajectories}' if trajectories else None,
+                'physical': {'error_level': level, 'error_seed': job_seed(seed, key),
+                             'correction': correction}})
+    return out_demos, out_throws
+
+
+def variant_records(records, name, level):
+    """
+    Return the records of one variant, keyed and pathed as a ground-truth study's own.
+
+    Parameters
+    ----------
+    records : list of dict
+        Physical-mode records (demonstrations and throws of every variant).
+    name : str
+        The variant (:func:`variant_name`).
+    level : float
+        Its level (its demonstrations are the level's).
+
+    Returns
+    -------
+    list of dict
+
+    """
+    demo_prefix = f'physical/{variant_name(level, True)}/'
+    throw_prefix = f'physical/{name}/'
+    out = []
+    for r in records:
+        if r['kind'] == 'demo' and r['key'].startswith(demo_prefix):
+            out.append({**r, 'key': r['key'][len(demo_prefix):]})
+        elif r['kind'] == 'throw' and r['key'].startswith(throw_prefix):
+            t = r.get('trajectories')
+            out.append({**r, 'key': r['key'][len(throw_prefix):],
+                        'trajectories': t[len(throw_prefix):]
+                        if t and t.startswith(throw_prefix) else t})
+    return out
+
+
+def _f(value, digits=3):
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return '–'
+    return f'{value:.{digits}f}'
+
+
+def _table(header, rows):
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
+    lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
+    return lines
+
+
+def _cumulative(t4, task):
+    """Table IV's overall success of a subtask, in %."""
+    return (_f(100.0 * t4[task][2] / t4['total'], 1) + ' %') if t4['total'] else '–'
+
+
+def _variant_label(level, correction):
+    return f'L{_text(level)} ' + ('corrected' if correction else 'open loop')
+
+
+def curve_rows(summaries, ground_truth):
+    """
+    Return one row per method, correction and level: generality in physical mode.
+
+    Parameters
+    ----------
+    summaries : dict
+        ``(level, correction) -> summary`` (:func:`suture_lfd.study.report.summarise`).
+    ground_truth : dict
+        The ground-truth summary.
+
+    Returns
+    -------
+    list of dict
+        Columns :data:`CURVE_COLUMNS`; ``ratio`` is overall generality over ground truth's.
+
+    """
+    rows = []
+    for (level, correction), summary in sorted(summaries.items(),
+                                               key=lambda kv: (not kv[0][1], kv[0][0])):
+        for method, s in summary.items():
+            gen = s['generality']['group_mean']
+            gt = ground_truth.get(method, {}).get('generality', {}).get('group_mean', {})
+            gt_overall = gt.get('overall', math.nan)
+            overall = gen['overall']
+            rows.append({'method': method, 'correction': correction, 'error_level': level,
+                         'generality_experienced': gen['experienced'],
+                         'generality_naive': gen['naive'], 'generality_overall': overall,
+                         'ground_truth_overall': gt_overall,
+                         'ratio': overall / gt_overall if gt_overall else math.nan,
+                         'regeneration_success': s['regeneration']['rate'],
+                         'throws': s['generality']['n']['overall']})
+    return sorted(rows, key=lambda r: (r['method'], not r['correction'], r['error_level']))
+
+
+def report_section(summaries, ground_truth, physical, curve_png=None):
+    """
+    Return the lines of the report's "Physical mode" section.
+
+    Parameters
+    ----------
+    summaries : dict
+        ``(level, correction) -> summary`` of each variant.
+    ground_truth : dict
+        The ground-truth summary (same design, same scene seeds).
+    physical : dict
+        The physical configuration (:func:`physical_config`).
+    curve_png : str, optional
+        File name of the curve's figure (drawn when there is more than one variant).
+
+    Returns
+    -------
+    list of str
+
+    """
+    md = ['## Physical mode', '',
+          "The same design run on what a physical dVRK provides: the PSMs' kinematic errors "
+          'hidden in the simulation (joints 1-2 up to ±L deg, insertion ±L mm, base '
+          'registration ±L mm per axis, drawn per job), demonstrations teleoperated through '
+          'the robot and recorded as it reports them, with the needle and the markers from '
+          "the endoscope's images; throws executed on the arms' reports and perception. The "
+          "scoring reads the simulation's truth, as an observer of the real robot would. Each "
+          'variant has its full report in `physical/<variant>/`.', '']
+    keys = [(level, c) for level in physical['levels'] for c in physical['corrections']]
+    methods = list(ground_truth)
+    for method in methods:
+        gt = ground_truth[method]
+        shown = [(k, summaries[k][method]) for k in keys
+                 if k in summaries and method in summaries[k]]
+        header = ['', 'ground truth'] + [_variant_label(*k) for k, _ in shown] + ['paper']
+        md += [f'### Method `{method}`', '', '#### Table II: regeneration errors (mean)', '']
+        rows = []
+        for task in tables.TASKS:
+            for kind, unit in tables.ERROR_KINDS:
+                for point in tables.ERROR_POINTS:
+                    name = f'{task}/{kind}/{point}'
+                    paper = tables.PAPER['table2'][(task, kind, point)][0]
+                    rows.append([f'task {task} {point} ({unit})',
+                                 _f(gt['regeneration']['errors'][name]['mean'], 2)]
+                                + [_f(s['regeneration']['errors'][name]['mean'], 2)
+                                   for _, s in shown] + [f'{paper:.2f}'])
+        rows.append(['regeneration success', _f(100.0 * gt['regeneration']['rate'], 1) + ' %']
+                    + [_f(100.0 * s['regeneration']['rate'], 1) + ' %' for _, s in shown]
+                    + ['95.0 %'])
+        md += _table(header, rows) + ['', '#### Table III: generality', '']
+        rows = []
+        for group in ('experienced', 'naive', 'overall'):
+            rows.append([group, _f(gt['generality']['group_mean'][group])]
+                        + [_f(s['generality']['group_mean'][group]) for _, s in shown]
+                        + [f'{tables.PAPER["generality"][group]:.3f}'])
+        gt_overall = gt['generality']['group_mean']['overall']
+        rows.append(['overall / ground truth', '1.000']
+                    + [_f(s['generality']['group_mean']['overall'] / gt_overall
+                          if gt_overall else math.nan) for _, s in shown] + ['–'])
+        md += _table(header, rows)
+        md += ['', "#### Table IV: experienced users' success, overall (cumulative) %", '']
+        rows = []
+        for task in tables.SUBTASKS:
+            paper = tables.PAPER['table4'][task][2] / tables.PAPER['table4_total']
+            rows.append([task, _cumulative(gt['table4'], task)]
+                        + [_cumulative(s['table4'], task) for _, s in shown]
+                        + [f'{100.0 * paper:.1f} %'])
+        md += _table(header, rows) + ['']
+    if len(keys) > 1:
+        rows = curve_rows(summaries, ground_truth)
+        md += ['### Generality against the error level', '',
+               'Overall generality in physical mode per error level (mm class), with the '
+               "executor's correction and open loop on the arms' own kinematics, beside "
+               'ground-truth mode (`physical_curve.csv`).', '']
+        md += _table(['method', 'correction', 'level (mm)', 'experienced', 'naive', 'overall',
+                      'ground truth', 'overall / ground truth', 'regeneration', 'throws'],
+                     [[r['method'], 'on' if r['correction'] else 'off', _text(r['error_level']),
+                       _f(r['generality_experienced']), _f(r['generality_naive']),
+                       _f(r['generality_overall']), _f(r['ground_truth_overall']),
+                       _f(r['ratio']), _f(100.0 * r['regeneration_success'], 1) + ' %',
+                       r['throws']] for r in rows])
+        md += ['']
+        if curve_png:
+            md += [f'![generality against the error level]({curve_png})', '']
+    return md
+
+
+def curve_figure(rows, path):
+    """Plot overall generality against the error level, one line per method and correction."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.0, 3.4))
+    lines = {}
+    for r in rows:
+        lines.setdefault((r['method'], r['correction']), []).append(r)
+    for (method, correction), series in sorted(lines.items()):
+        x = [r['error_level'] for r in series]
+        ax.plot(x, [r['generality_overall'] for r in series], marker='o',
+                linestyle='-' if correction else '--',
+                label=f'{method}, ' + ('corrected' if correction else 'open loop'))
+    for method in sorted({r['method'] for r in rows}):
+        gt = next(r['ground_truth_overall'] for r in rows if r['method'] == method)
+        ax.axhline(gt, color='grey', linewidth=0.8, linestyle=':')
+    ax.set_xlabel('kinematic error level (mm class)')
+    ax.set_ylabel('overall generality')
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title('physical mode (dotted: ground truth)', fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,103 @@
+"""``suture-lfd study --physical`` end to end: the study on what a physical dVRK provides.
+
+One subject, one synthetic pair, the ``pair_frame`` method: the ground-truth demonstration and
+throw, and the same in physical mode at error levels 0 and 3 (demonstrations teleoperated
+through the robot and recorded from its reports and the endoscope; throws with and without the
+correction), in 2 worker processes; beside it the same design without ``--physical``, whose
+``throws.csv`` and ``demos.csv`` the physical study must leave byte for byte unchanged.
+"""
+
+import json
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+from suture_lfd.study import report
+
+SMALL = ['--quick', '--subjects', '1', '--phantoms', 'synthetic', '--pairs', '1',
+         '--methods', 'pair_frame', '--workers', '2']
+PHYSICAL = ['--physical', '--error-level', '0,3', '--correction', 'both']
+TIMEOUT = 1500
+
+
+def study(out, *args):
+    cmd = [sys.executable, '-m', 'suture_lfd.cli', 'study', '--out', str(out), *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT)
+
+
+def records(out):
+    return [json.loads(line) for line in (Path(out) / 'results.jsonl').read_text().splitlines()]
+
+
+@pytest.fixture(scope='module')
+def studies(tmp_path_factory):
+    ground = tmp_path_factory.mktemp('ground_truth')
+    result = study(ground, *SMALL)
+    assert result.returncode == 0, result.stderr[-3000:]
+    both = tmp_path_factory.mktemp('physical')
+    result = study(both, *SMALL, *PHYSICAL)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return ground, both, result
+
+
+def test_the_physical_study_leaves_the_ground_truth_results_unchanged(studies):
+    ground, both, _ = studies
+    for name in ('throws.csv', 'demos.csv'):
+        assert (both / name).read_bytes() == (ground / name).read_bytes(), name
+    ground_ids = {r['key']: r['id'] for r in records(ground)}
+    mine = records(both)
+    assert {r['key']: r['id'] for r in mine if r['key'] in ground_ids} == ground_ids
+    physical = [r for r in mine if r['key'] not in ground_ids]
+    # per level one demonstration; per level and correction one throw
+    assert len(physical) == 2 + 4
+    assert not {r['id'] for r in physical} & set(ground_ids.values())
+    for r in physical:
+        assert r['physical']['error_level'] in (0.0, 3.0)
+        assert r['error'] == '', r['error']
+
+
+def test_the_physical_study_reports_its_tables_beside_ground_truth_and_the_curve(studies):
+    _, both, result = studies
+    assert 'physical mode (4 variants): 2 demonstrations + 4 throws' in result.stderr
+    text = (both / 'report.md').read_text()
+    section = text[text.index('## Physical mode'):]
+    for title in ('#### Table II', '#### Table III', '#### Table IV',
+                  '### Generality against the error level'):
+        assert title in section, title
+    header = ('|  | ground truth | L0 corrected | L0 open loop | L3 corrected | L3 open loop '
+              '| paper |')
+    assert header in section
+    curve = report.read_csv(both / 'physical_curve.csv')
+    assert {(r['error_level'], r['correction']) for r in curve} == {
+        ('0.0', 'true'), ('0.0', 'false'), ('3.0', 'true'), ('3.0', 'false')}
+    assert (both / 'physical_curve.png').read_bytes()[:4] == b'\x89PNG'
+    # each variant's full report, its throws read back against the curve's figures
+    for r in curve:
+        name = f'level-{float(r["error_level"]):g}' + ('' if r['correction'] == 'true'
+                                                        else '-open')
+        throws = report.read_csv(both / 'physical' / name / 'throws.csv')
+        assert len(throws) == 1 == int(r['throws'])
+        assert float(r['generality_overall']) == pytest.approx(float(throws[0]['score']))
+    # the level's demonstration was recorded as a bag in its own folder
+    demos = report.read_csv(both / 'physical' / 'level-3' / 'demos.csv')
+    assert demos[0]['bag'].startswith('physical/level-3/bags/')
+    assert (both / demos[0]['bag'] / 'metadata.yaml').exists()
+
+
+def test_physical_options_are_checked_and_planned_apart(tmp_path):
+    result = study(tmp_path / 'bad', '--physical', '--error-level', '3,x', '--plan')
+    assert result.returncode == 2
+    assert "--error-level takes mm classes >= 0 separated by commas, got 'x'" in result.stderr
+    result = study(tmp_path / 'plain', '--plan')
+    assert result.returncode == 0, result.stderr
+    plain = json.loads((tmp_path / 'plain' / 'jobs.json').read_text())
+    result = study(tmp_path / 'physical', '--plan', '--physical', '--no-correction')
+    assert result.returncode == 0, result.stderr
+    jobs = json.loads((tmp_path / 'physical' / 'jobs.json').read_text())
+    assert jobs[:len(plain)] == plain  # the ground-truth jobs, ids and all, as without it
+    extra = jobs[len(plain):]
+    assert len(extra) == len(plain)  # one level: the design once more
+    assert {j['physical']['error_level'] for j in extra} == {3.0}
+    assert {j['physical'].get('correction') for j in extra if j['kind'] == 'throw'} == {False}
+    assert len({j['physical']['error_seed'] for j in extra}) == len(extra)
