@@ -25,6 +25,12 @@ while recording. Their subscriptions stay matched in between, so DDS keeps their
 messages; a recording takes them in one pass at its start (after saying it records) and drops
 those received before it started (``received_timestamp``), reading their sequence numbers
 only to count gaps from there on.
+
+The bags are stamped by the streams' node's clock: with ``use_sim_time`` the simulator's
+``/clock`` is subscribed by that node alone, so a recorder at rest does not take the 200 Hz
+clock either. Its latest message, held by DDS, sets the clock at the start of a recording; the
+recorder's own node (timers, status) runs on the wall clock, and says so in its
+``use_sim_time`` parameter (``recorder_streams``'s holds the value given).
 """
 
 from dataclasses import dataclass
@@ -40,6 +46,7 @@ import time
 
 import rclpy
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
 from sim_bridge.ros import qos
@@ -208,12 +215,17 @@ class Recorder(NodeHooks, Node):
         self._latched = {}         # absolute topic -> subscribed TRANSIENT_LOCAL
         self._last = {}            # carry-over topic -> last CDR bytes
         self._gaps = PublicationGaps()
-        self._ros_clock = self.get_clock()
-        # the streamed topics' subscriptions: spun only while recording (see the module's doc)
-        self._streams = rclpy.create_node(f'{self.get_name()}_streams',
-                                          namespace=self.get_namespace(), context=self.context,
-                                          use_global_arguments=False,   # topics are absolute
-                                          start_parameter_services=False)
+        # the streamed topics' subscriptions, and /clock on sim time: spun only while
+        # recording (see the module's doc)
+        sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._streams = rclpy.create_node(
+            f'{self.get_name()}_streams', namespace=self.get_namespace(), context=self.context,
+            use_global_arguments=False,   # topics are absolute
+            start_parameter_services=False,
+            parameter_overrides=[Parameter('use_sim_time', value=sim_time)])
+        self._ros_clock = self._streams.get_clock()     # the bags' stamps
+        if sim_time:   # this node's timers need no /clock: only the streams' node takes it
+            self.set_parameters([Parameter('use_sim_time', value=False)])
         self._spinning_streams = False
         self._status_pub = self.create_publisher(String, '~/status', qos.LATCHED)
         self.create_service(Trigger, '~/start', self._on_start)
@@ -339,6 +351,7 @@ class Recorder(NodeHooks, Node):
         path.parent.mkdir(parents=True, exist_ok=True)
         session = BagSession(path, self.config, self.get_logger())
         session.started_ns = time.time_ns()
+        self._take_clock()
         now = self._ros_clock.now().nanoseconds
         for topic, rawdata in self._last.items():
             session.types[topic] = self._types[topic]
@@ -382,10 +395,28 @@ class Recorder(NodeHooks, Node):
             executor.remove_node(self._streams)
         self._spinning_streams = on
 
+    def _is_clock(self, sub):
+        """Whether ``sub`` is the streams' node's own ``/clock`` (its time source's)."""
+        return sub.topic_name == '/clock' and sub is not self._topic_subs.get('/clock')
+
+    def _take_clock(self):
+        """Set the stamps' clock from the newest ``/clock`` DDS holds (on sim time)."""
+        for sub in self._streams.subscriptions:
+            if not self._is_clock(sub):
+                continue
+            newest = None
+            with sub.handle:
+                while (taken := sub.handle.take_message(sub.msg_type, False)) is not None:
+                    newest = taken[0]
+            if newest is not None:
+                sub.callback(newest)
+
     def _take_held(self):
         """Take what DDS holds of the streams in one pass (recording what came after start)."""
         for sub in self._streams.subscriptions:
             topic = sub.topic_name
+            if self._is_clock(sub):
+                continue
             carry = self.config.matches('carry_over', topic)
             with sub.handle:
                 while True:

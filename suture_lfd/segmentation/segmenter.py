@@ -6,11 +6,12 @@ Each arm's motions are its motion keypoints (:mod:`suture_lfd.segmentation.keypo
 Subtasks (seed paper, after Schwaner et al. 2021), cut with the grasp signals:
 
 i    PSM2 picks the needle and brings its tip to the entry: the PSM2 motions before ii.
-ii   PSM2 inserts the needle to the exit: the last PSM2 motion before PSM1 grasps the needle,
-     and the PSM2 motions before it while the needle tip, at the start of that motion, lies
-     deeper than ``entered_depth`` below the pair's surface (entry marker and normal): a person
-     who pauses during the insertion makes it of several motions, and the insertion starts
-     where the tip was still at the surface.
+ii   PSM2 inserts the needle to the exit: the PSM2 motions before PSM1 grasps the needle, from
+     the one in which the needle tip last went deeper than ``entered_depth`` below the pair's
+     surface (entry marker and normal) before that grasp, or from the last one if the tip
+     never did: a person who pauses during the insertion makes it of several motions, and
+     the insertion starts where the tip was still at the surface, however many motions
+     follow it in the tissue or once the tip is out of the exit.
 iii  PSM1 regrasps: from PSM1's first motion after ii to the moment PSM2 releases the needle.
 iv   PSM1 extracts the needle: PSM1's motions after PSM2 released it, before PSM2 grasps again.
 v    hand-over to PSM2 and move on: from the first motion after iv to the last motion.
@@ -136,12 +137,31 @@ def _edge(flags: np.ndarray, T: np.ndarray, after: float, rising: bool, name: st
     return float(T[change[0]])
 
 
-def _tip_depth(demo: DemoRecord, t: float, config: SegmentationConfig) -> float:
-    """Depth (m) of the needle tip below the pair's surface plane at time ``t`` (< 0 above)."""
-    k = nearest_index(demo.t, t)
-    pose = demo.needle_pose[k]
-    tip = pose[:3] + quaternion_rotate(pose[3:], config.needle.tip)
-    return -float(np.dot(tip - demo.entry, demo.normal))
+def _tip_depths(demo: DemoRecord, config: SegmentationConfig) -> np.ndarray:
+    """Depth (m) of the needle tip below the pair's surface plane at each sample (< 0 above)."""
+    pose = demo.needle_pose
+    tip = pose[:, :3] + quaternion_rotate(pose[:, 3:], config.needle.tip)
+    return -((tip - demo.entry) @ np.asarray(demo.normal, float))
+
+
+def _insertion_start(inserting: list[Segment], T: np.ndarray, depth: np.ndarray,
+                     t_regrasp: float, entered_depth: float) -> int:
+    """
+    Index in ``inserting`` (PSM2's motions before the regrasp) of the insertion's first motion.
+
+    The tip enters where its depth last rises above ``entered_depth`` before ``t_regrasp``;
+    the insertion's first motion is the last one starting by then (the last motion when the
+    tip never went that deep). Walking back from the last motion while it starts deep would
+    stop at a motion that starts with the tip already out of the exit.
+    """
+    before = T <= t_regrasp
+    deep = np.flatnonzero(before & (depth > entered_depth))
+    if deep.size == 0:
+        return len(inserting) - 1
+    shallow = np.flatnonzero(before[:deep[-1]] & (depth[:deep[-1]] <= entered_depth))
+    t_enter = T[shallow[-1] + 1] if shallow.size else T[0]
+    starts = [k for k, m in enumerate(inserting) if m.start_time <= t_enter]
+    return starts[-1] if starts else 0
 
 
 def segment_demonstration(demo: DemoRecord,
@@ -190,10 +210,8 @@ def segment_demonstration(demo: DemoRecord,
     if not inserting:
         raise ValueError('no PSM2 motion before PSM1 grasps the needle: no insertion '
                          '(subtask ii) found')
-    first = len(inserting) - 1
-    while first > 0 and _tip_depth(demo, inserting[first].start_time, config) > \
-            config.entered_depth:
-        first -= 1
+    first = _insertion_start(inserting, T, _tip_depths(demo, config), t_regrasp,
+                             config.entered_depth)
     ii = Segment('motion', inserting[first].start_index, inserting[-1].end_index,
                  inserting[first].start_time, inserting[-1].end_time)
     approach = inserting[:first]

@@ -369,3 +369,57 @@ def test_killed_recorder_leaves_a_bag_that_recover_restores(ros, launch, tmp_pat
         assert [deserialize_message(raw, cls) for _, raw in raws] == \
             burst.sent[topic][:len(raws)]
     assert len(read_with_mcap(out)['/PSM1/measured_js']) == len(stored['/PSM1/measured_js'])
+
+
+def test_a_recorder_on_sim_time_takes_clock_only_while_recording_and_stamps_with_it(
+        ros, launch, tmp_path):
+    # at rest /clock costs the recorder nothing: only its streams' node, spun while it records,
+    # subscribes to it; a bag's stamps are the simulator's time, from its first message on
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+
+    streams = {t: v for t, v in BURST_TOPICS.items() if t == '/PSM1/measured_js'}
+    proc = launch_recorder(launch, tmp_path, 'use_sim_time:=true')
+    node = ros.node('sim_clock')
+    clock = node.create_publisher(Clock, '/clock', QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    burst = Burst(node, streams)
+    sim_t0 = 5000.0                  # s of sim time: far from the wall clock's
+    ticks = {'n': 0}
+    stop = threading.Event()
+
+    def tick_clock():
+        while not stop.is_set():
+            t = sim_t0 + 0.005 * ticks['n']
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = int(t), int(round((t % 1) * 1e9))
+            clock.publish(msg)
+            ticks['n'] += 1
+            time.sleep(0.005)
+    ticker = threading.Thread(target=tick_clock, daemon=True)
+    ticker.start()
+    try:
+        assert wait_for(burst.matched, 20.0), proc.log()
+
+        def clock_readers():
+            return sorted(i.node_name for i in node.get_subscriptions_info_by_topic('/clock'))
+        assert wait_for(lambda: clock_readers() == ['recorder_streams'], 20.0), clock_readers()
+        time.sleep(1.0)              # at rest, the clock ticks on
+        started = call(ros, node, '/recorder/start', starts=True)
+        assert started.success, started.message
+        sim_start = sim_t0 + 0.005 * ticks['n']
+        burst.run(0.5)
+        time.sleep(1.0)
+        stopped = call(ros, node, '/recorder/stop')
+        sim_stop = sim_t0 + 0.005 * ticks['n']
+        assert stopped.success, stopped.message
+    finally:
+        stop.set()
+        ticker.join()
+    stamps = [t_ns * 1e-9 for msgs in read_with_rosbags(Path(started.message)).values()
+              for t_ns, _ in msgs]
+    assert len(stamps) >= len(burst.sent['/PSM1/measured_js'])
+    # the newest clock DDS held at the start stamps the first message: no wall time, no 0
+    assert sim_start - 1.0 < min(stamps) and max(stamps) <= sim_stop + 1e-6, \
+        (min(stamps), max(stamps), sim_start, sim_stop)
+    assert proc.running(), proc.log()

@@ -38,7 +38,9 @@ def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4, split_insertion=
 
     ``split_insertion``: the insertion is two motions with a rest between them, the first
     pushing the tip 4 mm into the tissue (as a person who pauses while inserting); the pair's
-    surface is then put 0.1 mm above the tip at the start of the insertion.
+    surface is then put 0.1 mm above the tip at the start of the insertion. ``'out'``: a third
+    motion follows, which starts with the tip already out of the exit (a person who pulls the
+    needle on a little after it came out).
     """
     def jitter(value, spread=0.1):
         return value + rng.uniform(-spread, spread)
@@ -60,8 +62,11 @@ def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4, split_insertion=
     schedule['i'] = (a0, b1)
     if split_insertion:
         push, _ = move(psm2, 0.8, (0.0, -0.004, -0.004), (0.0, 0.0, 0.5), rest=0.5)
-        schedule['ii'] = (push, move(psm2, jitter(2.0), (0.003, -0.012, 0.002),
+        rise = 0.0045 if split_insertion == 'out' else 0.002    # 'out': 0.4 mm above at its end
+        schedule['ii'] = (push, move(psm2, jitter(2.0), (0.003, -0.012, rise),
                                      (0.0, 0.0, 2.6))[1])
+        if split_insertion == 'out':
+            schedule['ii'] = (push, move(psm2, 0.6, (0.002, -0.003, 0.002))[1])
     else:
         schedule['ii'] = move(psm2, jitter(2.0), (0.003, -0.012, 0.002), (0.0, 0.0, 2.6))
     c0, c1 = move(psm1, jitter(1.2), (-0.015, -0.02, -0.01), (0.1, 0.2, 0.0), rest=0.5)
@@ -191,3 +196,16 @@ def test_segmentation_config_rejects_nonsense():
         SegmentationConfig(threshold=1.5)
     with pytest.raises(ValueError, match='cutoff_hz'):
         SegmentationConfig(cutoff_hz=0.0)
+
+
+def test_an_insertion_whose_last_motion_starts_out_of_the_exit_starts_where_the_tip_entered():
+    # a person under a lagging teleoperation pulls the needle on after its tip came out: the
+    # insertion is not that last motion alone
+    rng = np.random.default_rng(12)
+    for _ in range(3):
+        demo, truth = synthetic_demonstration(rng, split_insertion='out')
+        found = segment_demonstration(demo)
+        for name in ('i', 'ii'):
+            start, end = truth[name]
+            assert abs(found[name].start_time - start) < TOLERANCE_S, (name, found[name], start)
+            assert abs(found[name].end_time - end) < TOLERANCE_S, (name, found[name], end)
