@@ -8,4 +8,5 @@ Demonstrations: the recorded data of a throw and the ways to make it.
 - :mod:`~suture_lfd.demos.synthetic_throw`: a synthetic needle throw (no simulation).
 - :mod:`~suture_lfd.demos.demo_bag`: demonstrations to and from bag files.
 - :mod:`~suture_lfd.demos.resampling`: resampling poses and quaternions in time.
+- :mod:`~suture_lfd.demos.segment_file`: the segment file the executor learns from.
 """
