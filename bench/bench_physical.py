@@ -63,7 +63,7 @@ def main():
     parser.add_argument('--phantom', default='synthetic', choices=('synthetic', 'scanned'))
     parser.add_argument('--levels', default='0,1,3,5')
     parser.add_argument('--seeds', default='1,2', help='kinematic-error seeds per level')
-    parser.add_argument('--pairs', default=None, help='pairs (default: the phantom\'s four)')
+    parser.add_argument('--pairs', default=None, help="pairs (default: the phantom's four)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     prefix = 'synth' if args.phantom == 'synthetic' else 'scan'
