@@ -17,19 +17,9 @@ import logging
 
 import numpy as np
 from sim_bridge.scene.markers import MarkerPair
-from suture_lfd.perception import (
-    NeedleTracker,
-    TrackerConfig,
-    detect_markers,
-    stereo_from_camera_info,
-)
+from suture_lfd.perception import NeedleTracker, detect_markers, stereo_from_camera_info
 
 _LOG = logging.getLogger(__name__)
-# What a grasp tolerates: two poses of the needle that fit the images alike are taken as one
-# (the better) when they are within 2 mm of each other (mean over base, middle and tip) -- the
-# jaw's capture reach -- instead of the tracker's 1 mm. On the scanned pad, whose curved
-# surface tilts the resting needle, the start pose is otherwise refused as ambiguous.
-_TRACKER = TrackerConfig(ambiguity_distance=0.002)
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,7 +63,7 @@ class PerceivedScene:
         self.pair_name = str(pair_name)
         self.pair_index = int(pair_index)
         self.look_again = bool(look_again)
-        self._tracker = NeedleTracker(needle_geometry, config=_TRACKER)
+        self._tracker = NeedleTracker(needle_geometry)
         self._stereo = None
         self._frame = None
         self._pair = None
