@@ -103,7 +103,7 @@ def test_in_physical_mode_the_demonstrator_reads_no_truth(launch, ros):
     sim = launch('simulator', '--ros-args', *FAST_ARMS, '-p', 'physical:=true',
                  '-p', 'visualization_rate:=0.0')
     demonstrator = launch('demonstrator', '--ros-args', '-p', 'physical:=true',
-                          '-p', 'recorder_status:=', '-p', 'startup_timeout:=600.0')
+                          '-p', 'recorder_status:=""', '-p', 'startup_timeout:=600.0')
     probe = ros.node('physical_demonstrator_probe')
 
     def subscriptions():
