@@ -108,9 +108,10 @@ class PerceptionFeed(PerceivedScene):
 
     """
 
-    #: m: the planner's grasps put the reported tool tip 6.3 mm from the wire's centre line,
-    #: and a 1-3 mm-class kinematic error adds its share; in a throw the jaws close only to
-    #: grasp, so a wider reach takes no closing for a grasp that is none
+    #: m: the in-process reach (3 mm from the jaws' bite) assumes kinematics corrected by the
+    #: per-arm registration; fed by messages, the arms run on their own kinematics, whose
+    #: 1-3 mm-class error (and the needle last seen lying) add theirs. In a throw the jaws
+    #: close only to grasp, so the wider reach takes no closing for a grasp that is none.
     GRASP_REACH = 0.010
 
     def __init__(self, pair_name, pair_index, needle_geometry=None, grasp_reach=None):
