@@ -17,19 +17,9 @@ import logging
 
 import numpy as np
 from sim_bridge.scene.markers import MarkerPair
-from suture_lfd.perception import (
-    NeedleTracker,
-    TrackerConfig,
-    detect_markers,
-    stereo_from_camera_info,
-)
+from suture_lfd.perception import NeedleTracker, detect_markers, stereo_from_camera_info
 
 _LOG = logging.getLogger(__name__)
-# What a grasp tolerates: two poses of the needle that fit the images alike are taken as one
-# (the better) when they are within 2 mm of each other (mean over base, middle and tip) -- the
-# jaw's capture reach -- instead of the tracker's 1 mm. On the scanned pad, whose curved
-# surface tilts the resting needle, the start pose is otherwise refused as ambiguous.
-_TRACKER = TrackerConfig(ambiguity_distance=0.002)
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,8 +63,9 @@ class PerceivedScene:
         self.pair_name = str(pair_name)
         self.pair_index = int(pair_index)
         self.look_again = bool(look_again)
-        self._tracker = NeedleTracker(needle_geometry, config=_TRACKER)
+        self._tracker = NeedleTracker(needle_geometry)
         self._stereo = None
+        self._frame = None
         self._pair = None
         self._support_normal = None
         self.renders = 0
@@ -82,14 +73,22 @@ class PerceivedScene:
 
     # ------------------------------------------------------------------ images
     def _look(self, sim):
-        """Render the stereo pair; return it with ``T_world_camera`` from the ECM's report."""
+        """
+        Render the stereo pair; return it with ``T_world_camera`` from the ECM's report.
+
+        Looked at twice at the same instant (the markers, then the needle), the scene is
+        rendered once.
+        """
         if self._stereo is None:
             camera = sim.camera
             self._stereo = stereo_from_camera_info(camera.camera_info('left'),
                                                    camera.camera_info('right'))
+        if self._frame is not None and self._frame[0] == sim.time:
+            return self._frame[1], self._frame[2]  # the same instant: the same images
         frame = sim.render()
         self.renders += 1
         T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        self._frame = (sim.time, frame, T_world_camera)
         return frame, T_world_camera
 
     # ------------------------------------------------------------------ markers
