@@ -98,8 +98,8 @@ class PerceptionFeed(PerceivedScene):
     needle_geometry : sim_bridge.common.needle.NeedleGeometry, optional
         The needle's shape (for deciding whether a closing jaw holds it).
     grasp_reach : float, optional
-        Distance (m) from the needle's wire within which a closing jaw holds it (default:
-        :attr:`suture_lfd.skill.perceived.PerceivedScene.grasp_reach`).
+        Distance (m) from the needle's perceived wire within which a closing jaw holds it
+        (default :attr:`GRASP_REACH`).
 
     Attributes
     ----------
@@ -108,12 +108,18 @@ class PerceptionFeed(PerceivedScene):
 
     """
 
+    #: m: the in-process reach (3 mm from the jaws' bite) assumes kinematics corrected by the
+    #: per-arm registration; fed by messages, the arms run on their own kinematics, whose
+    #: 1-3 mm-class error (and the needle last seen lying) add theirs. In a throw the jaws
+    #: close only to grasp, so the wider reach takes no closing for a grasp that is none.
+    GRASP_REACH = 0.010
+
     def __init__(self, pair_name, pair_index, needle_geometry=None, grasp_reach=None):
         super().__init__(pair_name, pair_index, needle_geometry)
-        if grasp_reach is not None:
-            if not grasp_reach > 0:
-                raise ValueError(f'grasp_reach must be > 0 m, got {grasp_reach}')
-            self.grasp_reach = float(grasp_reach)
+        reach = self.GRASP_REACH if grasp_reach is None else grasp_reach
+        if not reach > 0:
+            raise ValueError(f'grasp_reach must be > 0 m, got {reach}')
+        self.grasp_reach = float(reach)
         self.T_world_camera = None
         self._markers_c = None   # (stamp, entries (n, 3), exits (n, 3), normal (3,)) camera
         self._needle_c = None    # (stamp, T_camera_needle or None, NeedleStatus)

@@ -68,10 +68,6 @@ OPTICAL = 'ECM_left_optical'
 REQUIRED_TOPICS = ('/PSM1/local/measured_cp', '/PSM2/local/measured_cp',
                    '/PSM1/jaw/measured_js', '/PSM2/jaw/measured_js', '/ECM/local/measured_cp',
                    '/tf_static', NEEDLE, STATUS, ROWS['entries'], ROWS['exits'])
-# A demonstrator's closing jaw is taken to hold the needle within this distance (m) of its
-# perceived wire: the scripted subject's reported tool tip sits 6.3 mm from the wire when it
-# picks the needle up, beyond the executor's own 6 mm.
-DEMO_GRASP_REACH = 0.008
 _LATCHED = bags.make_qos(transient_local=True, depth=1)
 _STATE_QOS = bags.make_qos(depth=100)
 
@@ -224,8 +220,7 @@ def demonstration_from_physical_bag(path, pair=None, pair_index=None, sample_rat
             index = pair_index or pair_index_from_name(pair)
         except ValueError as exc:
             raise bags.BagError(f'{path}: {exc}') from exc
-        replay = _Replay(path, PerceptionFeed(pair, index, needle_geometry,
-                                              grasp_reach=DEMO_GRASP_REACH))
+        replay = _Replay(path, PerceptionFeed(pair, index, needle_geometry))
         wanted = [t for t in reader.topics if t in REQUIRED_TOPICS]
         for message in reader.messages(wanted):
             replay.take(message.topic, reader.deserialize(message))
