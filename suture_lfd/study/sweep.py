@@ -35,6 +35,7 @@ import dataclasses
 import itertools
 import json
 import math
+import os
 from pathlib import Path
 import sys
 import time
@@ -48,7 +49,7 @@ from suture_lfd.study.engine import (
     parse_engine,
     run_stages_on,
 )
-from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
+from suture_lfd.study.jobs import JobSettings, init_worker, run_job
 from suture_lfd.study.keys import demo_ids, with_ids
 from suture_lfd.study.pool import PoolError
 from suture_lfd.study.run import (
@@ -390,18 +391,6 @@ def _plot_axis(folder, axis, tables):
     return path
 
 
-def add_arguments(parser):
-    """Add the options of ``suture-lfd sweep`` to an argparse parser."""
-    parser.add_argument('sweep_file', help='sweep file (YAML, see config/sweep_table1.yaml)')
-    parser.add_argument('--out', default='sweep', help='sweep folder (default ./sweep)')
-    parser.add_argument('--workers', type=int, default=None,
-                        help='worker processes (default: the number of CPUs)')
-    parser.add_argument('--engine', default='local',
-                        help='local (default), dask, tcp://HOST:PORT or scheduler-file:PATH')
-    parser.add_argument('--plan', action='store_true',
-                        help='write the configuration and jobs and stop')
-
-
 def run_sweep(args, stream=None):
     """
     Run (or resume) a sweep and write its reports; return the exit status.
@@ -409,8 +398,6 @@ def run_sweep(args, stream=None):
     0 done, 1 the engine failed, 2 bad sweep file or options, 130/143 interrupted (SIGINT,
     SIGTERM; the stored results kept, no report).
     """
-    import os
-
     stream = stream if stream is not None else sys.stderr
     t0 = time.monotonic()
     try:
@@ -463,7 +450,6 @@ def run_sweep(args, stream=None):
         finally:
             if session is not None:
                 session.close(stop=interrupted is not None)
-            close_worker()
         if interrupted is not None:
             return end_interrupted('sweep', progress, total, store, interrupted, stream)
         ran = progress.done - progress.resumed
