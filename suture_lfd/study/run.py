@@ -330,7 +330,7 @@ def run_study(args, stream=None):
         phys_demos, phys_throws = physical.plan_physical(config['physical'], demos, throws,
                                                          job_seed, config['seed'])
         phys_demos = with_ids(phys_demos, config)
-        phys_throws = with_ids(phys_throws, config, demo_ids(phys_demos))
+        phys_throws = with_ids(phys_throws, config, demo_ids(demos + phys_demos))
     (out / 'config.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
     jobs = demos + throws + held_jobs + phys_demos + phys_throws
     total = len(jobs)
@@ -381,7 +381,7 @@ def run_study(args, stream=None):
                               workers=workers, progress=progress, initializer=init_worker,
                               initargs=(settings, ros))
                 if phys_throws:  # in-process, whatever --via-ros says
-                    run_stages_on(where, [attach_demos(phys_throws, store, phys_demos)],
+                    run_stages_on(where, [attach_demos(phys_throws, store, demos + phys_demos)],
                                   run_job, store, workers=workers, progress=progress,
                                   initializer=init_worker, initargs=(settings,))
             except (CodeMismatchError, EngineError, PoolError) as exc:
@@ -467,7 +467,9 @@ def _write_physical(out, report, ground_records, records, config, run_info):
     for name, level, correction in physical.variants(config['physical']):
         folder = out / 'physical' / name
         folder.mkdir(parents=True, exist_ok=True)
-        mine = physical.variant_records(records, name, level)
+        ground_demos = ([r for r in ground_records if r['kind'] == 'demo']
+                        if config['physical'].get('demos') == 'ground-truth' else None)
+        mine = physical.variant_records(records, name, level, ground_demos)
         write_report(folder, mine, variant_config, run_info)
         summaries[level, correction] = summarise(mine)
     curve = None
