@@ -51,7 +51,6 @@ from suture_lfd.demos.demo_bag import (
     write_demonstration_bag,
 )
 from suture_lfd.demos.demonstrator import run_demonstration
-from suture_lfd.demos.physical import TeleoperatedRobot
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.dmp import load_dmp_params
 from suture_lfd.segmentation import segment_demonstration
@@ -61,6 +60,7 @@ from suture_lfd.skill.executor import execute_throw
 from suture_lfd.study.held_out import phantom_config
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
 from suture_lfd.study.ros import RosThrows
+from suture_lfd.study.teleoperated import TeleoperatedRobot
 from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
 
 _LOG = logging.getLogger(__name__)
