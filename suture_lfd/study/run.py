@@ -340,7 +340,7 @@ def run_study(args, stream=None):
           f'throws' + (f' + {len(held_jobs)} held-out throws' if held_jobs else '')
           + (f'; physical mode ({len(physical.variants(config["physical"]))} variants): '
              f'{len(phys_demos)} demonstrations + {len(phys_throws)} throws'
-             if phys_demos else '')
+             if phys_throws else '')
           + f'; results in {out}', file=stream, flush=True)
     if args.plan:
         (out / 'jobs.json').write_text(json.dumps(jobs, indent=1) + '\n')
