@@ -16,9 +16,8 @@ Frames: ``world``; poses 4x4 ``T_world_*``; SI units.
 
 from typing import Protocol
 
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
-
-PSMS = ('PSM1', 'PSM2')
 
 
 class GroundTruthObserver:
@@ -83,12 +82,17 @@ class PhysicalObserver:
     estimator : SceneEstimator
         Needle, holders and target pair from the stereo images (rendered by the estimator
         through ``sim.render()`` only when it needs them).
+    correction : object, optional
+        The arms' kinematic correction (``observe(obs) -> Observation``, e.g.
+        :class:`suture_lfd.skill.arm_registration.KinematicCorrection`): the tool poses the
+        estimator and the controller see are where it puts the reported joints.
 
     """
 
-    def __init__(self, sim, estimator):
+    def __init__(self, sim, estimator, correction=None):
         self._sim = sim
         self._estimator = estimator
+        self._correction = correction
 
     def arm_state(self):
         """
@@ -97,17 +101,19 @@ class PhysicalObserver:
         Returns
         -------
         sim_bridge.control.Observation
-            ``T_world_tool``: each PSM's ``measured_cp`` through its believed base;
+            ``T_world_tool``: each PSM's ``measured_cp`` through its believed base (moved by
+            the correction, when there is one);
             ``T_world_base``: the believed bases; ``q``: the measured joints.
 
         """
         sim = self._sim
-        return Observation(t=sim.time,
-                           T_world_tool={n: sim.reported_tool_pose(n) for n in PSMS},
-                           jaw={n: sim.arms[n].jaw_measured_jp for n in PSMS},
-                           T_world_needle=None, holders=(), pair=None,
-                           T_world_base={n: sim.believed_base(n) for n in sim.arms},
-                           q={n: sim.arms[n].measured_jp for n in PSMS})
+        obs = Observation(t=sim.time,
+                          T_world_tool={n: sim.reported_tool_pose(n) for n in PSMS},
+                          jaw={n: sim.arms[n].jaw_measured_jp for n in PSMS},
+                          T_world_needle=None, holders=(), pair=None,
+                          T_world_base={n: sim.believed_base(n) for n in sim.arms},
+                          q={n: sim.arms[n].measured_jp for n in PSMS})
+        return obs if self._correction is None else self._correction.observe(obs)
 
     def observe(self):
         """

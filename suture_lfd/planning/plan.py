@@ -295,6 +295,14 @@ class PlanFollower:
         """Whether the plan has run to its end."""
         return self.plan_time >= self.plan.duration
 
+    def set_grasp(self, arm, grasp):
+        """
+        Take ``grasp`` (``T_tool_needle``, 4x4) as ``arm``'s grasp from now on (measured again).
+
+        The tool then moves so that the needle, as this grasp puts it, follows the plan.
+        """
+        self._grasps[arm] = np.asarray(grasp, dtype=float)
+
     def tau(self, t):
         """Plan time (s) at simulation time ``t`` before gates are considered."""
         return t - self.t0 - self.offset

@@ -46,6 +46,7 @@ from suture_lfd.skill import (
     learn_skill,
     training_data_from_demonstration,
 )
+from suture_lfd.skill.arm_registration import CorrectedController, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
 
 __all__ = ['METHODS', 'Method', 'ThrowSkill', 'TrainingData', 'learn_skill',
@@ -221,6 +222,12 @@ class ThrowExecutor:
         Settings.
     next_pair : sim_bridge.scene.phantom.MarkerPair, optional
         Pair of the next throw (PSM2 ends above it).
+    look : callable, optional
+        ``look(arm, obs) -> T_tool_needle or None``: look at the needle ``arm`` holds and
+        return its grasp as seen. Given, the executor closes its loop where the skill needs
+        it: when PSM2 has carried the needle above the insertion start, the grasp is measured
+        again and the rest of the approach brings the needle -- its tip onto the entry marker
+        -- where the rollout starts, as seen.
 
     Attributes
     ----------
@@ -234,7 +241,7 @@ class ThrowExecutor:
     """
 
     def __init__(self, skill, pair, needle_geometry, kinematics=None, config=None,
-                 next_pair=None):
+                 next_pair=None, look=None):
         self.executor_config = ExecutorConfig() if config is None else config
         self.config = self.executor_config.script
         if not isinstance(skill, ThrowSkill):
@@ -249,6 +256,9 @@ class ThrowExecutor:
         self.targets = {}
         self.plan_ = None
         self.follower = None
+        self.look = look
+        self._above = None
+        self._checks = []
 
     # ------------------------------------------------------------------ planning
     def rollout_paths(self):
@@ -355,6 +365,7 @@ class ThrowExecutor:
 
         """
         paths = self.rollout_paths()
+        self._above = paths.above
         return plan_throw(obs, self.grasps, ThrowArc(self.pair, self.needle), paths, self.config)
 
     # ------------------------------------------------------------------ control
@@ -368,6 +379,15 @@ class ThrowExecutor:
         self.plan_ = self.plan(obs)
         self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
         self._sent = {}
+        self._checks = [] if self.look is None else self._checkpoints()
+
+    def _checkpoints(self):
+        """Plan times (s) and arms at which to look at the held needle: above the insertion."""
+        for seg in self.plan_.segments['PSM2']:
+            if seg.carries_needle and seg.t0 > 0.0 \
+                    and np.allclose(seg.needle(seg.t0), self._above, atol=1e-9):
+                return [(seg.t0, 'PSM2')]
+        return []
 
     @property
     def done(self):
@@ -410,6 +430,11 @@ class ThrowExecutor:
                     e_o = math.acos(max(-1.0, min(1.0, c_ang))) ** 2
                     slow = 1.0 + cfg.phase_stop_position * e_p + cfg.phase_stop_orientation * e_o
                     follower.offset += dt * (1.0 - 1.0 / slow)
+        if self._checks and follower.tau(obs.t) >= self._checks[0][0]:
+            _, arm = self._checks.pop(0)
+            grasp = self.look(arm, obs) if arm in obs.holders else None
+            if grasp is not None:
+                follower.set_grasp(arm, grasp)
         cmd = follower.step(obs)
         if not cfg.resend_unchanged:
             tools = cmd.T_world_tool  # the follower's new dict, this command's own
@@ -558,9 +583,11 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
         A throw whose markers or needle cannot be seen at the start is not pushed: score 0,
         ``failure`` says what was not seen.
     correction : bool
-        In physical mode, let the executor close its loop on what it sees (the default);
-        False: open loop on the arms' own kinematics. Reserved: the executor runs open loop
-        until its correction is built.
+        In physical mode, close the loop on what the camera sees
+        (:mod:`suture_lfd.skill.arm_registration`: each PSM registered against the endoscope
+        once per simulation, its tool seen where it truly is and commanded there; the needle
+        looked at again whenever the arms let go of it). False: open loop on the arms' own
+        kinematics, the scene perceived at the start only. Ignored in ground-truth mode.
 
     Returns
     -------
@@ -575,15 +602,17 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
     if pair_name not in sim.phantom.markers:
         raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                          f'{sorted(sim.phantom.markers)}')
+    kinematic = register_arms(sim) if physical and correction else None
     pair = start_episode(sim, pair_name, seed)
     sim.pop_events()
     if physical:
         previous = sim.observer
-        perception = PerceivedScene(pair_name, pair.index, sim.needle_geometry)
-        sim.observer = PhysicalObserver(sim, perception)
+        perception = PerceivedScene(pair_name, pair.index, sim.needle_geometry,
+                                    look_again=correction)
+        sim.observer = PhysicalObserver(sim, perception, correction=kinematic)
         try:
             return _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
-                                            control_period, next_pair, observer)
+                                            control_period, next_pair, observer, kinematic)
         finally:
             sim.observer = previous
     return _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair,
@@ -601,7 +630,7 @@ def _not_executed(pair_name, failure, executor=None):
 
 
 def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config, control_period,
-                             next_pair, observer):
+                             next_pair, observer, kinematic):
     """Check that the markers and the needle are seen, then execute on the perceived pair."""
     seen = perception.markers(sim)
     if seen is None:
@@ -609,17 +638,23 @@ def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
     if sim.observation().T_world_needle is None:
         return _not_executed(pair_name, 'not seen: the needle')
     return _execute(sim, skill, pair_name, seen, timeout, config, control_period, next_pair,
-                    observer)
+                    observer, kinematic, perception if kinematic is not None else None)
 
 
-def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer):
+def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer,
+             kinematic=None, perception=None):
     """Execute a throw on ``pair`` (as the controller sees it) from the started episode."""
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
+    look = None
+    if perception is not None:
+        def look(arm, obs):
+            return perception.look_at_grasp(sim, arm, obs.T_world_tool)
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
-                             config=config, next_pair=nxt)
-    recorder = _Recorder(executor, observer)
+                             config=config, next_pair=nxt, look=look)
+    controller = executor if kinematic is None else CorrectedController(executor, kinematic)
+    recorder = _Recorder(controller, observer)
     t_start = sim.time
     try:
         executor.reset(sim.observation())

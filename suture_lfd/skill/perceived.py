@@ -53,12 +53,16 @@ class PerceivedScene:
         from left to right (the operator's "pair 1").
     needle_geometry : sim_bridge.common.needle.NeedleGeometry, optional
         The needle's shape (default: perception's).
+    look_again : bool
+        Look at the needle again when the arms let go of it (False: only at the start; a
+        dropped needle is then believed where it was let go).
 
     """
 
-    def __init__(self, pair_name, pair_index, needle_geometry=None):
+    def __init__(self, pair_name, pair_index, needle_geometry=None, look_again=True):
         self.pair_name = str(pair_name)
         self.pair_index = int(pair_index)
+        self.look_again = bool(look_again)
         self._tracker = NeedleTracker(needle_geometry)
         self._stereo = None
         self._pair = None
@@ -182,17 +186,53 @@ class PerceivedScene:
                 held = self._held_needle(tools, arm)
                 self._holders.remove(arm)
                 self._grasps.pop(arm, None)
-                if not self._holders:
+                if not self._holders and self.look_again:
                     view = self.needle(sim, prior=held, tools=list(tools.values()))
                     self._free_needle = held if view.T_world_needle is None \
                         else view.T_world_needle
+                elif not self._holders:
+                    self._free_needle = held
         needle = self._free_needle
         if self._holders:
             needle = self._held_needle(tools, self._holders[0])
         return needle, tuple(self._holders), self._pair
 
+    def look_at_grasp(self, sim, arm, tools):
+        """
+        Look at the needle ``arm`` holds and measure its grasp again.
+
+        The grasp taken when the jaw closed is the needle's last pose seen lying, against the
+        tool; seen in the jaw, the needle gives the grasp as it really is (the tool's pose is
+        the corrected report).
+
+        Parameters
+        ----------
+        sim : sim_bridge.simulation.Simulation
+        arm : str
+            The holding arm.
+        tools : dict of str to ndarray (4, 4)
+            Tool poses (``world``) of the arms, as observed.
+
+        Returns
+        -------
+        ndarray, shape (4, 4) or None
+            The new grasp ``T_tool_needle``; None (the old one kept) when the arm does not hold
+            the needle or the needle is not seen well enough.
+
+        """
+        held = self._held_needle(tools, arm) if arm in self._holders else None
+        if held is None:
+            return None
+        view = self.needle(sim, prior=held, tools=list(tools.values()))
+        if view.T_world_needle is None:
+            _LOG.info('%s: the held needle is not seen, its grasp is kept', arm)
+            return None
+        grasp = np.linalg.inv(np.asarray(tools[arm], dtype=float)) @ view.T_world_needle
+        self._grasps[arm] = grasp
+        return grasp
+
     closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
-    grasp_reach = 0.006  # m: a closed jaw this close to the needle's wire holds it
+    grasp_reach = 0.003  # m: a jaw closed with its bite this close to the wire holds it
 
     def _held_needle(self, tools, arm):
         grasp = self._grasps.get(arm)
@@ -203,9 +243,10 @@ class PerceivedScene:
         Decide whether the jaw that just closed holds the needle, and measure its grasp.
 
         The needle is where it was last known (seen lying, or carried by the other holder):
-        the closing jaw hides most of it from the camera. A jaw closed within
-        :attr:`grasp_reach` of its wire holds it, with the grasp ``T_tool_needle`` taken
-        against the arm's reported pose. Without a last known pose the images are looked at.
+        the closing jaw hides most of it from the camera. A jaw closed with its bite
+        (``grasp_depth`` along the jaws) within :attr:`grasp_reach` of its wire holds it, with
+        the grasp ``T_tool_needle`` taken against the arm's pose as observed (corrected).
+        Without a last known pose the images are looked at.
         """
         prior = self._held_needle(tools, self._holders[0]) if self._holders else self._free_needle
         if prior is None:
@@ -214,8 +255,11 @@ class PerceivedScene:
             _LOG.warning('%s closed its jaw but the needle is not seen', arm)
             return
         T_tool = np.asarray(tools[arm], dtype=float)
-        wire = self._tracker.geometry.points_world(prior, 48)
-        gap = float(np.linalg.norm(wire - T_tool[:3, 3], axis=1).min())
+        geometry = self._tracker.geometry
+        wire = geometry.points_world(prior, 48)
+        # the point between the jaws that closes on the wire, grasp_depth along the jaws
+        bite = T_tool[:3, 3] + geometry.grasp_depth * T_tool[:3, 2]
+        gap = float(np.linalg.norm(wire - bite, axis=1).min())
         if gap > self.grasp_reach:
             _LOG.info('%s closed %.1f mm from the needle: not holding it', arm, 1e3 * gap)
             return

@@ -1,0 +1,432 @@
+"""
+Where each PSM's tool really is: a camera-to-arm registration from the endoscope's images.
+
+Why a registration. A physical dVRK's tool tips are off by millimetres: Hwang et al. (RA-L
+2020) measure 2.96 mm mean before correction, and the dVRK's own ECM-PSM registration
+(jhu-dvrk/dvrk_camera_registration) leaves the PSMs in "a 5 mm to 10 mm cube" in the camera's
+view. A grasp closes on a 1 mm wire with about 2 mm to spare, so each arm's error has to be
+known before its first grasp; the held needle (believed against seen) tells an arm's error only
+once it holds it. A dVRK lab does what dvrk_camera_registration and Hwang et al. do: move each
+PSM to a few poses in the endoscope's view, see the tool, fit a correction. Here:
+
+- **Poses.** Each PSM goes to six poses a centimetre or two above the phantom (around the
+  markers the camera sees), wrist straight and jaw closed, so the instrument is a straight
+  stick: a dark shaft ending in the bright wrist and jaws.
+- **Seen.** In both images, the shaft's axis and the distal end
+  (:func:`suture_lfd.perception.instrument.find_instrument`).
+- **Model.** The dVRK's error sources, as the robot's kinematics see them: offsets on the first
+  three joints (the potentiometer/encoder homing of yaw, pitch and insertion) and a translation
+  of the arm's base in the camera's ``world`` (what a registration leaves). Six numbers per arm,
+  fitted (:func:`scipy.optimize.least_squares`, soft-L1 loss) to the image residuals of the
+  model's projected shaft axis and jaw tips over the six poses -- a bundle adjustment of the
+  instrument, needing no depth and no fiducial. Where a robot has other error sources (a base
+  rotation, link lengths) the same fit takes more parameters.
+- **Used.** An :class:`ArmCorrection` gives the tool pose the corrected kinematics put the
+  reported joints at (what the controller observes) and turns a tool target into the target to
+  command so that the tool truly gets there.
+
+It reads only what a physical dVRK provides: the reported joints, the believed bases, the ECM's
+reported pose, the stereo pair and its ``camera_info``.
+
+Frames: ``world`` (as the robot believes it, the camera's through the ECM), the camera's left
+optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
+"""
+
+from dataclasses import dataclass
+import logging
+import weakref
+
+import numpy as np
+from scipy.optimize import least_squares
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.vocabulary import PSMS
+from sim_bridge.control import Command, Observation
+from suture_lfd.perception import detect_markers, stereo_from_camera_info
+from suture_lfd.perception.instrument import find_instrument
+
+_LOG = logging.getLogger(__name__)
+
+# Registration poses: tool-tip offsets (m, world) from the centre of the markers seen (x
+# towards the arm's own side: PSM1 left, PSM2 right), one arm after the other, and how long
+# (s) the arm gets to reach each.
+_SIDE = {'PSM1': -1.0, 'PSM2': 1.0}
+_SPOTS = ((-0.002, 0.002, 0.012), (0.002, 0.010, 0.016), (-0.004, 0.010, 0.012),
+          (0.002, -0.002, 0.018), (-0.006, 0.006, 0.020), (0.004, 0.004, 0.010))
+_REACH_TIME = (1.2, 0.6, 0.6, 0.6, 0.6, 0.6)
+_RETURN_TIME = 1.2
+# Points of the shaft's axis used in the fit: distances (m) behind the wrist-pitch axis.
+_SHAFT_POINTS = (0.010, 0.030)
+_X_SCALE = np.array([0.02, 0.02, 0.002, 0.002, 0.002, 0.002])
+# A pose whose RMS residual (pixels) is above this after a first fit is left out.
+_OUTLIER_PX = 2.0
+# A fit whose image residual (RMS, pixels) is above this is not trusted.
+MAX_RESIDUAL_PX = 3.0
+
+
+@dataclass(frozen=True, eq=False)
+class ArmCorrection:
+    """
+    One arm's estimated kinematic error and what it changes.
+
+    Attributes
+    ----------
+    arm : str
+        ``'PSM1'`` or ``'PSM2'``.
+    kinematics : sim_bridge.kinematics.PsmKinematics
+        The arm's kinematic model.
+    T_world_base : ndarray, shape (4, 4)
+        The arm's believed base (its registration, as it reports poses).
+    joint_offset : ndarray, shape (6,)
+        Estimated true minus reported joints (rad, m; only the first three nonzero).
+    translation : ndarray, shape (3,)
+        Estimated true minus believed base position (m, ``world``).
+    residual_px : float
+        RMS image residual of the fit (pixels).
+
+    """
+
+    arm: str
+    kinematics: object
+    T_world_base: np.ndarray
+    joint_offset: np.ndarray
+    translation: np.ndarray
+    residual_px: float = 0.0
+
+    def tool_pose(self, q):
+        """
+        Tool-tip pose (4, 4, ``world``) where the corrected kinematics put the joints ``q``.
+
+        Parameters
+        ----------
+        q : array_like, shape (6,)
+            Reported joints (rad, m).
+
+        """
+        T = self.T_world_base @ self.kinematics.fk(np.asarray(q, dtype=float) + self.joint_offset)
+        T[:3, 3] += self.translation
+        return T
+
+    def error(self, q):
+        """
+        Return the world-frame error ``E`` at joints ``q``: true pose = ``E @`` reported pose.
+
+        Parameters
+        ----------
+        q : array_like, shape (6,)
+            Reported joints.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+
+        """
+        reported = self.T_world_base @ self.kinematics.fk(np.asarray(q, dtype=float))
+        return self.tool_pose(q) @ invert_transform(reported)
+
+
+class KinematicCorrection:
+    """
+    The PSMs' corrections: observations as the tools truly are, commands that get them there.
+
+    Parameters
+    ----------
+    arms : dict of str to ArmCorrection
+        Corrected arms (others pass unchanged).
+
+    """
+
+    def __init__(self, arms):
+        self.arms = dict(arms)
+        self._cache = {}
+
+    def _error(self, arm, q):
+        key = np.asarray(q, dtype=float).tobytes()
+        hit = self._cache.get(arm)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        E = self.arms[arm].error(q)
+        self._cache[arm] = (key, E)
+        return E
+
+    def observe(self, obs):
+        """
+        Return ``obs`` with each corrected arm's tool pose where the correction puts it.
+
+        Parameters
+        ----------
+        obs : sim_bridge.control.Observation
+            With reported tool poses and the reported joints ``q``.
+
+        Returns
+        -------
+        sim_bridge.control.Observation
+
+        """
+        if not self.arms or obs.q is None:
+            return obs
+        tools = dict(obs.T_world_tool)
+        for arm in self.arms:
+            if arm in tools and obs.q.get(arm) is not None:
+                tools[arm] = self._error(arm, obs.q[arm]) \
+                    @ np.asarray(obs.T_world_tool[arm], dtype=float)
+        return Observation(t=obs.t, T_world_tool=tools, jaw=obs.jaw,
+                           T_world_needle=obs.T_world_needle, holders=obs.holders,
+                           pair=obs.pair, T_world_base=obs.T_world_base, q=obs.q)
+
+    def command(self, cmd, q):
+        """
+        Return ``cmd`` with each tool target turned into what to command the arm.
+
+        Parameters
+        ----------
+        cmd : sim_bridge.control.Command
+            Targets where the tools should truly be (``world``).
+        q : dict of str to ndarray
+            The arms' reported joints now (the error is taken there: it changes little
+            between two commands).
+
+        Returns
+        -------
+        sim_bridge.control.Command
+
+        """
+        if not self.arms or not cmd.T_world_tool:
+            return cmd
+        tools = dict(cmd.T_world_tool)
+        for arm, T in tools.items():
+            if T is None or arm not in self.arms or q.get(arm) is None:
+                continue
+            tools[arm] = invert_transform(self._error(arm, q[arm])) @ np.asarray(T, dtype=float)
+        return Command(t=cmd.t, T_world_tool=tools, jaw=cmd.jaw, subtask=cmd.subtask)
+
+
+class CorrectedController:
+    """
+    A controller run on corrected kinematics.
+
+    It sees the tools where they are; its tool targets are turned into what to command.
+
+    Parameters
+    ----------
+    controller : object
+        ``reset(obs)``, ``step(obs) -> Command``, ``done``; it is given observations already
+        corrected (:meth:`KinematicCorrection.observe`, e.g. by the observer).
+    correction : KinematicCorrection
+
+    """
+
+    def __init__(self, controller, correction):
+        self.controller = controller
+        self.correction = correction
+
+    @property
+    def done(self):
+        """Whether the controller is done."""
+        return self.controller.done
+
+    def reset(self, obs):
+        """Reset the controller."""
+        self.controller.reset(obs)
+
+    def step(self, obs):
+        """Return the controller's command, tool targets turned into what to command."""
+        cmd = self.controller.step(obs)
+        return self.correction.command(cmd, obs.q or {})
+
+
+def _model_points(kinematics, T_world_base, q, x, jaw):
+    """
+    World points of the straight instrument: two shaft-axis points, then the closed jaws' end.
+
+    ``jaw`` is ``(length, width, thickness)`` (m) of the closed jaws: their end face's centre
+    and its four corners follow the two shaft points.
+    """
+    length, width, thickness = jaw
+    d = np.zeros(6)
+    d[:3] = x[:3]
+    link4, tip = kinematics.fk_wrist_and_tip(np.asarray(q, dtype=float) + d, 4)
+    z4 = link4[:3, 2]
+    local = [link4[:3, 3] - s * z4 for s in _SHAFT_POINTS]
+    R, end = tip[:3, :3], tip[:3, 3] + length * tip[:3, 2]
+    local.append(end)
+    for a, b in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+        local.append(end + R @ np.array([0.5 * a * width, b * thickness, 0.0]))
+    pts = np.array(local) @ T_world_base[:3, :3].T + T_world_base[:3, 3]
+    return pts + x[3:]
+
+
+def fit_arm_correction(arm, kinematics, T_world_base, samples, stereo, jaw):
+    """
+    Fit an arm's joint offsets and base translation to what the camera saw at a few poses.
+
+    Parameters
+    ----------
+    arm : str
+        Arm name.
+    kinematics : sim_bridge.kinematics.PsmKinematics
+        Its kinematic model.
+    T_world_base : ndarray, shape (4, 4)
+        Its believed base (``world``).
+    samples : sequence of tuple
+        ``(q, T_camera_world, view_left, view_right)`` per pose: reported joints, the camera
+        pose then, and the :class:`~suture_lfd.perception.instrument.InstrumentView` of the
+        instrument in each image (None when not seen).
+    stereo : suture_lfd.perception.StereoModel
+        The camera model.
+    jaw : tuple of float
+        ``(length, width, thickness)`` (m) of the closed jaws (the instrument's model).
+
+    Returns
+    -------
+    ArmCorrection
+
+    Raises
+    ------
+    ValueError
+        With fewer than three poses seen in both images.
+
+    """
+    used = [s for s in samples if s[2] is not None and s[3] is not None]
+    if len(used) < 3:
+        raise ValueError(f'{arm}: its instrument was seen in both images at {len(used)} of '
+                         f'{len(samples)} registration poses; 3 are needed')
+
+    def residuals(x):
+        out = []
+        for q, T_cw, left, right in used:
+            pts = _model_points(kinematics, T_world_base, q, x, jaw)
+            pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
+            uv_l, uv_r = stereo.project(pc)
+            for view, uv in ((left, uv_l), (right, uv_r)):
+                out.extend(view.distance(uv[:2]))
+                # the jaws' end as seen: the corner of their end face farthest along the axis
+                out.append(float(view.along(uv[3:]).max()))
+                out.append(float(view.distance(uv[2:3])[0]))
+        return np.asarray(out)
+
+    fit = least_squares(residuals, np.zeros(6), x_scale=_X_SCALE, loss='soft_l1', f_scale=2.0)
+    # a pose whose image disagrees with the others (another dark thing taken for the shaft)
+    # is left out, and the rest fitted again
+    per_pose = np.sqrt(np.mean(fit.fun.reshape(len(used), -1) ** 2, axis=1))
+    good = per_pose <= _OUTLIER_PX
+    _LOG.debug('%s per-pose residuals %s', arm, per_pose.round(2))
+    if not good.all() and good.sum() >= 3:
+        used = [s for s, g in zip(used, good) if g]
+        fit = least_squares(residuals, fit.x, x_scale=_X_SCALE, loss='soft_l1', f_scale=2.0)
+    rms = float(np.sqrt(np.mean(fit.fun ** 2)))
+    offset = np.zeros(6)
+    offset[:3] = fit.x[:3]
+    _LOG.info('%s registration: joint offsets %s deg/mm, base %s mm, residual %.2f px', arm,
+              np.round([np.degrees(offset[0]), np.degrees(offset[1]), 1e3 * offset[2]], 2),
+              np.round(1e3 * fit.x[3:], 2), rms)
+    return ArmCorrection(arm=arm, kinematics=kinematics, T_world_base=np.array(T_world_base),
+                         joint_offset=offset, translation=fit.x[3:].copy(), residual_px=rms)
+
+
+def _straight_pose(rcm, tip, T_now):
+    """Tool pose at ``tip`` with its z along the shaft from the RCM ``rcm`` (wrist straight)."""
+    z = tip - rcm
+    z /= np.linalg.norm(z)
+    x = T_now[:3, 0] - (T_now[:3, 0] @ z) * z
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, tip
+    return T
+
+
+def _markers_centre(sim, stereo):
+    """Centre (m, ``world``) of every marker seen in the stereo pair, or None."""
+    frame = sim.render()
+    found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
+    points = np.vstack([np.asarray(found.entries, dtype=float).reshape(-1, 3),
+                        np.asarray(found.exits, dtype=float).reshape(-1, 3)])
+    points = points[np.isfinite(points).all(axis=1)]
+    if not len(points):
+        return None
+    T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+    return T[:3, :3] @ points.mean(axis=0) + T[:3, 3]
+
+
+def _look_at(sim, arm, stereo, jaw):
+    """Render the stereo pair and find ``arm``'s instrument near where its kinematics put it."""
+    frame = sim.render()
+    T_cw = invert_transform(sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left)
+    q = np.array(sim.arms[arm].measured_jp, dtype=float)
+    pts = _model_points(sim.kinematics[arm], sim.believed_base(arm), q, np.zeros(6), jaw)
+    uv_l, uv_r = stereo.project(pts @ T_cw[:3, :3].T + T_cw[:3, 3])
+    views = [find_instrument(img, uv[:2], uv[2])
+             for img, uv in ((frame.left_rgb, uv_l), (frame.right_rgb, uv_r))]
+    return q, T_cw, views[0], views[1]
+
+
+_REGISTERED = weakref.WeakKeyDictionary()
+
+
+def register_arms(sim, seed=0):
+    """
+    Register both PSMs against the endoscope in-process (once per simulation: kept for it).
+
+    The scene is reset with ``seed`` and homed, the markers are looked for (the registration
+    poses are around their centre), each PSM in turn is moved to the registration poses, seen
+    and sent back; the caller starts its own episode afterwards. The result is kept for
+    ``sim`` (a robot's errors do not change while it runs), so that every throw on it uses the
+    same correction whatever ran before.
+
+    Parameters
+    ----------
+    sim : sim_bridge.simulation.Simulation
+    seed : int
+        Scene seed of the registration run.
+
+    Returns
+    -------
+    KinematicCorrection
+        The arms whose fit was trusted (an arm not seen well enough is left uncorrected, and
+        none when the markers are not seen).
+
+    """
+    known = _REGISTERED.get(sim)
+    if known is not None:
+        return known
+    sim.reset(seed=seed)
+    sim.enable_and_home_all()
+    camera = sim.camera
+    stereo = stereo_from_camera_info(camera.camera_info('left'), camera.camera_info('right'))
+    shape = sim.config.world.instrument  # the instrument's model, as its maker gives it
+    jaw = (shape.jaw_length, shape.jaw_width, shape.jaw_thickness)
+    centre = _markers_centre(sim, stereo)
+    if centre is None:
+        _LOG.warning('registration: no marker seen to place the registration poses')
+        correction = KinematicCorrection({})
+        _REGISTERED[sim] = correction
+        return correction
+    start = {a: sim.reported_tool_pose(a) for a in PSMS}
+    samples = {a: [] for a in PSMS}
+    for arm in PSMS:
+        rcm = sim.believed_base(arm)[:3, 3]
+        for spot, wait in zip(_SPOTS, _REACH_TIME):
+            tip = centre + np.array([_SIDE[arm] * spot[0], spot[1], spot[2]])
+            target = _straight_pose(rcm, tip, start[arm])
+            sim.apply(Command(t=sim.time, T_world_tool={arm: target}, jaw={arm: 0.0},
+                              subtask='registration'))
+            sim.run(wait)
+            samples[arm].append(_look_at(sim, arm, stereo, jaw))
+        sim.apply(Command(t=sim.time, T_world_tool={arm: start[arm]}, jaw={},
+                          subtask='registration'))
+        sim.run(_RETURN_TIME)
+    arms = {}
+    for arm in PSMS:
+        try:
+            fit = fit_arm_correction(arm, sim.kinematics[arm], sim.believed_base(arm),
+                                     samples[arm], stereo, jaw)
+        except ValueError as exc:
+            _LOG.warning('registration: %s', exc)
+            continue
+        if fit.residual_px > MAX_RESIDUAL_PX:
+            _LOG.warning('registration of %s not trusted: residual %.1f px', arm,
+                         fit.residual_px)
+            continue
+        arms[arm] = fit
+    correction = KinematicCorrection(arms)
+    _REGISTERED[sim] = correction
+    return correction
