@@ -17,6 +17,7 @@ import logging
 import sys
 
 import numpy as np
+from suture_lfd.study.options import add_study_arguments, add_sweep_arguments
 
 
 def _fmt(v):
@@ -154,15 +155,12 @@ def build_parser():
                            "simulation and write its report (tables beside the paper's, "
                            'figures, CSV); rerun the same command to resume an interrupted '
                            'study.')
-    from suture_lfd.study import add_arguments as add_study_arguments
-
     add_study_arguments(study)
     study.set_defaults(func=cmd_study)
     sweep = sub.add_parser('sweep', help='run a grid of studies (seeds, methods, DMP '
                                          'hyper-parameters) as one job set',
                            description='Run the studies of a sweep file as one job set on the '
                                        'chosen engine and write a sweep report.')
-    from suture_lfd.study.sweep import add_arguments as add_sweep_arguments
 
     add_sweep_arguments(sweep)
     sweep.set_defaults(func=cmd_sweep)

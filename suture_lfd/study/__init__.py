@@ -12,7 +12,10 @@ paper's tables beside ours, PNG figures, ``throws.csv`` / ``demos.csv`` and the 
 
 The modules:
 
-- :mod:`~suture_lfd.study.run`: the options, the configuration, the jobs and :func:`run_study`;
+- :mod:`~suture_lfd.study.options`: the command-line options (light: every ``suture-lfd``
+  command builds its parser from them; the rest is imported when a study or sweep runs);
+- :mod:`~suture_lfd.study.run`: the configuration, the jobs and :func:`~suture_lfd.study.run.
+  run_study`; :mod:`~suture_lfd.study.physical`: the study in physical mode;
 - :mod:`~suture_lfd.study.jobs`: what a job does (a demonstration, a throw);
 - :mod:`~suture_lfd.study.keys`: a job's ``id``, the digest of what decides its result, by which
   :mod:`~suture_lfd.study.store` finds it again (resume, reuse across runs in a folder);
@@ -25,16 +28,6 @@ The modules:
 """
 
 from suture_lfd.study.digest import code_digest
-from suture_lfd.study.run import (
-    add_arguments,
-    attach_demos,
-    build_config,
-    hashed_config,
-    job_seed,
-    main,
-    plan_jobs,
-    run_study,
-)
+from suture_lfd.study.options import add_study_arguments, add_sweep_arguments
 
-__all__ = ['add_arguments', 'attach_demos', 'build_config', 'code_digest', 'hashed_config',
-           'job_seed', 'main', 'plan_jobs', 'run_study']
+__all__ = ['add_study_arguments', 'add_sweep_arguments', 'code_digest']

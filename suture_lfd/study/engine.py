@@ -336,9 +336,9 @@ def dask_job(job_fn, job, initializer, initargs, code):
             repr(initargs))
     if initializer is not None and _WORKER.get('init') != init:
         logging.getLogger('distributed').setLevel(logging.ERROR)
-        initializer(*initargs)
+        _WORKER['state'] = initializer(*initargs)
         _WORKER['init'] = init
-    record = call_job(job_fn, job)
+    record = call_job(job_fn, job, _WORKER.get('state') if initializer is not None else None)
     record['code'] = mine
     return record
 

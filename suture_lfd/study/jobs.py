@@ -16,8 +16,9 @@ The two kinds of study job, run in-process on the package's simulation (no ROS).
 
 A job is a plain ``dict`` (picklable for worker processes); :func:`run_job` returns the flat
 result record stored by :mod:`suture_lfd.study.store`. Paths in jobs and records are relative
-to the study's output folder. Each worker process keeps one simulation per phantom and
-reuses it (``reset(seed)`` per throw).
+to the study's output folder. What a process keeps between jobs is a :class:`WorkerState`,
+made once per process by :func:`init_worker` and given to every job (one simulation per phantom,
+reused with ``reset(seed)`` per throw; learnt skills; the cohort).
 
 With ``--via-ros`` (:func:`init_worker` given :class:`suture_lfd.study.ros.RosSettings`) a
 throw's skill is executed by the simulator and executor node processes instead
@@ -33,6 +34,7 @@ demonstrations; they stay together while the per-job code is being made faster.
 from dataclasses import dataclass, field, replace
 import logging
 import math
+import multiprocessing
 import os
 from pathlib import Path
 import shutil
@@ -41,8 +43,25 @@ import numpy as np
 from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
 from sim_bridge.common.vocabulary import PSMS, SUBTASKS, TASKS
+from sim_bridge.simulation import Simulation, load_simulation_config
+from suture_lfd.demos.cohort import load_cohort
+from suture_lfd.demos.demo_bag import (
+    default_base_frames,
+    demonstration_from_bag,
+    write_demonstration_bag,
+)
+from suture_lfd.demos.demonstrator import run_demonstration
 from suture_lfd.demos.resampling import resample_poses
+from suture_lfd.demos.segment_file import make_segment_file
+from suture_lfd.dmp import load_dmp_params
+from suture_lfd.segmentation import segment_demonstration
+from suture_lfd.skill import learn_skill, training_data
+from suture_lfd.skill.executor import execute_throw
+from suture_lfd.study.held_out import phantom_config
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
+from suture_lfd.study.ros import RosThrows
+from suture_lfd.study.teleoperated import TeleoperatedRobot
+from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
 
 _LOG = logging.getLogger(__name__)
 # the demonstrated, rolled-out and executed needle curves of a regeneration throw (Fig. 7)
@@ -115,7 +134,7 @@ class JobSettings:
 @dataclass(eq=False)
 class WorkerState:
     """
-    What one study process keeps between jobs (set up by :func:`init_worker`).
+    What one study process keeps between jobs (made by :func:`init_worker`, given to each job).
 
     Attributes
     ----------
@@ -139,80 +158,66 @@ class WorkerState:
 
     """
 
-    settings: object
+    settings: JobSettings
     sims: dict = field(default_factory=dict)
     data: dict = field(default_factory=dict)
     skills: dict = field(default_factory=dict)
     subjects: dict | None = None
-    ros: object = None
+    ros: RosThrows | None = None
     dmp_params: dict | None = None
     base_frames: dict | None = None
 
-
-_worker = None  # this process's WorkerState (a pool worker is initialised once)
+    def close(self):
+        """Release what the state holds beyond this process's memory (node processes)."""
+        if self.ros is not None:
+            self.ros.close()
+            self.ros = None
 
 
 def init_worker(settings, ros=None):
     """
-    Set the job settings of this process (worker initializer).
+    Return the state of a study process (the job runner's initializer, once per process).
 
-    ``ros`` (:class:`suture_lfd.study.ros.RosSettings`, optional): execute the throws through
-    the node processes.
+    Parameters
+    ----------
+    settings : JobSettings
+        The study's job settings.
+    ros : suture_lfd.study.ros.RosSettings, optional
+        Execute the throws through the node processes.
+
+    Returns
+    -------
+    WorkerState
+        Given to every job of the process (:func:`run_job`).
+
     """
-    global _worker
     logging.getLogger('suture_lfd').setLevel(logging.WARNING)
     logging.getLogger('sim_bridge').setLevel(logging.WARNING)
-    if _worker is not None and _worker.ros is not None:
-        _worker.ros.close()
-    _worker = WorkerState(settings)
+    state = WorkerState(settings)
     if ros is not None:
-        import multiprocessing
-
-        from suture_lfd.study.ros import RosThrows
-
-        _worker.ros = RosThrows(ros, settings.out, settings.timeout)
+        state.ros = RosThrows(ros, settings.out, settings.timeout)
         parent = multiprocessing.parent_process()
         if parent is not None:   # a worker: stop its nodes on SIGTERM and when the study dies
-            _worker.ros.install_sigterm(parent.pid)
+            state.ros.install_sigterm(parent.pid)
+    return state
 
 
-def close_worker():
-    """Release what :func:`init_worker` set up in this process (node processes, ROS domain)."""
-    if _worker is not None and _worker.ros is not None:
-        _worker.ros.close()
-        _worker.ros = None
-
-
-def _state():
-    if _worker is None:
-        raise RuntimeError('study jobs need init_worker(settings) first')
-    return _worker
-
-
-def _settings():
-    return _state().settings
-
-
-def _simulation(phantom, step=None, spec=None):
+def _simulation(state, phantom, step=None, spec=None):
     """
     Return the worker's simulation of a phantom at ``step`` (default: the throws' step).
 
     ``spec`` (a held-out phantom's configuration, :mod:`suture_lfd.study.held_out`): ``phantom`` is
     then the key of that geometry.
     """
-    s = _settings()
+    s = state.settings
     step = s.physics_step if step is None else float(step)
-    sims = _state().sims
+    sims = state.sims
     if (phantom, step) not in sims:
-        from sim_bridge.simulation import Simulation, load_simulation_config
-
         config = load_simulation_config()
         loop = replace(config.loop, thread_period=s.thread_period,
                        collision_period=max(s.collision_period, step))
         config = replace(config, world=replace(config.world, physics_step=step), loop=loop)
         if spec is not None:
-            from suture_lfd.study.held_out import phantom_config
-
             sims[phantom, step] = Simulation(config, phantom=phantom_config(spec),
                                              rng=np.random.default_rng(0))
         else:
@@ -221,7 +226,7 @@ def _simulation(phantom, step=None, spec=None):
     return sims[phantom, step]
 
 
-def _physical_simulation(phantom, step, physical):
+def _physical_simulation(state, phantom, step, physical):
     """
     Return a simulation of a phantom for a physical-mode job, and whether it is the job's own.
 
@@ -232,10 +237,8 @@ def _physical_simulation(phantom, step, physical):
     """
     level = float(physical['error_level'])
     if level == 0.0:
-        return _simulation(phantom, step), False
-    from sim_bridge.simulation import Simulation, load_simulation_config
-
-    s = _settings()
+        return _simulation(state, phantom, step), False
+    s = state.settings
     config = load_simulation_config()
     loop = replace(config.loop, thread_period=s.thread_period,
                    collision_period=max(s.collision_period, step))
@@ -245,16 +248,13 @@ def _physical_simulation(phantom, step, physical):
     return Simulation(config, phantom=phantom, rng=np.random.default_rng(0)), True
 
 
-def _subject(name, seed=None):
+def _subject(state, name, seed=None):
     """Return a subject of the cohort drawn with ``seed`` (default: the settings' seed)."""
-    s = _settings()
+    s = state.settings
     seed = s.cohort_seed if seed is None else int(seed)
-    state = _state()
     if state.subjects is None:
         state.subjects = {}
     if seed not in state.subjects:
-        from suture_lfd.demos.cohort import load_cohort
-
         state.subjects[seed] = {x.name: x for x in load_cohort(s.cohort_path, seed=seed)}
     subjects = state.subjects[seed]
     if name not in subjects:
@@ -262,7 +262,7 @@ def _subject(name, seed=None):
     return subjects[name]
 
 
-def run_job(job):
+def run_job(job, state):
     """
     Run one study job and return its record.
 
@@ -270,6 +270,8 @@ def run_job(job):
     ----------
     job : dict
         ``kind`` 'demo' or 'throw' and the fields :func:`demo_job` / :func:`throw_job` need.
+    state : WorkerState
+        This process's state (:func:`init_worker`).
 
     Returns
     -------
@@ -278,14 +280,14 @@ def run_job(job):
 
     """
     if job['kind'] == 'demo':
-        return demo_job(job)
+        return demo_job(job, state)
     if job['kind'] in ('throw', 'held_out'):
-        return throw_job(job)
+        return throw_job(job, state)
     raise ValueError(f'unknown study job kind {job["kind"]!r}')
 
 
 # ---------------------------------------------------------------------- demonstrations
-def demo_job(job):
+def demo_job(job, state):
     """
     Record, store, read back and segment one demonstration (a ``demo`` job).
 
@@ -296,6 +298,9 @@ def demo_job(job):
         ``seed`` (scene seed), ``order``, ``bag`` and ``segments`` (paths relative to the
         output folder).
 
+    state : WorkerState
+        This process's state (:func:`init_worker`).
+
     Returns
     -------
     dict
@@ -304,20 +309,15 @@ def demo_job(job):
         durations, s).
 
     """
-    from suture_lfd.demos.demonstrator import run_demonstration
-    from suture_lfd.segmentation import segment_demonstration
-
-    s = _settings()
+    s = state.settings
     out = Path(s.out)
-    subject = _subject(job['subject'], job.get('cohort_seed'))
+    subject = _subject(state, job['subject'], job.get('cohort_seed'))
     physical = job.get('physical')
     if physical is None:
-        sim, own = _simulation(job['phantom'], s.demo_physics_step), False
+        sim, own = _simulation(state, job['phantom'], s.demo_physics_step), False
         link = None
     else:
-        from suture_lfd.study.teleoperated import TeleoperatedRobot
-
-        sim, own = _physical_simulation(job['phantom'], s.demo_physics_step, physical)
+        sim, own = _physical_simulation(state, job['phantom'], s.demo_physics_step, physical)
         link = TeleoperatedRobot(sim, job['pair'])
     try:
         run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
@@ -333,7 +333,7 @@ def demo_job(job):
             sim.close()
     record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),
               'failure': run.score.failure, 'time_s': float(run.score.time_s), 'ok': False}
-    demo = _through_bag(run.demo, out / job['bag'], job['pair'], bases)
+    demo = _through_bag(state, run.demo, out / job['bag'], job['pair'], bases)
     if run.score.score < 1.0:
         record['failure'] = f'no successful demonstration: {run.score.failure}'
         return record
@@ -362,23 +362,16 @@ def demo_job(job):
     return record
 
 
-def _through_bag(demo, bag, pair, base_frames=None):
+def _through_bag(state, demo, bag, pair, base_frames=None):
     """
     Write the demonstration as the recorder would and read it back as the segmenter does.
 
     ``base_frames``: the arms' ``T_world_base`` the recorder writes (default
     ``config/world.yaml``'s).
     """
-    from suture_lfd.demos.demo_bag import (
-        default_base_frames,
-        demonstration_from_bag,
-        write_demonstration_bag,
-    )
-
     if bag.exists():
         shutil.rmtree(bag)  # left by a run killed while writing it
     bag.parent.mkdir(parents=True, exist_ok=True)
-    state = _state()
     if state.base_frames is None:  # config/world.yaml's arm bases, read once per process
         state.base_frames = default_base_frames()
     write_demonstration_bag(bag, demo, base_frames=base_frames or state.base_frames)
@@ -387,53 +380,42 @@ def _through_bag(demo, bag, pair, base_frames=None):
 
 def _save_segments(demo, segmentation, path, source='', subject=''):
     """Save what the throws learn from: the demonstration's segment file."""
-    from suture_lfd.demos.segment_file import make_segment_file
-
     make_segment_file(demo, segmentation, source=source, subject=subject).save(path)
 
 
 # ---------------------------------------------------------------------- throws
-def _training(path):
-    data = _state().data
+def _training(state, path):
+    data = state.data
     if path not in data:  # the skill's TrainingData of the demonstration's segment file
-        from suture_lfd.skill import training_data
-
         data[path] = training_data(path)
     return data[path]
 
 
-def _dmp_params():
+def _dmp_params(state):
     """Return ``config/dmp.yaml``'s parameters per task (read once per process)."""
-    state = _state()
     if state.dmp_params is None:
-        from suture_lfd.dmp import load_dmp_params
-
         state.dmp_params = {task: load_dmp_params(task=task) for task in TASKS}
     return state.dmp_params
 
 
-def _skill(path, method, dmp=None):
+def _skill(state, path, method, dmp=None):
     """
     Return the skill learnt from a segment file by a method (cached per process).
 
     ``dmp`` (optional): DMP hyper-parameters that differ from ``config/dmp.yaml``, as
     ``{task: {key: value}}`` (a sweep's cell).
     """
-    skills = _state().skills
+    skills = state.skills
     overrides = tuple(sorted((task, tuple(sorted(values.items())))
                              for task, values in (dmp or {}).items()))
     key = (path, method, overrides)
     if key not in skills:
-        from suture_lfd.skill import learn_skill
-
         if len(skills) > 64:
             skills.clear()
-        params = _dmp_params()
+        params = _dmp_params(state)
         if overrides:
-            from dataclasses import replace as with_values
-
-            params = {task: with_values(params[task], **dmp.get(task, {})) for task in TASKS}
-        skills[key] = learn_skill(_training(path), method=method, params=params)
+            params = {task: replace(params[task], **dmp.get(task, {})) for task in TASKS}
+        skills[key] = learn_skill(_training(state, path), method=method, params=params)
     return skills[key]
 
 
@@ -472,7 +454,7 @@ def _nan():
     return float('nan')
 
 
-def throw_job(job):
+def throw_job(job, state):
     """
     Learn a skill from a demonstration and execute it on a pair (a ``throw`` job).
 
@@ -484,6 +466,9 @@ def throw_job(job):
         demonstration's segment file, relative, or None when that demonstration failed),
         ``demo_time_s``, ``trajectories`` (where to save the curves of a regeneration, or
         None).
+
+    state : WorkerState
+        This process's state (:func:`init_worker`).
 
     Returns
     -------
@@ -497,7 +482,7 @@ def throw_job(job):
     """
     if job.get('blocked'):  # stored as an error: done again once the demonstration exists
         return {**job, 'error': job['blocked']}
-    s = _settings()
+    s = state.settings
     out = Path(s.out)
     record = {**job, 'regeneration': job['train_pair'] == job['test_pair']}
     spec = record.pop('test_config', None)  # a held-out pair's phantom (kept in the config)
@@ -506,15 +491,12 @@ def throw_job(job):
                       time_s=_nan(), entry_error_mm=_nan(), exit_error_mm=_nan(),
                       trajectories=None, **dict.fromkeys(SUBTASKS, False))
         return record
-    from suture_lfd.skill.executor import execute_throw
-    from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
-
     path = str(out / job['segments'])
-    skill = _skill(path, job['method'], job.get('dmp'))
-    ros = _state().ros
+    skill = _skill(state, path, job['method'], job.get('dmp'))
+    ros = state.ros
     physical = job.get('physical')
     if physical is not None:
-        sim, own = _physical_simulation(job['test_phantom'], s.physics_step, physical)
+        sim, own = _physical_simulation(state, job['test_phantom'], s.physics_step, physical)
         try:
             sampler = ThrowSampler(sim)
             outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
@@ -529,8 +511,8 @@ def throw_job(job):
             if own:
                 sim.close()
     elif ros is None:
-        sim = (_simulation(job['test_key'], spec=spec) if spec is not None
-               else _simulation(job['test_phantom']))
+        sim = (_simulation(state, job['test_key'], spec=spec) if spec is not None
+               else _simulation(state, job['test_phantom']))
         sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
                                 timeout=s.timeout, control_period=s.control_period,
@@ -552,7 +534,7 @@ def throw_job(job):
     if not record['regeneration']:
         record['trajectories'] = None
         return record
-    data = _training(path)
+    data = _training(state, path)
     pair = markers[job['test_pair']]
     curves = {}
     for task in TASKS:

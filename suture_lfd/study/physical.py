@@ -52,6 +52,11 @@ def add_arguments(parser):
                              'both side by side')
     parser.add_argument('--no-correction', dest='correction', action='store_const',
                         const='off', help='the same as --correction off')
+    parser.add_argument('--physical-demos', choices=('recorded', 'ground-truth'),
+                        default='recorded',
+                        help='with --physical: learn from demonstrations recorded in physical '
+                             'mode (default) or from the ground-truth ones, to measure the '
+                             'execution alone')
 
 
 def _text(value):
@@ -70,7 +75,9 @@ def physical_config(args):
     Returns
     -------
     dict or None
-        ``levels`` (mm class, in the given order) and ``corrections`` (bool).
+        ``levels`` (mm class, in the given order), ``corrections`` (bool) and ``demos``
+        (``'recorded'``, or ``'ground-truth'``: the throws learn from the ground-truth
+        demonstrations).
 
     Raises
     ------
@@ -93,7 +100,9 @@ def physical_config(args):
             levels.append(level)
     correction = getattr(args, 'correction', 'on')
     corrections = {'on': [True], 'off': [False], 'both': [True, False]}[correction]
-    return {'levels': levels, 'corrections': corrections}
+    demos = getattr(args, 'physical_demos', 'recorded')
+    return {'levels': levels, 'corrections': corrections,
+            **({'demos': demos} if demos != 'recorded' else {})}
 
 
 def variant_name(level, correction):
@@ -126,12 +135,14 @@ def plan_physical(physical, demos, throws, job_seed, seed):
     -------
     demos, throws : list of dict
         Per level its demonstrations (``physical/level-L/...``), per variant its throws,
-        learning from the demonstrations of their level.
+        learning from the demonstrations of their level; with ``demos`` ``'ground-truth'``
+        no demonstrations, the throws learning from the ground-truth ones.
 
     """
     out_demos, out_throws = [], []
     strip = ('id',)
-    for level in physical['levels']:
+    recorded = physical.get('demos', 'recorded') == 'recorded'
+    for level in physical['levels'] if recorded else ():
         where = f'physical/{variant_name(level, True)}'
         for job in demos:
             key = f'{where}/{job["key"]}'
@@ -148,14 +159,15 @@ def plan_physical(physical, demos, throws, job_seed, seed):
             trajectories = job.get('trajectories')
             out_throws.append({
                 **{k: v for k, v in job.items() if k not in strip}, 'key': key,
-                'folder': where, 'demo_key': f'{demo_where}/{job["demo_key"]}',
+                'folder': where,
+                'demo_key': f'{demo_where}/{job["demo_key"]}' if recorded else job['demo_key'],
                 'trajectories': f'{where}/{trajectories}' if trajectories else None,
                 'physical': {'error_level': level, 'error_seed': job_seed(seed, key),
                              'correction': correction}})
     return out_demos, out_throws
 
 
-def variant_records(records, name, level):
+def variant_records(records, name, level, ground_demos=None):
     """
     Return the records of one variant, keyed and pathed as a ground-truth study's own.
 
@@ -167,6 +179,8 @@ def variant_records(records, name, level):
         The variant (:func:`variant_name`).
     level : float
         Its level (its demonstrations are the level's).
+    ground_demos : list of dict, optional
+        The ground-truth demonstrations, when the throws learnt from them.
 
     Returns
     -------
@@ -175,7 +189,7 @@ def variant_records(records, name, level):
     """
     demo_prefix = f'physical/{variant_name(level, True)}/'
     throw_prefix = f'physical/{name}/'
-    out = []
+    out = list(ground_demos or [])
     for r in records:
         if r['kind'] == 'demo' and r['key'].startswith(demo_prefix):
             out.append({**r, 'key': r['key'][len(demo_prefix):]})
@@ -271,6 +285,10 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
           "the endoscope's images; throws executed on the arms' reports and perception. The "
           "scoring reads the simulation's truth, as an observer of the real robot would. Each "
           'variant has its full report in `physical/<variant>/`.', '']
+    if physical.get('demos') == 'ground-truth':
+        md += ['**The throws here learn from the ground-truth demonstrations** '
+               '(`--physical-demos ground-truth`): only their execution is in physical '
+               'mode.', '']
     keys = [(level, c) for level in physical['levels'] for c in physical['corrections']]
     methods = list(ground_truth)
     for method in methods:

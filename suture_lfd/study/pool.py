@@ -65,8 +65,7 @@ def _worker_main(conn, call, initializer, initargs):
     """Run the initializer, then every job the driver sends, until None (a worker process)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if initializer is not None:
-        initializer(*initargs)
+    state = initializer(*initargs) if initializer is not None else None
     while True:
         try:
             job = conn.recv()
@@ -74,7 +73,7 @@ def _worker_main(conn, call, initializer, initargs):
             return
         if job is None:
             return
-        conn.send(call(job))
+        conn.send(call(job, state))
 
 
 class _Worker:
@@ -104,9 +103,10 @@ class WorkerPool:
     workers : int
         Number of processes.
     call : callable
-        Picklable ``job -> record``, run in the workers.
+        Picklable ``(job, state) -> record``, run in the workers.
     initializer : callable, optional
-        Module-level function run once in each worker before its first job.
+        Module-level function run once in each worker before its first job; what it returns
+        is the ``state`` given to every job of that worker (None without one).
     initargs : tuple
         Its arguments.
 

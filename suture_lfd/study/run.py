@@ -49,8 +49,9 @@ from suture_lfd.study.engine import (
     parse_engine,
     run_stages_on,
 )
-from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
+from suture_lfd.study.jobs import JobSettings, init_worker, run_job
 from suture_lfd.study.keys import BOOKKEEPING, demo_ids, with_ids
+from suture_lfd.study.options import QUICK_PAIRS, QUICK_SUBJECTS
 from suture_lfd.study.pool import PoolError
 from suture_lfd.study.runner import Progress, pending
 from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
@@ -58,52 +59,6 @@ from suture_lfd.study.store import ResultStore, config_hash, earlier_format_file
 
 _LOG = logging.getLogger(__name__)
 STUDY_FORMAT = 1
-QUICK_SUBJECTS = 2
-QUICK_PAIRS = 2
-
-
-def add_arguments(parser):
-    """Add the options of ``suture-lfd study`` to an argparse parser."""
-    parser.add_argument('--seed', type=int, default=0,
-                        help='cohort and study seed (same seed, same report; default 0)')
-    parser.add_argument('--out', default='study', help='report folder (default ./study)')
-    parser.add_argument('--workers', type=int, default=None,
-                        help='parallel worker processes (default: the number of CPUs; half '
-                             'of them with --via-ros); with --engine dask, the local '
-                             "cluster's workers")
-    parser.add_argument('--engine', default='local',
-                        help='where the jobs run: local (a process pool, default), dask (a '
-                             'local Dask cluster), tcp://HOST:PORT or scheduler-file:PATH (an '
-                             'existing Dask cluster)')
-    parser.add_argument('--quick', action='store_true',
-                        help=f'small study: {QUICK_SUBJECTS} subjects (one per group), '
-                             f'{QUICK_PAIRS} pairs per phantom')
-    parser.add_argument('--methods', default=None,
-                        help='comma-separated methods (default: all registered methods)')
-    parser.add_argument('--subjects', type=int, default=None,
-                        help='number of subjects, taken in turn from each group')
-    parser.add_argument('--pairs', type=int, default=None,
-                        help='marker pairs per phantom (the first ones in suturing order)')
-    parser.add_argument('--phantoms', default=None,
-                        help='comma-separated phantoms (default: every phantom of the design)')
-    parser.add_argument('--cohort', default=None, help='cohort file (default config/cohort.yaml)')
-    parser.add_argument('--via-ros', action='store_true',
-                        help='execute every throw through the ROS node graph: a simulator and '
-                             'an executor node process per throw, a private ROS domain per '
-                             'worker (demonstrations stay in-process; ~10x slower per throw)')
-    parser.add_argument('--assessment', choices=('subject', 'cohort', 'off'),
-                        default='subject',
-                        help='learning with skill assessment, reported beside learning from '
-                             'every demonstration: a rejected demonstration is replaced by '
-                             "the subject's own best accepted one (subject, default) or the "
-                             "cohort's best accepted one on that pair (cohort); off: no "
-                             'assessment')
-    held_out.add_arguments(parser)
-    physical.add_arguments(parser)
-    parser.add_argument('--plan', action='store_true',
-                        help='write the configuration (subjects, seeds, jobs) and stop')
-    parser.add_argument('--report-only', action='store_true',
-                        help='write the report from the results stored so far, run nothing')
 
 
 # ---------------------------------------------------------------------- configuration
@@ -137,7 +92,7 @@ def build_config(args):
     Parameters
     ----------
     args : argparse.Namespace
-        Options of :func:`add_arguments`.
+        Options of :func:`suture_lfd.study.options.add_study_arguments`.
 
     Returns
     -------
@@ -339,7 +294,7 @@ def run_study(args, stream=None):
     Parameters
     ----------
     args : argparse.Namespace
-        Options of :func:`add_arguments`.
+        Options of :func:`suture_lfd.study.options.add_study_arguments`.
     stream : file-like, optional
         Progress output (default ``sys.stderr``).
 
@@ -375,7 +330,7 @@ def run_study(args, stream=None):
         phys_demos, phys_throws = physical.plan_physical(config['physical'], demos, throws,
                                                          job_seed, config['seed'])
         phys_demos = with_ids(phys_demos, config)
-        phys_throws = with_ids(phys_throws, config, demo_ids(phys_demos))
+        phys_throws = with_ids(phys_throws, config, demo_ids(demos + phys_demos))
     (out / 'config.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
     jobs = demos + throws + held_jobs + phys_demos + phys_throws
     total = len(jobs)
@@ -385,7 +340,7 @@ def run_study(args, stream=None):
           f'throws' + (f' + {len(held_jobs)} held-out throws' if held_jobs else '')
           + (f'; physical mode ({len(physical.variants(config["physical"]))} variants): '
              f'{len(phys_demos)} demonstrations + {len(phys_throws)} throws'
-             if phys_demos else '')
+             if phys_throws else '')
           + f'; results in {out}', file=stream, flush=True)
     if args.plan:
         (out / 'jobs.json').write_text(json.dumps(jobs, indent=1) + '\n')
@@ -426,7 +381,7 @@ def run_study(args, stream=None):
                               workers=workers, progress=progress, initializer=init_worker,
                               initargs=(settings, ros))
                 if phys_throws:  # in-process, whatever --via-ros says
-                    run_stages_on(where, [attach_demos(phys_throws, store, phys_demos)],
+                    run_stages_on(where, [attach_demos(phys_throws, store, demos + phys_demos)],
                                   run_job, store, workers=workers, progress=progress,
                                   initializer=init_worker, initargs=(settings,))
             except (CodeMismatchError, EngineError, PoolError) as exc:
@@ -438,7 +393,6 @@ def run_study(args, stream=None):
             finally:
                 if session is not None:
                     session.close(stop=interrupted is not None)
-                close_worker()  # the nodes and ROS domain of a run in this process (1 worker)
             if interrupted is not None:
                 return end_interrupted('study', progress, total, store, interrupted, stream)
         ran = progress.done - progress.resumed
@@ -513,7 +467,9 @@ def _write_physical(out, report, ground_records, records, config, run_info):
     for name, level, correction in physical.variants(config['physical']):
         folder = out / 'physical' / name
         folder.mkdir(parents=True, exist_ok=True)
-        mine = physical.variant_records(records, name, level)
+        ground_demos = ([r for r in ground_records if r['kind'] == 'demo']
+                        if config['physical'].get('demos') == 'ground-truth' else None)
+        mine = physical.variant_records(records, name, level, ground_demos)
         write_report(folder, mine, variant_config, run_info)
         summaries[level, correction] = summarise(mine)
     curve = None

@@ -3,7 +3,8 @@ Run a study's jobs: in this process or in a pool of worker processes, with progr
 
 A job is a small picklable ``dict`` with ``key`` (its name in the study), ``id`` (what decides
 its result, :mod:`suture_lfd.study.keys`) and ``kind``; a job function (module-level, so worker
-processes can import it) turns it into a result record (``dict``). Jobs run in stages (the
+processes can import it) turns a job and its process's state (what the stage's initializer
+returned, None without one) into a result record (``dict``). Jobs run in stages (the
 demonstrations before the throws learnt from them); within a stage they run in any order,
 ``workers`` at a time (:class:`~suture_lfd.study.pool.WorkerPool`). Every finished record is
 appended to the :class:`~suture_lfd.study.store.ResultStore` by this (the parent) process only,
@@ -122,16 +123,22 @@ class Progress:
             self.stream.flush()
 
 
-def call_job(job_fn, job):
-    """Run one job; an exception becomes a record with ``error`` (the traceback's last line)."""
-    t0 = time.perf_counter()
+def call_job(job_fn, job, state=None):
+    """
+    Run ``job_fn(job, state)``; an exception becomes an ``error`` record (its last line).
+
+    The record gets ``wall_s`` and ``cpu_s``: the job's wall time and its process's CPU time
+    (s), the latter a measure a loaded machine barely disturbs.
+    """
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
-        record = job_fn(job)
+        record = job_fn(job, state)
     except Exception as exc:  # noqa: BLE001 -- one broken throw must not stop the study
         _LOG.error('job %s failed:\n%s', job['key'], traceback.format_exc())
         record = {**job, 'error': f'{type(exc).__name__}: {exc}'}
     record.setdefault('error', '')
     record['wall_s'] = time.perf_counter() - t0
+    record['cpu_s'] = time.process_time() - c0
     return record
 
 
@@ -154,7 +161,7 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
     stages : list of list of dict
         Jobs per stage; a stage starts when the one before it has finished.
     job_fn : callable
-        Module-level function ``job -> record``.
+        Module-level function ``(job, state) -> record``.
     store : suture_lfd.study.store.ResultStore
         Where finished records go (and which jobs are already done).
     workers : int
@@ -162,7 +169,9 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
     progress : Progress, optional
         Advanced once per finished job.
     initializer : callable, optional
-        Module-level function run once in each worker (and here when ``workers == 1``).
+        Module-level function run once in each worker (and here when ``workers == 1``); what
+        it returns is the ``state`` of that process's jobs (one with a ``close()`` method is
+        closed when a run in this process ends).
     initargs : tuple
         Its arguments.
 
@@ -194,14 +203,18 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
 
     with stop_on_signals() as stop:
         if workers <= 1:
-            if initializer is not None:
-                initializer(*initargs)
-            for stage in todo:
-                for job in stage:
-                    record = call_job(job_fn, job)  # a signal stops it where it is
-                    with stop.deferred():
-                        keep(record)
-                    stop.check()
+            state = initializer(*initargs) if initializer is not None else None
+            try:
+                for stage in todo:
+                    for job in stage:
+                        record = call_job(job_fn, job, state)  # a signal stops it where it is
+                        with stop.deferred():
+                            keep(record)
+                        stop.check()
+            finally:
+                close = getattr(state, 'close', None)
+                if close is not None:
+                    close()
             return ran
         with stop.deferred(), WorkerPool(workers, _JobCall(job_fn), initializer,
                                          initargs) as pool:
@@ -212,10 +225,10 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
 
 
 class _JobCall:
-    """Picklable ``job -> call_job(job_fn, job)``."""
+    """Picklable ``(job, state) -> call_job(job_fn, job, state)``."""
 
     def __init__(self, job_fn):
         self.job_fn = job_fn
 
-    def __call__(self, job):
-        return call_job(self.job_fn, job)
+    def __call__(self, job, state=None):
+        return call_job(self.job_fn, job, state)

@@ -11,9 +11,15 @@ vary (keys of ``config/dmp.yaml``, for both learnt subtasks or one)::
       dmp:
         n_bfs: [50, 100]             # both tasks (ii and iv)
         task_iv.alpha_y: [20.0, 25.0]  # one task
+      physical:                      # optional: cells in physical mode
+        error_level: [0, 1, 3, 5]    # mm class of the hidden kinematic errors
+        correction: [true, false]    # the executor's correction on what it sees
 
-The grid is every combination of the ``dmp`` values (a *cell*), each studied with every seed
-and method. Demonstrations depend on the seed only (the DMP hyper-parameters act when a skill
+The grid is every combination of the ``dmp`` and ``physical`` values (a *cell*), each studied
+with every seed and method. A cell with a ``physical`` value runs in physical mode
+(:mod:`suture_lfd.study.physical`; ``error_level`` 3 and ``correction`` true unless swept): its
+demonstrations are its seed's and level's physical-mode ones, shared by every cell of that seed
+and level. Demonstrations depend on the seed only (the DMP hyper-parameters act when a skill
 is learnt from a segment file: the segment file keeps the installed ``n_pts`` and a cell
 resamples it to its own), so every cell of a seed shares that seed's demonstrations: a
 2 x 2 sweep over two seeds records two sets of demonstrations, not eight.
@@ -26,6 +32,10 @@ folder gets ``seed-<s>/`` (bags, segment files), ``cells/<cell>/seed-<s>/`` (a f
 report per cell and seed) and ``sweep.md`` / ``sweep.csv`` / ``sweep_<parameter>.png``:
 generality, regeneration success and Table II errors against each swept parameter, mean and
 seed-to-seed spread (standard deviation of the per-seed values).
+
+Size: the sweep file's checks, the grid's plan (ground truth and physical mode), the cells'
+records and the sweep report are one reading of the same grid; split them when a third mode of
+cell comes.
 """
 
 import argparse
@@ -35,6 +45,7 @@ import dataclasses
 import itertools
 import json
 import math
+import os
 from pathlib import Path
 import sys
 import time
@@ -42,6 +53,7 @@ import time
 import numpy as np
 from sim_bridge.common.configfile import ConfigError, load_yaml
 from sim_bridge.common.vocabulary import TASKS
+from suture_lfd.study import physical
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,
@@ -49,13 +61,14 @@ from suture_lfd.study.engine import (
     parse_engine,
     run_stages_on,
 )
-from suture_lfd.study.jobs import JobSettings, close_worker, init_worker, run_job
+from suture_lfd.study.jobs import JobSettings, init_worker, run_job
 from suture_lfd.study.keys import demo_ids, with_ids
 from suture_lfd.study.pool import PoolError
 from suture_lfd.study.run import (
     attach_demos,
     build_config,
     hashed_config,
+    job_seed,
     ordered_records,
     plan_jobs,
     stored_note,
@@ -80,6 +93,8 @@ METRICS = (
     ('iv_goal_deg', ('regeneration', 'errors', 'iv/ori/goal', 'mean')),
 )
 PLOTTED = ('generality_overall', 'regeneration_success', 'ii_goal_mm', 'iv_goal_mm')
+#: Physical-mode keys of a sweep file (``sweep.physical``) and their value when not swept.
+PHYSICAL_AXES = {'error_level': 3.0, 'correction': True}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,6 +141,8 @@ def dmp_overrides(point):
     """Return a cell's DMP values as ``{task: {key: value}}`` (what a throw job carries)."""
     out = {task: {} for task in TASKS}
     for name, value in point.items():
+        if name in PHYSICAL_AXES:
+            continue
         task, _, key = name.rpartition('.')
         for t in ([task[len('task_'):]] if task else TASKS):
             out[t][key] = value
@@ -150,10 +167,10 @@ def load_sweep(path):
     if not isinstance(data, dict) or not isinstance(data.get('sweep'), dict):
         raise ConfigError(f'{path}: expected a mapping with the key "sweep"')
     body = data['sweep']
-    unknown = sorted(set(body) - {'design', 'seeds', 'methods', 'dmp'})
+    unknown = sorted(set(body) - {'design', 'seeds', 'methods', 'dmp', 'physical'})
     if unknown:
         raise ConfigError(f'{path}: sweep.{unknown[0]}: unknown key (expected design, seeds, '
-                          'methods, dmp)')
+                          'methods, dmp, physical)')
     design = body.get('design') or {}
     if not isinstance(design, dict) or set(design) - set(DESIGN_KEYS):
         bad = sorted(set(design) - set(DESIGN_KEYS)) if isinstance(design, dict) else ['']
@@ -181,6 +198,7 @@ def load_sweep(path):
             raise ConfigError(f'{path}: sweep.dmp.{name}: expected a non-empty list of values, '
                               f'got {values!r}')
         axes.append((str(name), tuple(values)))
+    axes += _physical_axes(path, body.get('physical'))
     sweep = Sweep(dict(design), tuple(seeds), tuple(methods), tuple(axes))
     for _, point in sweep.cells():  # every value must make valid parameters
         try:
@@ -188,6 +206,41 @@ def load_sweep(path):
         except (TypeError, ValueError) as exc:
             raise ConfigError(f'{path}: sweep.dmp: {exc}') from exc
     return sweep
+
+
+def _physical_axes(path, section):
+    """Return the swept physical-mode axes of a sweep file's ``physical`` section."""
+    if section is None:
+        return []
+    if not isinstance(section, dict) or set(section) - set(PHYSICAL_AXES):
+        bad = sorted(set(section) - set(PHYSICAL_AXES)) if isinstance(section, dict) else ['']
+        raise ConfigError(f'{path}: sweep.physical{"." + bad[0] if bad[0] else ""}: expected a '
+                          f'mapping with keys from {", ".join(PHYSICAL_AXES)}')
+    axes = []
+    levels = section.get('error_level')
+    if levels is not None:
+        if (not isinstance(levels, list) or not levels
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           and math.isfinite(v) and v >= 0 for v in levels)):
+            raise ConfigError(f'{path}: sweep.physical.error_level: expected a non-empty list '
+                              f'of numbers >= 0 (mm class), got {levels!r}')
+        axes.append(('error_level', tuple(float(v) for v in levels)))
+    corrections = section.get('correction')
+    if corrections is not None:
+        if (not isinstance(corrections, list) or not corrections
+                or not all(isinstance(v, bool) for v in corrections)):
+            raise ConfigError(f'{path}: sweep.physical.correction: expected a non-empty list '
+                              f'of true / false, got {corrections!r}')
+        axes.append(('correction', tuple(corrections)))
+    return axes
+
+
+def physical_point(point):
+    """Return a cell's physical mode as ``(level, correction)``, or None for ground truth."""
+    if not any(k in point for k in PHYSICAL_AXES):
+        return None
+    return (float(point.get('error_level', PHYSICAL_AXES['error_level'])),
+            bool(point.get('correction', PHYSICAL_AXES['correction'])))
 
 
 def _check_point(point):
@@ -216,31 +269,44 @@ def plan_sweep(sweep):
     config : dict
         ``studies`` (seed -> study configuration), ``cells`` (name -> parameters), ``axes``.
     demos, throws : list of dict
-        Study jobs with keys, paths and seeds of the sweep: ``seed-<s>/demo/...`` and
-        ``<cell>/seed-<s>/throw/...``; throws carry their cell's ``dmp`` values; every job
-        its ``id`` (:func:`suture_lfd.study.keys.with_ids`, with its seed's study context).
+        Study jobs with keys, paths and seeds of the sweep: ``seed-<s>/demo/...`` (in physical
+        mode ``seed-<s>/physical/level-<L>/demo/...``) and ``<cell>/seed-<s>/throw/...``;
+        throws carry their cell's ``dmp`` values; every job its ``id``
+        (:func:`suture_lfd.study.keys.with_ids`, with its seed's study context).
 
     """
     studies, demos, throws = {}, [], []
     cells = sweep.cells()
+    modes = {name: physical_point(point) for name, point in cells}
+    levels = sorted({mode[0] for mode in modes.values() if mode is not None})
     for seed in sweep.seeds:
         config = build_config(_study_args(sweep, seed))
         studies[str(seed)] = config
         seed_demos, seed_throws = plan_jobs(config)
         prefix = f'seed-{seed}'
-        seed_demos = with_ids([{**job, 'key': f'{prefix}/{job["key"]}', 'cohort_seed': int(seed),
-                                'bag': f'{prefix}/{job["bag"]}',
-                                'segments': f'{prefix}/{job["segments"]}'}
-                               for job in seed_demos], config)
+        phys_demos, _ = physical.plan_physical({'levels': levels, 'corrections': [True]},
+                                               seed_demos, [], job_seed, seed)
+        ground = seed_demos if any(m is None for m in modes.values()) else []
+        placed = [{**job, 'key': f'{prefix}/{job["key"]}', 'cohort_seed': int(seed),
+                   'bag': f'{prefix}/{job["bag"]}', 'segments': f'{prefix}/{job["segments"]}'}
+                  for job in [*({k: v for k, v in j.items() if k != 'id'} for j in ground),
+                              *phys_demos]]
+        seed_demos = with_ids(placed, config)
         demos += seed_demos
         for name, point in cells:
             where = f'cells/{name}/{prefix}'
+            cell_throws = seed_throws
+            if modes[name] is not None:
+                level, correction = modes[name]
+                _, cell_throws = physical.plan_physical(
+                    {'levels': [level], 'corrections': [correction]}, [], seed_throws,
+                    job_seed, seed)
             throws += with_ids([{
                 **job, 'key': f'{name}/{prefix}/{job["key"]}', 'cell': name,
                 'dmp': dmp_overrides(point), 'demo_key': f'{prefix}/{job["demo_key"]}',
                 'trajectories': (f'{where}/{job["trajectories"]}'
                                  if job['trajectories'] else None)}
-                for job in seed_throws], config, demo_ids(seed_demos))
+                for job in cell_throws], config, demo_ids(seed_demos))
     config = {'format': SWEEP_FORMAT, 'studies': studies, 'cells': dict(cells),
               'axes': [[a, list(v)] for a, v in sweep.axes], 'seeds': list(sweep.seeds)}
     return config, demos, throws
@@ -250,18 +316,28 @@ def _hashed_sweep(config):
     return {**config, 'studies': {s: hashed_config(c) for s, c in config['studies'].items()}}
 
 
-def _cell_records(records, name, seed):
-    """Return the records of one cell and seed, keyed and pathed as a study's own."""
+def _cell_records(records, name, seed, mode=None):
+    """
+    Return the records of one cell and seed, keyed and pathed as a study's own.
+
+    ``mode``: the cell's ``(level, correction)`` in physical mode (its demonstrations are that
+    level's), None for ground truth.
+    """
     prefix, where = f'seed-{seed}/', f'cells/{name}/seed-{seed}/'
+    variant = ''
+    if mode is not None:
+        variant = f'physical/{physical.variant_name(*mode)}/'
+        prefix += f'physical/{physical.variant_name(mode[0], True)}/'
     out = []
     for r in records:
-        if r['kind'] == 'demo' and r['key'].startswith(prefix):
+        if r['kind'] == 'demo' and r['key'].startswith(prefix + 'demo/'):
             out.append({**r, 'key': r['key'][len(prefix):]})
         elif r['kind'] == 'throw' and r.get('cell') == name and \
-                r['key'].startswith(f'{name}/{prefix}'):
+                r['key'].startswith(f'{name}/seed-{seed}/{variant}'):
             t = r.get('trajectories')
-            out.append({**r, 'key': r['key'][len(name) + 1 + len(prefix):],
-                        'trajectories': t[len(where):] if t and t.startswith(where) else t})
+            where_t = where + variant
+            out.append({**r, 'key': r['key'][len(name) + 1 + len(f'seed-{seed}/{variant}'):],
+                        'trajectories': t[len(where_t):] if t and t.startswith(where_t) else t})
     return out
 
 
@@ -390,18 +466,6 @@ def _plot_axis(folder, axis, tables):
     return path
 
 
-def add_arguments(parser):
-    """Add the options of ``suture-lfd sweep`` to an argparse parser."""
-    parser.add_argument('sweep_file', help='sweep file (YAML, see config/sweep_table1.yaml)')
-    parser.add_argument('--out', default='sweep', help='sweep folder (default ./sweep)')
-    parser.add_argument('--workers', type=int, default=None,
-                        help='worker processes (default: the number of CPUs)')
-    parser.add_argument('--engine', default='local',
-                        help='local (default), dask, tcp://HOST:PORT or scheduler-file:PATH')
-    parser.add_argument('--plan', action='store_true',
-                        help='write the configuration and jobs and stop')
-
-
 def run_sweep(args, stream=None):
     """
     Run (or resume) a sweep and write its reports; return the exit status.
@@ -409,8 +473,6 @@ def run_sweep(args, stream=None):
     0 done, 1 the engine failed, 2 bad sweep file or options, 130/143 interrupted (SIGINT,
     SIGTERM; the stored results kept, no report).
     """
-    import os
-
     stream = stream if stream is not None else sys.stderr
     t0 = time.monotonic()
     try:
@@ -463,7 +525,6 @@ def run_sweep(args, stream=None):
         finally:
             if session is not None:
                 session.close(stop=interrupted is not None)
-            close_worker()
         if interrupted is not None:
             return end_interrupted('sweep', progress, total, store, interrupted, stream)
         ran = progress.done - progress.resumed
@@ -480,7 +541,7 @@ def run_sweep(args, stream=None):
             folder.mkdir(parents=True, exist_ok=True)
             study = copy.deepcopy(config['studies'][str(seed)])
             study['dmp'] = dmp_overrides(config['cells'][name])
-            cell = _cell_records(records, name, seed)
+            cell = _cell_records(records, name, seed, physical_point(config['cells'][name]))
             report_writer.write_report(folder, cell, study, run_info)
             summaries[name, seed] = json.loads((folder / 'summary.json').read_text())
     path = write_sweep_report(out, config, sweep_rows(config, summaries), run_info)

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd import bags
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
 from suture_lfd.skill import learn_skill
 from suture_lfd.skill.executor import execute_throw
 from suture_lfd.skill.physical_demo import (

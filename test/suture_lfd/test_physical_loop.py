@@ -16,8 +16,8 @@ from sim_bridge.control import Command
 from sim_bridge.observers import GroundTruthObserver
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
+from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.segmentation.segments import make_segment_file
 from suture_lfd.skill import training_data
 from suture_lfd.skill.arm_registration import register_arms
 from suture_lfd.skill.executor import execute_throw, learn_skill

@@ -33,7 +33,7 @@ def study(out, *args):
 
 
 # module-level job functions: Dask workers import them by reference
-def square_job(job):
+def square_job(job, state=None):
     """Record ``x * x``; leave a file per run so that tests can count the runs of a job."""
     runs = Path(job['runs'])
     runs.mkdir(parents=True, exist_ok=True)
@@ -43,7 +43,7 @@ def square_job(job):
     return {**job, 'value': job['x'] * job['x']}
 
 
-def dying_job(job):
+def dying_job(job, state=None):
     """Kill the worker process on the first run of job 'k3' (a crash mid-job); else square."""
     marker = Path(job['runs']) / 'killed-once'
     if job['key'] == 'k3' and not marker.exists():

@@ -101,3 +101,16 @@ def test_physical_options_are_checked_and_planned_apart(tmp_path):
     assert {j['physical']['error_level'] for j in extra} == {3.0}
     assert {j['physical'].get('correction') for j in extra if j['kind'] == 'throw'} == {False}
     assert len({j['physical']['error_seed'] for j in extra}) == len(extra)
+
+
+def test_physical_throws_may_learn_from_the_ground_truth_demonstrations(tmp_path):
+    result = study(tmp_path, '--plan', '--physical', '--error-level', '1,5',
+                   '--physical-demos', 'ground-truth')
+    assert result.returncode == 0, result.stderr
+    jobs = json.loads((tmp_path / 'jobs.json').read_text())
+    ground = [j for j in jobs if 'physical' not in j]
+    extra = [j for j in jobs if 'physical' in j]
+    assert all(j['kind'] == 'throw' for j in extra)  # no demonstration of its own
+    ground_demos = {j['key'] for j in ground if j['kind'] == 'demo'}
+    assert {j['demo_key'] for j in extra} == ground_demos
+    assert len(extra) == 2 * sum(j['kind'] == 'throw' for j in ground)

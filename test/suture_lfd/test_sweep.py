@@ -91,6 +91,9 @@ def test_sweep_values_for_both_tasks_or_one():
     ('sweep:\n  dmp:\n    n_bfs: 5\n', 'sweep.dmp.n_bfs'),
     ('sweep:\n  dmp:\n    n_bfs: [0]\n', 'sweep.dmp'),
     ('study: {}\n', '"sweep"'),
+    ('sweep:\n  physical:\n    error_level: [-1]\n', 'sweep.physical.error_level'),
+    ('sweep:\n  physical:\n    correction: [maybe]\n', 'sweep.physical.correction'),
+    ('sweep:\n  physical:\n    noise: [1]\n', 'sweep.physical.noise'),
 ])
 def test_a_bad_sweep_file_names_the_file_and_key(tmp_path, body, named):
     path = tmp_path / 'bad.yaml'
@@ -101,3 +104,30 @@ def test_a_bad_sweep_file_names_the_file_and_key(tmp_path, body, named):
     result = cli('sweep', str(path), '--out', str(tmp_path / 'out'))
     assert result.returncode == 2 and named in result.stderr
     assert 'Traceback' not in result.stderr
+
+
+PHYSICAL_SWEEP = """\
+sweep:
+  design: {subjects: 1, pairs: 1, phantoms: [synthetic]}
+  methods: [pair_frame]
+  physical:
+    error_level: [0, 3]
+    correction: [true, false]
+"""
+
+
+def test_error_level_and_correction_are_sweep_keys_with_demonstrations_per_level(tmp_path):
+    (tmp_path / 'sweep.yaml').write_text(PHYSICAL_SWEEP)
+    result = cli('sweep', str(tmp_path / 'sweep.yaml'), '--plan', '--out', str(tmp_path / 'o'))
+    assert result.returncode == 0, result.stderr[-3000:]
+    jobs = json.loads((tmp_path / 'o' / 'jobs.json').read_text())
+    demos = [j for j in jobs if j['kind'] == 'demo']
+    throws = [j for j in jobs if j['kind'] == 'throw']
+    # one demonstration per level (no ground-truth cell: none in ground-truth mode)
+    assert sorted(j['physical']['error_level'] for j in demos) == [0.0, 3.0]
+    assert {(j['physical']['error_level'], j['physical']['correction']) for j in throws} == {
+        (0.0, True), (0.0, False), (3.0, True), (3.0, False)}
+    by_key = {j['key']: j for j in demos}
+    for j in throws:  # each learns from its level's demonstration
+        assert by_key[j['demo_key']]['physical']['error_level'] == j['physical']['error_level']
+    assert len({j['id'] for j in jobs}) == len(jobs)
