@@ -14,11 +14,12 @@ Subtasks (seed paper, after Schwaner et al. 2021), cut with the grasp signals:
 
 i    PSM2 picks the needle and brings its tip to the entry: the PSM2 motions before ii.
 ii   PSM2 inserts the needle to the exit: the PSM2 motions before PSM1 grasps the needle, from
-     the one in which the needle tip last went deeper than ``entered_depth`` below the pair's
-     surface (entry marker and normal) before that grasp, or from the last one if the tip
-     never did: a person who pauses during the insertion makes it of several motions, and
-     the insertion starts where the tip was still at the surface, however many motions
-     follow it in the tissue or once the tip is out of the exit.
+     the one in which the needle tip went into the tissue for the last time before that grasp
+     (from ``surface_depth`` to deeper than ``entered_depth`` below the pair's surface, entry
+     marker and normal), or the last one if the tip never went that deep: a person who
+     pauses during the insertion makes it of several motions, and the insertion starts where
+     the tip was still at the surface, however many motions follow it in the tissue or once
+     the tip is out of the exit.
 iii  PSM1 regrasps: from PSM1's first motion after ii to the moment PSM2 releases the needle.
 iv   PSM1 extracts the needle: PSM1's motions after PSM2 released it, before PSM2 grasps again.
 v    hand-over to PSM2 and move on: from the first motion after iv to the last motion.
@@ -80,8 +81,12 @@ class SegmentationConfig:
         grasp flags (all false), rad.
     entered_depth : float
         Depth of the needle tip below the pair's surface (m) from which the tip counts as
-        already inserted at the start of a PSM2 motion (subtask ii then starts earlier). The
-        scripted cohort brings the tip to 0.1 mm at the entry; 0.5 mm is five times that.
+        inserted (subtask ii then starts where it went in). The scripted cohort brings the tip
+        to 0.1 mm at the entry; 0.5 mm is five times that.
+    surface_depth : float
+        Depth (m) down to which the tip counts as still at the surface, looking back for
+        where it went in: twice the cohort's 0.1 mm. Below ``entered_depth``, so that a
+        tip that rests at the threshold's depth in the tissue stays in.
     needle : NeedleGeometry
         The needle whose tip is followed (the demonstration records its pose only).
 
@@ -97,6 +102,7 @@ class SegmentationConfig:
     angular_weight_m: float = 0.01
     jaw_closed_rad: float = 0.1
     entered_depth: float = 0.0005
+    surface_depth: float = 0.0002
     needle: NeedleGeometry = field(default_factory=NeedleGeometry)
 
     def __post_init__(self):
@@ -107,10 +113,13 @@ class SegmentationConfig:
                              f'onset_level < 0.25, got {self.threshold}, {self.hysteresis}, '
                              f'{self.onset_level}')
         for name in ('min_motion_s', 'min_rest_s', 'angular_weight_m', 'jaw_closed_rad',
-                     'entered_depth'):
+                     'entered_depth', 'surface_depth'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'SegmentationConfig.{name} must be >= 0, got {value!r}')
+        if self.surface_depth > self.entered_depth:
+            raise ValueError('SegmentationConfig.surface_depth must be <= entered_depth, got '
+                             f'{self.surface_depth} > {self.entered_depth}')
         if not isinstance(self.needle, NeedleGeometry):
             raise ValueError('SegmentationConfig.needle must be a NeedleGeometry, got '
                              f'{type(self.needle).__name__}')
@@ -386,23 +395,23 @@ def _tip_depths(demo, config):
     return -((tip - demo.entry) @ np.asarray(demo.normal, float))
 
 
-def _insertion_start(inserting, T, depth, t_regrasp, entered_depth):
+def _insertion_start(inserting, T, depth, t_regrasp, config):
     """
     Index in ``inserting`` (PSM2's motions before the regrasp) of the insertion's first motion.
 
-    The tip enters where its depth last rises above ``entered_depth`` before ``t_regrasp``;
-    the insertion's first motion is the last one starting by then (the last motion when the
-    tip never went that deep). Walking back from the last motion while it starts deep would
-    stop at a motion that starts with the tip already out of the exit.
+    The tip's last stay in the tissue before ``t_regrasp`` is where it last went deeper than
+    ``config.entered_depth``; it went in where it was last at ``config.surface_depth`` or
+    above before that. The insertion's first motion is the one under way then, or the next one
+    (the last motion when the tip never went that deep). Walking back from the last motion
+    while it starts deep stopped at a motion that starts with the tip already out of the exit.
     """
-    before = T <= t_regrasp
-    deep = np.flatnonzero(before & (depth > entered_depth))
+    deep = np.flatnonzero((T <= t_regrasp) & (depth > config.entered_depth))
     if deep.size == 0:
         return len(inserting) - 1
-    shallow = np.flatnonzero(before[:deep[-1]] & (depth[:deep[-1]] <= entered_depth))
-    t_enter = T[shallow[-1] + 1] if shallow.size else T[0]
-    starts = [k for k, m in enumerate(inserting) if m.start_time <= t_enter]
-    return starts[-1] if starts else 0
+    surface = np.flatnonzero(depth[:deep[-1]] <= config.surface_depth)
+    t_enter = T[surface[-1] + 1] if surface.size else T[0]
+    going = [k for k, m in enumerate(inserting) if m.end_time > t_enter]
+    return going[0] if going else len(inserting) - 1
 
 
 def segment_demonstration(demo, config=None):
@@ -450,8 +459,7 @@ def segment_demonstration(demo, config=None):
     if not inserting:
         raise ValueError('no PSM2 motion before PSM1 grasps the needle: no insertion '
                          '(subtask ii) found')
-    first = _insertion_start(inserting, T, _tip_depths(demo, config), t_regrasp,
-                             config.entered_depth)
+    first = _insertion_start(inserting, T, _tip_depths(demo, config), t_regrasp, config)
     ii = Segment('motion', inserting[first].start_index, inserting[-1].end_index,
                  inserting[first].start_time, inserting[-1].end_time)
     approach = inserting[:first]
