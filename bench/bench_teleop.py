@@ -248,6 +248,7 @@ def measure(label, code, args, domain_id):
         result['load'].append(_loadavg())
     finally:
         executor.shutdown(timeout_sec=2)
+        spin.join(5.0)               # its last wait ends before the node's handles go
         node.destroy_node()
         rclpy.try_shutdown(context=context)
         for p in reversed(list(procs.values())):
