@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 from sim_bridge.bullet import bullet_client, pybullet
-from sim_bridge.geometry import quaternion_from_matrix
+from sim_bridge.common.geometry import quaternion_from_matrix
 from sim_bridge.kinematics import psm_kinematics
 
 ANCHOR_PYBULLET_IK_S = 1e-3

@@ -23,7 +23,7 @@ import argparse
 import time
 
 import numpy as np
-from sim_bridge.geometry import quaternion_angle
+from sim_bridge.common.geometry import quaternion_angle
 from suture_lfd.demos.synthetic_throw import needle_throw
 from suture_lfd.dmp import DmpParams, PoseDmp
 from suture_lfd.study.metrics import (

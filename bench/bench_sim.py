@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 from sim_bridge.bullet import bullet_client, pybullet
-from sim_bridge.geometry import quaternion_from_matrix
+from sim_bridge.common.geometry import quaternion_from_matrix
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.planning.episode import run_episode, start_episode

@@ -86,12 +86,12 @@ def graph(out_dir):
 def start(argv, log_dir, label, env):
     exe = shutil.which(argv[0], path=str(Path(sys.executable).parent))
     log = open(Path(log_dir) / f'{label.replace(" ", "_")}.log', 'w')
-    from sim_bridge.processes import popen
+    from sim_bridge.common.processes import popen
     return popen([exe, *argv[1:]], stdout=log, stderr=subprocess.STDOUT, env=env)
 
 
 def stop(proc):
-    from sim_bridge.processes import stop_group
+    from sim_bridge.common.processes import stop_group
     stop_group(proc, 10.0)
 
 

@@ -51,9 +51,9 @@ import struct
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from sim_bridge.common.validation import check_positive
 from sim_bridge.kinematics import PsmKinematics, UnreachableError, check_pose
 from sim_bridge.trajectory import JointMotion
-from sim_bridge.validation import check_positive
 
 logger = logging.getLogger(__name__)
 

@@ -13,7 +13,7 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 from dataclasses import dataclass
 
 import numpy as np
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 # Per unit of level: degrees on joints 1-2, metres on the insertion, metres of registration.
 _JOINT_DEG = 1.0

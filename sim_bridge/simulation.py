@@ -45,12 +45,12 @@ import logging
 import numpy as np
 from sim_bridge import bullet
 from sim_bridge.arm import Arm, ArmConfig
-from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.paths import config_path
 from sim_bridge.kinematic_errors import draw_arm_errors
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
 from sim_bridge.observers import GroundTruthObserver
-from sim_bridge.paths import config_path
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
 from sim_bridge.scene.phantom import build_phantom

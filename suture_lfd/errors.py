@@ -1,7 +1,7 @@
 """
 The exceptions of the learning-from-demonstration package, in one place.
 
-Configuration errors are :class:`sim_bridge.errors.ConfigError` (shared by both packages).
+Configuration errors are :class:`sim_bridge.common.errors.ConfigError` (shared by both packages).
 """
 
 

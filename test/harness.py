@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 
-from sim_bridge.processes import popen, stop_group
+from sim_bridge.common.processes import popen, stop_group
 from sim_bridge.ros.dds import use_project_profile
 
 REPO = Path(__file__).resolve().parent.parent
@@ -109,7 +109,7 @@ class NodeProcess:
     A node executable running as a real subprocess in its own process group.
 
     It dies with the test run: the kernel sends it SIGTERM when the run's process dies, even by
-    SIGKILL (:func:`sim_bridge.processes.popen`).
+    SIGKILL (:func:`sim_bridge.common.processes.popen`).
     """
 
     def __init__(self, argv, log_dir, env=None, cwd=None):

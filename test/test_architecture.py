@@ -226,6 +226,6 @@ def test_no_module_imports_a_private_name_of_another():
 
 def test_a_private_import_in_a_temporary_module_is_named(tree):
     (tree / 'suture_lfd/dmp/probe.py').write_text(
-        'from sim_bridge.geometry import _jinv_coefficient\n')
+        'from sim_bridge.common.geometry import _jinv_coefficient\n')
     assert private_imports(tree) == [
-        'suture_lfd.dmp.probe imports _jinv_coefficient from sim_bridge.geometry']
+        'suture_lfd.dmp.probe imports _jinv_coefficient from sim_bridge.common.geometry']

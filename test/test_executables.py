@@ -15,8 +15,8 @@ from crtk_msgs.msg import OperatingState
 from harness import REPO, executable, forbidden_lines
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from sim_bridge.configfile import load_yaml
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import load_yaml
+from sim_bridge.common.paths import config_path
 
 ARMS = ('PSM1', 'PSM2', 'ECM')
 LATCHED = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,

@@ -33,7 +33,7 @@ def node_executables():
 
 def test_core_modules_never_load_rclpy_or_messages():
     mods = core_modules()
-    assert 'sim_bridge.configfile' in mods and 'suture_lfd.cli' in mods
+    assert 'sim_bridge.common.configfile' in mods and 'suture_lfd.cli' in mods
     code = textwrap.dedent(f"""
         import importlib, sys
         for m in {mods!r}:

@@ -8,7 +8,7 @@ import subprocess
 import time
 
 import pytest
-from sim_bridge.processes import popen
+from sim_bridge.common.processes import popen
 
 SCRIPTS = Path(__file__).resolve().parent.parent / 'scripts'
 

@@ -13,7 +13,7 @@ import threading
 import time
 
 from harness import wait_for
-from sim_bridge.processes import popen
+from sim_bridge.common.processes import popen
 
 SCRIPTS = Path(__file__).resolve().parent.parent / 'scripts'
 START_TIMEOUT = 300.0   # s for six nodes to start on a loaded 2-core machine

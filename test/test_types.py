@@ -14,7 +14,8 @@ import textwrap
 from harness import REPO
 
 # The modules whose public API is annotated, checked with every function typed.
-ANNOTATED = ('sim_bridge/geometry.py', 'sim_bridge/validation.py', 'sim_bridge/kinematics',
+ANNOTATED = ('sim_bridge/common/geometry.py', 'sim_bridge/common/validation.py',
+             'sim_bridge/kinematics',
              'sim_bridge/robot_model.py', 'suture_lfd/dmp')
 
 
@@ -35,7 +36,7 @@ def test_annotated_modules_type_check(tmp_path):
 def test_a_call_against_an_annotated_signature_is_reported(tmp_path):
     caller = tmp_path / 'caller.py'
     caller.write_text(textwrap.dedent("""
-        from sim_bridge.geometry import invert_transform
+        from sim_bridge.common.geometry import invert_transform
         from suture_lfd.dmp import load_dmp_params
 
         angle: float = invert_transform([[1.0]])

@@ -62,6 +62,13 @@ need_build_tools() {
   fi
 }
 
+# --- one setup at a time: two commands started together in one checkout would race on the
+# editable install; the second waits for the first, then finds the environment up to date ------
+if command -v flock >/dev/null; then
+  exec 9<"${BASH_SOURCE[0]}"
+  flock 9
+fi
+
 # --- fast path: nothing changed since the last successful setup ---------------------------------
 stamp_inputs() {
   cat "$repo/tools/requirements.txt" "$repo/tools/constraints.txt" "$repo/setup.py" \

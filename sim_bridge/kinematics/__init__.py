@@ -18,7 +18,8 @@ import re
 from typing import TypeVar
 
 import numpy as np
-from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
+from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping, load_yaml
+from sim_bridge.common.paths import config_path
 from sim_bridge.kinematics.dh_chain import (
     DhJoint,
     SerialChain,
@@ -36,7 +37,6 @@ from sim_bridge.kinematics.rcm import (
     PsmKinematics,
     UnreachableError,
 )
-from sim_bridge.paths import config_path
 
 _T = TypeVar('_T')
 

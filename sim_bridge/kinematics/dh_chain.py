@@ -26,7 +26,7 @@ from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 FloatArray = NDArray[np.float64]
 # a pose's top three rows as nested tuples, and as 12 floats (rotation rows, then translation)

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from sim_bridge.errors import UnreachableError
+from sim_bridge.common.errors import UnreachableError
 from sim_bridge.kinematics.dh_chain import (
     DhJoint,
     SerialChain,

@@ -68,7 +68,7 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from sensor_msgs.msg import JointState
-from sim_bridge import cdr
+from sim_bridge.common import cdr
 from sim_bridge.kinematics import UnreachableError
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
@@ -237,7 +237,7 @@ class CrtkArm:
         k = arm.kinematics
         self._joint_names = list(k.joint_names)
         self._state = {}
-        # every state message is written as CDR bytes (sim_bridge.cdr): the same message as
+        # every state message is written as CDR bytes (sim_bridge.common.cdr): the same message as
         # building it, a fraction of the cost at ~40 messages per 10 ms
         names = tuple(self._joint_names)
         zeros = [0.0] * len(names)

@@ -26,7 +26,7 @@ The node calls these publishers from its one executor thread; they skip topics n
 
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import CameraInfo, Image
-from sim_bridge import cdr
+from sim_bridge.common import cdr
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.simulation import ARMS, PSMS

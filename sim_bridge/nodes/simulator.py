@@ -73,6 +73,7 @@ import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sim_bridge.common.validation import check_positive
 from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
@@ -84,7 +85,6 @@ from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.peer import announcement
 from sim_bridge.scene.world import FRAMES
 from sim_bridge.simulation import ARMS, Simulation, load_simulation_config
-from sim_bridge.validation import check_positive
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 

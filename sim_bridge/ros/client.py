@@ -46,8 +46,8 @@ from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 from sensor_msgs.msg import JointState
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.control import Observation
-from sim_bridge.geometry import invert_transform
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.scene.phantom import MarkerPair

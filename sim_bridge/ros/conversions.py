@@ -25,7 +25,7 @@ from geometry_msgs.msg import (
 import numpy as np
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
-from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
+from sim_bridge.common.geometry import matrix_from_quaternion, quaternion_from_matrix
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker

@@ -9,7 +9,7 @@ call it then. Child processes inherit it through the environment.
 
 import os
 
-from sim_bridge.paths import config_path
+from sim_bridge.common.paths import config_path
 
 PROFILE = 'fastdds.xml'
 # Fast DDS 2.x reads the first, 3.x the second

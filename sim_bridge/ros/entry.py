@@ -42,8 +42,8 @@ import signal
 import sys
 import textwrap
 
-from sim_bridge.configfile import load_yaml
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import load_yaml
+from sim_bridge.common.paths import config_path
 from sim_bridge.ros.dds import use_project_profile
 
 HELP_FLAGS = ('-h', '--help')

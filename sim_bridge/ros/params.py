@@ -4,7 +4,7 @@ Node parameters from ``config/<node>.yaml``, shared by the nodes of both package
 :func:`declare_config` declares a node's parameters with their defaults from
 ``config/<node>.yaml`` (shape ``<node_name>: ros__parameters: {...}``), so that
 ``--ros-args -p name:=value`` and parameter files override them, and returns the node's frozen
-configuration dataclass, checked by :mod:`sim_bridge.configfile`.
+configuration dataclass, checked by :mod:`sim_bridge.common.configfile`.
 """
 
 from dataclasses import MISSING, fields
@@ -12,8 +12,8 @@ import typing
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.parameter import Parameter
-from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping, load_yaml
+from sim_bridge.common.paths import config_path
 
 _ARRAY_TYPES = {str: Parameter.Type.STRING_ARRAY, float: Parameter.Type.DOUBLE_ARRAY,
                 int: Parameter.Type.INTEGER_ARRAY, bool: Parameter.Type.BOOL_ARRAY}

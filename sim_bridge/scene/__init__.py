@@ -2,7 +2,7 @@
 The scene on the table: world and bodies, needle and thread, phantoms, tissue, grasps, camera.
 
 - :mod:`~sim_bridge.scene.world`: the PyBullet world (table, arms' bases, light, gravity).
-- :mod:`~sim_bridge.scene.needle`: needle and thread geometry.
+- :mod:`~sim_bridge.common.needle`: needle and thread geometry.
 - :mod:`~sim_bridge.scene.thread`: the thread's chain dynamics.
 - :mod:`~sim_bridge.scene.phantom`, :mod:`~sim_bridge.scene.phantom_config`,
   :mod:`~sim_bridge.scene.phantom_shapes`, :mod:`~sim_bridge.scene.markers`,

@@ -19,14 +19,14 @@ with hysteresis):
   arms drifted while both held it).
 
 Frames: tool poses are ``T_world_tool`` (the PSM tool-tip frame, ``measured_cp``, in ``world``),
-needle poses ``T_world_needle`` (the needle frame of :mod:`sim_bridge.scene.needle`); 4x4, metres.
+needle poses ``T_world_needle`` (the needle frame of :mod:`sim_bridge.common.needle`); 4x4, metres.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
-from sim_bridge.validation import check_positive
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -100,7 +100,7 @@ class GraspManager:
     ----------
     config : GraspConfig
         Thresholds and grasp region.
-    needle : sim_bridge.scene.needle.NeedleGeometry
+    needle : sim_bridge.common.needle.NeedleGeometry
         Needle geometry (its arc is sampled for the distance test).
     arms : sequence of str
         Names of the arms with jaws, in the order ties are resolved.

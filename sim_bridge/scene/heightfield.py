@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 from scipy import ndimage
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 import trimesh
 
 

@@ -38,7 +38,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.scene.heightfield import HeightField, grid_mesh, rasterize_mesh
 from sim_bridge.scene.markers import MarkerPair, place_markers
 from sim_bridge.scene.mesh_placement import apply_xy, find_wound_line, wound_frame

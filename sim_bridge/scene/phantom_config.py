@@ -9,9 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from sim_bridge.common.validation import check_positive
 from sim_bridge.scene.mesh_placement import WoundSearch
 from sim_bridge.scene.phantom_shapes import ScannedShape
-from sim_bridge.validation import check_positive
 
 KINDS = ('synthetic', 'scanned', 'mesh')
 FRAMES = ('file', 'wound')

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 
 @dataclass(frozen=True)

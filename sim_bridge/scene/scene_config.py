@@ -1,7 +1,7 @@
 """
 Scene configuration (``config/scene.yaml``): needle, thread, phantoms, tissue, scoring, expert.
 
-``load_scene_config`` reads the YAML file through :mod:`sim_bridge.configfile` into frozen
+``load_scene_config`` reads the YAML file through :mod:`sim_bridge.common.configfile` into frozen
 dataclasses. Errors name the file, the key and what was expected. Relative phantom mesh paths
 are resolved against the directory of the YAML file.
 
@@ -24,10 +24,10 @@ wound is found on the mesh's top surface) and ``marker_prefix`` to ``mesh``::
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml
+from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping, load_yaml
+from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
+from sim_bridge.common.paths import config_path
 from sim_bridge.control import ExpertConfig
-from sim_bridge.paths import config_path
-from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.scene.phantom import PhantomConfig, build_phantom
 from sim_bridge.scene.scoring import ScoringConfig
 from sim_bridge.scene.tissue import TissueConfig

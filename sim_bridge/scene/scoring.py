@@ -47,7 +47,7 @@ not happen).
 from dataclasses import dataclass
 import math
 
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')
 

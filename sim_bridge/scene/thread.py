@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 # Queued steps beyond this many run one by one, oldest first, as new ones come (a thread that
 # nobody reads for long holds bounded memory and never runs a long backlog at once).

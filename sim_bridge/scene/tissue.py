@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 # Margin (m) of the test that the needle is wholly above the tissue: far above rounding.
 _CLEARANCE = 1e-7
@@ -201,7 +201,7 @@ class TissueTracker:
     ----------
     phantom : sim_bridge.scene.phantom.Phantom
         Phantom (tissue surface, markers, pose).
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     config : TissueConfig, optional
         Settings.

@@ -33,10 +33,10 @@ import tempfile
 import numpy as np
 from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import pybullet
-from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.geometry import invert_transform, quaternion_from_matrix
-from sim_bridge.paths import config_path
-from sim_bridge.validation import check_positive
+from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
+from sim_bridge.common.geometry import invert_transform, quaternion_from_matrix
+from sim_bridge.common.paths import config_path
+from sim_bridge.common.validation import check_positive
 
 # Frames of the arms' Cartesian poses (WorldConfig.frames): a patient cart (PSMs in the camera
 # frame) or each arm in its own base.
@@ -305,9 +305,9 @@ class World:
         Kinematics per arm name; ``PsmKinematics`` arms get jaws.
     phantom : sim_bridge.scene.phantom.Phantom
         The phantom (mesh in its frame, markers in ``world``).
-    needle : sim_bridge.scene.needle.NeedleGeometry
+    needle : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
-    thread : sim_bridge.scene.needle.ThreadGeometry
+    thread : sim_bridge.common.needle.ThreadGeometry
         Thread geometry (segment count and radius of the drawn capsules).
     client : pybullet_utils.bullet_client.BulletClient
         The PyBullet client; the world resets it and owns its contents.

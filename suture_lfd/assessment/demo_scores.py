@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import math
 
 import numpy as np
-from sim_bridge.geometry import transform_from_pose
+from sim_bridge.common.geometry import transform_from_pose
 from suture_lfd.assessment.motion import MotionConfig, motion_metrics, rests, speed_profile
 
 SUBTASK_NAMES = ('i', 'ii', 'iii', 'iv', 'v')

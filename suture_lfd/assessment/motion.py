@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
-from sim_bridge.validation import check_array, check_times
+from sim_bridge.common.validation import check_array, check_times
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from rosbags.interfaces import (
 )
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
-from sim_bridge.paths import share_dir
+from sim_bridge.common.paths import share_dir
 from suture_lfd.errors import BagError
 
 INTERFACE_PACKAGES = ('crtk_msgs', 'tf2_msgs')

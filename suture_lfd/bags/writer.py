@@ -13,7 +13,7 @@ import time
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.errors import WriterError
 from rosbags.rosbag2.storage_mcap import McapWriter
-from sim_bridge import cdr
+from sim_bridge.common import cdr
 from suture_lfd.bags.format import METADATA, ROS_DISTRO, ensure_type, make_typestore
 from suture_lfd.bags.mcap_check import CrcMcapWriter
 from suture_lfd.errors import BagError
@@ -197,7 +197,9 @@ def _nanoseconds(t):
 
 def pose_stamped_cdr(t, frame_id, pose):
     """
-    Return the CDR bytes of a geometry_msgs/PoseStamped (:func:`sim_bridge.cdr.pose_stamped`).
+    Return the CDR bytes of a geometry_msgs/PoseStamped.
+
+    See :func:`sim_bridge.common.cdr.pose_stamped`.
 
     Little endian, padding zeroed as rosbags writes it.
 

@@ -16,8 +16,8 @@ import math
 import zlib
 
 import numpy as np
-from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml, section
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping, load_yaml, section
+from sim_bridge.common.paths import config_path
 
 GROUPS = ('experienced', 'naive')
 
@@ -213,7 +213,7 @@ def load_study_design(path=None):
 
     Raises
     ------
-    sim_bridge.configfile.ConfigError
+    sim_bridge.common.configfile.ConfigError
         Naming the file, the key and what was expected.
 
     """

@@ -32,8 +32,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-from sim_bridge import cdr
-from sim_bridge.geometry import (
+from sim_bridge.common import cdr
+from sim_bridge.common.geometry import (
     pose_from_transform,
     transform_from_pose,
 )

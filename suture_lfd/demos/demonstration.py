@@ -10,7 +10,7 @@ tag and version.
 from dataclasses import dataclass, fields
 
 import numpy as np
-from sim_bridge.validation import check_array, check_quaternions, check_times
+from sim_bridge.common.validation import check_array, check_quaternions, check_times
 from suture_lfd.archive import load_archive, save_archive
 
 FORMAT = 'suture_lfd.demonstration'  # the files' format tag (kept when the module moved)

@@ -42,9 +42,9 @@ import logging
 import math
 
 import numpy as np
+from sim_bridge.common.geometry import pose_from_transform
+from sim_bridge.common.validation import check_positive
 from sim_bridge.control import Command, ExpertConfig
-from sim_bridge.geometry import pose_from_transform
-from sim_bridge.validation import check_positive
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
@@ -109,7 +109,7 @@ class Demonstrator:
         Who demonstrates (its profile is used).
     pair : sim_bridge.scene.phantom.MarkerPair
         Target pair (world frame).
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     kinematics : sim_bridge.kinematics.PsmKinematics or dict, optional
         PSM kinematics for the planner (default: the expert's).

@@ -11,8 +11,8 @@ Times in s, positions in any length unit (m in this package), quaternions (x, y,
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
-from sim_bridge.geometry import quaternion_sign_continuous, quaternion_slerp
-from sim_bridge.validation import check_array, check_quaternions, check_times
+from sim_bridge.common.geometry import quaternion_sign_continuous, quaternion_slerp
+from sim_bridge.common.validation import check_array, check_quaternions, check_times
 
 QUINTIC_MIN_POINTS = 6
 

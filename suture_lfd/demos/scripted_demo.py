@@ -11,7 +11,7 @@ the expert's own subtask labels.
 """
 
 import numpy as np
-from sim_bridge.geometry import pose_from_transform
+from sim_bridge.common.geometry import pose_from_transform
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert

@@ -10,8 +10,12 @@ as the "realistic" workload of lfd_anchors section 3.0.
 import math
 
 import numpy as np
-from sim_bridge.geometry import quaternion_from_rotvec, quaternion_product, quaternion_rotate
-from sim_bridge.validation import check_array, check_positive
+from sim_bridge.common.geometry import (
+    quaternion_from_rotvec,
+    quaternion_product,
+    quaternion_rotate,
+)
+from sim_bridge.common.validation import check_array, check_positive
 
 
 def minimum_jerk(s):

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sim_bridge.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.paths import config_path
-from sim_bridge.validation import FloatArray, check_array
+from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
+from sim_bridge.common.paths import config_path
+from sim_bridge.common.validation import FloatArray, check_array
 from suture_lfd.dmp.base import (
     FORMAT,
     FORMAT_VERSION,

@@ -16,8 +16,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sim_bridge.configfile import dataclass_from_mapping
-from sim_bridge.validation import FloatArray, check_positive, check_times
+from sim_bridge.common.configfile import dataclass_from_mapping
+from sim_bridge.common.validation import FloatArray, check_positive, check_times
 from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.dmp.equations import (
     basis_activations,

@@ -49,13 +49,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import expm
 from scipy.signal import lfilter
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     quaternion_conjugate,
     quaternion_log,
     quaternion_product,
    so3_left_jacobian_apply,
 )
-from sim_bridge.validation import FloatArray
+from sim_bridge.common.validation import FloatArray
 
 
 def canonical_phase(s: ArrayLike, alpha_x: float) -> FloatArray:

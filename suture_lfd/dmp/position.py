@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sim_bridge.validation import FloatArray, check_array
+from sim_bridge.common.validation import FloatArray, check_array
 from suture_lfd.dmp.base import DmpParams, PathLike, PrimitivePart
 from suture_lfd.dmp.equations import (
     basis_centres,

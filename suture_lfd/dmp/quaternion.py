@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.signal import lfilter
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     quaternion_angle,
     quaternion_conjugate,
     quaternion_exp,
@@ -21,7 +21,7 @@ from sim_bridge.geometry import (
     quaternion_sign_continuous,
     so3_left_jacobian_apply,
 )
-from sim_bridge.validation import FloatArray, check_array, check_quaternions
+from sim_bridge.common.validation import FloatArray, check_array, check_quaternions
 from suture_lfd.dmp.base import DmpParams, PathLike, PrimitivePart
 from suture_lfd.dmp.equations import (
     basis_centres,

@@ -62,7 +62,7 @@ import time
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sim_bridge.geometry import pose_from_transform
+from sim_bridge.common.geometry import pose_from_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos

@@ -51,8 +51,8 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge import cdr
-from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.common import cdr
+from sim_bridge.common.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.intake import CommandIntake
@@ -411,7 +411,7 @@ class MtmsNode(Node):
                     mtm.set_gripper(arm.gripper)
             T = mtm.measured_cp(t)
             pubs = self._pubs[name]
-            # written as CDR bytes (sim_bridge.cdr): a fraction of building the messages, on a
+            # written as CDR bytes (common.cdr): a fraction of building the messages, on a
             # cycle that a teleoperation client wants every 5 ms
             pose = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
             pubs['measured_cp'].publish(pose)

@@ -31,7 +31,7 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix
+from sim_bridge.common.geometry import matrix_from_quaternion, quaternion_from_matrix
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config

@@ -70,7 +70,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image, Joy
-from sim_bridge.geometry import transform_from_pose
+from sim_bridge.common.geometry import transform_from_pose
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config

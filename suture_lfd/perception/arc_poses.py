@@ -2,7 +2,7 @@
 Poses of the needle's arc: small rotations, the arc's two symmetries, and a rigid fit.
 
 Frames: 4x4 transforms ``T_camera_needle``; the needle frame is
-:mod:`sim_bridge.scene.needle`'s (arc centre at the origin, arc in the x-y plane).
+:mod:`sim_bridge.common.needle`'s (arc centre at the origin, arc in the x-y plane).
 """
 
 import math

@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.control import Command
-from sim_bridge.geometry import invert_transform
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.perception.stereo import stereo_from_camera_info
 from suture_lfd.planning.throw_geometry import ThrowArc
@@ -84,7 +84,7 @@ def needle_errors(T_estimate, T_true, geometry):
     ----------
     T_estimate, T_true : array_like, shape (4, 4)
         Estimated and true ``T_camera_needle``.
-    geometry : sim_bridge.scene.needle.NeedleGeometry
+    geometry : sim_bridge.common.needle.NeedleGeometry
 
     Returns
     -------

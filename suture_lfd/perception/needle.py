@@ -13,7 +13,7 @@ Method
    each image the elongated blobs of needle pixels, their two ends and the bulge of their arc,
    triangulated and aligned with the arc's tail, middle and tip (both ways round).
 3. **Fit.** ``n_points`` points of the arc (radius 10.18 mm, 120 deg; the scene's
-   :class:`sim_bridge.scene.needle.NeedleGeometry`) are projected into both images with the
+   :class:`sim_bridge.common.needle.NeedleGeometry`) are projected into both images with the
    camera model and the pose is moved until they lie on the centre lines
    (:func:`scipy.optimize.least_squares`, a soft-L1 loss so that the hidden parts of the arc
    pull little). Arc points whose pixels fall on an instrument (``tools``: jaws, wrist,
@@ -32,7 +32,7 @@ projections; what the images say about a wire is in :mod:`suture_lfd.perception.
 the pose helpers in :mod:`suture_lfd.perception.arc_poses`.
 
 Frames: ``pose_camera`` is ``T_camera_needle`` (4, 4) in the camera (left optical) frame of
-:mod:`suture_lfd.perception.stereo`; the needle frame is :mod:`sim_bridge.scene.needle`'s (origin
+:mod:`suture_lfd.perception.stereo`; the needle frame is :mod:`sim_bridge.common.needle`'s (origin
 at the arc centre, arc in the x-y plane, tail at 180 deg, tip at 60 deg). Lengths in metres,
 image distances in pixels.
 """
@@ -43,7 +43,7 @@ import math
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from sim_bridge.scene.needle import NeedleGeometry
+from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
 from suture_lfd.perception.images import check_image
 from suture_lfd.perception.wire_images import (
@@ -191,7 +191,7 @@ class NeedleTracker:
 
     Parameters
     ----------
-    geometry : sim_bridge.scene.needle.NeedleGeometry, optional
+    geometry : sim_bridge.common.needle.NeedleGeometry, optional
         The needle (default: radius 10.18 mm, 120 deg arc, 1 mm wire).
     config : TrackerConfig, optional
 

@@ -59,7 +59,7 @@ def expert_paths(arc, pair, needle_geometry, config, next_pair=None):
         The throw circle (with the skill noise, if any).
     pair : sim_bridge.scene.phantom.MarkerPair
         Target pair (its normal sets the lifts).
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     config : sim_bridge.control.ExpertConfig
         Motion parameters.
@@ -122,7 +122,7 @@ class ScriptedExpert:
     ----------
     pair : sim_bridge.scene.phantom.MarkerPair
         Target pair (world frame).
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     config : ExpertConfig, optional
         Motion parameters.

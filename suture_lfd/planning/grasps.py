@@ -2,7 +2,7 @@
 Grasp choice: which grasp of the needle keeps every pose of a holding phase reachable.
 
 A grasp is an arc parameter along the needle (0 tail, 1 tip) and a jaw roll about the wire
-(:meth:`sim_bridge.scene.needle.NeedleGeometry.grasp_transform`). :class:`GraspPlanner` tries
+(:meth:`sim_bridge.common.needle.NeedleGeometry.grasp_transform`). :class:`GraspPlanner` tries
 every roll (and, with :meth:`GraspPlanner.choose_grasp_along`, nearby arc parameters) and keeps
 the one whose tool path, approach included, is reachable by the arm's closed-form inverse
 kinematics with the smallest wrist angles, without an IK branch switch or a roll past its
@@ -16,7 +16,7 @@ import functools
 import math
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from suture_lfd.planning.tracks import backed_off, dense_poses
 
 ARMS = ('PSM1', 'PSM2')
@@ -66,7 +66,7 @@ def _grasp_candidates(needle, s, step):
     Return the candidate grasps at arc parameter ``s`` and their inverses (read-only arrays).
 
     Every jaw roll ``step`` apart (smallest roll first), unflipped then flipped, as
-    :meth:`sim_bridge.scene.needle.NeedleGeometry.grasp_transform` gives them; kept for the
+    :meth:`sim_bridge.common.needle.NeedleGeometry.grasp_transform` gives them; kept for the
     next throws of the process (the same pair gives the same arc parameters).
     """
     rolls = sorted(np.arange(-math.pi, math.pi - 1e-9, step), key=abs)
@@ -86,7 +86,7 @@ class GraspPlanner:
     ----------
     pair : sim_bridge.scene.phantom.MarkerPair
         Target pair (its surface plane keeps the jaw clear).
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     config : sim_bridge.control.ExpertConfig
         ``roll_step_deg``, ``approach_distance``, ``jaw_length``, ``jaw_half_width``,

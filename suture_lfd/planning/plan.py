@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import logging
 
 import numpy as np
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.control import Command
-from sim_bridge.geometry import invert_transform
 from suture_lfd.planning.throw_geometry import ThrowArc
 
 _LOG = logging.getLogger(__name__)

@@ -8,18 +8,19 @@ measured grasp ``T_tool_needle``, so a different grasp does not change the learn
 
 Suture frame (``T_world_suture``): origin at the midpoint of entry and exit; z along the
 surface normal (out of the tissue); x from entry towards exit, projected onto the plane
-normal to z; y = z x x. Frames and poses follow :mod:`sim_bridge.geometry`: 4x4 ``T_a_b`` maps
-frame-b coordinates into frame a; 7-vector poses ``(x, y, z, qx, qy, qz, qw)``; metres.
+normal to z; y = z x x. Frames and poses follow :mod:`sim_bridge.common.geometry`: 4x4
+``T_a_b`` maps frame-b coordinates into frame a; 7-vector poses ``(x, y, z, qx, qy, qz, qw)``;
+metres.
 """
 
 import numpy as np
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     compose_poses,
     invert_transform,
     pose_from_transform,
     transform_from_pose,
 )
-from sim_bridge.validation import check_array
+from sim_bridge.common.validation import check_array
 
 
 def suture_frame(entry, exit, normal):

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 import math
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from suture_lfd.planning.grasps import GraspPhase
 from suture_lfd.planning.plan import Gate, Plan
 from suture_lfd.planning.tracks import Track, backed_off, translated
@@ -146,7 +146,7 @@ def drive_grasp_s(arc, needle_geometry, config):
     ----------
     arc : suture_lfd.planning.throw_geometry.ThrowArc
         The throw circle.
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     config : sim_bridge.control.ExpertConfig
         Motion parameters.

@@ -8,7 +8,7 @@ centre above the surface on the perpendicular bisector of the entry-exit chord.
 
 :class:`ThrowArc` gives the needle pose along that motion as a function of one angle ``alpha``:
 ``T_world_needle(alpha) = [R0 Rz(alpha), C]``. With the needle frame of
-:mod:`sim_bridge.scene.needle` (tip leads about ``-z``), the tip sits at polar angle
+:mod:`sim_bridge.common.needle` (tip leads about ``-z``), the tip sits at polar angle
 ``(pi - arc) + alpha`` of the base frame ``R0``; *decreasing* ``alpha`` drives the needle
 forwards (tip from entry towards exit, then the tail through).
 
@@ -35,7 +35,7 @@ class ThrowArc:
     ----------
     pair : sim_bridge.scene.phantom.MarkerPair
         Entry/exit markers (world frame).
-    needle : sim_bridge.scene.needle.NeedleGeometry
+    needle : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
 
     Attributes

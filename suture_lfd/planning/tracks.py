@@ -7,7 +7,7 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 import math
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from suture_lfd.planning.waypoints import ArcPath, NeedleMove, RigidPath, ToolMove
 
 

@@ -19,7 +19,7 @@ Poses are 4x4 homogeneous matrices (world frame, metres); angles in radians.
 import math
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 
 
 def minimum_jerk(u):

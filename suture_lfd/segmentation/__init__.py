@@ -32,15 +32,20 @@ import math
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     quaternion_conjugate,
     quaternion_product,
     quaternion_rotate,
     quaternion_sign_continuous,
     rotvec_from_quaternion,
 )
-from sim_bridge.scene.needle import NeedleGeometry
-from sim_bridge.validation import check_array, check_positive, check_quaternions, check_times
+from sim_bridge.common.needle import NeedleGeometry
+from sim_bridge.common.validation import (
+    check_array,
+    check_positive,
+    check_quaternions,
+    check_times,
+)
 from suture_lfd.demos.demonstration import Demonstration
 
 SUBTASKS = (

@@ -20,7 +20,7 @@ file and key of anything wrong or missing.
 from dataclasses import dataclass, fields
 
 import numpy as np
-from sim_bridge.validation import check_array, check_quaternions
+from sim_bridge.common.validation import check_array, check_quaternions
 from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.resampling import resample_poses

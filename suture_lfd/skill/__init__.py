@@ -45,9 +45,9 @@ import functools
 import json
 
 import numpy as np
-from sim_bridge.configfile import ConfigError, dataclass_from_mapping
-from sim_bridge.geometry import pose_from_transform, transform_from_pose
-from sim_bridge.validation import check_array
+from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping
+from sim_bridge.common.geometry import pose_from_transform, transform_from_pose
+from sim_bridge.common.validation import check_array
 from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.dmp import DmpParams, PoseDmp, PositionDmp, QuaternionDmp, load_dmp_params
@@ -172,7 +172,7 @@ class ThrowSkill:
             Subtask.
         pair : MarkerPair or PairGeometry
             Target pair.
-        needle : sim_bridge.scene.needle.NeedleGeometry, optional
+        needle : sim_bridge.common.needle.NeedleGeometry, optional
             Needle of the throw (anchors ``'arc'``); default the scene's (``config/scene.yaml``).
 
         Returns
@@ -212,7 +212,7 @@ class ThrowSkill:
             Needle goal (world); default :meth:`start_goal`'s goal.
         n_pts : int, optional
             Samples over the demonstrated duration (Table I's ``N_pts`` by default).
-        needle : sim_bridge.scene.needle.NeedleGeometry, optional
+        needle : sim_bridge.common.needle.NeedleGeometry, optional
             Needle of the throw, as :meth:`start_goal`.
         targets : tuple of ndarray, optional
             ``start_goal(task, pair, needle)`` when the caller has it already.
@@ -342,7 +342,7 @@ def learn_skill(segment_file, method='paper', params=None, needle=None):
         Name in :data:`METHODS` (``'paper'`` by default).
     params : DmpParams or dict of str to DmpParams, optional
         Hyper-parameters (one for both tasks, or per task); default: ``config/dmp.yaml``.
-    needle : sim_bridge.scene.needle.NeedleGeometry, optional
+    needle : sim_bridge.common.needle.NeedleGeometry, optional
         Needle of the demonstrations (frame ``'arc'``); default the scene's.
 
     Returns

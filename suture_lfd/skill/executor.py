@@ -27,8 +27,8 @@ from dataclasses import dataclass, field, replace
 import math
 
 import numpy as np
+from sim_bridge.common.geometry import matrix_from_quaternion, pose_from_transform
 from sim_bridge.control import ExpertConfig
-from sim_bridge.geometry import matrix_from_quaternion, pose_from_transform
 from sim_bridge.observers import PhysicalObserver
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.grasps import GraspPlanner
@@ -213,7 +213,7 @@ class ThrowExecutor:
         The learnt skill.
     pair : sim_bridge.scene.phantom.MarkerPair
         Target pair (``world``).
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry
         Needle geometry.
     kinematics : sim_bridge.kinematics.PsmKinematics or dict, optional
         PSM kinematics used to choose reachable grasps.

@@ -51,7 +51,7 @@ class PerceivedScene:
     pair_index : int
         1-based position of the target pair along the wound, as the camera sees the pairs
         from left to right (the operator's "pair 1").
-    needle_geometry : sim_bridge.scene.needle.NeedleGeometry, optional
+    needle_geometry : sim_bridge.common.needle.NeedleGeometry, optional
         The needle's shape (default: perception's).
 
     """

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from sim_bridge.validation import check_array
+from sim_bridge.common.validation import check_array
 from suture_lfd.planning.suturing_frames import suture_frame
 from suture_lfd.planning.throw_geometry import ThrowArc
 
@@ -71,7 +71,7 @@ class PairGeometry:
         ----------
         which : {'entry', 'exit'}
             Marker.
-        needle : sim_bridge.scene.needle.NeedleGeometry
+        needle : sim_bridge.common.needle.NeedleGeometry
             Needle (radius, arc).
 
         Raises

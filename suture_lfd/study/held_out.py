@@ -214,7 +214,7 @@ def plan_held_out(config, job_seed):
 
 def phantom_config(spec):
     """Rebuild a held-out simulation's PhantomConfig from its JSON-serialisable form."""
-    from sim_bridge.configfile import dataclass_from_mapping
+    from sim_bridge.common.configfile import dataclass_from_mapping
     from sim_bridge.scene.phantom import PhantomConfig
 
     return dataclass_from_mapping(PhantomConfig, spec, source='held-out phantom')

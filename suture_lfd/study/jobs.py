@@ -38,7 +38,7 @@ from pathlib import Path
 import shutil
 
 import numpy as np
-from sim_bridge.geometry import quaternion_angle
+from sim_bridge.common.geometry import quaternion_angle
 from suture_lfd.archive import save_archive
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 from scipy.spatial.distance import cdist
-from sim_bridge.geometry import quaternion_angle
-from sim_bridge.validation import check_array, check_quaternions
+from sim_bridge.common.geometry import quaternion_angle
+from sim_bridge.common.validation import check_array, check_quaternions
 
 DTW_DEFINITION = (
     'DTW warping path with local cost {cost}; steps (1,0), (0,1), (1,1) with unit weights; '

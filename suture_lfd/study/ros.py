@@ -43,7 +43,7 @@ import tempfile
 import time
 
 import numpy as np
-from sim_bridge.processes import follow_parent, kill_group, popen, stop_group
+from sim_bridge.common.processes import follow_parent, kill_group, popen, stop_group
 from suture_lfd.errors import RosThrowError
 
 SUBTASKS = ('i', 'ii', 'iii', 'iv', 'v')

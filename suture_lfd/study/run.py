@@ -146,7 +146,7 @@ def build_config(args):
         pairs in order), ``methods``, ``method_descriptions``, settings and file digests.
 
     """
-    from sim_bridge.paths import config_path
+    from sim_bridge.common.paths import config_path
     from suture_lfd.demos.cohort import load_cohort, load_study_design
     from suture_lfd.skill import METHODS
 

@@ -40,7 +40,7 @@ import sys
 import time
 
 import numpy as np
-from sim_bridge.configfile import ConfigError, load_yaml
+from sim_bridge.common.configfile import ConfigError, load_yaml
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,

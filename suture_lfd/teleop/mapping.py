@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 
 DEG = math.pi / 180.0
 

@@ -30,7 +30,7 @@ import math
 from typing import NamedTuple, Optional
 
 import numpy as np
-from sim_bridge.validation import check_positive
+from sim_bridge.common.validation import check_positive
 from suture_lfd.teleop.mapping import DEG, CartesianMap, GripperToJaw, JawRamp
 
 SETTING_ARMS = 'SETTING_ARMS'

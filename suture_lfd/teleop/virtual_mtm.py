@@ -25,7 +25,11 @@ Poses are 4x4 matrices ``T_F_x``; velocities ``(v, w)`` in m/s and rad/s, in fra
 import math
 
 import numpy as np
-from sim_bridge.geometry import matrix_from_quaternion, quaternion_from_matrix, quaternion_slerp
+from sim_bridge.common.geometry import (
+    matrix_from_quaternion,
+    quaternion_from_matrix,
+    quaternion_slerp,
+)
 
 STATES = ('DISABLED', 'ENABLED')
 # The console's display frame (named as the dVRK console's stereo viewer frame): the axes of the

@@ -12,7 +12,7 @@ The frames go side by side, each labelled with its time, into one PNG.
 import logging
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from suture_lfd.viewer.throw_replay import world_poses
 
 LOG = logging.getLogger(__name__)

@@ -19,7 +19,7 @@ import threading
 import time
 
 import numpy as np
-from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.common.geometry import matrix_from_quaternion
 from suture_lfd.viewer.scene import SceneView
 import viser
 

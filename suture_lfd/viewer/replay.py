@@ -17,9 +17,9 @@ import threading
 import time
 
 import numpy as np
-from sim_bridge import cdr
-from sim_bridge.geometry import transform_from_pose
-from sim_bridge.validation import check_positive
+from sim_bridge.common import cdr
+from sim_bridge.common.geometry import transform_from_pose
+from sim_bridge.common.validation import check_positive
 from suture_lfd import bags
 from suture_lfd.segmentation.segments import SegmentFile
 from suture_lfd.viewer.assets import phantom_of_pair

@@ -14,7 +14,7 @@ its camera frustum (with the left image when one arrives).
 import threading
 
 import numpy as np
-from sim_bridge.geometry import quaternion_from_matrix
+from sim_bridge.common.geometry import quaternion_from_matrix
 
 WORLD = 'world'
 PSMS = ('PSM1', 'PSM2')

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from sim_bridge.geometry import pose_from_transform, transform_from_pose
+from sim_bridge.common.geometry import pose_from_transform, transform_from_pose
 from suture_lfd.archive import load_archive, save_archive
 from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
 

@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from sim_bridge.arm import ArmConfig
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.control import Command
-from sim_bridge.geometry import invert_transform
 from sim_bridge.simulation import PSMS, Simulation, load_simulation_config
 
 

@@ -16,7 +16,7 @@ from harness import FAST_ARMS
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.ros import conversions as cv
 
 STREAM = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,

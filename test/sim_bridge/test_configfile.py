@@ -3,7 +3,7 @@
 from dataclasses import dataclass
 
 import pytest
-from sim_bridge.configfile import ConfigError, dataclass_from_mapping, load_yaml, section
+from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping, load_yaml, section
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge import cdr
+from sim_bridge.common import cdr
 from sim_bridge.ros import conversions as cv
 
 

@@ -1,7 +1,7 @@
 """The node entry point's argument handling and help, without starting ROS."""
 
-from sim_bridge.configfile import load_yaml
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import load_yaml
+from sim_bridge.common.paths import config_path
 from sim_bridge.ros.entry import help_text, parameter_overrides, split_arguments
 
 

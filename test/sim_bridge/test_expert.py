@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.control import ExpertConfig, Observation
-from sim_bridge.geometry import invert_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
 from sim_bridge.scene.scene_config import load_scene_config

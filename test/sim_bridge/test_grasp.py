@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.needle import NeedleGeometry
 from sim_bridge.scene.grasp import GraspConfig, GraspManager
-from sim_bridge.scene.needle import NeedleGeometry
 
 NEEDLE = NeedleGeometry()
 CONFIG = GraspConfig()

@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.configfile import ConfigError
+from sim_bridge.common.configfile import ConfigError
 from sim_bridge.kinematics import (
     EcmKinematics,
     PsmKinematics,

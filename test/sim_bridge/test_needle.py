@@ -2,8 +2,8 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.geometry import invert_transform
-from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 
 
 def rot_z(a):

@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from sim_bridge.common.needle import NeedleGeometry
 from sim_bridge.scene.heightfield import grid_mesh
-from sim_bridge.scene.needle import NeedleGeometry
 from sim_bridge.scene.phantom import MarkerConfig, PhantomConfig, WoundConfig, build_phantom
 from sim_bridge.scene.scene_config import load_scene_config
 import trimesh

@@ -1,8 +1,8 @@
 from pathlib import Path
 
 import pytest
-from sim_bridge.configfile import ConfigError
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import ConfigError
+from sim_bridge.common.paths import config_path
 from sim_bridge.scene.scene_config import load_scene_config
 import yaml
 

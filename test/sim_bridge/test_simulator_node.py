@@ -22,7 +22,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from sim_bridge.arm import Arm, ArmConfig
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.scene.scene_config import load_scene_config

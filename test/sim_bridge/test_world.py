@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import bullet_client, pybullet
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
-from sim_bridge.scene.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.scene.phantom import PhantomConfig, build_phantom
 from sim_bridge.scene.world import World, read_world_config
 

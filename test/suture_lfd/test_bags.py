@@ -14,7 +14,7 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
-from sim_bridge import cdr
+from sim_bridge.common import cdr
 from suture_lfd import bags
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'

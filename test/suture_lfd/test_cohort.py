@@ -3,8 +3,8 @@
 from dataclasses import asdict
 
 import pytest
-from sim_bridge.configfile import ConfigError
-from sim_bridge.paths import config_path
+from sim_bridge.common.configfile import ConfigError
+from sim_bridge.common.paths import config_path
 from suture_lfd.demos.cohort import SkillProfile, load_cohort, load_study_design
 import yaml
 

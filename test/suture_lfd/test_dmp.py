@@ -3,8 +3,8 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.configfile import ConfigError
-from sim_bridge.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
+from sim_bridge.common.configfile import ConfigError
+from sim_bridge.common.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
 from suture_lfd.demos.synthetic_throw import minimum_jerk, needle_throw
 from suture_lfd.dmp import (
     DmpParams,

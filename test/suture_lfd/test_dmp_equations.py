@@ -1,7 +1,7 @@
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     quaternion_conjugate,
     quaternion_from_rotvec,
     quaternion_product,

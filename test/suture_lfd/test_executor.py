@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from sim_bridge.geometry import compose_poses, pose_from_transform, quaternion_angle
+from sim_bridge.common.geometry import compose_poses, pose_from_transform, quaternion_angle
 from sim_bridge.simulation import Simulation
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
 from suture_lfd.segmentation import segment_demonstration

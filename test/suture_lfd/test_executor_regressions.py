@@ -136,7 +136,7 @@ def test_a_demonstrated_turn_of_a_hundredth_of_a_degree_is_not_scaled_up(scanned
 
 def _tip(poses, needle):
     """World tip positions (n, 3) of needle poses (n, 7)."""
-    from sim_bridge.geometry import transform_from_pose
+    from sim_bridge.common.geometry import transform_from_pose
 
     T = transform_from_pose(np.atleast_2d(poses))
     return T[:, :3, :3] @ needle.tip + T[:, :3, 3]
@@ -176,7 +176,7 @@ def test_a_throw_learnt_on_8_mm_markers_turns_the_needle_on_its_circle_through_1
     # demonstrated angle while shifting it 4 mm across, dragging it through the entry puncture
     # (trauma 2.2 to 2.5 mm); learnt on the needle's circle through the pair, both punctures
     # stay on the needle's arc through insertion and extraction.
-    from sim_bridge.geometry import pose_from_transform
+    from sim_bridge.common.geometry import pose_from_transform
     from suture_lfd.skill.executor import _transforms
 
     skill = learn_skill(DATA / 'study_S01_synth1.npz', 'pair_frame')

@@ -1,6 +1,6 @@
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     compose_poses,
     invert_pose,
     invert_transform,

@@ -1,7 +1,8 @@
 import subprocess
 import sys
 
-CORE = ('sim_bridge.geometry', 'sim_bridge.validation', 'suture_lfd.dmp', 'suture_lfd.dmp.base',
+CORE = ('sim_bridge.common.geometry', 'sim_bridge.common.validation', 'suture_lfd.dmp',
+        'suture_lfd.dmp.base',
         'suture_lfd.dmp.equations', 'suture_lfd.dmp.position', 'suture_lfd.dmp.quaternion',
         'suture_lfd.demos.resampling', 'suture_lfd.segmentation',
         'suture_lfd.planning.suturing_frames', 'suture_lfd.study.metrics',

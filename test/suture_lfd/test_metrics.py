@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
-from sim_bridge.geometry import quaternion_from_rotvec, quaternion_product
+from sim_bridge.common.geometry import quaternion_from_rotvec, quaternion_product
 from suture_lfd.demos.synthetic_throw import needle_throw
 from suture_lfd.study.metrics import (
     dtw_distance,

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
-from sim_bridge.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
+from sim_bridge.common.geometry import quaternion_angle, quaternion_from_rotvec, quaternion_product
 from suture_lfd.demos.resampling import resample_poses, resample_positions, resample_quaternions
 
 

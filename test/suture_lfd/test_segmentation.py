@@ -1,13 +1,13 @@
 import numpy as np
 import pytest
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     compose_poses,
     invert_pose,
     quaternion_from_rotvec,
     quaternion_product,
     quaternion_rotate,
 )
-from sim_bridge.scene.needle import NeedleGeometry
+from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.synthetic_throw import minimum_jerk
 from suture_lfd.segmentation import (

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from sim_bridge.geometry import transform_from_pose
+from sim_bridge.common.geometry import transform_from_pose
 from suture_lfd.dmp import load_dmp_params
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.segmentation.segments import FORMAT, SegmentFile, make_segment_file

@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from sim_bridge.geometry import (
+from sim_bridge.common.geometry import (
     compose_poses,
     quaternion_angle,
     quaternion_from_rotvec,

@@ -5,7 +5,7 @@ import logging
 
 import numpy as np
 import pytest
-from sim_bridge.configfile import ConfigError
+from sim_bridge.common.configfile import ConfigError
 from sim_bridge.scene.heightfield import grid_mesh
 from sim_bridge.scene.phantom import PhantomConfig, WoundConfig, build_phantom
 from sim_bridge.scene.scene_config import (

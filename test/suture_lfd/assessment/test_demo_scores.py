@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.geometry import pose_from_transform
-from sim_bridge.scene.needle import NeedleGeometry
+from sim_bridge.common.geometry import pose_from_transform
+from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.assessment.demo_scores import (
     arc_deviation,
     plane_tilt_deg,
@@ -82,7 +82,7 @@ def test_the_tilt_of_the_needle_plane_is_the_turn_about_the_surface_normal(tilt_
     a = math.radians(tilt_deg)
     R = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0],
                   [0.0, 0.0, 1.0]])
-    from sim_bridge.geometry import transform_from_pose
+    from sim_bridge.common.geometry import transform_from_pose
     T = transform_from_pose(poses)
     turned = pose_from_transform(np.einsum('ij,njk->nik', np.block(
         [[R, np.zeros((3, 1))], [np.zeros((1, 3)), np.ones((1, 1))]]), T))

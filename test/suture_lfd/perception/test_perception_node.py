@@ -15,7 +15,7 @@ from harness import FAST_ARMS
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
-from sim_bridge.geometry import invert_transform
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
 from sim_bridge.scene.camera import StereoCamera

@@ -30,7 +30,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge.geometry import quaternion_from_matrix
+from sim_bridge.common.geometry import quaternion_from_matrix
 from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Bool, Empty
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, Joy
-from sim_bridge.geometry import quaternion_from_matrix
+from sim_bridge.common.geometry import quaternion_from_matrix
 from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Bool, Empty
 from suture_lfd.teleop.virtual_mtm import rotation_from_rotvec

@@ -13,7 +13,7 @@ import sys
 
 from harness import wait_for
 import pytest
-from sim_bridge.processes import popen
+from sim_bridge.common.processes import popen
 from suture_lfd.segmentation.segments import SUBTASK_NAMES, SegmentFile
 
 REPO = Path(__file__).resolve().parents[3]

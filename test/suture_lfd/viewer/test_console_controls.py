@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.common.geometry import matrix_from_quaternion
 from suture_lfd.viewer.assets import needle_arc
 from suture_lfd.viewer.controls import HOLD_TIMEOUT, MODES, MtmControls, next_action
 from suture_lfd.viewer.page import ViewerPage

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
-from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.common.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from std_msgs.msg import String
 from suture_lfd.demos.demo_bag import demonstration_from_bag

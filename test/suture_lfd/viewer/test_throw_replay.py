@@ -5,7 +5,7 @@ read back into the viewer's recording; another file is refused with its name and
 
 import numpy as np
 import pytest
-from sim_bridge.geometry import transform_from_pose
+from sim_bridge.common.geometry import transform_from_pose
 from sim_bridge.simulation import Simulation
 from suture_lfd.archive import save_archive
 from suture_lfd.planning.episode import run_episode, start_episode

@@ -14,7 +14,7 @@ from geometry_msgs.msg import PoseStamped
 from harness import FAST_ARMS
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sim_bridge.geometry import matrix_from_quaternion
+from sim_bridge.common.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from std_msgs.msg import String
 from suture_lfd.viewer.assets import needle_arc

@@ -10,7 +10,7 @@ import time
 from harness import wait_for
 import numpy as np
 import pytest
-from sim_bridge.geometry import quaternion_angle
+from sim_bridge.common.geometry import quaternion_angle
 from suture_lfd import bags
 from suture_lfd.demos.demo_bag import write_demonstration_bag
 from suture_lfd.segmentation import segment_demonstration

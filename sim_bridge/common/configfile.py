@@ -11,7 +11,7 @@ from pathlib import Path
 import types
 import typing
 
-from sim_bridge.errors import ConfigError
+from sim_bridge.common.errors import ConfigError
 import yaml
 
 

@@ -27,7 +27,7 @@ def share_dir():
         if prefix:
             candidates.append(Path(prefix) / 'share' / PACKAGE)
     # Installed next to the Python package (colcon: <prefix>/lib/pythonX/site-packages/..).
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parent.parent  # the sim_bridge package
     for parent in here.parents[:5]:
         candidates.append(parent / 'share' / PACKAGE)
     candidates.append(here.parent)  # source checkout (editable install)

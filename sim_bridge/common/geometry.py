@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
-from sim_bridge.validation import FloatArray, check_array, check_quaternions
+from sim_bridge.common.validation import FloatArray, check_array, check_quaternions
 
 _SMALL_ANGLE = 1e-8
 

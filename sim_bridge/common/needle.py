@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from sim_bridge.geometry import invert_transform
-from sim_bridge.validation import check_positive
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.validation import check_positive
 
 
 def _rot_x(angle):
