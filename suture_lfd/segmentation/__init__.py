@@ -89,9 +89,8 @@ class SegmentationConfig:
         inserted (subtask ii then starts where it went in). The scripted cohort brings the tip
         to 0.1 mm at the entry; 0.5 mm is five times that.
     surface_depth : float
-        Depth (m) down to which the tip counts as still at the surface, looking back for
-        where it went in: twice the cohort's 0.1 mm. Below ``entered_depth``, so that a
-        tip that rests at the threshold's depth in the tissue stays in.
+        Depth (m) down to which the tip counts as at the surface, looking back for where it
+        went in: twice the cohort's 0.1 mm, below ``entered_depth`` (a hysteresis).
     needle : NeedleGeometry
         The needle whose tip is followed (the demonstration records its pose only).
 
@@ -404,11 +403,9 @@ def _insertion_start(inserting, T, depth, t_regrasp, config):
     """
     Index in ``inserting`` (PSM2's motions before the regrasp) of the insertion's first motion.
 
-    The tip's last stay in the tissue before ``t_regrasp`` is where it last went deeper than
-    ``config.entered_depth``; it went in where it was last at ``config.surface_depth`` or
-    above before that. The insertion's first motion is the one under way then, or the next one
-    (the last motion when the tip never went that deep). Walking back from the last motion
-    while it starts deep stopped at a motion that starts with the tip already out of the exit.
+    The tip went in where it was last at ``config.surface_depth`` or above before it was last
+    deeper than ``config.entered_depth`` (before ``t_regrasp``); the first motion is the one
+    under way then, or the next one (the last one when the tip never went that deep).
     """
     deep = np.flatnonzero((T <= t_regrasp) & (depth > config.entered_depth))
     if deep.size == 0:
