@@ -193,6 +193,7 @@ def measure(label, code, args, domain_id):
             sys.exit('the simulator did not start; logs in ' + log_dir)
         state['base'] = bases['PSM1']
         time.sleep(args.settle)      # the arms power up and home; the teleops wait for hands
+        result['load'] = [_loadavg()]
         result['rest'] = cpu_shares(procs, args.rest)
         result['rest_states'] = dict(teleop_state)
         hands0 = {'MTMR': bases['PSM1'] @ state['tool']['PSM1'],
@@ -244,8 +245,10 @@ def measure(label, code, args, domain_id):
             time.sleep(0.5)
 
         result['following'] = cpu_shares(procs, args.seconds, during=follow)
+        result['load'].append(_loadavg())
     finally:
         executor.shutdown(timeout_sec=2)
+        spin.join(5.0)               # its last wait ends before the node's handles go
         node.destroy_node()
         rclpy.try_shutdown(context=context)
         for p in reversed(list(procs.values())):
@@ -276,9 +279,18 @@ def _loadavg():
     return Path('/proc/loadavg').read_text().split()[0]
 
 
+def _verdict(value, target):
+    return 'meets' if value <= target else 'misses'
+
+
 def report(results):
     """Print the CPU and latency tables, each run side by side (ratios: last / first)."""
     labels = [r['label'] for r in results]
+    print(f'\n{os.cpu_count()} CPUs; 1-minute load average at the start of the rest phase and '
+          'at the end of the following phase: '
+          + ', '.join(f'{r["label"]} {" -> ".join(r.get("load", []))}' for r in results))
+    print('A load above 1 means other work shared the CPUs: the figures, not only the ratios, '
+          'then move with it; the targets are for a quiet machine (load below 1).')
     ratio = len(results) == 2
     head = ''.join(f'{x:>18}' for x in labels) + (f'{"ratio":>8}' if ratio else '')
     for phase in ('rest', 'following'):
@@ -289,8 +301,10 @@ def report(results):
         for name in [*nodes, 'whole graph']:
             values = [100 * (sum(r[phase].values()) if name == 'whole graph' else r[phase][name])
                       for r in results]
+            verdict = f'  {_verdict(values[-1], 50.0)} the target' \
+                if phase == 'rest' and name == 'whole graph' else ''
             print(f'{name:<20}' + ''.join(f'{v:>18.1f}' for v in values)
-                  + (f'{values[1] / values[0]:>8.2f}' if ratio and values[0] else ''))
+                  + (f'{values[1] / values[0]:>8.2f}' if ratio and values[0] else '') + verdict)
     print('\nteleop latency, handle input at 200 Hz -> stage, p50 / p99 ms '
           '- anchor: the dVRK teleop period 1 ms (C++) .. 5 ms (Python); target p99 <= 20 ms')
     print(f'{"input ->":<20}{head}')
@@ -300,8 +314,10 @@ def report(results):
             lat = r['latency'][name]
             cells.append(f'{lat[0]:.1f} / {lat[1]:.1f}' if lat else 'none')
             p99.append(lat[1] if lat else None)
+        verdict = f'  {_verdict(p99[-1], 20.0)} the target' \
+            if name == 'PSM1/setpoint_cp' and p99[-1] is not None else ''
         print(f'{name:<20}' + ''.join(f'{c:>18}' for c in cells)
-              + (f'{p99[1] / p99[0]:>8.2f}' if ratio and all(p99) else ''))
+              + (f'{p99[1] / p99[0]:>8.2f}' if ratio and all(p99) else '') + verdict)
     for r in results:
         lat = r['latency']['PSM1/setpoint_cp']
         if lat:

@@ -64,8 +64,11 @@ class SegmentationConfig:
         grasp flags (all false), rad.
     entered_depth : float
         Depth of the needle tip below the pair's surface (m) from which the tip counts as
-        already inserted at the start of a PSM2 motion (subtask ii then starts earlier). The
-        scripted cohort brings the tip to 0.1 mm at the entry; 0.5 mm is five times that.
+        inserted (subtask ii then starts where it went in). The scripted cohort brings the tip
+        to 0.1 mm at the entry; 0.5 mm is five times that.
+    surface_depth : float
+        Depth (m) down to which the tip counts as at the surface, looking back for where it
+        went in: twice the cohort's 0.1 mm, below ``entered_depth`` (a hysteresis).
     needle : NeedleGeometry
         The needle whose tip is followed (the demonstration records its pose only).
 
@@ -81,6 +84,7 @@ class SegmentationConfig:
     angular_weight_m: float = 0.01
     jaw_closed_rad: float = 0.1
     entered_depth: float = 0.0005
+    surface_depth: float = 0.0002
     needle: NeedleGeometry = field(default_factory=NeedleGeometry)
 
     def __post_init__(self) -> None:
@@ -91,10 +95,13 @@ class SegmentationConfig:
                              f'onset_level < 0.25, got {self.threshold}, {self.hysteresis}, '
                              f'{self.onset_level}')
         for name in ('min_motion_s', 'min_rest_s', 'angular_weight_m', 'jaw_closed_rad',
-                     'entered_depth'):
+                     'entered_depth', 'surface_depth'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'SegmentationConfig.{name} must be >= 0, got {value!r}')
+        if self.surface_depth > self.entered_depth:
+            raise ValueError('SegmentationConfig.surface_depth must be <= entered_depth, got '
+                             f'{self.surface_depth} > {self.entered_depth}')
         if not isinstance(self.needle, NeedleGeometry):
             raise ValueError('SegmentationConfig.needle must be a NeedleGeometry, got '
                              f'{type(self.needle).__name__}')

@@ -7,11 +7,12 @@ Subtasks (seed paper, after Schwaner et al. 2021), cut with the grasp signals:
 
 i    PSM2 picks the needle and brings its tip to the entry: the PSM2 motions before ii.
 ii   PSM2 inserts the needle to the exit: the PSM2 motions before PSM1 grasps the needle, from
-     the one in which the needle tip last went deeper than ``entered_depth`` below the pair's
-     surface (entry marker and normal) before that grasp, or from the last one if the tip
-     never did: a person who pauses during the insertion makes it of several motions, and
-     the insertion starts where the tip was still at the surface, however many motions
-     follow it in the tissue or once the tip is out of the exit.
+     the one in which the needle tip went into the tissue for the last time before that grasp
+     (from ``surface_depth`` to deeper than ``entered_depth`` below the pair's surface, entry
+     marker and normal), or the last one if the tip never went that deep: a person who
+     pauses during the insertion makes it of several motions, and the insertion starts where
+     the tip was still at the surface, however many motions follow it in the tissue or once
+     the tip is out of the exit.
 iii  PSM1 regrasps: from PSM1's first motion after ii to the moment PSM2 releases the needle.
 iv   PSM1 extracts the needle: PSM1's motions after PSM2 released it, before PSM2 grasps again.
 v    hand-over to PSM2 and move on: from the first motion after iv to the last motion.
@@ -145,23 +146,21 @@ def _tip_depths(demo: DemoRecord, config: SegmentationConfig) -> np.ndarray:
 
 
 def _insertion_start(inserting: list[Segment], T: np.ndarray, depth: np.ndarray,
-                     t_regrasp: float, entered_depth: float) -> int:
+                     t_regrasp: float, config: SegmentationConfig) -> int:
     """
     Index in ``inserting`` (PSM2's motions before the regrasp) of the insertion's first motion.
 
-    The tip enters where its depth last rises above ``entered_depth`` before ``t_regrasp``;
-    the insertion's first motion is the last one starting by then (the last motion when the
-    tip never went that deep). Walking back from the last motion while it starts deep would
-    stop at a motion that starts with the tip already out of the exit.
+    The tip went in where it was last at ``config.surface_depth`` or above before it was last
+    deeper than ``config.entered_depth`` (before ``t_regrasp``); the first motion is the one
+    under way then, or the next one (the last one when the tip never went that deep).
     """
-    before = T <= t_regrasp
-    deep = np.flatnonzero(before & (depth > entered_depth))
+    deep = np.flatnonzero((T <= t_regrasp) & (depth > config.entered_depth))
     if deep.size == 0:
         return len(inserting) - 1
-    shallow = np.flatnonzero(before[:deep[-1]] & (depth[:deep[-1]] <= entered_depth))
-    t_enter = T[shallow[-1] + 1] if shallow.size else T[0]
-    starts = [k for k, m in enumerate(inserting) if m.start_time <= t_enter]
-    return starts[-1] if starts else 0
+    surface = np.flatnonzero(depth[:deep[-1]] <= config.surface_depth)
+    t_enter = T[surface[-1] + 1] if surface.size else T[0]
+    going = [k for k, m in enumerate(inserting) if m.end_time > t_enter]
+    return going[0] if going else len(inserting) - 1
 
 
 def segment_demonstration(demo: DemoRecord,
@@ -210,8 +209,7 @@ def segment_demonstration(demo: DemoRecord,
     if not inserting:
         raise ValueError('no PSM2 motion before PSM1 grasps the needle: no insertion '
                          '(subtask ii) found')
-    first = _insertion_start(inserting, T, _tip_depths(demo, config), t_regrasp,
-                             config.entered_depth)
+    first = _insertion_start(inserting, T, _tip_depths(demo, config), t_regrasp, config)
     ii = Segment('motion', inserting[first].start_index, inserting[-1].end_index,
                  inserting[first].start_time, inserting[-1].end_time)
     approach = inserting[:first]

@@ -40,7 +40,8 @@ def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4, split_insertion=
     pushing the tip 4 mm into the tissue (as a person who pauses while inserting); the pair's
     surface is then put 0.1 mm above the tip at the start of the insertion. ``'out'``: a third
     motion follows, which starts with the tip already out of the exit (a person who pulls the
-    needle on a little after it came out).
+    needle on a little after it came out). ``'shallow'``: the first motion stops with the tip
+    0.45 mm deep, just short of ``entered_depth``, and the second one goes on down.
     """
     def jitter(value, spread=0.1):
         return value + rng.uniform(-spread, spread)
@@ -61,8 +62,9 @@ def synthetic_demonstration(rng, noise_m=10e-6, noise_rad=1e-4, split_insertion=
     b0, b1 = move(psm2, jitter(1.5), (-0.01, 0.02, -0.01), (0.2, 0.0, -0.2), rest=0.5)
     schedule['i'] = (a0, b1)
     if split_insertion:
-        push, _ = move(psm2, 0.8, (0.0, -0.004, -0.004), (0.0, 0.0, 0.5), rest=0.5)
-        rise = 0.0045 if split_insertion == 'out' else 0.002    # 'out': 0.4 mm above at its end
+        dive = -0.00035 if split_insertion == 'shallow' else -0.004
+        push, _ = move(psm2, 0.8, (0.0, -0.004, dive), (0.0, 0.0, 0.5), rest=0.5)
+        rise = {'out': 0.0045, 'shallow': -0.002}.get(split_insertion, 0.002)  # 'out': 0.4 mm up
         schedule['ii'] = (push, move(psm2, jitter(2.0), (0.003, -0.012, rise),
                                      (0.0, 0.0, 2.6))[1])
         if split_insertion == 'out':
@@ -198,12 +200,14 @@ def test_segmentation_config_rejects_nonsense():
         SegmentationConfig(cutoff_hz=0.0)
 
 
-def test_an_insertion_whose_last_motion_starts_out_of_the_exit_starts_where_the_tip_entered():
-    # a person under a lagging teleoperation pulls the needle on after its tip came out: the
-    # insertion is not that last motion alone
+@pytest.mark.parametrize('split', ['out', 'shallow'])
+def test_an_insertion_whose_last_motion_starts_out_of_the_exit_starts_where_the_tip_entered(
+        split):
+    # a person under a lagging teleoperation pulls the needle on after its tip came out, or
+    # pauses with the tip just short of entered_depth: the insertion starts where it went in
     rng = np.random.default_rng(12)
     for _ in range(3):
-        demo, truth = synthetic_demonstration(rng, split_insertion='out')
+        demo, truth = synthetic_demonstration(rng, split_insertion=split)
         found = segment_demonstration(demo)
         for name in ('i', 'ii'):
             start, end = truth[name]
