@@ -18,9 +18,9 @@ from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
 from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.skill import training_data
+from suture_lfd.skill import learn_skill, training_data
 from suture_lfd.skill.arm_registration import register_arms
-from suture_lfd.skill.executor import execute_throw, learn_skill
+from suture_lfd.skill.executor import execute_throw
 
 LEVEL = 3.0
 ERROR_SEED = 1
