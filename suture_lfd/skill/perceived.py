@@ -65,6 +65,7 @@ class PerceivedScene:
         self.look_again = bool(look_again)
         self._tracker = NeedleTracker(needle_geometry)
         self._stereo = None
+        self._frame = None
         self._pair = None
         self._support_normal = None
         self.renders = 0
@@ -72,14 +73,22 @@ class PerceivedScene:
 
     # ------------------------------------------------------------------ images
     def _look(self, sim):
-        """Render the stereo pair; return it with ``T_world_camera`` from the ECM's report."""
+        """
+        Render the stereo pair; return it with ``T_world_camera`` from the ECM's report.
+
+        Looked at twice at the same instant (the markers, then the needle), the scene is
+        rendered once.
+        """
         if self._stereo is None:
             camera = sim.camera
             self._stereo = stereo_from_camera_info(camera.camera_info('left'),
                                                    camera.camera_info('right'))
+        if self._frame is not None and self._frame[0] == sim.time:
+            return self._frame[1], self._frame[2]  # the same instant: the same images
         frame = sim.render()
         self.renders += 1
         T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        self._frame = (sim.time, frame, T_world_camera)
         return frame, T_world_camera
 
     # ------------------------------------------------------------------ markers
