@@ -14,10 +14,15 @@ A controller (the scripted expert, the demonstrator, the DMP executor) reads an
 Frames: ``world``; poses 4x4 ``T_world_*``; SI units.
 """
 
-from typing import Protocol
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
+
+if TYPE_CHECKING:
+    from sim_bridge.simulation import Simulation
 
 
 class GroundTruthObserver:
@@ -30,10 +35,10 @@ class GroundTruthObserver:
 
     """
 
-    def __init__(self, sim):
+    def __init__(self, sim: 'Simulation') -> None:
         self._sim = sim
 
-    def observe(self):
+    def observe(self) -> Observation:
         """
         Return the observation now.
 
@@ -68,7 +73,8 @@ class SceneEstimator(Protocol):
 
     """
 
-    def estimate(self, sim, arm_state):
+    def estimate(self, sim: 'Simulation', arm_state: Observation
+                 ) -> tuple[np.ndarray | None, Iterable[str], Any]:
         """Estimate the needle, its holders and the target pair."""
 
 
@@ -89,12 +95,13 @@ class PhysicalObserver:
 
     """
 
-    def __init__(self, sim, estimator, correction=None):
+    def __init__(self, sim: 'Simulation', estimator: SceneEstimator,
+                 correction: Any = None) -> None:
         self._sim = sim
         self._estimator = estimator
         self._correction = correction
 
-    def arm_state(self):
+    def arm_state(self) -> Observation:
         """
         Return the arms' reports: an :class:`Observation` without needle, holders or pair.
 
@@ -115,7 +122,7 @@ class PhysicalObserver:
                           q={n: sim.arms[n].measured_jp for n in PSMS})
         return obs if self._correction is None else self._correction.observe(obs)
 
-    def observe(self):
+    def observe(self) -> Observation:
         """
         Return the observation now: arm reports plus the estimator's needle, holders and pair.
 

@@ -17,6 +17,7 @@ from harness import REPO
 # The modules whose public API is annotated, checked with every function typed.
 ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_model.py',
              'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'sim_bridge/task.py',
+             'sim_bridge/observers.py', 'sim_bridge/kinematic_errors.py',
              'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
 
