@@ -22,7 +22,8 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'sim_bridge/scene/phantom_config.py', 'sim_bridge/scene/scene_config.py',
              'sim_bridge/scene/phantom_shapes.py', 'sim_bridge/scene/scoring.py',
              'sim_bridge/scene/thread.py', 'sim_bridge/scene/grasp.py',
-             'sim_bridge/scene/camera.py',
+             'sim_bridge/scene/camera.py', 'sim_bridge/scene/heightfield.py',
+             'sim_bridge/scene/phantom.py',
              'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
 

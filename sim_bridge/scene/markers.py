@@ -122,7 +122,7 @@ def marker_frame(point: np.ndarray, normal: np.ndarray, other: np.ndarray) -> np
 
 
 def place_markers(config: 'PhantomConfig', surface: 'HeightField',
-                  wound: 'WoundLine') -> dict[str, MarkerPair]:
+                  wound: 'WoundLine | None') -> dict[str, MarkerPair]:
     """
     Return the marker pairs of a phantom, dropped onto its tissue surface (phantom frame).
 
@@ -133,8 +133,8 @@ def place_markers(config: 'PhantomConfig', surface: 'HeightField',
         ``half_width`` and ``entry_side``.
     surface : sim_bridge.scene.heightfield.HeightField
         Tissue surface (phantom frame).
-    wound : sim_bridge.scene.phantom_shapes.WoundLine
-        Wound line (phantom frame).
+    wound : sim_bridge.scene.phantom_shapes.WoundLine or None
+        Wound line (phantom frame); None only when ``config`` gives the markers.
 
     Returns
     -------
@@ -154,6 +154,7 @@ def place_markers(config: 'PhantomConfig', surface: 'HeightField',
                  for name, m in config.markers.items()]
     else:
         w = config.wound
+        assert wound is not None, 'a phantom without its markers has a wound line'
         items = []
         centre = 0.5 * wound.length + w.offset
         for k in range(w.n_pairs):

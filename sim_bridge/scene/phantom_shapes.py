@@ -129,7 +129,7 @@ def scanned_bumps(size: Sequence[float], shape: 'ScannedShape', seed: int) -> np
 
 
 def scanned_height(xy: ArrayLike, size: Sequence[float], shape: 'ScannedShape', seed: int,
-                   origin_xy: Sequence[float] = (0.0, 0.0)) -> np.ndarray:
+                   origin_xy: Sequence[float] | np.ndarray = (0.0, 0.0)) -> np.ndarray:
     """
     Top surface of the generated "scanned" pad.
 
@@ -143,7 +143,7 @@ def scanned_height(xy: ArrayLike, size: Sequence[float], shape: 'ScannedShape', 
         Shape parameters.
     seed : int
         Bump seed.
-    origin_xy : tuple of float
+    origin_xy : sequence of float or ndarray, shape (2,)
         Position whose height is shifted to ``z = 0`` (the wound centre).
 
     Returns
