@@ -23,7 +23,7 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'sim_bridge/scene/phantom_shapes.py', 'sim_bridge/scene/scoring.py',
              'sim_bridge/scene/thread.py', 'sim_bridge/scene/grasp.py',
              'sim_bridge/scene/camera.py', 'sim_bridge/scene/heightfield.py',
-             'sim_bridge/scene/phantom.py',
+             'sim_bridge/scene/phantom.py', 'sim_bridge/scene/tissue.py',
              'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
 
