@@ -17,13 +17,7 @@ from harness import REPO
 # The modules whose public API is annotated, checked with every function typed.
 ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_model.py',
              'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'sim_bridge/task.py',
-             'sim_bridge/observers.py', 'sim_bridge/kinematic_errors.py',
-             'sim_bridge/scene/markers.py', 'sim_bridge/scene/mesh_placement.py',
-             'sim_bridge/scene/phantom_config.py', 'sim_bridge/scene/scene_config.py',
-             'sim_bridge/scene/phantom_shapes.py', 'sim_bridge/scene/scoring.py',
-             'sim_bridge/scene/thread.py', 'sim_bridge/scene/grasp.py',
-             'sim_bridge/scene/camera.py', 'sim_bridge/scene/heightfield.py',
-             'sim_bridge/scene/phantom.py', 'sim_bridge/scene/tissue.py',
+             'sim_bridge/observers.py', 'sim_bridge/kinematic_errors.py', 'sim_bridge/scene',
              'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
 
