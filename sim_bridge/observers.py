@@ -22,7 +22,51 @@ from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
 
 if TYPE_CHECKING:
-    from sim_bridge.simulation import Simulation
+    from sim_bridge.arm import Arm
+    from sim_bridge.scene.grasp import GraspManager
+    from sim_bridge.task import SuturingTask
+
+
+class ObservedScene(Protocol):
+    """
+    What an observer reads of the scene: :class:`sim_bridge.simulation.Simulation` has it.
+
+    Declared here rather than imported, since the simulation imports its observers. Frames:
+    ``world``; poses 4x4; time in s.
+    """
+
+    @property
+    def time(self) -> float:
+        """Simulation time (s)."""
+
+    @property
+    def arms(self) -> 'dict[str, Arm]':
+        """The arms by name."""
+
+    @property
+    def grasp(self) -> 'GraspManager':
+        """Who holds the needle."""
+
+    @property
+    def task(self) -> 'SuturingTask':
+        """The target pair and the scoring."""
+
+    @property
+    def _T_needle(self) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
+        """The needle's true pose."""
+
+    @property
+    def _T_world_base_true(self) -> dict[str, np.ndarray]:  # noqa: N802
+        """The arms' true bases."""
+
+    def _tool_pose(self, name: str) -> np.ndarray:
+        """Return the true tool-tip pose (read-only)."""
+
+    def reported_tool_pose(self, name: str) -> np.ndarray:
+        """Return the tool-tip pose the arm reports, through its believed base."""
+
+    def believed_base(self, arm: str) -> np.ndarray:
+        """Return the arm's base as the robot believes it (its registration)."""
 
 
 class GroundTruthObserver:
@@ -31,11 +75,12 @@ class GroundTruthObserver:
 
     Parameters
     ----------
-    sim : sim_bridge.simulation.Simulation
+    sim : ObservedScene
+        The scene (a :class:`sim_bridge.simulation.Simulation`).
 
     """
 
-    def __init__(self, sim: 'Simulation') -> None:
+    def __init__(self, sim: ObservedScene) -> None:
         self._sim = sim
 
     def observe(self) -> Observation:
@@ -73,7 +118,7 @@ class SceneEstimator(Protocol):
 
     """
 
-    def estimate(self, sim: 'Simulation', arm_state: Observation
+    def estimate(self, sim: ObservedScene, arm_state: Observation
                  ) -> tuple[np.ndarray | None, Iterable[str], Any]:
         """Estimate the needle, its holders and the target pair."""
 
@@ -84,7 +129,8 @@ class PhysicalObserver:
 
     Parameters
     ----------
-    sim : sim_bridge.simulation.Simulation
+    sim : ObservedScene
+        The scene (a :class:`sim_bridge.simulation.Simulation`).
     estimator : SceneEstimator
         Needle, holders and target pair from the stereo images (rendered by the estimator
         through ``sim.render()`` only when it needs them).
@@ -95,7 +141,7 @@ class PhysicalObserver:
 
     """
 
-    def __init__(self, sim: 'Simulation', estimator: SceneEstimator,
+    def __init__(self, sim: ObservedScene, estimator: SceneEstimator,
                  correction: Any = None) -> None:
         self._sim = sim
         self._estimator = estimator

@@ -9,6 +9,8 @@ the mesh triangles, so it is exact and needs no ray-tracing library). :func:`gri
 top-surface grid back into a closed, watertight triangle mesh.
 
 All lengths are metres; arrays of points have shape ``(n, 3)`` (or ``(n, 2)`` for x-y).
+
+Size: the grid, its queries and the two conversions from and to a mesh share one grid layout.
 """
 
 from collections.abc import Callable

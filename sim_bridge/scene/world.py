@@ -42,7 +42,6 @@ from sim_bridge.common.geometry import invert_transform, quaternion_from_matrix
 from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.common.paths import config_path
 from sim_bridge.common.validation import check_positive
-from sim_bridge.kinematics.dh_chain import SerialChain
 
 if TYPE_CHECKING:
     from sim_bridge.scene.phantom import Phantom
@@ -314,7 +313,8 @@ class World:
     config : WorldConfig
         Physics and scene settings (arm placements included).
     kinematics : mapping of str to SerialChain
-        Kinematics per arm name; ``PsmKinematics`` arms get jaws.
+        Kinematics per arm name; ``PsmKinematics`` arms get jaws. (Annotated ``Any``: the
+        scene package does not import the kinematics package.)
     phantom : sim_bridge.scene.phantom.Phantom
         The phantom (mesh in its frame, markers in ``world``).
     needle : sim_bridge.common.needle.NeedleGeometry
@@ -326,7 +326,7 @@ class World:
 
     """
 
-    def __init__(self, config: 'WorldConfig', kinematics: Mapping[str, SerialChain],
+    def __init__(self, config: 'WorldConfig', kinematics: Mapping[str, Any],
                  phantom: 'Phantom', needle: NeedleGeometry, thread: ThreadGeometry,
                  client: Any) -> None:
         self.config = config
@@ -361,7 +361,7 @@ class World:
         self.thread_bodies = self._build_thread()
 
     # ------------------------------------------------------------------ construction
-    def _build_arm(self, name: str, chain: SerialChain) -> None:
+    def _build_arm(self, name: str, chain: Any) -> None:
         c = self.client
         shape = self.config.instrument
         is_psm = hasattr(chain, 'jaw_lower')
