@@ -192,6 +192,13 @@ class Command:
     subtask: str
 
 
+class CommandSource(Protocol):
+    """What a control loop asks for commands: a controller, or a wrapper of one (a recorder)."""
+
+    def step(self, obs: Observation) -> Command:
+        """Return the command for the next control period, given the latest observation."""
+
+
 @runtime_checkable
 class Controller(Protocol):
     """

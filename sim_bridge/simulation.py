@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike
 from sim_bridge.arm import Arm
 from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.common.vocabulary import ARMS, PSMS
-from sim_bridge.control import Command, Controller, Observation
+from sim_bridge.control import Command, CommandSource, Observation
 from sim_bridge.kinematic_errors import ArmError
 from sim_bridge.observers import GroundTruthObserver, PhysicalObserver
 from sim_bridge.physics import ScenePhysics
@@ -257,7 +257,7 @@ class Simulation:
         """
         self.physics.step(after_arms)
 
-    def run(self, seconds: float, controller: Controller | None = None,
+    def run(self, seconds: float, controller: CommandSource | None = None,
             control_period: float | None = None) -> None:
         """
         Step for ``seconds`` of simulated time, optionally under a controller.
@@ -266,7 +266,7 @@ class Simulation:
         ----------
         seconds : float
             Duration (s); rounded to whole physics steps.
-        controller : sim_bridge.control.Controller, optional
+        controller : sim_bridge.control.CommandSource, optional
             Its ``step(observation) -> Command`` is called every ``control_period`` and the
             command applied with :meth:`apply` (e.g.
             :class:`suture_lfd.planning.expert.ScriptedExpert`).

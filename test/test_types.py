@@ -21,7 +21,9 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'sim_bridge/trajectory.py', 'sim_bridge/physics.py', 'sim_bridge/simulation.py',
              'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py',
-             'suture_lfd/demos/demonstration.py', 'suture_lfd/demos/synthetic_throw.py')
+             'suture_lfd/demos/demonstration.py', 'suture_lfd/demos/synthetic_throw.py',
+             'suture_lfd/planning/episode.py', 'suture_lfd/bags/recovery.py',
+             'suture_lfd/bags/losses.py', 'suture_lfd/assessment/acceptance.py')
 
 
 def run_mypy(paths, cache_dir):
