@@ -11,6 +11,7 @@ limits, and with the closed jaw kept off the tissue where asked.
 Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians.
 """
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import functools
 import math
@@ -54,7 +55,7 @@ class GraspPhase:
     start: object
     roll0: float
     grasp_at: np.ndarray
-    paths: tuple
+    paths: Sequence[Callable[[float], np.ndarray]]
     clear: tuple
     bases: dict
 
@@ -96,7 +97,7 @@ class GraspPlanner:
 
     """
 
-    def __init__(self, pair, needle_geometry, config, kinematics=None):
+    def __init__(self, pair, needle_geometry, config, kinematics=None) -> None:
         self.pair = pair
         self.needle = needle_geometry
         self.config = config
