@@ -350,6 +350,7 @@ def assess_bag(bag: str | Path, segments: str | Path | None = None, pair: str | 
     from suture_lfd.demos.demo_bag import demonstration_from_bag
 
     demo = demonstration_from_bag(bag, pair=pair)
+    seg: 'SegmentFile | Segmentation'
     if segments is None:
         from suture_lfd.segmentation import segment_demonstration
 
