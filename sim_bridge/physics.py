@@ -50,7 +50,7 @@ from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.control import Command
 from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
-from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
+from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
 from sim_bridge.scene.grasp import GraspEvent, GraspManager
 from sim_bridge.scene.phantom import Phantom, PhantomConfig, build_phantom
@@ -140,7 +140,8 @@ class ScenePhysics:
         self.thread_geometry = cfg.scene.thread
         self.phantom = self._build_phantom(phantom)
         psm = psm_kinematics(cfg.psm_tool) if cfg.psm_tool else psm_kinematics()
-        self.kinematics = {'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
+        self.kinematics: dict[str, PsmKinematics | EcmKinematics] = {
+            'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
         self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
                            self.thread_geometry, client)
         self.camera = StereoCamera(cfg.camera, client)

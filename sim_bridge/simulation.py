@@ -38,6 +38,7 @@ from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.control import Command, CommandSource, Observation
 from sim_bridge.kinematic_errors import ArmError
+from sim_bridge.kinematics import EcmKinematics, PsmKinematics
 from sim_bridge.observers import GroundTruthObserver, PhysicalObserver
 from sim_bridge.physics import ScenePhysics
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
@@ -183,7 +184,7 @@ class Simulation:
         return self.physics.thread
 
     @property
-    def kinematics(self) -> dict[str, Any]:
+    def kinematics(self) -> dict[str, PsmKinematics | EcmKinematics]:
         """Dict of str to the arms' kinematics (PSM and ECM chains)."""
         return self.physics.kinematics
 

@@ -19,6 +19,7 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'sim_bridge/task.py',
              'sim_bridge/observers.py', 'sim_bridge/kinematic_errors.py', 'sim_bridge/scene',
              'sim_bridge/trajectory.py', 'sim_bridge/physics.py', 'sim_bridge/simulation.py',
+             'sim_bridge/arm.py',
              'suture_lfd/dmp',
              'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py',
              'suture_lfd/demos/demonstration.py', 'suture_lfd/demos/synthetic_throw.py',
