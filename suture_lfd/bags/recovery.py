@@ -43,6 +43,7 @@ def _copy_records(file: Path, writer: BagWriter, stats: dict[str, Any]) -> None:
     stats['dropped'] += [f'{file}: dropped {what}' for what in salvage.dropped]
     if salvage.stop:
         stats['stops'].append(f'{file}: {salvage.stop}')
+    channel: Any  # (topic, schema id, metadata); a missing one finds no schema below
     for cid, t_ns, rawdata in messages:
         channel = salvage.channels.get(cid)
         schema = salvage.schemas.get(channel[1]) if channel else None
