@@ -27,6 +27,7 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/bags/losses.py', 'suture_lfd/bags/format.py',
              'suture_lfd/demos/segment_file.py', 'suture_lfd/planning/suturing_frames.py',
              'suture_lfd/planning/waypoints.py', 'suture_lfd/bags/mcap_check.py',
+             'suture_lfd/bags/writer.py',
              'suture_lfd/planning/throw_geometry.py', 'suture_lfd/planning/throw.py',
              'suture_lfd/assessment')
 
