@@ -20,16 +20,13 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'sim_bridge/observers.py', 'sim_bridge/kinematic_errors.py', 'sim_bridge/scene',
              'sim_bridge/trajectory.py', 'sim_bridge/physics.py', 'sim_bridge/simulation.py',
              'sim_bridge/arm.py',
-             'suture_lfd/dmp',
-             'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py',
-             'suture_lfd/demos/demonstration.py', 'suture_lfd/demos/synthetic_throw.py',
-             'suture_lfd/planning/episode.py', 'suture_lfd/bags/recovery.py',
-             'suture_lfd/bags/losses.py', 'suture_lfd/bags/format.py',
-             'suture_lfd/demos/segment_file.py', 'suture_lfd/planning/suturing_frames.py',
-             'suture_lfd/planning/waypoints.py', 'suture_lfd/bags/mcap_check.py',
-             'suture_lfd/bags/writer.py',
-             'suture_lfd/planning/throw_geometry.py', 'suture_lfd/planning/throw.py',
-             'suture_lfd/assessment')
+             'suture_lfd/dmp', 'suture_lfd/segmentation', 'suture_lfd/assessment',
+             'suture_lfd/bags',
+             'suture_lfd/demos/resampling.py', 'suture_lfd/demos/demonstration.py',
+             'suture_lfd/demos/synthetic_throw.py', 'suture_lfd/demos/segment_file.py',
+             'suture_lfd/planning/episode.py', 'suture_lfd/planning/throw_geometry.py',
+             'suture_lfd/planning/throw.py', 'suture_lfd/planning/suturing_frames.py',
+             'suture_lfd/planning/waypoints.py')
 
 
 def run_mypy(paths, cache_dir):

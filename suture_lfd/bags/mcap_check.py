@@ -16,6 +16,7 @@ Byte offsets count from the start of the ``.mcap`` file.
 from binascii import crc32
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+import mmap
 import struct
 from typing import Any
 
@@ -32,8 +33,8 @@ _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _MESSAGE_HEAD = struct.Struct('<HIQQ')          # channel id, sequence, log time, publish time
 _STATISTICS_HEAD = struct.Struct('<QHIIIIQQ')   # counts, message start and end time
 _CRC_AT = 1 + 8 + 24                            # chunk CRC offset in its record
-# The bytes of an MCAP file or chunk, copied or viewed.
-_Buffer = bytes | memoryview
+# The bytes of an MCAP file or chunk, copied, viewed or mapped.
+_Buffer = bytes | memoryview | mmap.mmap
 # A message of a chunk: (channel id, log time ns, serialised data).
 _Message = tuple[int, int, bytes]
 
