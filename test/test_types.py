@@ -27,7 +27,8 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/demos/cohort.py',
              'suture_lfd/planning/episode.py', 'suture_lfd/planning/throw_geometry.py',
              'suture_lfd/planning/throw.py', 'suture_lfd/planning/suturing_frames.py',
-             'suture_lfd/planning/waypoints.py', 'suture_lfd/planning/plan.py')
+             'suture_lfd/planning/waypoints.py', 'suture_lfd/planning/plan.py',
+             'suture_lfd/planning/grasps.py')
 
 
 def run_mypy(paths, cache_dir):
