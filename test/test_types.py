@@ -21,14 +21,10 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'sim_bridge/trajectory.py', 'sim_bridge/physics.py', 'sim_bridge/simulation.py',
              'sim_bridge/arm.py',
              'suture_lfd/dmp', 'suture_lfd/segmentation', 'suture_lfd/assessment',
-             'suture_lfd/bags',
+             'suture_lfd/bags', 'suture_lfd/planning',
              'suture_lfd/demos/resampling.py', 'suture_lfd/demos/demonstration.py',
              'suture_lfd/demos/synthetic_throw.py', 'suture_lfd/demos/segment_file.py',
-             'suture_lfd/demos/cohort.py', 'suture_lfd/demos/scripted_demo.py',
-             'suture_lfd/planning/episode.py', 'suture_lfd/planning/throw_geometry.py',
-             'suture_lfd/planning/throw.py', 'suture_lfd/planning/suturing_frames.py',
-             'suture_lfd/planning/waypoints.py', 'suture_lfd/planning/plan.py',
-             'suture_lfd/planning/grasps.py', 'suture_lfd/planning/expert.py')
+             'suture_lfd/demos/cohort.py', 'suture_lfd/demos/scripted_demo.py')
 
 
 def run_mypy(paths, cache_dir):

@@ -59,7 +59,7 @@ class GraspPhase:
 
     """
 
-    start: object
+    start: np.ndarray | None
     roll0: float
     grasp_at: np.ndarray
     paths: Sequence[Callable[[float], np.ndarray]]

@@ -34,7 +34,7 @@ from sim_bridge.common.geometry import invert_transform
 from suture_lfd.planning.grasps import GraspPhase
 from suture_lfd.planning.plan import Gate, Plan
 from suture_lfd.planning.tracks import Track, backed_off, translated
-from suture_lfd.planning.waypoints import RigidPath
+from suture_lfd.planning.waypoints import ArcPath, NeedlePath, PoseInterpolator, RigidPath
 
 if TYPE_CHECKING:
     from sim_bridge.common.needle import NeedleGeometry
@@ -59,7 +59,7 @@ class Carry:
 
     """
 
-    path: object
+    path: PoseInterpolator | ArcPath
     drive: bool = False
     min_duration: float | None = None
 
@@ -68,7 +68,7 @@ class Carry:
 class Follow:
     """A leg carrying the held needle along ``path`` with the path's own timing (a rollout)."""
 
-    path: object
+    path: NeedlePath
     duration: float
 
 

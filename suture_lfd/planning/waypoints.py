@@ -17,7 +17,7 @@ Poses are 4x4 homogeneous matrices (world frame, metres); angles in radians.
 """
 
 import math
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -97,6 +97,33 @@ def rotation_exp(w: ArrayLike) -> np.ndarray:
     k0, k1, k2 = (w / angle).tolist()
     K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+class NeedlePath(Protocol):
+    """
+    A path of poses over ``sigma`` in [0, 1].
+
+    :class:`RigidPath`, :class:`ArcPath` or a sampled one (a DMP rollout).
+    """
+
+    @property
+    def A(self) -> np.ndarray:  # noqa: N802 (pose names follow the project's T_a_b style)
+        """Start pose (4, 4)."""
+
+    @property
+    def B(self) -> np.ndarray:  # noqa: N802
+        """End pose (4, 4)."""
+
+    @property
+    def angle(self) -> float:
+        """Rotation angle (rad)."""
+
+    @property
+    def distance(self) -> float:
+        """Distance (m) travelled."""
+
+    def __call__(self, sigma: float) -> np.ndarray:
+        """Return the pose (4, 4) at path parameter ``sigma``."""
 
 
 class PoseInterpolator:
@@ -274,7 +301,7 @@ class ToolMove:
                  jaw1: float) -> None:
         self.t0 = float(t0)
         self.t1 = float(t1)
-        self.path: PoseInterpolator | ArcPath = PoseInterpolator(A, B)
+        self.path: NeedlePath = PoseInterpolator(A, B)
         self.jaw0 = float(jaw0)
         self.jaw1 = float(jaw1)
 
@@ -319,7 +346,7 @@ class NeedleMove(ToolMove):
     ----------
     t0, t1 : float
         Start and end time (s).
-    path : RigidPath or ArcPath
+    path : NeedlePath
         Needle pose as a function of the path parameter.
     T_tool_needle : array_like, shape (4, 4)
         Planned grasp (tool-tip frame <- needle frame).
@@ -330,7 +357,7 @@ class NeedleMove(ToolMove):
 
     carries_needle = True
 
-    def __init__(self, t0: float, t1: float, path: PoseInterpolator | ArcPath,
+    def __init__(self, t0: float, t1: float, path: NeedlePath,
                  T_tool_needle: ArrayLike, jaw0: float, jaw1: float | None = None) -> None:
         self.t0 = float(t0)
         self.t1 = float(t1)
