@@ -24,7 +24,9 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/bags', 'suture_lfd/planning',
              'suture_lfd/demos/resampling.py', 'suture_lfd/demos/demonstration.py',
              'suture_lfd/demos/synthetic_throw.py', 'suture_lfd/demos/segment_file.py',
-             'suture_lfd/demos/cohort.py', 'suture_lfd/demos/scripted_demo.py')
+             'suture_lfd/demos/cohort.py', 'suture_lfd/demos/scripted_demo.py',
+             'suture_lfd/skill/method.py', 'suture_lfd/study/digest.py',
+             'suture_lfd/study/options.py', 'suture_lfd/study/keys.py')
 
 
 def run_mypy(paths, cache_dir):
