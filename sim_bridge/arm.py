@@ -45,16 +45,19 @@ against the same state (operating state, limits, frames, the running motion) tha
 advances and the state properties read; cut apart, one object would live in several files.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import logging
 import math
 import struct
+from typing import Any, TypeVar, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import matrix_from_quaternion
 from sim_bridge.common.validation import check_positive, check_quaternions
-from sim_bridge.kinematics import PsmKinematics, UnreachableError, check_pose
-from sim_bridge.trajectory import JointMotion
+from sim_bridge.kinematics import EcmKinematics, PsmKinematics, UnreachableError, check_pose
+from sim_bridge.trajectory import Floats, JointMotion
 
 logger = logging.getLogger(__name__)
 
@@ -67,6 +70,8 @@ VALID_COMMANDS = {
     'PAUSED': ('disable', 'pause', 'resume', 'unhome'),
     'FAULT': ('enable', 'disable', 'unhome'),
 }
+# Joint values as a command gives them (returned as they are when already in joint order).
+_Values = TypeVar('_Values')
 JAW_NAMES = ('jaw',)  # the joint name of jaw/measured_js and jaw goals
 EVENT_KINDS = ('operating_state', 'goal_reached', 'error', 'warning', 'status', 'ratio')
 
@@ -147,7 +152,7 @@ class ArmConfig:
     tool_present: bool = True
     power_up_time: float = 0.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"tracking must be 'limited' or 'exact', got {self.tracking!r}")
         if not self.throttle_period >= 0.0:
@@ -177,11 +182,12 @@ class Arm:
 
     """
 
-    def __init__(self, name, kinematics, config=ArmConfig()):
+    def __init__(self, name: str, kinematics: PsmKinematics | EcmKinematics,
+                 config: ArmConfig = ArmConfig()) -> None:
         self.name = str(name)
         self.kinematics = kinematics
         self.config = config
-        k = kinematics
+        k: Any = kinematics  # a PSM's or the ECM's: the jaw limits are read for a PSM only
         self._has_jaw = isinstance(k, PsmKinematics)
         home = k.home if config.home_jp is None else k.check_q(config.home_jp, name='home_jp')
         if not k.within_limits(home):
@@ -198,15 +204,16 @@ class Arm:
             if not k.jaw_lower <= jaw0 <= k.jaw_upper:
                 raise ValueError(f'{self.name}: initial_jaw {jaw0} is outside '
                                  f'[{k.jaw_lower}, {k.jaw_upper}]')
-            self._jaw = JointMotion([jaw0], [k.jaw_lower], [k.jaw_upper], [k.jaw_v_max],
-                                    [k.jaw_a_max])
+            self._jaw: JointMotion | None = JointMotion([jaw0], [k.jaw_lower], [k.jaw_upper],
+                                                        [k.jaw_v_max], [k.jaw_a_max])
         else:
             self._jaw = None
         self._state = 'DISABLED'
         self._homed = False
         self._busy = False
         self._homing = False
-        self._powered_at = None  # while powering: the simulated time ENABLED is reached
+        # while powering: the simulated time ENABLED is reached
+        self._powered_at: float | None = None
         self._free = False
         self._tool_present = bool(config.tool_present)
         self._ratio = 1.0
@@ -214,18 +221,21 @@ class Arm:
         self._base_is_identity = True
         self._exact = config.tracking == 'exact'
         self._pack_joints = struct.Struct(f'{k.n_joints}d').pack  # exact bytes of a joint tuple
-        self._ik_memo = None  # (goal and reference bytes, joints) of the last servo_cp IK
-        self._fk_memo = {}  # 'measured' / 'setpoint' -> (joint tuple, read-only tool-tip pose)
-        self._jacobian_memo = {}  # 'spatial' / 'body' -> (joint tuple, read-only Jacobian)
+        # (goal and reference bytes, joints) of the last servo_cp IK
+        self._ik_memo: tuple[tuple[bytes, bytes], Floats] | None = None
+        # 'measured' / 'setpoint' -> (joint tuple, read-only tool-tip pose)
+        self._fk_memo: dict[str, tuple[Floats, np.ndarray]] = {}
+        # 'spatial' / 'body' -> (joint tuple, read-only Jacobian)
+        self._jacobian_memo: dict[str, tuple[Floats, np.ndarray]] = {}
         self._reference_frame = f'{self.name}_base'
         self._setpoint_jf = np.zeros(k.n_joints)
         self._time = 0.0
-        self._events = []
-        self._last_message = {}
+        self._events: list[ArmEvent] = []
+        self._last_message: dict[tuple[str, str], float] = {}
 
     # -- events --------------------------------------------------------------------------------
 
-    def pop_events(self):
+    def pop_events(self) -> list[ArmEvent]:
         """
         Return and clear the events emitted since the last call, oldest first.
 
@@ -237,13 +247,13 @@ class Arm:
         events, self._events = self._events, []
         return events
 
-    def _emit(self, kind, value):
+    def _emit(self, kind: str, value: object) -> None:
         self._events.append(ArmEvent(kind, value))
 
-    def _emit_state(self):
+    def _emit_state(self) -> None:
         self._emit('operating_state', self.operating_state)
 
-    def _message(self, kind, text, throttle_key=None):
+    def _message(self, kind: str, text: str, throttle_key: tuple[str, str] | None = None) -> None:
         if throttle_key is not None:
             last = self._last_message.get(throttle_key)
             if last is not None and self._time - last < self.config.throttle_period:
@@ -253,19 +263,19 @@ class Arm:
          else logger.info)(text)
         self._emit(kind, text)
 
-    def _set_busy(self, busy, force=False):
+    def _set_busy(self, busy: bool, force: bool = False) -> None:
         """Emit an operating_state event when busy changes (or always with ``force``)."""
         if busy != self._busy or force:
             self._busy = busy
             self._emit_state()
 
-    def _motion_running(self):
+    def _motion_running(self) -> bool:
         jaw_moving = self._jaw is not None and self._jaw.trajectory is not None
         return self._homing or self._arm.trajectory is not None or jaw_moving
 
     # -- operating state -----------------------------------------------------------------------
 
-    def state_command(self, command):
+    def state_command(self, command: str) -> None:
         """
         Apply a CRTK state command.
 
@@ -291,7 +301,7 @@ class Arm:
             return
         getattr(self, f'_command_{command}')()
 
-    def _abort_motions(self):
+    def _abort_motions(self) -> None:
         """Stop every running move (goal_reached False) and homing; hold the measured joints."""
         for part in (self._arm, self._jaw):
             if part is None:
@@ -302,7 +312,7 @@ class Arm:
             part.hold()
         self._homing = False
 
-    def _command_enable(self):
+    def _command_enable(self) -> None:
         if self._state == 'ENABLED' or self._powered_at is not None:
             return  # enabled, or powering already: the state has been emitted again
         self._state, self._busy = 'DISABLED', True
@@ -315,14 +325,14 @@ class Arm:
         else:
             self._power_on()
 
-    def _power_on(self):
+    def _power_on(self) -> None:
         self._powered_at = None
         self._state = 'ENABLED'
         self._free = False
         self._busy = False
         self._emit_state()
 
-    def _command_disable(self):
+    def _command_disable(self) -> None:
         if self._state == 'DISABLED' and self._powered_at is None:
             return
         self._powered_at = None
@@ -331,7 +341,7 @@ class Arm:
         self._busy = False
         self._emit_state()
 
-    def _command_pause(self):
+    def _command_pause(self) -> None:
         if self._state == 'PAUSED':
             return
         self._abort_motions()
@@ -339,11 +349,11 @@ class Arm:
         self._busy = False
         self._emit_state()
 
-    def _command_resume(self):
+    def _command_resume(self) -> None:
         self._state = 'ENABLED'
         self._emit_state()
 
-    def _command_unhome(self):
+    def _command_unhome(self) -> None:
         if not self._homed and not self._motion_running():
             return
         self._abort_motions()
@@ -351,7 +361,7 @@ class Arm:
         self._busy = self._powered_at is not None
         self._emit_state()
 
-    def _command_home(self):
+    def _command_home(self) -> None:
         self._abort_motions()
         self._homed = False
         self._free = False
@@ -361,7 +371,7 @@ class Arm:
 
     # -- readiness, validation -----------------------------------------------------------------
 
-    def _ready(self, command, needs_tool=False):
+    def _ready(self, command: str, needs_tool: bool = False) -> bool:
         ready = self._state == 'ENABLED' and self._homed
         if ready and needs_tool and self._has_jaw and not self._tool_present:
             ready = False
@@ -370,14 +380,14 @@ class Arm:
                           throttle_key=(command, 'not ready'))
         return ready
 
-    def _by_name(self, values, names, command):
+    def _by_name(self, values: ArrayLike, names: Sequence[str] | None, command: str) -> ArrayLike:
         """Return a joint vector in the arm's joint order (:func:`order_by_name`)."""
         if not names:
             return values  # the common case: crtk clients send no names
         return order_by_name(values, names, self.kinematics.joint_names,
                              f'{self.name}: {command}')
 
-    def _clip_arm(self, command, q, stream):
+    def _clip_arm(self, command: str, q: np.ndarray, stream: bool) -> np.ndarray:
         clipped = self.kinematics.clip(q)
         if np.any(clipped != q):
             names = [n for n, a, b in zip(self.kinematics.joint_names, q, clipped) if a != b]
@@ -386,16 +396,16 @@ class Arm:
                           throttle_key=(command, 'clipped') if stream else None)
         return clipped
 
-    def _clip_jaw(self, command, angle, stream):
-        clipped = self.kinematics.clip_jaw(angle)
+    def _clip_jaw(self, command: str, angle: float, stream: bool) -> float:
+        clipped = cast(PsmKinematics, self.kinematics).clip_jaw(angle)  # a PSM's jaw
         if clipped != angle:
-            k = self.kinematics
+            k = cast(PsmKinematics, self.kinematics)
             self._message('warning', f'{self.name}: {command} angle {angle:.4f} rad clipped to '
                           f'[{k.jaw_lower:.4f}, {k.jaw_upper:.4f}]',
                           throttle_key=(command, 'clipped') if stream else None)
         return clipped
 
-    def _pose_in_rcm(self, pose, command, local=False):
+    def _pose_in_rcm(self, pose: ArrayLike, command: str, local: bool = False) -> np.ndarray:
         """
         Validate a Cartesian goal and express it in <ARM>_base.
 
@@ -421,14 +431,14 @@ class Arm:
 
     # -- arm commands --------------------------------------------------------------------------
 
-    def _servo_arm(self, q):
+    def _servo_arm(self, q: Sequence[float] | np.ndarray) -> None:
         if self._arm.trajectory is not None:
             self._emit('goal_reached', False)
         self._free = False
         self._arm.servo(q, self._time, self.config.servo_stream_gap)
         self._set_busy(self._motion_running())
 
-    def servo_jp(self, q, names=None):
+    def servo_jp(self, q: ArrayLike, names: Sequence[str] | None = None) -> None:
         """
         Set the joint setpoint directly (no trajectory; leaves busy false).
 
@@ -451,7 +461,7 @@ class Arm:
             return
         self._servo_arm(self._clip_arm('servo_jp', q, stream=True))
 
-    def servo_jr(self, dq, names=None):
+    def servo_jr(self, dq: ArrayLike, names: Sequence[str] | None = None) -> None:
         """
         Add a joint increment to the current setpoint.
 
@@ -473,7 +483,7 @@ class Arm:
             return
         self._servo_arm(self._clip_arm('servo_jr', self._arm.setpoint + dq, stream=True))
 
-    def servo_cp(self, pose, local=False):
+    def servo_cp(self, pose: ArrayLike, local: bool = False) -> None:
         """
         Set a Cartesian setpoint: closed-form IK near the current setpoint.
 
@@ -512,7 +522,7 @@ class Arm:
             return
         self._servo_arm(q)
 
-    def _ecm_goal(self, T, q_ref, command, stream):
+    def _ecm_goal(self, T: np.ndarray, q_ref: ArrayLike, command: str, stream: bool) -> np.ndarray:
         """
         ECM joints for a Cartesian goal in ``<ARM>_base``: its position, roll about the shaft.
 
@@ -523,7 +533,7 @@ class Arm:
         p = T[:3, 3]
         where = f'({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}) m'
         try:
-            q, inside = self.kinematics.ik_position(T, q_ref=q_ref)
+            q, inside = cast(EcmKinematics, self.kinematics).ik_position(T, q_ref=q_ref)
         except UnreachableError as exc:
             self._message('warning', f'{self.name}: {command} position {where} is outside the '
                           f'workspace: {exc}', throttle_key=throttle)
@@ -537,7 +547,7 @@ class Arm:
             q = clipped
         return q
 
-    def reject_goal(self, command, text):
+    def reject_goal(self, command: str, text: str) -> None:
         """
         Refuse a Cartesian goal its sender placed in a frame the arm's owner does not know.
 
@@ -550,19 +560,19 @@ class Arm:
             self._emit('goal_reached', False)
             self._set_busy(self._motion_running())
 
-    def _reject_move(self, text):
+    def _reject_move(self, text: str) -> None:
         """Error, then a busy pulse closed by goal_reached(False), the arm holding its goal."""
         self._message('error', text)
         self._set_busy(True, force=True)
         self._emit('goal_reached', False)
         self._set_busy(self._motion_running())
 
-    def _move_arm(self, goal):
+    def _move_arm(self, goal: np.ndarray) -> None:
         self._arm.move(goal, self._time, self._ratio)
         self._free = False
         self._set_busy(True, force=True)
 
-    def move_jp(self, q, names=None):
+    def move_jp(self, q: ArrayLike, names: Sequence[str] | None = None) -> None:
         """
         Start a joint trajectory to ``q`` (busy until it arrives, then goal_reached True).
 
@@ -584,7 +594,7 @@ class Arm:
             return
         self._move_arm(self._clip_arm('move_jp', q, stream=False))
 
-    def move_jr(self, dq, names=None):
+    def move_jr(self, dq: ArrayLike, names: Sequence[str] | None = None) -> None:
         """
         Start a joint trajectory by an increment from the current setpoint.
 
@@ -607,7 +617,7 @@ class Arm:
         goal = self._arm.target(self._time)[0] + dq
         self._move_arm(self._clip_arm('move_jr', goal, stream=False))
 
-    def move_cp(self, pose, local=False):
+    def move_cp(self, pose: ArrayLike, local: bool = False) -> None:
         """
         Start a joint trajectory to the IK solution of a Cartesian goal (not a straight line).
 
@@ -645,7 +655,7 @@ class Arm:
             return
         self._move_arm(q)
 
-    def servo_jf(self, effort, names=None):
+    def servo_jf(self, effort: ArrayLike, names: Sequence[str] | None = None) -> None:
         """
         Record a joint effort setpoint (N, N m); the kinematic simulation does not act on it.
 
@@ -662,7 +672,7 @@ class Arm:
         except ValueError as exc:
             self._message('error', f'{self.name}: {exc}', throttle_key=('servo_jf', 'input'))
 
-    def hold(self):
+    def hold(self) -> None:
         """Stop every motion and hold the measured position (running moves: goal_reached False)."""
         if self._state != 'ENABLED':
             return
@@ -670,7 +680,7 @@ class Arm:
         self._free = False
         self._set_busy(False)
 
-    def free(self):
+    def free(self) -> None:
         """Stop holding: the arm stays where it is and setpoints follow the measured joints."""
         if self._state != 'ENABLED':
             return
@@ -680,7 +690,8 @@ class Arm:
 
     # -- jaw -----------------------------------------------------------------------------------
 
-    def _jaw_angle(self, command, angle, names=None):
+    def _jaw_angle(self, command: str, angle: ArrayLike | None,
+                   names: Sequence[str] | None = None) -> float | None:
         if not self._has_jaw:
             self._message('error', f'{self.name}: {command}: this arm has no jaw')
             return None
@@ -704,14 +715,14 @@ class Arm:
             return None
         return self._clip_jaw(command, float(value[0]), stream=command == 'jaw_servo_jp')
 
-    def _report_input(self, command, text):
+    def _report_input(self, command: str, text: str) -> None:
         """Reject a jaw goal: a move ends at once (goal_reached False), a servo stream warns."""
         if command == 'jaw_move_jp':
             self._reject_move(text)
         else:
             self._message('error', text, throttle_key=(command, 'input'))
 
-    def jaw_servo_jp(self, angle, names=None):
+    def jaw_servo_jp(self, angle: ArrayLike | None, names: Sequence[str] | None = None) -> None:
         """
         Set the jaw setpoint directly (PSM only).
 
@@ -726,12 +737,13 @@ class Arm:
         angle = self._jaw_angle('jaw_servo_jp', angle, names)
         if angle is None:
             return
-        if self._jaw.trajectory is not None:
+        # a PSM's jaw (casts: typing only): _jaw_angle rejects an arm without one
+        if cast(JointMotion, self._jaw).trajectory is not None:
             self._emit('goal_reached', False)
-        self._jaw.servo((angle,), self._time, self.config.servo_stream_gap)
+        cast(JointMotion, self._jaw).servo((angle,), self._time, self.config.servo_stream_gap)
         self._set_busy(self._motion_running())
 
-    def jaw_move_jp(self, angle, names=None):
+    def jaw_move_jp(self, angle: ArrayLike | None, names: Sequence[str] | None = None) -> None:
         """
         Start a jaw trajectory (PSM only); shares the arm's busy flag, runs alongside arm moves.
 
@@ -746,12 +758,12 @@ class Arm:
         angle = self._jaw_angle('jaw_move_jp', angle, names)
         if angle is None:
             return
-        self._jaw.move((angle,), self._time, self._ratio)
+        cast(JointMotion, self._jaw).move((angle,), self._time, self._ratio)  # a PSM's
         self._set_busy(True, force=True)
 
     # -- settings ------------------------------------------------------------------------------
 
-    def set_ratio(self, ratio):
+    def set_ratio(self, ratio: float) -> None:
         """
         Scale the trajectory velocity and acceleration limits (``trajectory_j/set_ratio``).
 
@@ -772,7 +784,8 @@ class Arm:
         self._ratio = r
         self._emit('ratio', r)
 
-    def set_base_frame(self, pose, frame_id=None, checked=False):
+    def set_base_frame(self, pose: ArrayLike, frame_id: str | None = None,
+                       checked: bool = False) -> None:
         """
         Set the base frame: ``measured_cp = base_frame @ local_measured_cp``.
 
@@ -790,7 +803,7 @@ class Arm:
 
         """
         if checked:
-            T = pose
+            T = cast(np.ndarray, pose)  # checked by the caller: a float 4x4 pose
         else:
             try:
                 T = check_pose(pose, name='set_base_frame pose')
@@ -802,7 +815,7 @@ class Arm:
         if frame_id:
             self._reference_frame = str(frame_id)
 
-    def emulate_tool_present(self, present):
+    def emulate_tool_present(self, present: bool) -> None:
         """
         Pretend a PSM instrument is (or is not) mounted; Cartesian and jaw commands need one.
 
@@ -817,7 +830,7 @@ class Arm:
 
     # -- time ----------------------------------------------------------------------------------
 
-    def step(self, dt):
+    def step(self, dt: float) -> None:
         """
         Advance the arm by ``dt`` seconds of simulated time.
 
@@ -866,77 +879,77 @@ class Arm:
     # -- state ---------------------------------------------------------------------------------
 
     @property
-    def time(self):
+    def time(self) -> float:
         """Simulated time (s) accumulated by :meth:`step`."""
         return self._time
 
     @property
-    def has_jaw(self):
+    def has_jaw(self) -> bool:
         """Whether the arm has a jaw (PSM)."""
         return self._has_jaw
 
     @property
-    def operating_state(self):
+    def operating_state(self) -> OperatingState:
         """Current :class:`OperatingState`."""
         return OperatingState(self._state, self._homed, self._busy)
 
     @property
-    def ratio(self):
+    def ratio(self) -> float:
         """Trajectory ratio in ]0, 1]."""
         return self._ratio
 
     @property
-    def base_frame(self):
+    def base_frame(self) -> np.ndarray:
         """``T_ref_base``, shape (4, 4): the RCM frame in the ``measured_cp`` reference frame."""
         return self._base_frame.copy()
 
     @property
-    def base_frame_view(self):
+    def base_frame_view(self) -> np.ndarray:
         """:attr:`base_frame` without the copy: read-only, the same array until it is set."""
         return self._base_frame
 
     @property
-    def reference_frame(self):
+    def reference_frame(self) -> str:
         """Frame id of ``measured_cp`` / ``setpoint_cp`` (default ``'<ARM>_base'``)."""
         return self._reference_frame
 
     @property
-    def tool_present(self):
+    def tool_present(self) -> bool:
         """Whether a PSM instrument is (emulated as) mounted."""
         return self._tool_present
 
     @property
-    def measured_jp(self):
+    def measured_jp(self) -> np.ndarray:
         """Measured joint positions, shape (n,) (rad / m)."""
         return np.array(self._arm.q_values)
 
     @property
-    def measured_jv(self):
+    def measured_jv(self) -> np.ndarray:
         """Measured joint velocities, shape (n,) (rad/s, m/s)."""
         return np.array(self._arm.qd_values)
 
     @property
-    def measured_jf(self):
+    def measured_jf(self) -> np.ndarray:
         """Measured joint efforts, shape (n,) (N, N m); zero in the kinematic simulation."""
         return np.zeros(self.kinematics.n_joints)
 
     @property
-    def setpoint_jp(self):
+    def setpoint_jp(self) -> np.ndarray:
         """Joint setpoint, shape (n,) (rad / m): servo goal or current trajectory sample."""
         return np.array(self._arm.setpoint_values)
 
     @property
-    def setpoint_jf(self):
+    def setpoint_jf(self) -> np.ndarray:
         """Joint effort setpoint, shape (n,) (N, N m): the last ``servo_jf``."""
         return self._setpoint_jf.copy()
 
     @property
-    def local_measured_cp(self):
+    def local_measured_cp(self) -> np.ndarray:
         """Tool tip in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
         return self._fk('measured', self._arm.q_values).copy()
 
     @property
-    def local_measured_cp_view(self):
+    def local_measured_cp_view(self) -> np.ndarray:
         """
         :attr:`local_measured_cp` without the copy: a read-only array.
 
@@ -946,11 +959,11 @@ class Arm:
         return self._fk('measured', self._arm.q_values)
 
     @property
-    def local_setpoint_cp(self):
+    def local_setpoint_cp(self) -> np.ndarray:
         """Tool-tip setpoint in the RCM frame ``<ARM>_base``, shape (4, 4) (metres)."""
         return self._fk('setpoint', self._arm.setpoint_values).copy()
 
-    def _fk(self, which, q):
+    def _fk(self, which: str, q: Floats) -> np.ndarray:
         """Forward kinematics of the joint tuple ``q``, computed again only when it moved."""
         memo = self._fk_memo.get(which)
         if memo is None or memo[0] is not q:  # a joint tuple is replaced when the joints move
@@ -959,26 +972,26 @@ class Arm:
         return memo[1]
 
     @property
-    def measured_cp(self):
+    def measured_cp(self) -> np.ndarray:
         """Tool tip in :attr:`reference_frame`: ``base_frame @ local_measured_cp``, (4, 4)."""
         return self._base_frame @ self._fk('measured', self._arm.q_values)
 
     @property
-    def setpoint_cp(self):
+    def setpoint_cp(self) -> np.ndarray:
         """Tool-tip setpoint in :attr:`reference_frame`, shape (4, 4) (metres)."""
         return self._base_frame @ self._fk('setpoint', self._arm.setpoint_values)
 
     @property
-    def jacobian_spatial(self):
+    def jacobian_spatial(self) -> np.ndarray:
         """Spatial Jacobian at the measured joints, shape (6, n): ``[v; w]`` in ``<ARM>_base``."""
         return self._jacobian('spatial').copy()
 
     @property
-    def jacobian_body(self):
+    def jacobian_body(self) -> np.ndarray:
         """Body Jacobian at the measured joints, shape (6, n): ``[v; w]`` in the tip frame."""
         return self._jacobian('body').copy()
 
-    def _jacobian(self, which):
+    def _jacobian(self, which: str) -> np.ndarray:
         """Jacobian at the measured joints (read-only), computed again only when they moved."""
         q = self._arm.q_values
         memo = self._jacobian_memo.get(which)
@@ -989,7 +1002,7 @@ class Arm:
         return memo[1]
 
     @property
-    def measured_cv(self):
+    def measured_cv(self) -> np.ndarray:
         """
         Tool-tip twist, shape (6,): linear (m/s) and angular (rad/s) velocity.
 
@@ -1002,43 +1015,44 @@ class Arm:
         return np.concatenate([R @ twist[:3], R @ twist[3:]])
 
     @property
-    def local_measured_cv(self):
+    def local_measured_cv(self) -> np.ndarray:
         """Body twist of the tool tip, shape (6,): ``[v; w]`` in the tool-tip frame."""
         return self._jacobian('body') @ np.array(self._arm.qd_values)
 
-    def _require_jaw(self):
+    def _require_jaw(self) -> JointMotion:
         if not self._has_jaw:
             raise AttributeError(f'{self.name} has no jaw')
-        return self._jaw
+        return cast(JointMotion, self._jaw)  # set for an arm with a jaw
 
     @property
-    def jaw_measured_jp(self):
+    def jaw_measured_jp(self) -> float:
         """Measured jaw angle (rad), PSM only."""
         return self._require_jaw().q_values[0]
 
     @property
-    def jaw_measured_jv(self):
+    def jaw_measured_jv(self) -> float:
         """Measured jaw velocity (rad/s), PSM only."""
         return self._require_jaw().qd_values[0]
 
     @property
-    def jaw_setpoint_jp(self):
+    def jaw_setpoint_jp(self) -> float:
         """Jaw setpoint (rad), PSM only."""
         return self._require_jaw().setpoint_values[0]
 
 
-def _read_only(array):
+def _read_only(array: np.ndarray) -> np.ndarray:
     """Return ``array`` marked read-only (it is shared, not copied)."""
     array.flags.writeable = False
     return array
 
 
-def _positional(names):
+def _positional(names: Sequence[object]) -> bool:
     """Whether joint names say nothing of the order: none, or all numeric (``'0'``, ``'1'``)."""
     return all(str(n).strip().isdigit() for n in names)
 
 
-def order_by_name(values, names, joint_names, what='joint goal'):
+def order_by_name(values: _Values, names: Sequence[str] | None, joint_names: Sequence[str],
+                  what: str = 'joint goal') -> _Values | np.ndarray:
     """
     Put a joint vector given with joint names into the arm's joint order.
 
@@ -1101,7 +1115,7 @@ class _OutsideWorkspaceError(Exception):
     """An ECM Cartesian goal at the RCM: warned about, nothing to move to."""
 
 
-def _is_numeric(value):
+def _is_numeric(value: object) -> bool:
     try:
         np.asarray(value, dtype=float)
     except (TypeError, ValueError):

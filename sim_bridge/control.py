@@ -144,8 +144,8 @@ class Observation:
         Tool-tip poses (``measured_cp`` in ``world``) of ``'PSM1'`` and ``'PSM2'``.
     jaw : dict of str to float
         Jaw angles (rad).
-    T_world_needle : ndarray, shape (4, 4)
-        Needle pose.
+    T_world_needle : ndarray, shape (4, 4) or None
+        Needle pose; None when an estimator cannot see the needle.
     holders : tuple of str
         Arms holding the needle.
     pair : sim_bridge.scene.phantom.MarkerPair
@@ -161,7 +161,7 @@ class Observation:
     t: float
     T_world_tool: dict
     jaw: dict
-    T_world_needle: np.ndarray
+    T_world_needle: np.ndarray | None
     holders: tuple
     pair: object
     T_world_base: dict
@@ -190,6 +190,13 @@ class Command:
     T_world_tool: dict
     jaw: dict
     subtask: str
+
+
+class CommandSource(Protocol):
+    """What a control loop asks for commands: a controller, or a wrapper of one (a recorder)."""
+
+    def step(self, obs: Observation) -> Command:
+        """Return the command for the next control period, given the latest observation."""
 
 
 @runtime_checkable

@@ -17,6 +17,7 @@ leaves; level 0 is perfect kinematics (the simulation then runs exactly as witho
 Frames: ``world``; joints in rad / m; ``T_*`` 4x4 poses.
 """
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 import math
 
@@ -48,12 +49,13 @@ class ArmError:
     T_believed_true: np.ndarray
 
     @property
-    def is_zero(self):
+    def is_zero(self) -> bool:
         """Whether the arm has no error at all (perfect kinematics)."""
         return not self.joint_offset.any() and np.array_equal(self.T_believed_true, np.eye(4))
 
 
-def draw_arm_errors(level, rng, arms, n_joints=6):
+def draw_arm_errors(level: float, rng: np.random.Generator, arms: Iterable[str],
+                    n_joints: int = 6) -> dict[str, ArmError]:
     """
     Draw each arm's hidden kinematic error at ``level``.
 

@@ -14,10 +14,59 @@ A controller (the scripted expert, the demonstrator, the DMP executor) reads an
 Frames: ``world``; poses 4x4 ``T_world_*``; SI units.
 """
 
-from typing import Protocol
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
+
+if TYPE_CHECKING:
+    from sim_bridge.arm import Arm
+    from sim_bridge.scene.grasp import GraspManager
+    from sim_bridge.task import SuturingTask
+
+
+class ObservedScene(Protocol):
+    """
+    What an observer reads of the scene: :class:`sim_bridge.simulation.Simulation` has it.
+
+    Declared here rather than imported, since the simulation imports its observers. Frames:
+    ``world``; poses 4x4; time in s.
+    """
+
+    @property
+    def time(self) -> float:
+        """Simulation time (s)."""
+
+    @property
+    def arms(self) -> 'dict[str, Arm]':
+        """The arms by name."""
+
+    @property
+    def grasp(self) -> 'GraspManager':
+        """Who holds the needle."""
+
+    @property
+    def task(self) -> 'SuturingTask':
+        """The target pair and the scoring."""
+
+    @property
+    def _T_needle(self) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
+        """The needle's true pose."""
+
+    @property
+    def _T_world_base_true(self) -> dict[str, np.ndarray]:  # noqa: N802
+        """The arms' true bases."""
+
+    def _tool_pose(self, name: str) -> np.ndarray:
+        """Return the true tool-tip pose (read-only)."""
+
+    def reported_tool_pose(self, name: str) -> np.ndarray:
+        """Return the tool-tip pose the arm reports, through its believed base."""
+
+    def believed_base(self, arm: str) -> np.ndarray:
+        """Return the arm's base as the robot believes it (its registration)."""
 
 
 class GroundTruthObserver:
@@ -26,14 +75,15 @@ class GroundTruthObserver:
 
     Parameters
     ----------
-    sim : sim_bridge.simulation.Simulation
+    sim : ObservedScene
+        The scene (a :class:`sim_bridge.simulation.Simulation`).
 
     """
 
-    def __init__(self, sim):
+    def __init__(self, sim: ObservedScene) -> None:
         self._sim = sim
 
-    def observe(self):
+    def observe(self) -> Observation:
         """
         Return the observation now.
 
@@ -68,7 +118,8 @@ class SceneEstimator(Protocol):
 
     """
 
-    def estimate(self, sim, arm_state):
+    def estimate(self, sim: ObservedScene, arm_state: Observation
+                 ) -> tuple[np.ndarray | None, Iterable[str], Any]:
         """Estimate the needle, its holders and the target pair."""
 
 
@@ -78,7 +129,8 @@ class PhysicalObserver:
 
     Parameters
     ----------
-    sim : sim_bridge.simulation.Simulation
+    sim : ObservedScene
+        The scene (a :class:`sim_bridge.simulation.Simulation`).
     estimator : SceneEstimator
         Needle, holders and target pair from the stereo images (rendered by the estimator
         through ``sim.render()`` only when it needs them).
@@ -89,12 +141,13 @@ class PhysicalObserver:
 
     """
 
-    def __init__(self, sim, estimator, correction=None):
+    def __init__(self, sim: ObservedScene, estimator: SceneEstimator,
+                 correction: Any = None) -> None:
         self._sim = sim
         self._estimator = estimator
         self._correction = correction
 
-    def arm_state(self):
+    def arm_state(self) -> Observation:
         """
         Return the arms' reports: an :class:`Observation` without needle, holders or pair.
 
@@ -115,7 +168,7 @@ class PhysicalObserver:
                           q={n: sim.arms[n].measured_jp for n in PSMS})
         return obs if self._correction is None else self._correction.observe(obs)
 
-    def observe(self):
+    def observe(self) -> Observation:
         """
         Return the observation now: arm reports plus the estimator's needle, holders and pair.
 

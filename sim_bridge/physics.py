@@ -36,25 +36,29 @@ Size: one physics step touches every part of the scene in a fixed order; the ord
 one file and the step is the simulator's hot path.
 """
 
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 import logging
-from typing import Protocol
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge import bullet
 from sim_bridge.arm import Arm
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import ARMS, PSMS
-from sim_bridge.kinematic_errors import draw_arm_errors
-from sim_bridge.kinematics import ecm_kinematics, psm_kinematics
-from sim_bridge.scene.camera import StereoCamera
-from sim_bridge.scene.grasp import GraspManager
-from sim_bridge.scene.phantom import build_phantom
+from sim_bridge.control import Command
+from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
+from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
+from sim_bridge.scene.camera import StereoCamera, StereoFrame
+from sim_bridge.scene.grasp import GraspEvent, GraspManager
+from sim_bridge.scene.phantom import Phantom, PhantomConfig, build_phantom
 from sim_bridge.scene.scene_config import phantom_from_argument
 from sim_bridge.scene.thread import ThreadChain
-from sim_bridge.scene.tissue import TissueTracker
+from sim_bridge.scene.tissue import TissueEvent, TissueTracker
 from sim_bridge.scene.world import World
-from sim_bridge.simulation_config import steps_per_period
+from sim_bridge.simulation_config import SimulationConfig, steps_per_period
 
 _LOG = logging.getLogger(__name__)
 
@@ -72,13 +76,13 @@ _REST_TOLERANCE = 1e-4
 class PhysicsListener(Protocol):
     """What the physics tells as it happens, at simulation time ``t`` (s)."""
 
-    def on_grasp_event(self, t: float, ev) -> None:
+    def on_grasp_event(self, t: float, ev: GraspEvent) -> None:
         """Take a grasp or release of the needle by a PSM (a grasp manager's event)."""
 
-    def on_drop(self, t: float, **data) -> None:
+    def on_drop(self, t: float, **data: Any) -> None:
         """Take a drop of the needle: ``fall`` (m), and ``in_tissue`` when the tissue holds it."""
 
-    def on_tissue_event(self, t: float, ev) -> None:
+    def on_tissue_event(self, t: float, ev: TissueEvent) -> None:
         """Take a crossing of the tissue surface by the tip (a tissue tracker's event)."""
 
     def on_collision(self, t: float, arm: str, depth: float) -> None:
@@ -120,8 +124,10 @@ class ScenePhysics:
 
     """
 
-    def __init__(self, config, listener, rng=None, client=None, phantom='synthetic', gui=False,
-                 kinematic_errors=None):
+    def __init__(self, config: SimulationConfig, listener: PhysicsListener,
+                 rng: np.random.Generator | None = None, client: Any = None,
+                 phantom: str | Path | PhantomConfig = 'synthetic', gui: bool = False,
+                 kinematic_errors: Mapping[str, ArmError] | None = None) -> None:
         self.config = config
         self.listener = listener
         cfg = config
@@ -134,7 +140,8 @@ class ScenePhysics:
         self.thread_geometry = cfg.scene.thread
         self.phantom = self._build_phantom(phantom)
         psm = psm_kinematics(cfg.psm_tool) if cfg.psm_tool else psm_kinematics()
-        self.kinematics = {'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
+        self.kinematics: dict[str, PsmKinematics | EcmKinematics] = {
+            'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
         self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
                            self.thread_geometry, client)
         self.camera = StereoCamera(cfg.camera, client)
@@ -164,21 +171,21 @@ class ScenePhysics:
         shape = cfg.world.instrument
         self._instrument_reach = shape.jaw_length + shape.shaft_radius
         self._thread_world = client.saveState()
-        self.arms = {}
+        self.arms: dict[str, Arm] = {}
 
     # ------------------------------------------------------------------ construction
-    def _build_phantom(self, phantom):
+    def _build_phantom(self, phantom: str | Path | PhantomConfig) -> Phantom:
         name, config = phantom_from_argument(self.config.scene, phantom)
         return build_phantom(config, name=name)
 
-    def close(self):
+    def close(self) -> None:
         """Disconnect the PyBullet client if the simulation created it."""
         if self._own_client and self.client is not None:
             self.client.disconnect()
             self.client = None
 
     # ------------------------------------------------------------------ reset
-    def reset(self, seed=None):
+    def reset(self, seed: int | None = None) -> None:
         """
         Start the physics again: arms DISABLED at rest, jaws at ``initial_jaw``, needle on the pad.
 
@@ -205,8 +212,9 @@ class ScenePhysics:
                 config = replace(config, initial_jp=tuple(rest))
             self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
-        self._tool_cache = {}
-        self._camera_local = None  # ECM tool tip (RCM frame) the PSMs' frames were set from
+        self._tool_cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # ECM tool tip (RCM frame) the PSMs' frames were set from
+        self._camera_local: np.ndarray | None = None
         if cfg.world.frames == 'cart':
             self.arms['ECM'].set_base_frame(self._T_world_base['ECM'], 'world')
             self._follow_camera()
@@ -218,7 +226,7 @@ class ScenePhysics:
         self._collisions = 0
         self._needle_mode = 'resting'
         self._still_steps = 0
-        self._release_height = None
+        self._release_height: float | None = None
         self._dropped = False
         self._T_needle = self._settled_needle_start()
         self._T_needle_prev = self._T_needle.copy()
@@ -228,11 +236,11 @@ class ScenePhysics:
         for _ in range(int(round(cfg.loop.needle_start.settle_time / cfg.loop.thread_period))):
             self.thread.follow(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
 
-    def update_grasp(self):
+    def update_grasp(self) -> None:
         """Read the jaws and update the grasps without reporting events (scene setup)."""
         self.grasp.update(self._jaws(), self._tool_pose, self._T_needle)
 
-    def _settled_needle_start(self):
+    def _settled_needle_start(self) -> np.ndarray:
         """Drop the needle flat onto the support at the seeded start pose and let it settle."""
         start = self.config.loop.needle_start
         xy = np.asarray(start.position, dtype=float)
@@ -259,7 +267,7 @@ class ScenePhysics:
         # coarse collision mesh): lay it on the surface where it was dropped instead.
         return self._resting_on_tissue(self._laid_on_support(T))
 
-    def _resting_on_tissue(self, T):
+    def _resting_on_tissue(self, T: np.ndarray) -> np.ndarray:
         """
         Return the resting pose ``T``, raised so that the wire lies on the tissue, not in it.
 
@@ -278,7 +286,7 @@ class ScenePhysics:
         self.world.set_needle_pose(T)
         return T
 
-    def _laid_on_support(self, T):
+    def _laid_on_support(self, T: np.ndarray) -> np.ndarray:
         """Lay the flat needle pose ``T`` on the support, tilted to its local plane, touching."""
         geometry = self.needle_geometry
         wire = geometry.points_world(T, 24)
@@ -301,10 +309,10 @@ class ScenePhysics:
         return laid
 
     # ------------------------------------------------------------------ small helpers
-    def _jaws(self):
+    def _jaws(self) -> dict[str, float]:
         return {name: self.arms[name].jaw_measured_jp for name in PSMS}
 
-    def _tool_pose(self, name):
+    def _tool_pose(self, name: str) -> np.ndarray:
         """Return the true tool-tip pose in ``world`` (read-only), new only when the arm moved."""
         local = self.arms[name].local_measured_cp_view  # the same array while the arm is still
         cached = self._tool_cache.get(name)
@@ -319,7 +327,7 @@ class ScenePhysics:
         self._tool_cache[name] = (local, T)
         return T
 
-    def reported_tool_pose(self, name):
+    def reported_tool_pose(self, name: str) -> np.ndarray:
         """
         Tool-tip pose of an arm in ``world`` as the robot reports it (its own kinematics).
 
@@ -341,13 +349,13 @@ class ScenePhysics:
             return self._tool_pose(name).copy()
         return self._T_world_base[name] @ self.arms[name].local_measured_cp_view
 
-    def _true_jp(self, name, arm):
+    def _true_jp(self, name: str, arm: Arm) -> np.ndarray:
         """Joints where an arm truly is: its measured joints plus its hidden offsets."""
         error = self._errors.get(name)
         q = arm.measured_jp
         return q if error is None else q + error.joint_offset
 
-    def _follow_camera(self):
+    def _follow_camera(self) -> None:
         """
         Patient-cart frames: put each PSM's reference frame on the ECM's camera frame ``ECM``.
 
@@ -368,16 +376,16 @@ class ScenePhysics:
 
     # ------------------------------------------------------------------ time
     @property
-    def dt(self):
+    def dt(self) -> float:
         """Physics step (s)."""
         return self._dt
 
     @property
-    def time(self):
+    def time(self) -> float:
         """Simulation time (s): whole physics steps since :meth:`reset`."""
         return self._steps * self._dt
 
-    def step(self, after_arms=None):
+    def step(self, after_arms: Callable[[], object] | None = None) -> None:
         """
         Advance the scene by one physics step (see the module docstring for the order).
 
@@ -399,6 +407,7 @@ class ScenePhysics:
             self._follow_camera()
         if after_arms is not None:
             after_arms()
+        ev: GraspEvent | TissueEvent
         for ev in self.grasp.update(self._jaws(), self._tool_pose, self._T_needle):
             self._on_grasp_event(t, ev)
         self._move_needle()
@@ -412,7 +421,7 @@ class ScenePhysics:
             self._check_contacts(t)
 
     # ------------------------------------------------------------------ grasp and needle
-    def _on_grasp_event(self, t, ev):
+    def _on_grasp_event(self, t: float, ev: GraspEvent) -> None:
         if ev.kind == 'grasp':
             self._needle_mode = 'held'
             self._release_height = None
@@ -420,7 +429,7 @@ class ScenePhysics:
             self.world.set_needle_collisions(False)
         self.listener.on_grasp_event(t, ev)
 
-    def _move_needle(self):
+    def _move_needle(self) -> None:
         leader = self.grasp.leader
         self._T_needle_prev = self._T_needle
         if leader is not None:
@@ -451,7 +460,7 @@ class ScenePhysics:
             self._needle_mode = 'resting'
             world.set_needle_collisions(False)
 
-    def _start_falling(self):
+    def _start_falling(self) -> None:
         """Hand the released needle to PyBullet with the velocity it had in the jaw."""
         dt = self._dt
         T0, T1 = self._T_needle_prev, self._T_needle
@@ -465,7 +474,7 @@ class ScenePhysics:
         self._still_steps = 0
         self._release_height = float(T1[2, 3])
 
-    def _needle_near_tissue(self):
+    def _needle_near_tissue(self) -> bool:
         """
         Whether the tissue tracker must look: the needle is in or within ~1 cm of the tissue.
 
@@ -476,7 +485,7 @@ class ScenePhysics:
         lowest = self._T_needle[2, 3] - self._needle_reach
         return self.tissue.in_tissue or lowest < self._tissue_top + _TRACK_MARGIN
 
-    def _check_contacts(self, t):
+    def _check_contacts(self, t: float) -> None:
         depth_limit = self.config.loop.collision_depth
         for name in PSMS:
             arm = self.arms[name]
@@ -498,7 +507,7 @@ class ScenePhysics:
             self._contact[name] = touching
 
     # ------------------------------------------------------------------ commands
-    def apply(self, command):
+    def apply(self, command: Command) -> None:
         """
         Send a controller's command to the arms.
 
@@ -524,7 +533,7 @@ class ScenePhysics:
             if jaw is not None:
                 self.arms[name].jaw_servo_jp(jaw)
 
-    def aim_tissue(self, name):
+    def aim_tissue(self, name: str) -> None:
         """
         Let the tissue tracker follow the marker pair ``name`` afresh.
 
@@ -538,7 +547,7 @@ class ScenePhysics:
         self.tissue.set_target_pair(name)
         self.tissue.update(self.time, self._T_needle)
 
-    def attach_needle(self, arm, T_tool_needle=None):
+    def attach_needle(self, arm: str, T_tool_needle: ArrayLike | None = None) -> None:
         """
         Put the needle in a PSM's jaw (scene setup): closes the jaw, no grasp event.
 
@@ -561,39 +570,39 @@ class ScenePhysics:
 
     # ------------------------------------------------------------------ state
     @property
-    def needle_mode(self):
+    def needle_mode(self) -> str:
         """``'held'``, ``'tissue'`` (free, held by the tissue), ``'free'`` or ``'resting'``."""
         return self._needle_mode
 
     @property
-    def arm_list(self):
+    def arm_list(self) -> list[Arm]:
         """The arms in the order of :data:`sim_bridge.common.vocabulary.ARMS` (stepped so)."""
         return self._arm_list
 
     @property
-    def T_needle(self):  # noqa: N802 (the project names poses T_a_b)
+    def T_needle(self) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
         """The needle's true pose in ``world``, (4, 4): the physics' own array (read only)."""
         return self._T_needle
 
     @property
-    def T_world_base_true(self):  # noqa: N802 (the project names poses T_a_b)
+    def T_world_base_true(self) -> dict[str, np.ndarray]:  # noqa: N802 (the project names poses T_a_b)
         """Each arm's true RCM frame in ``world`` (dict of str to (4, 4)): the physics' own."""
         return self._T_world_base_true
 
     @property
-    def errors(self):
+    def errors(self) -> dict[str, ArmError]:
         """The arms' nonzero hidden kinematic errors (dict of str to ``ArmError``)."""
         return self._errors
 
-    def needle_tip(self):
+    def needle_tip(self) -> np.ndarray:
         """Needle tip position (m, ``world``), shape (3,)."""
         return self._T_needle[:3, :3] @ self.needle_geometry.tip + self._T_needle[:3, 3]
 
-    def thread_points(self):
+    def thread_points(self) -> np.ndarray:
         """Thread node positions (m, ``world``), shape (n_segments + 1, 3), node 0 at the tail."""
         return self.thread.nodes
 
-    def T_world_base(self, arm):  # noqa: N802 (the project names poses T_a_b)
+    def T_world_base(self, arm: str) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
         """
         RCM frame ``<ARM>_base`` of an arm in ``world``, where it truly is.
 
@@ -609,7 +618,7 @@ class ScenePhysics:
         """
         return self._T_world_base_true[arm].copy()
 
-    def believed_base(self, arm):
+    def believed_base(self, arm: str) -> np.ndarray:
         """
         RCM frame of ``arm`` in ``world`` as the robot believes it (after its registration).
 
@@ -619,7 +628,7 @@ class ScenePhysics:
         """
         return self._T_world_base[arm].copy()
 
-    def tool_pose(self, arm):
+    def tool_pose(self, arm: str) -> np.ndarray:
         """
         Tool-tip pose of an arm in ``world``, where it truly is.
 
@@ -637,7 +646,7 @@ class ScenePhysics:
         return self._tool_pose(arm).copy()
 
     # ------------------------------------------------------------------ drawing
-    def sync_world(self):
+    def sync_world(self) -> None:
         """Copy arm joints, jaw angles, needle pose and thread into PyBullet (for drawing)."""
         world = self.world
         for name, arm in self.arms.items():
@@ -647,11 +656,11 @@ class ScenePhysics:
             world.set_needle_pose(self._T_needle)
         world.set_thread_points(self.thread.nodes)
 
-    def camera_pose(self):
+    def camera_pose(self) -> np.ndarray:
         """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4) (a copy)."""
         return self._tool_pose('ECM').copy()
 
-    def render(self):
+    def render(self) -> StereoFrame:
         """
         Render the stereo endoscope images of the scene as it is now.
 

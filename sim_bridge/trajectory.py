@@ -18,18 +18,24 @@ Size: the trapezoid planner and the limited tracking step share one profile arit
 per-step path of every arm, which is kept in one file for speed.
 """
 
+from collections.abc import Sequence
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+# Joint values as a tuple of Python floats (the state of :class:`JointMotion`).
+Floats = tuple[float, ...]
 
 
-def _rest_to_rest_time(distance, v, a):
+def _rest_to_rest_time(distance: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
     """Minimum time to travel ``distance`` >= 0 from rest to rest (triangle or trapezoid)."""
     return np.where(distance <= v * v / a, 2.0 * np.sqrt(np.maximum(distance, 0.0) / a),
                     distance / v + v / a)
 
 
-def minimum_duration(distance, v0, v_max, a_max):
+def minimum_duration(distance: ArrayLike, v0: ArrayLike, v_max: ArrayLike,
+                     a_max: ArrayLike) -> np.ndarray:
     """
     Minimum time to travel a displacement from velocity ``v0`` to rest, per joint.
 
@@ -70,7 +76,7 @@ def minimum_duration(distance, v0, v_max, a_max):
                     np.where(stop > D, t_over, np.where(w > v, t_fast, t_near)))
 
 
-def _profile_distance(vc, T, v0, a):
+def _profile_distance(vc: np.ndarray, T: float, v0: np.ndarray, a: np.ndarray) -> np.ndarray:
     """Displacement of the ramp(v0 -> vc), cruise(vc), ramp(vc -> 0) profile of duration T."""
     return vc * T + (v0 - vc) * np.abs(vc - v0) / (2.0 * a) - vc * np.abs(vc) / (2.0 * a)
 
@@ -104,7 +110,8 @@ class JointTrajectory:
 
     """
 
-    def __init__(self, start, goal, v_max, a_max, ratio=1.0, start_velocity=None):
+    def __init__(self, start: ArrayLike, goal: ArrayLike, v_max: ArrayLike, a_max: ArrayLike,
+                 ratio: float = 1.0, start_velocity: ArrayLike | None = None) -> None:
         self.start = np.array(start, dtype=float)
         self.goal = np.array(goal, dtype=float)
         n = self.start.shape
@@ -137,7 +144,7 @@ class JointTrajectory:
             self.start, v0, self._vc, self.a_limit, self._t1, self._b2, self._s1, self._s3))))
         self._goal_values = tuple(self.goal.tolist())
 
-    def _cruise_velocities(self, distance, T):
+    def _cruise_velocities(self, distance: np.ndarray, T: float) -> np.ndarray:
         """Bisect the cruise velocity per joint so that the profile of duration T covers it."""
         v0, a, v = self._v0, self.a_limit, self.v_limit
         aT = a * T
@@ -151,7 +158,7 @@ class JointTrajectory:
             hi = np.where(below, hi, mid)
         return 0.5 * (lo + hi)
 
-    def sample(self, t):
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """
         Position and velocity at time ``t``.
 
@@ -213,7 +220,7 @@ class JointTrajectory:
             qd.append(v0 + s1 * a * t if t <= t1 else vc if t <= b2 else vc + s3 * a * tau3)
         return tuple(q), tuple(qd)
 
-    def done(self, t):
+    def done(self, t: float) -> bool:
         """
         Whether the trajectory has arrived at time ``t``.
 
@@ -230,7 +237,9 @@ class JointTrajectory:
         return t >= self.duration
 
 
-def track_step(q, qd, target, v_max, a_max, dt, target_velocity=None):
+def track_step(q: ArrayLike, qd: ArrayLike, target: ArrayLike, v_max: ArrayLike,
+               a_max: ArrayLike, dt: float, target_velocity: ArrayLike | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """
     Move a measured position one time step towards a setpoint within velocity/acceleration limits.
 
@@ -280,7 +289,7 @@ def track_step(q, qd, target, v_max, a_max, dt, target_velocity=None):
 
 
 
-def _values(x) -> tuple[float, ...]:
+def _values(x: Sequence[float] | np.ndarray) -> tuple[float, ...]:
     """Return joint values (array, list or tuple) as a tuple of Python floats."""
     if isinstance(x, np.ndarray):
         return tuple(x.astype(float, copy=False).reshape(-1).tolist())
@@ -318,7 +327,8 @@ class JointMotion:
 
     """
 
-    def __init__(self, q0, lower, upper, v_max, a_max):
+    def __init__(self, q0: ArrayLike, lower: ArrayLike, upper: ArrayLike, v_max: ArrayLike,
+                 a_max: ArrayLike) -> None:
         self._q = _values(np.array(q0, dtype=float))
         n = len(self._q)
         self._zeros = (0.0,) * n
@@ -331,10 +341,11 @@ class JointMotion:
         self._limits = tuple(zip(self.v_max.tolist(), self.a_max.tolist(), self.lower.tolist(),
                                  self.upper.tolist(), (-self.v_max).tolist()))
         self._bounds = tuple(zip(self.lower.tolist(), self.upper.tolist()))
-        self.trajectory = None
+        self.trajectory: JointTrajectory | None = None
         self._t0 = 0.0
-        self._ramp = None  # (start, goal, start time, interval)
-        self._last_servo_time = None
+        # (start, goal, start time, interval) of a servo glide
+        self._ramp: tuple[Floats, Floats, float, float] | None = None
+        self._last_servo_time: float | None = None
 
     # -- state -----------------------------------------------------------------------------------
 
@@ -344,7 +355,7 @@ class JointMotion:
         return np.array(self._q)
 
     @q.setter
-    def q(self, value):
+    def q(self, value: Sequence[float] | np.ndarray) -> None:
         self._q = _values(value)
 
     @property
@@ -353,7 +364,7 @@ class JointMotion:
         return np.array(self._qd)
 
     @qd.setter
-    def qd(self, value):
+    def qd(self, value: Sequence[float] | np.ndarray) -> None:
         self._qd = _values(value)
 
     @property
@@ -362,7 +373,7 @@ class JointMotion:
         return np.array(self._sp)
 
     @setpoint.setter
-    def setpoint(self, value):
+    def setpoint(self, value: Sequence[float] | np.ndarray) -> None:
         self._sp = _values(value)
 
     @property
@@ -382,7 +393,8 @@ class JointMotion:
 
     # -- tracking --------------------------------------------------------------------------------
 
-    def _track(self, target, velocity, dt, glide=None):
+    def _track(self, target: Sequence[float], velocity: Sequence[float] | None, dt: float,
+               glide: tuple[float, float] | None = None) -> tuple[Floats, Floats]:
         """
         :func:`track_step`, then the position limits (a joint held at a limit stops), per joint.
 
@@ -422,7 +434,7 @@ class JointMotion:
             qd_out.append(qd_new if clipped == q_new else 0.0)
         return tuple(q_out), tuple(qd_out)
 
-    def _target(self, now):
+    def _target(self, now: float) -> tuple[Floats, Floats | None]:
         """:meth:`target` as tuples of floats (the velocity None when standing still)."""
         if self.trajectory is not None:
             return self.trajectory.sample_values(now - self._t0)
@@ -435,7 +447,7 @@ class JointMotion:
                         tuple([(b - a) / interval for a, b in zip(start, goal)]))
         return self._sp, None
 
-    def target(self, now):
+    def target(self, now: float) -> tuple[np.ndarray, np.ndarray | None]:
         """
         Setpoint to track at time ``now`` (s) and its velocity (None when standing still).
 
@@ -448,12 +460,12 @@ class JointMotion:
         q, qd = self._target(now)
         return np.array(q), None if qd is None else np.array(qd)
 
-    def setpoint_velocity(self, now):
+    def setpoint_velocity(self, now: float) -> np.ndarray:
         """Velocity (per s) of the tracked setpoint at time ``now``, shape (n,)."""
         velocity = self._target(now)[1]
         return np.zeros(len(self._q)) if velocity is None else np.array(velocity)
 
-    def servo(self, goal, now, stream_gap):
+    def servo(self, goal: Sequence[float] | np.ndarray, now: float, stream_gap: float) -> None:
         """
         Jump the setpoint to ``goal`` (stopping any trajectory).
 
@@ -482,7 +494,7 @@ class JointMotion:
         self.trajectory = None
         self._sp = goal
 
-    def move(self, goal, now, ratio):
+    def move(self, goal: ArrayLike, now: float, ratio: float) -> JointTrajectory:
         """
         Start a trajectory to ``goal`` from the current setpoint and its velocity.
 
@@ -500,6 +512,7 @@ class JointMotion:
         JointTrajectory
 
         """
+        velocity: Sequence[float] | np.ndarray | None
         start, velocity = self._target(now)
         velocity = self._zeros if velocity is None else velocity
         velocity = np.clip(velocity, -self.v_max, self.v_max)
@@ -510,14 +523,14 @@ class JointMotion:
         self._sp = tuple(self.trajectory.start.tolist())
         return self.trajectory
 
-    def hold(self):
+    def hold(self) -> None:
         """Stop where the measured joints are: no trajectory, setpoint = measured, at rest."""
         self.trajectory = None
         self._ramp = None
         self._sp = self._q
         self._qd = self._zeros
 
-    def stop(self):
+    def stop(self) -> None:
         """Zero the measured velocity, keeping everything else (an arm without power)."""
         self._qd = self._zeros
 
@@ -527,7 +540,7 @@ class JointMotion:
         return (self.trajectory is None and self._ramp is None and self._q == self._sp
                 and not any(self._qd))
 
-    def advance(self, now, dt, exact=False):
+    def advance(self, now: float, dt: float, exact: bool = False) -> bool:
         """
         Move the measured joints over one step ending at ``now`` and update the setpoint.
 

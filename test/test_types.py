@@ -17,8 +17,17 @@ from harness import REPO
 # The modules whose public API is annotated, checked with every function typed.
 ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_model.py',
              'sim_bridge/control.py', 'sim_bridge/simulation_config.py', 'sim_bridge/task.py',
-             'suture_lfd/dmp',
-             'suture_lfd/segmentation', 'suture_lfd/demos/resampling.py')
+             'sim_bridge/observers.py', 'sim_bridge/kinematic_errors.py', 'sim_bridge/scene',
+             'sim_bridge/trajectory.py', 'sim_bridge/physics.py', 'sim_bridge/simulation.py',
+             'sim_bridge/arm.py',
+             'suture_lfd/dmp', 'suture_lfd/segmentation', 'suture_lfd/assessment',
+             'suture_lfd/bags', 'suture_lfd/planning',
+             'suture_lfd/demos/resampling.py', 'suture_lfd/demos/demonstration.py',
+             'suture_lfd/demos/synthetic_throw.py', 'suture_lfd/demos/segment_file.py',
+             'suture_lfd/demos/cohort.py', 'suture_lfd/demos/scripted_demo.py',
+             'suture_lfd/skill/method.py', 'suture_lfd/study/digest.py',
+             'suture_lfd/study/options.py', 'suture_lfd/study/keys.py',
+             'suture_lfd/study/figures.py', 'suture_lfd/perception/arc_poses.py')
 
 
 def run_mypy(paths, cache_dir):

@@ -25,11 +25,14 @@ optics' point spread) and Gaussian sensor noise (``noise_std``, grey levels), dr
 ``numpy.random.default_rng(seed)`` frame after frame.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.bullet import pybullet
 
 # Optical frame (x right, y down, z forward) -> OpenGL camera frame (x right, y up, z backward).
@@ -92,7 +95,7 @@ class CameraConfig:
     specular: float = 0.0
     seed: int = 0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.width < 2 or self.height < 2:
             raise ValueError(
                 f'camera width and height must be >= 2 pixels, got {self.width}x{self.height}')
@@ -161,9 +164,9 @@ class StereoFrame:
     """
 
     left_rgb: np.ndarray
-    left_depth: np.ndarray
+    left_depth: np.ndarray | None
     right_rgb: np.ndarray
-    right_depth: np.ndarray
+    right_depth: np.ndarray | None
     T_world_left: np.ndarray
     T_world_right: np.ndarray
 
@@ -181,7 +184,7 @@ class StereoCamera:
 
     """
 
-    def __init__(self, config=None, client=None):
+    def __init__(self, config: CameraConfig | None = None, client: Any = None) -> None:
         self.config = config or CameraConfig()
         self._client = client
         c = self.config
@@ -199,7 +202,7 @@ class StereoCamera:
         self._light = np.asarray(c.light_direction, dtype=float)
         self._realistic = bool(c.noise_std or c.blur_sigma or c.light_jitter)
 
-    def make_shiny(self, body, link=-1):
+    def make_shiny(self, body: int, link: int = -1) -> None:
         """
         Give a body a white specular colour, lit with ``specular`` (no effect when it is 0).
 
@@ -216,18 +219,18 @@ class StereoCamera:
 
     # ------------------------------------------------------------------ intrinsics
     @property
-    def P_left(self):  # noqa: N802 (camera_info names)
+    def P_left(self) -> np.ndarray:  # noqa: N802 (camera_info names)
         """Left projection matrix ``[K | 0]``, shape (3, 4)."""
         return np.hstack([self.K, np.zeros((3, 1))])
 
     @property
-    def P_right(self):  # noqa: N802 (camera_info names)
+    def P_right(self) -> np.ndarray:  # noqa: N802 (camera_info names)
         """Right projection matrix ``[K | (-fx * baseline, 0, 0)]``, shape (3, 4)."""
         P = self.P_left
         P[0, 3] = -self.K[0, 0] * self.config.baseline
         return P
 
-    def camera_info(self, side):
+    def camera_info(self, side: str) -> CameraInfo:
         """
         Calibration of one camera, as camera_info carries it.
 
@@ -249,7 +252,7 @@ class StereoCamera:
                           distortion_model='plumb_bob', D=np.zeros(5), K=self.K.copy(),
                           R=np.eye(3), P=P)
 
-    def camera_poses(self, T_world_tip):
+    def camera_poses(self, T_world_tip: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """
         Optical frames of the left and right cameras.
 
@@ -267,7 +270,7 @@ class StereoCamera:
         T = np.asarray(T_world_tip, dtype=float)
         return T @ self.T_tip_left, T @ self.T_tip_right
 
-    def project(self, points_world, T_world_camera):
+    def project(self, points_world: ArrayLike, T_world_camera: ArrayLike) -> np.ndarray:
         """
         Project world points into a camera's image with ``K``.
 
@@ -291,7 +294,7 @@ class StereoCamera:
         return uvw[:, :2] / uvw[:, 2:3]
 
     # ------------------------------------------------------------------ rendering
-    def _gl_projection(self, fx, fy, cx, cy):
+    def _gl_projection(self, fx: float, fy: float, cx: float, cy: float) -> list[float]:
         """OpenGL projection (column-major list of 16) for pinhole ``K`` and near/far planes."""
         c = self.config
         w, h, n, f = c.width, c.height, c.near, c.far
@@ -307,14 +310,14 @@ class StereoCamera:
         P[3, 2] = -1.0
         return P.T.reshape(-1).tolist()
 
-    def _light_direction(self):
+    def _light_direction(self) -> list[float]:
         """Return the light's direction for the next frame (jittered when ``light_jitter`` > 0)."""
         if not self.config.light_jitter:
             return self._light.tolist()
         tilt = self._rng.normal(0.0, self.config.light_jitter, 3)
         return (self._light + np.linalg.norm(self._light) * tilt).tolist()
 
-    def _degrade(self, rgb):
+    def _degrade(self, rgb: np.ndarray) -> np.ndarray:
         """Blur and noise of the optics and the sensor (seeded), on a uint8 RGB image."""
         c = self.config
         if c.blur_sigma > 0.0:
@@ -324,7 +327,8 @@ class StereoCamera:
             rgb = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         return rgb
 
-    def render_view(self, T_world_camera, light_direction=None):
+    def render_view(self, T_world_camera: ArrayLike, light_direction: Sequence[float] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
         """
         Render one camera's colour and metric depth images.
 
@@ -368,7 +372,7 @@ class StereoCamera:
         depth[d >= 1.0] = np.inf
         return rgb, depth.astype(np.float32)
 
-    def render(self, T_world_tip):
+    def render(self, T_world_tip: ArrayLike) -> StereoFrame:
         """
         Render the stereo pair at the ECM tool-tip pose.
 

@@ -22,10 +22,13 @@ Frames: tool poses are ``T_world_tool`` (the PSM tool-tip frame, ``measured_cp``
 needle poses ``T_world_needle`` (the needle frame of :mod:`sim_bridge.common.needle`); 4x4, metres.
 """
 
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.needle import NeedleGeometry
 from sim_bridge.common.validation import check_positive
 
 
@@ -56,7 +59,7 @@ class GraspConfig:
     capture_radius: float = 0.002
     wire_samples: int = 61
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.release_angle > self.close_angle:
             raise ValueError(
                 f'grasp release_angle ({self.release_angle}) must be greater than close_angle '
@@ -107,28 +110,28 @@ class GraspManager:
 
     """
 
-    def __init__(self, config, needle, arms):
+    def __init__(self, config: GraspConfig, needle: NeedleGeometry, arms: Iterable[str]) -> None:
         self.config = config
         self.arms = tuple(arms)
         self._wire = needle.arc_points(config.wire_samples)
         depth = needle.grasp_depth if config.jaw_depth is None else config.jaw_depth
         self.jaw_point = np.array([0.0, 0.0, depth])
         self._closed = dict.fromkeys(self.arms)
-        self._holders = []  # arm names in grasp order; the first leads
-        self._relative = {}  # arm -> T_tool_needle
+        self._holders: list[str] = []  # arm names in grasp order; the first leads
+        self._relative: dict[str, np.ndarray] = {}  # arm -> T_tool_needle
 
     # ------------------------------------------------------------------ state
     @property
-    def holders(self):
+    def holders(self) -> tuple[str, ...]:
         """Arms holding the needle, in grasp order (the first leads); tuple of str."""
         return tuple(self._holders)
 
     @property
-    def leader(self):
+    def leader(self) -> str | None:
         """Arm the needle follows, or None when no arm holds it."""
         return self._holders[0] if self._holders else None
 
-    def is_closed(self, arm):
+    def is_closed(self, arm: str) -> bool | None:
         """
         Whether ``arm``'s jaw currently counts as closed (None before the first update).
 
@@ -145,7 +148,7 @@ class GraspManager:
         """
         return self._closed[arm]
 
-    def relative_pose(self, arm):
+    def relative_pose(self, arm: str) -> np.ndarray:
         """
         Return the recorded ``T_tool_needle`` (4x4) of a holding arm.
 
@@ -164,18 +167,18 @@ class GraspManager:
             raise ValueError(f'arm {arm!r} does not hold the needle; holders are {self.holders}')
         return self._relative[arm].copy()
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget all jaw states and holders (the next update re-reads the jaws)."""
         self._closed = dict.fromkeys(self.arms)
         self._holders = []
         self._relative = {}
 
-    def release_all(self):
+    def release_all(self) -> None:
         """Drop the needle from every jaw without events (used when resetting a scene)."""
         self._holders = []
         self._relative = {}
 
-    def attach(self, arm, T_tool_needle):
+    def attach(self, arm: str, T_tool_needle: ArrayLike) -> None:
         """
         Make ``arm`` hold the needle at ``T_tool_needle`` (used to set up a scene).
 
@@ -197,7 +200,7 @@ class GraspManager:
         self._closed[arm] = True
 
     # ------------------------------------------------------------------ geometry
-    def wire_distance(self, T_world_tool, T_world_needle):
+    def wire_distance(self, T_world_tool: ArrayLike, T_world_needle: ArrayLike) -> float:
         """
         Distance (m) from the needle's wire centre line to a jaw's grasp point.
 
@@ -218,7 +221,7 @@ class GraspManager:
         d = self._wire @ T[:3, :3].T + (T[:3, 3] - self.jaw_point)
         return float(np.sqrt(np.einsum('ij,ij->i', d, d).min()))
 
-    def needle_pose(self, T_world_tool):
+    def needle_pose(self, T_world_tool: ArrayLike) -> np.ndarray:
         """
         Needle pose implied by the leader's tool pose.
 
@@ -238,7 +241,8 @@ class GraspManager:
         return np.asarray(T_world_tool, dtype=float) @ self._relative[self._holders[0]]
 
     # ------------------------------------------------------------------ update
-    def update(self, jaw_angles, tool_pose, T_world_needle):
+    def update(self, jaw_angles: Mapping[str, float], tool_pose: Callable[[str], ArrayLike],
+               T_world_needle: ArrayLike) -> list[GraspEvent]:
         """
         Read the jaws and change who holds the needle.
 

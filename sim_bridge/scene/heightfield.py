@@ -9,11 +9,16 @@ the mesh triangles, so it is exact and needs no ray-tracing library). :func:`gri
 top-surface grid back into a closed, watertight triangle mesh.
 
 All lengths are metres; arrays of points have shape ``(n, 3)`` (or ``(n, 2)`` for x-y).
+
+Size: the grid, its queries and the two conversions from and to a mesh share one grid layout.
 """
 
+from collections.abc import Callable
 import math
+from typing import cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import ndimage
 from sim_bridge.common.validation import check_positive
 import trimesh
@@ -39,7 +44,8 @@ class HeightField:
 
     """
 
-    def __init__(self, x0, y0, spacing, top, bottom, footprint=None):
+    def __init__(self, x0: float, y0: float, spacing: float, top: ArrayLike, bottom: ArrayLike,
+                 footprint: ArrayLike | None = None) -> None:
         top = np.array(top, dtype=float)
         bottom = np.array(bottom, dtype=float)
         if top.ndim != 2 or top.shape[0] < 2 or top.shape[1] < 2:
@@ -58,8 +64,8 @@ class HeightField:
             raise ValueError('height field footprint is empty')
         if not footprint.all():
             _, (jj, ii) = ndimage.distance_transform_edt(~footprint, return_indices=True)
-            top = top[jj, ii]
-            bottom = bottom[jj, ii]
+            top = cast(np.ndarray, top[jj, ii])
+            bottom = cast(np.ndarray, bottom[jj, ii])
         self.x0 = float(x0)
         self.y0 = float(y0)
         self.spacing = float(spacing)
@@ -100,21 +106,21 @@ class HeightField:
 
     # ------------------------------------------------------------------ grid helpers
     @property
-    def xs(self):
+    def xs(self) -> np.ndarray:
         """Grid node x coordinates (m), shape (nx,)."""
         return self.x0 + self.spacing * np.arange(self.nx)
 
     @property
-    def ys(self):
+    def ys(self) -> np.ndarray:
         """Grid node y coordinates (m), shape (ny,)."""
         return self.y0 + self.spacing * np.arange(self.ny)
 
     @property
-    def bounds(self):
+    def bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """``((xmin, ymin), (xmax, ymax))`` (m) of the grid."""
         return (self.x0, self.y0), (self._x1, self._y1)
 
-    def _cells(self, x, y):
+    def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         fx = (x - self.x0) * self._inv
         fy = (y - self.y0) * self._inv
         ix = np.clip(fx.astype(np.intp), 0, self.nx - 2)
@@ -123,7 +129,8 @@ class HeightField:
         ty = np.clip(fy - iy, 0.0, 1.0)
         return iy * self.nx + ix, tx, ty
 
-    def _lerp(self, flat, idx, tx, ty):
+    def _lerp(self, flat: np.ndarray, idx: np.ndarray, tx: np.ndarray, ty: np.ndarray
+              ) -> np.ndarray:
         nx = self.nx
         v00 = flat[idx]
         v01 = flat[idx + 1]
@@ -134,7 +141,7 @@ class HeightField:
         return a + (b - a) * ty
 
     # ------------------------------------------------------------------ queries
-    def height(self, xy):
+    def height(self, xy: ArrayLike) -> float | np.ndarray:
         """
         Top-surface height at x-y positions (bilinear).
 
@@ -154,7 +161,7 @@ class HeightField:
         z = self._lerp(self._top_flat, idx, tx, ty)
         return float(z) if np.ndim(z) == 0 else z
 
-    def bottom_height(self, xy):
+    def bottom_height(self, xy: ArrayLike) -> float | np.ndarray:
         """
         Bottom-surface height at x-y positions (bilinear), like :meth:`height`.
 
@@ -174,7 +181,7 @@ class HeightField:
         z = self._lerp(self._bottom_flat, idx, tx, ty)
         return float(z) if np.ndim(z) == 0 else z
 
-    def gradient(self, xy):
+    def gradient(self, xy: ArrayLike) -> np.ndarray:
         """
         Top-surface slope ``(dz/dx, dz/dy)`` at x-y positions.
 
@@ -194,7 +201,7 @@ class HeightField:
         return np.stack([self._lerp(self._gx_flat, idx, tx, ty),
                          self._lerp(self._gy_flat, idx, tx, ty)], axis=-1)
 
-    def normal(self, xy):
+    def normal(self, xy: ArrayLike) -> np.ndarray:
         """
         Upward unit normal of the top surface at x-y positions.
 
@@ -213,7 +220,7 @@ class HeightField:
         n = np.concatenate([-g, np.ones(g.shape[:-1] + (1,))], axis=-1)
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
-    def surface_point(self, xy):
+    def surface_point(self, xy: ArrayLike) -> np.ndarray:
         """
         Point(s) of the top surface above x-y positions.
 
@@ -232,7 +239,7 @@ class HeightField:
         z = np.asarray(self.height(xy))
         return np.concatenate([xy, z[..., None]], axis=-1)
 
-    def depth(self, points):
+    def depth(self, points: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """
         Depth of points below the top surface, and whether they lie inside the solid.
 
@@ -275,7 +282,7 @@ class HeightField:
         inside = (d >= 0.0) & (z >= zb[1])
         return d, inside
 
-    def top_bound(self, radius):
+    def top_bound(self, radius: float) -> Callable[[float, float], float]:
         """
         Return a bound of the top surface :meth:`depth` sees within ``radius`` of a point.
 
@@ -304,7 +311,7 @@ class HeightField:
         x_lo, x_hi = x0 + keep, x0 + last_i * self.spacing - keep
         y_lo, y_hi = y0 + keep, y0 + last_j * self.spacing - keep
 
-        def bound(x, y):
+        def bound(x: float, y: float) -> float:
             if not (x_lo <= x <= x_hi and y_lo <= y <= y_hi):
                 return math.inf
             i = min(max(round((x - x0) * inv), 0), last_i)
@@ -313,7 +320,7 @@ class HeightField:
 
         return bound
 
-    def contains(self, points):
+    def contains(self, points: ArrayLike) -> np.ndarray:
         """
         Whether points lie inside the solid (footprint, and bottom <= z <= top).
 
@@ -329,7 +336,7 @@ class HeightField:
         """
         return self.depth(points)[1]
 
-    def closed(self, width):
+    def closed(self, width: float) -> 'HeightField':
         """
         Return a copy whose top surface has gaps narrower than ``width`` filled.
 
@@ -354,7 +361,8 @@ class HeightField:
         return HeightField(self.x0, self.y0, self.spacing, top, self.bottom, self.footprint)
 
 
-def rasterize_mesh(mesh, spacing, margin=0.0, chunk=2_000_000):
+def rasterize_mesh(mesh: trimesh.Trimesh, spacing: float, margin: float = 0.0,
+                   chunk: int = 2_000_000) -> HeightField:
     """
     Height field of a mesh's top and bottom surfaces by vertical ray casting.
 
@@ -385,8 +393,8 @@ def rasterize_mesh(mesh, spacing, margin=0.0, chunk=2_000_000):
     x0, y0 = xmin - margin, ymin - margin
     nx = max(2, int(np.floor((xmax + margin - x0) / spacing)) + 1)
     ny = max(2, int(np.floor((ymax + margin - y0) / spacing)) + 1)
-    top = np.full(ny * nx, -np.inf)
-    bottom = np.full(ny * nx, np.inf)
+    top: np.ndarray = np.full(ny * nx, -np.inf)
+    bottom: np.ndarray = np.full(ny * nx, np.inf)
 
     a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
     det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
@@ -436,7 +444,7 @@ def rasterize_mesh(mesh, spacing, margin=0.0, chunk=2_000_000):
     return HeightField(x0, y0, spacing, top, bottom, footprint.reshape(ny, nx))
 
 
-def grid_mesh(xs, ys, top, bottom_z):
+def grid_mesh(xs: ArrayLike, ys: ArrayLike, top: ArrayLike, bottom_z: float) -> trimesh.Trimesh:
     """
     Build a closed, watertight mesh of a block whose top surface is a height grid.
 

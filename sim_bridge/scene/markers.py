@@ -6,8 +6,15 @@ phantom frame when placed, ``world`` once the phantom is).
 """
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from sim_bridge.scene.heightfield import HeightField
+    from sim_bridge.scene.phantom_config import PhantomConfig
+    from sim_bridge.scene.phantom_shapes import WoundLine
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,17 +46,17 @@ class MarkerPair:
     index: int = 0
 
     @property
-    def midpoint(self):
+    def midpoint(self) -> np.ndarray:
         """Midpoint of entry and exit (m), shape (3,)."""
         return 0.5 * (self.entry + self.exit)
 
     @property
-    def chord(self):
+    def chord(self) -> float:
         """Entry-to-exit distance (m)."""
         return float(np.linalg.norm(self.exit - self.entry))
 
     @property
-    def frame(self):
+    def frame(self) -> np.ndarray:
         """
         Pair frame ``T_world_pair`` (4, 4).
 
@@ -65,7 +72,7 @@ class MarkerPair:
         T[:3, 3] = self.midpoint
         return T
 
-    def transformed(self, T):
+    def transformed(self, T: ArrayLike) -> 'MarkerPair':
         """
         Return this pair with its points and normals mapped by the rigid transform ``T``.
 
@@ -85,7 +92,7 @@ class MarkerPair:
                           R @ self.entry_normal, R @ self.exit_normal, self.index)
 
 
-def marker_frame(point, normal, other):
+def marker_frame(point: np.ndarray, normal: np.ndarray, other: np.ndarray) -> np.ndarray:
     """
     Return the frame of one marker, ``T_world_marker`` (4, 4).
 
@@ -114,7 +121,8 @@ def marker_frame(point, normal, other):
     return T
 
 
-def place_markers(config, surface, wound):
+def place_markers(config: 'PhantomConfig', surface: 'HeightField',
+                  wound: 'WoundLine | None') -> dict[str, MarkerPair]:
     """
     Return the marker pairs of a phantom, dropped onto its tissue surface (phantom frame).
 
@@ -125,8 +133,8 @@ def place_markers(config, surface, wound):
         ``half_width`` and ``entry_side``.
     surface : sim_bridge.scene.heightfield.HeightField
         Tissue surface (phantom frame).
-    wound : sim_bridge.scene.phantom_shapes.WoundLine
-        Wound line (phantom frame).
+    wound : sim_bridge.scene.phantom_shapes.WoundLine or None
+        Wound line (phantom frame); None only when ``config`` gives the markers.
 
     Returns
     -------
@@ -146,6 +154,7 @@ def place_markers(config, surface, wound):
                  for name, m in config.markers.items()]
     else:
         w = config.wound
+        assert wound is not None, 'a phantom without its markers has a wound line'
         items = []
         centre = 0.5 * wound.length + w.offset
         for k in range(w.n_pairs):

@@ -18,9 +18,14 @@ Lengths are metres, angles radians unless a name says ``deg``.
 
 from dataclasses import dataclass
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import ndimage
+
+if TYPE_CHECKING:
+    from sim_bridge.scene.heightfield import HeightField
 
 
 @dataclass(frozen=True)
@@ -75,12 +80,12 @@ class WoundLineFound:
     angle_deg: float
 
     @property
-    def centre(self):
+    def centre(self) -> np.ndarray:
         """Centre (x, y) of the line (m)."""
         return 0.5 * (self.start + self.end)
 
 
-def flat_top_mask(surface, search=WoundSearch()):
+def flat_top_mask(surface: 'HeightField', search: WoundSearch = WoundSearch()) -> np.ndarray:
     """
     Grid nodes of a height field on its flat-enough top surface.
 
@@ -104,7 +109,7 @@ def flat_top_mask(surface, search=WoundSearch()):
     return foot & slope_ok & (top >= highest - search.top_band)
 
 
-def _longest_run(rows):
+def _longest_run(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start index and length of the longest run of True in each row of a 2-D bool array."""
     n_rows, n = rows.shape
     padded = np.zeros((n_rows, n + 2), dtype=np.int8)
@@ -122,7 +127,8 @@ def _longest_run(rows):
     return best_start, best_len
 
 
-def find_wound_line(surface, clearance, search=WoundSearch()):
+def find_wound_line(surface: 'HeightField', clearance: float,
+                    search: WoundSearch = WoundSearch()) -> WoundLineFound | None:
     """
     Find the longest straight line on the flat-enough top surface with room either side.
 
@@ -154,7 +160,7 @@ def find_wound_line(surface, clearance, search=WoundSearch()):
     step = search.spacing
     n = int(math.ceil(2.0 * half / step)) + 1
     t = np.linspace(-half, half, n)
-    best = None
+    best: tuple[float, np.ndarray, np.ndarray, float] | None = None
     for k in range(search.angles):
         a = math.pi * k / search.angles
         d = np.array([math.cos(a), math.sin(a)])
@@ -174,12 +180,13 @@ def find_wound_line(surface, clearance, search=WoundSearch()):
             p0 = centre + t[r] * perp + t[starts[r]] * d
             p1 = centre + t[r] * perp + t[starts[r] + lengths[r] - 1] * d
             best = (length, p0, p1, math.degrees(a))
-    length, p0, p1, angle = best
+    # best is None only if no line meets a usable node: unpacking then fails as before
+    length, p0, p1, angle = cast(tuple[float, np.ndarray, np.ndarray, float], best)
     mid = 0.5 * (p0 + p1)
     return WoundLineFound(p0, p1, float(length), float(surface.height(mid)), angle)
 
 
-def wound_frame(centre, direction, height):
+def wound_frame(centre: ArrayLike, direction: ArrayLike, height: float) -> np.ndarray:
     """
     Transform ``T_phantom_file`` of a wound's phantom frame.
 
@@ -210,7 +217,7 @@ def wound_frame(centre, direction, height):
     return T
 
 
-def apply_xy(T, xy):
+def apply_xy(T: ArrayLike, xy: ArrayLike) -> np.ndarray:
     """
     Map x-y points by the planar part of a transform about z.
 

@@ -32,12 +32,15 @@ The configuration is in :mod:`sim_bridge.scene.phantom_config`, the marker pairs
 :mod:`sim_bridge.scene.markers`; both are importable from here too.
 """
 
+from collections.abc import Mapping
 from dataclasses import replace
 import logging
 import math
 from pathlib import Path
+from typing import cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.scene.heightfield import HeightField, grid_mesh, rasterize_mesh
 from sim_bridge.scene.markers import MarkerPair, place_markers
@@ -95,7 +98,9 @@ class Phantom:
 
     """
 
-    def __init__(self, name, config, mesh, surface, wound, markers_phantom):
+    def __init__(self, name: str, config: PhantomConfig, mesh: trimesh.Trimesh,
+                 surface: HeightField, wound: WoundLine | None,
+                 markers_phantom: Mapping[str, MarkerPair]) -> None:
         self.name = name
         self.config = config
         self.T_world_phantom = config.T_world_phantom
@@ -112,26 +117,26 @@ class Phantom:
         self.T_phantom_file = np.eye(4)
 
     @property
-    def kind(self):
+    def kind(self) -> str:
         """Phantom kind (``synthetic``, ``scanned``, ``mesh``)."""
         return self.config.kind
 
     @property
-    def marker_radius(self):
+    def marker_radius(self) -> float:
         """Marker disc radius (m)."""
         return self.config.marker_radius
 
     @property
-    def marker_rgba(self):
+    def marker_rgba(self) -> tuple[float, float, float, float]:
         """Marker colour (r, g, b, a)."""
         return self.config.marker_rgba
 
     @property
-    def rgba(self):
+    def rgba(self) -> tuple[float, float, float, float]:
         """Pad colour (r, g, b, a)."""
         return self.config.rgba
 
-    def to_phantom(self, points_world):
+    def to_phantom(self, points_world: ArrayLike) -> np.ndarray:
         """
         Map world points into the phantom frame.
 
@@ -148,13 +153,13 @@ class Phantom:
         """
         return np.asarray(points_world, dtype=float) @ self._R.T + self._t
 
-    def mesh_world(self):
+    def mesh_world(self) -> trimesh.Trimesh:
         """Return a copy of the pad mesh in the world frame (trimesh.Trimesh)."""
         m = self.mesh.copy()
         m.apply_transform(self.T_world_phantom)
         return m
 
-    def height(self, xy):
+    def height(self, xy: ArrayLike) -> float | np.ndarray:
         """
         Tissue-surface height at phantom-frame x-y positions (slit closed).
 
@@ -171,7 +176,7 @@ class Phantom:
         """
         return self.surface.height(xy)
 
-    def normal(self, xy):
+    def normal(self, xy: ArrayLike) -> np.ndarray:
         """
         Upward unit surface normal at phantom-frame x-y positions (phantom frame).
 
@@ -187,7 +192,7 @@ class Phantom:
         """
         return self.surface.normal(xy)
 
-    def is_inside(self, points_world):
+    def is_inside(self, points_world: ArrayLike) -> np.ndarray:
         """
         Whether world points lie inside the tissue (within the footprint, below the surface).
 
@@ -203,7 +208,7 @@ class Phantom:
         """
         return self.surface.depth(self.to_phantom(points_world))[1]
 
-    def penetration(self, points_world):
+    def penetration(self, points_world: ArrayLike) -> np.ndarray:
         """
         Depth of world points below the tissue surface, zero outside the tissue.
 
@@ -223,7 +228,7 @@ class Phantom:
         d, inside = self.surface.depth(self.to_phantom(points_world))
         return np.where(inside, d, 0.0)
 
-    def nearest_marker(self, point_world):
+    def nearest_marker(self, point_world: ArrayLike) -> tuple[str | None, float]:
         """
         Nearest marker to a world point.
 
@@ -253,15 +258,15 @@ class Phantom:
 # ---------------------------------------------------------------------- construction
 
 
-def _generated(config):
+def _generated(config: PhantomConfig) -> tuple[trimesh.Trimesh, HeightField, WoundLine]:
     length, width, thickness = config.size
     wound = WoundLine(config.wound.line)
     centre = wound.point(0.5 * wound.length)
     if config.kind == 'synthetic':
-        def height(xy):
+        def height(xy: np.ndarray) -> np.ndarray:
             return synthetic_height(xy, config.size)
     else:
-        def height(xy):
+        def height(xy: np.ndarray) -> np.ndarray:
             return scanned_height(xy, config.size, config.shape, config.seed, centre)
     # Tissue surface: the slit-free analytic surface on a fine grid.
     res = config.resolution
@@ -305,8 +310,10 @@ def _generated(config):
     return mesh, surface, wound
 
 
-def _load_user_mesh(config, base_dir):
-    path = Path(config.mesh)
+def _load_user_mesh(config: PhantomConfig, base_dir: str | Path | None
+                    ) -> tuple[trimesh.Trimesh, HeightField, WoundLine | None, PhantomConfig,
+                               np.ndarray | None, str]:
+    path = Path(cast(str, config.mesh))  # a mesh phantom has its file (PhantomConfig checks)
     if not path.is_absolute() and base_dir is not None:
         path = Path(base_dir) / path
     try:
@@ -329,7 +336,8 @@ def _load_user_mesh(config, base_dir):
     return mesh, surface, wound, config, T, note
 
 
-def _place_wound(config, mesh, path):
+def _place_wound(config: PhantomConfig, mesh: trimesh.Trimesh, path: Path
+                 ) -> tuple[PhantomConfig, np.ndarray | None, str]:
     """
     Wound line or markers of a user mesh, and its phantom frame.
 
@@ -337,6 +345,8 @@ def _place_wound(config, mesh, path):
     ``T_phantom_file`` (None: the file's frame is the phantom frame) and a sentence saying
     where the markers lie.
     """
+    T: np.ndarray | None  # None: the file's frame is the phantom frame
+    markers: dict[str, MarkerConfig] | None
     w = config.wound
     if config.frame == 'file' and (config.markers or w.line):
         return config, None, ''
@@ -348,7 +358,7 @@ def _place_wound(config, mesh, path):
         exits = np.array([m.exit for m in config.markers.values()], dtype=float)
         across = (entries - exits).mean(axis=0) * w.entry_side
         centre = 0.5 * (entries + exits).mean(axis=0)
-        T = wound_frame(centre, (across[1], -across[0]), coarse.height(centre))
+        T = wound_frame(centre, (across[1], -across[0]), cast(float, coarse.height(centre)))
         markers = {name: MarkerConfig(tuple(apply_xy(T, m.entry)[0]),
                                       tuple(apply_xy(T, m.exit)[0]))
                    for name, m in config.markers.items()}
@@ -358,7 +368,8 @@ def _place_wound(config, mesh, path):
     if w.line:
         line = WoundLine(w.line)
         centre = line.point(0.5 * line.length)
-        T = wound_frame(centre, np.subtract(w.line[-1], w.line[0]), coarse.height(centre))
+        T = wound_frame(centre, np.subtract(w.line[-1], w.line[0]),
+                        cast(float, coarse.height(centre)))
         points = tuple(tuple(p) for p in apply_xy(T, w.line))
         markers = config.markers
         if markers:  # given with the line: placed in the line's frame
@@ -401,7 +412,8 @@ def _place_wound(config, mesh, path):
     return replace(config, wound=replace(w, line=points, n_pairs=n_pairs)), T, note
 
 
-def build_phantom(config, name='phantom', base_dir=None):
+def build_phantom(config: PhantomConfig, name: str = 'phantom',
+                  base_dir: str | Path | None = None) -> Phantom:
     """
     Build a phantom from its configuration.
 

@@ -53,7 +53,7 @@ class WoundConfig:
     entry_side: int = 1
     offset: float = 0.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if len(self.line) == 1:
             raise ValueError('wound line needs at least two (x, y) points (or none on a user '
                              'mesh: found on its top surface)')
@@ -155,7 +155,7 @@ class PhantomConfig:
     marker_radius: float = 0.0015
     marker_rgba: tuple[float, float, float, float] = (0.9, 0.05, 0.05, 1.0)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f'phantom kind must be one of {KINDS}, got {self.kind!r}')
         if self.kind == 'mesh' and not self.mesh:
@@ -175,7 +175,7 @@ class PhantomConfig:
         check_quaternions(self.quaternion, 'phantom quaternion')
 
     @property
-    def T_world_phantom(self):  # noqa: N802 (the project names poses T_a_b)
+    def T_world_phantom(self) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
         """Phantom pose in the world, shape (4, 4)."""
         T = np.eye(4)
         q = check_quaternions(self.quaternion, 'phantom quaternion')

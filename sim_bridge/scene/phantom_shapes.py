@@ -12,10 +12,12 @@ the origin is on the top surface at the pad centre. Lengths are metres.
   with arc-length lookup and the slit region around it.
 """
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import make_interp_spline
 from sim_bridge.common.validation import check_positive
 
@@ -55,14 +57,14 @@ class ScannedShape:
     edge_width: float = 0.004
     edge_drop: float = 0.0015
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.bump_count < 0:
             raise ValueError(f'shape bump_count must be >= 0, got {self.bump_count}')
         for name in ('bump_sigma', 'edge_width'):
             check_positive(getattr(self, name), f'shape {name} (m)')
 
 
-def synthetic_height(xy, size):
+def synthetic_height(xy: np.ndarray, size: Sequence[float]) -> np.ndarray:
     """
     Top surface of the flat synthetic pad (``z = 0`` everywhere).
 
@@ -85,7 +87,8 @@ def synthetic_height(xy, size):
     return np.zeros(xy.shape[:-1])
 
 
-def _raw_scanned(x, y, size, shape, bumps):
+def _raw_scanned(x: np.ndarray, y: np.ndarray, size: Sequence[float], shape: 'ScannedShape',
+                 bumps: np.ndarray) -> np.ndarray:
     length, width = size[0], size[1]
     u = 2.0 * x / length
     v = 2.0 * y / width
@@ -97,7 +100,7 @@ def _raw_scanned(x, y, size, shape, bumps):
     return z - shape.edge_drop * roll * roll
 
 
-def scanned_bumps(size, shape, seed):
+def scanned_bumps(size: Sequence[float], shape: 'ScannedShape', seed: int) -> np.ndarray:
     """
     Seeded bumps of the scanned pad.
 
@@ -125,7 +128,8 @@ def scanned_bumps(size, shape, seed):
     return np.column_stack([cx, cy, amp, sig])
 
 
-def scanned_height(xy, size, shape, seed, origin_xy=(0.0, 0.0)):
+def scanned_height(xy: ArrayLike, size: Sequence[float], shape: 'ScannedShape', seed: int,
+                   origin_xy: Sequence[float] | np.ndarray = (0.0, 0.0)) -> np.ndarray:
     """
     Top surface of the generated "scanned" pad.
 
@@ -139,7 +143,7 @@ def scanned_height(xy, size, shape, seed, origin_xy=(0.0, 0.0)):
         Shape parameters.
     seed : int
         Bump seed.
-    origin_xy : tuple of float
+    origin_xy : sequence of float or ndarray, shape (2,)
         Position whose height is shifted to ``z = 0`` (the wound centre).
 
     Returns
@@ -169,7 +173,7 @@ class WoundLine:
 
     """
 
-    def __init__(self, control_points, samples=400):
+    def __init__(self, control_points: ArrayLike, samples: int = 400) -> None:
         pts = np.asarray(control_points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
             raise ValueError(f'wound line needs at least two (x, y) points, got shape '
@@ -188,7 +192,7 @@ class WoundLine:
         self.length = float(self.arclength[-1])
         self.straight = len(pts) == 2
 
-    def point(self, s):
+    def point(self, s: float) -> np.ndarray:
         """
         Point at arc length ``s`` (m) from the start, clamped to the line.
 
@@ -207,7 +211,7 @@ class WoundLine:
         return np.array([np.interp(s, self.arclength, self.points[:, 0]),
                          np.interp(s, self.arclength, self.points[:, 1])])
 
-    def tangent(self, s):
+    def tangent(self, s: float) -> np.ndarray:
         """
         Return the unit tangent (start to end) at arc length ``s`` (m).
 
@@ -228,7 +232,7 @@ class WoundLine:
         d = b - a
         return d / np.linalg.norm(d)
 
-    def left(self, s):
+    def left(self, s: float) -> np.ndarray:
         """
         Return the unit normal left of the tangent (``z x tangent``) at arc length ``s``.
 
@@ -246,7 +250,7 @@ class WoundLine:
         t = self.tangent(s)
         return np.array([-t[1], t[0]])
 
-    def slit_mask(self, xy, half_width):
+    def slit_mask(self, xy: ArrayLike, half_width: float) -> np.ndarray:
         """
         Tell which x-y positions lie in the slit around the curve.
 
@@ -287,7 +291,7 @@ class WoundLine:
         return mask
 
 
-def breakpoints(lo, hi, spacing, extra=()):
+def breakpoints(lo: float, hi: float, spacing: float, extra: Iterable[float] = ()) -> np.ndarray:
     """
     Sorted grid coordinates from ``lo`` to ``hi`` at about ``spacing``, plus extra values.
 

@@ -23,12 +23,13 @@ wound is found on the mesh's top surface) and ``marker_prefix`` to ``mesh``::
 
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
+from typing import cast
 
 from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping, load_yaml
 from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.common.paths import config_path
 from sim_bridge.control import ExpertConfig
-from sim_bridge.scene.phantom import PhantomConfig, build_phantom
+from sim_bridge.scene.phantom import Phantom, PhantomConfig, build_phantom
 from sim_bridge.scene.scoring import ScoringConfig
 from sim_bridge.scene.tissue import TissueConfig
 
@@ -36,7 +37,7 @@ PHANTOM_FILE_DEFAULTS = {'kind': 'mesh', 'frame': 'wound', 'marker_prefix': 'mes
 MESH_SUFFIXES = ('.stl', '.obj', '.ply')
 
 
-def _default_phantoms():
+def _default_phantoms() -> dict[str, PhantomConfig]:
     return {'synthetic': PhantomConfig()}
 
 
@@ -72,7 +73,7 @@ class SceneConfig:
     scoring: ScoringConfig = field(default_factory=ScoringConfig)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
 
-    def phantom_config(self, name=None):
+    def phantom_config(self, name: str | None = None) -> PhantomConfig:
         """
         Return the configuration of a phantom.
 
@@ -91,7 +92,7 @@ class SceneConfig:
             raise ValueError(f'unknown phantom {name!r}; the scene has {sorted(self.phantoms)}')
         return self.phantoms[name]
 
-    def build_phantom(self, name=None):
+    def build_phantom(self, name: str | None = None) -> Phantom:
         """
         Build a phantom of the scene.
 
@@ -108,7 +109,7 @@ class SceneConfig:
         name = self.active_phantom if name is None else name
         return build_phantom(self.phantom_config(name), name=name)
 
-    def phantom_for_pair(self, pair):
+    def phantom_for_pair(self, pair: str) -> str:
         """
         Return the phantom whose marker prefix names the pair (``'scan2'`` -> ``'scanned'``).
 
@@ -131,7 +132,7 @@ class SceneConfig:
         raise ValueError(f'no phantom of the scene has marker pair {pair!r}')
 
 
-def load_scene_config(path=None):
+def load_scene_config(path: str | Path | None = None) -> 'SceneConfig':
     """
     Read the scene configuration.
 
@@ -171,8 +172,9 @@ def load_scene_config(path=None):
     return replace(scene, phantoms=phantoms)
 
 
-def _resolve_mesh(cfg, base, source, key):
-    mesh = Path(cfg.mesh)
+def _resolve_mesh(cfg: PhantomConfig, base: str | Path, source: object,
+                  key: str) -> PhantomConfig:
+    mesh = Path(cast(str, cfg.mesh))  # both callers check that cfg.mesh is set
     if not mesh.is_absolute():
         mesh = Path(base) / mesh
     if not mesh.is_file():
@@ -181,7 +183,8 @@ def _resolve_mesh(cfg, base, source, key):
     return replace(cfg, mesh=str(mesh))
 
 
-def load_phantom_file(path, template=None):
+def load_phantom_file(path: str | Path,
+                      template: PhantomConfig | None = None) -> PhantomConfig:
     """
     Read a phantom file: one user phantom (mesh, scale, pose, wound line or markers).
 
@@ -231,7 +234,8 @@ def load_phantom_file(path, template=None):
     return _resolve_mesh(cfg, path.parent, source, 'mesh')
 
 
-def phantom_from_argument(scene, phantom):
+def phantom_from_argument(scene: 'SceneConfig', phantom: str | Path | PhantomConfig
+                          ) -> tuple[str, PhantomConfig]:
     """
     Return the phantom configuration a ``phantom`` argument names.
 

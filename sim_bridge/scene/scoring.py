@@ -46,8 +46,12 @@ not happen).
 
 from dataclasses import dataclass
 import math
+from typing import TYPE_CHECKING
 
 from sim_bridge.common.validation import check_positive
+
+if TYPE_CHECKING:
+    from sim_bridge.scene.tissue import TissueEvent
 
 
 @dataclass(frozen=True)
@@ -77,7 +81,7 @@ class ScoringConfig:
     max_collisions: int = -1
     require_handover: bool = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_positive(self.marker_tolerance, 'scoring marker_tolerance (m)')
         if not self.reasonable_entry >= self.marker_tolerance:
             raise ValueError('scoring reasonable_entry must be >= marker_tolerance')
@@ -124,7 +128,7 @@ class ThrowScore:
     failures: tuple = ()
 
     @property
-    def complete(self):
+    def complete(self) -> bool:
         """Whether the throw is complete (score 1.0)."""
         return self.score == 1.0
 
@@ -142,28 +146,28 @@ class ThrowScorer:
 
     """
 
-    def __init__(self, config=None, t_start=0.0):
+    def __init__(self, config: ScoringConfig | None = None, t_start: float = 0.0) -> None:
         self.config = ScoringConfig() if config is None else config
         self.t_start = float(t_start)
-        self._holders = set()
-        self._entry = None
-        self._entry_holders = frozenset()
-        self._exit = None
-        self._exit_holders = frozenset()
+        self._holders: set[str] = set()
+        self._entry: TissueEvent | None = None
+        self._entry_holders: frozenset[str] = frozenset()
+        self._exit: TissueEvent | None = None
+        self._exit_holders: frozenset[str] = frozenset()
         self._withdrawn_before_exit = False
         self._psm1_after_exit = False
         self._regrasped = False
         self._extracted = False
-        self._extract_holders = frozenset()
+        self._extract_holders: frozenset[str] = frozenset()
         self._psm2_after_extract = False
-        self._handover_t = None
+        self._handover_t: float | None = None
         self._dropped = False
         self._dropped_after_extract = False
         self._collisions = 0
         self._trauma = 0.0
 
     # ------------------------------------------------------------------ inputs
-    def on_grasp(self, t, arm):
+    def on_grasp(self, t: float, arm: str) -> None:
         """
         Record that ``arm`` (``'PSM1'``, ``'PSM2'``) grasped the needle at time ``t`` (s).
 
@@ -181,7 +185,7 @@ class ThrowScorer:
         if arm == 'PSM2' and self._extracted:
             self._psm2_after_extract = True
 
-    def on_release(self, t, arm):
+    def on_release(self, t: float, arm: str) -> None:
         """
         Record that ``arm`` opened its jaw on the needle at time ``t`` (s).
 
@@ -201,7 +205,7 @@ class ThrowScorer:
                 and not self._dropped_after_extract and self._handover_t is None):
             self._handover_t = float(t)
 
-    def on_drop(self, t):
+    def on_drop(self, t: float) -> None:
         """
         Record that the needle fell free of every arm at time ``t`` (s).
 
@@ -217,7 +221,7 @@ class ThrowScorer:
             if self._extracted:
                 self._dropped_after_extract = True
 
-    def on_collision(self, t, arm):
+    def on_collision(self, t: float, arm: str) -> None:
         """
         Record an instrument-phantom collision of ``arm`` at time ``t`` (s).
 
@@ -231,7 +235,7 @@ class ThrowScorer:
         """
         self._collisions += 1
 
-    def update_trauma(self, trauma_max):
+    def update_trauma(self, trauma_max: float) -> None:
         """
         Raise the recorded largest puncture-to-arc distance (m) to at least ``trauma_max``.
 
@@ -243,7 +247,7 @@ class ThrowScorer:
         """
         self._trauma = max(self._trauma, float(trauma_max))
 
-    def on_tissue_event(self, ev):
+    def on_tissue_event(self, ev: 'TissueEvent') -> None:
         """
         Record a needle-tissue event.
 
@@ -276,7 +280,7 @@ class ThrowScorer:
             raise ValueError(f'unknown tissue event kind {ev.kind!r}')
 
     # ------------------------------------------------------------------ result
-    def result(self, t_end):
+    def result(self, t_end: float) -> ThrowScore:
         """
         Score the throw as it stands at time ``t_end`` (s).
 

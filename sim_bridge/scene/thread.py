@@ -30,15 +30,19 @@ Frames and units: node positions are in ``world`` metres, shape ``(n + 1, 3)``.
 """
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.validation import check_positive
 
 # Queued steps beyond this many run one by one, oldest first, as new ones come (a thread that
 # nobody reads for long holds bounded memory and never runs a long backlog at once).
 _MAX_QUEUED = 4096
+# A support surface: height (m, ``world`` z) under each of n (x, y) points, shape (n,).
+Support = Callable[[np.ndarray], ArrayLike]
 
 
 @dataclass(frozen=True)
@@ -64,7 +68,7 @@ class ThreadDynamicsConfig:
     friction: float = 0.5
     gravity: float = 9.81
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.damping >= 0.0:
             raise ValueError(f'thread damping must be >= 0 1/s, got {self.damping}')
         if not 0.0 <= self.ftl_damping <= 1.0:
@@ -88,7 +92,8 @@ class ThreadChain:
 
     """
 
-    def __init__(self, nodes, radius, config=None):
+    def __init__(self, nodes: ArrayLike, radius: float,
+                 config: ThreadDynamicsConfig | None = None) -> None:
         nodes = np.array(nodes, dtype=float)
         if nodes.ndim != 2 or nodes.shape[1] != 3 or nodes.shape[0] < 2:
             raise ValueError(f'thread nodes must have shape (n + 1, 3), got {nodes.shape}')
@@ -105,26 +110,26 @@ class ThreadChain:
         self._x = nodes
         self._v = np.zeros_like(nodes)
         self._speed = 0.0
-        self._queued = deque()
+        self._queued: deque[tuple[float, ArrayLike, Support | None]] = deque()
 
     @property
-    def nodes(self):
+    def nodes(self) -> np.ndarray:
         """Node positions, shape (n + 1, 3), ``world`` (m); a copy."""
         self.catch_up()
         return self._x.copy()
 
     @property
-    def velocities(self):
+    def velocities(self) -> np.ndarray:
         """Node velocities, shape (n + 1, 3), ``world`` (m/s); a copy."""
         self.catch_up()
         return self._v.copy()
 
     @property
-    def segment_count(self):
+    def segment_count(self) -> int:
         """Number of segments ``n``."""
         return len(self.rest_lengths)
 
-    def reset(self, nodes):
+    def reset(self, nodes: ArrayLike) -> None:
         """
         Place the chain at ``nodes`` (``world``, m, shape (n + 1, 3)) at rest.
 
@@ -142,7 +147,7 @@ class ThreadChain:
         self._speed = 0.0
         self._queued = deque()
 
-    def follow(self, dt, anchor, support=None):
+    def follow(self, dt: float, anchor: ArrayLike, support: Support | None = None) -> None:
         """
         Queue a :meth:`step`; queued steps run, in order, when the thread is next read.
 
@@ -162,13 +167,13 @@ class ThreadChain:
         if len(self._queued) > _MAX_QUEUED:
             self._advance(*self._queued.popleft())
 
-    def catch_up(self):
+    def catch_up(self) -> None:
         """Run the steps queued by :meth:`follow`, oldest first."""
         queued = self._queued
         while queued:
             self._advance(*queued.popleft())
 
-    def step(self, dt, anchor, support=None):
+    def step(self, dt: float, anchor: ArrayLike, support: Support | None = None) -> None:
         """
         Advance the chain by ``dt`` seconds with node 0 at ``anchor`` (after any queued steps).
 
@@ -186,7 +191,7 @@ class ThreadChain:
         self.catch_up()
         self._advance(dt, anchor, support)
 
-    def _advance(self, dt, anchor, support):
+    def _advance(self, dt: float, anchor: ArrayLike, support: Support | None) -> None:
         cfg = self.config
         x = self._x
         p = x + self._v * (dt * math.exp(-cfg.damping * dt))
@@ -234,7 +239,7 @@ class ThreadChain:
         self._x = new
         self._v = v
 
-    def max_speed(self):
+    def max_speed(self) -> float:
         """
         Largest node displacement over the last step divided by its length (m/s).
 

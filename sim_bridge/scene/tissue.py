@@ -37,9 +37,15 @@ the per-step path that is being made faster, and stays one file until that settl
 
 from dataclasses import dataclass, field
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.validation import check_positive
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.scene.phantom import Phantom
 
 # Margin (m) of the test that the needle is wholly above the tissue: far above rounding.
 _CLEARANCE = 1e-7
@@ -73,7 +79,7 @@ class TissueConfig:
     withdraw_radius: float = 0.0015
     crossing_samples: int = 32
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.n_arc_points < 2:
             raise ValueError(f'tissue n_arc_points must be >= 2, got {self.n_arc_points}')
         check_positive(self.trauma_event_threshold, 'tissue trauma_event_threshold (m)')
@@ -208,7 +214,8 @@ class TissueTracker:
 
     """
 
-    def __init__(self, phantom, needle_geometry, config=None):
+    def __init__(self, phantom: 'Phantom', needle_geometry: 'NeedleGeometry',
+                 config: TissueConfig | None = None) -> None:
         self.phantom = phantom
         self.needle = needle_geometry
         self.config = TissueConfig() if config is None else config
@@ -234,17 +241,17 @@ class TissueTracker:
         self._marker_names = list(self._markers)
         self._marker_pts = (np.array(list(self._markers.values())) if self._markers
                             else np.zeros((0, 3)))
-        self._target = None
+        self._target: str | None = None
         self.reset()
 
     # ------------------------------------------------------------------ control
-    def reset(self):
+    def reset(self) -> None:
         """Forget all punctures and statistics (a new throw on fresh tissue)."""
-        self._prev_tip = None
+        self._prev_tip: np.ndarray | bytes | None = None  # bytes: the pose of a repeat
         self._prev_in = False
-        self.punctures = []
+        self.punctures: list[Puncture] = []
         self._occupied = np.zeros((0, 3))
-        self._occ_index = []
+        self._occ_index: list[int] = []
         self._t = 0.0
         self._inside_fraction = 0.0
         self._any_inside = False
@@ -255,17 +262,17 @@ class TissueTracker:
         self._trauma_sum = 0.0
         self._trauma_n = 0
         self._trauma_armed = True
-        self._entry = None
-        self._exit = None
+        self._entry: np.ndarray | None = None
+        self._exit: np.ndarray | None = None
         self._entry_error = math.nan
         self._exit_error = math.nan
         self._n_entries = 0
         self._n_exits = 0
         # (pose bytes, largest occupied deviation or None) of the last update when it changed
         # nothing but the statistics: the same pose again repeats that update (see update).
-        self._repeat = None
+        self._repeat: tuple[bytes, float | None] | None = None
 
-    def set_target_pair(self, name):
+    def set_target_pair(self, name: str | None) -> None:
         """
         Choose the marker pair the throw aims at (``None`` for none).
 
@@ -282,15 +289,15 @@ class TissueTracker:
         self._repeat = None
 
     @property
-    def target_pair(self):
+    def target_pair(self) -> str | None:
         """Name of the target marker pair, or None."""
         return self._target
 
     # ------------------------------------------------------------------ helpers
-    def _to_world(self, p):
+    def _to_world(self, p: np.ndarray) -> np.ndarray:
         return self._R_wp @ p + self._t_wp
 
-    def _marker_info(self, p, kind):
+    def _marker_info(self, p: np.ndarray, kind: str) -> tuple[float, str]:
         """Return (distance to the target marker of ``kind``, nearest marker name)."""
         if not len(self._marker_pts):
             return math.nan, ''
@@ -302,7 +309,7 @@ class TissueTracker:
         same = [i for i, n in enumerate(self._marker_names) if n.endswith('.' + kind)]
         return float(d[same].min()), nearest
 
-    def _crossing(self, a, b):
+    def _crossing(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Point where the segment a -> b (phantom frame) crosses the tissue boundary."""
         seg = a + np.outer(self._lam, b - a)
         depth, inside = self._surface.depth(seg)
@@ -316,7 +323,7 @@ class TissueTracker:
             return p
         return 0.5 * (seg[k] + seg[k + 1])
 
-    def _tip_at(self, prev):
+    def _tip_at(self, prev: np.ndarray | bytes) -> np.ndarray:
         """Return the tip (phantom frame) of the last update, worked out again from its pose."""
         if not isinstance(prev, bytes):
             return prev
@@ -325,7 +332,7 @@ class TissueTracker:
         tr = self._R_pw @ T[:3, 3] + self._t_pw
         return (self._arc @ R.T + tr)[-1]  # as update computes it
 
-    def _clear_of_tissue(self, T):
+    def _clear_of_tissue(self, T: np.ndarray) -> bool:
         """
         Whether every sampled needle point of the pose ``T`` is above the tissue's top surface.
 
@@ -351,13 +358,13 @@ class TissueTracker:
             lowest = -rho  # the circle's lowest point lies on the arc
         return cz + self._radius * lowest - _CLEARANCE > self._top_near(cx, cy)
 
-    def _rebuild_occupied(self):
+    def _rebuild_occupied(self) -> None:
         self._occ_index = [i for i, p in enumerate(self.punctures) if p.occupied]
         self._occupied = (np.array([self.punctures[i].point for i in self._occ_index])
                           if self._occ_index else np.zeros((0, 3)))
 
     # ------------------------------------------------------------------ step
-    def update(self, t, T_world_needle):
+    def update(self, t: float, T_world_needle: ArrayLike) -> list[TissueEvent]:
         """
         Advance the tracker to time ``t`` with the needle at ``T_world_needle``.
 
@@ -473,7 +480,7 @@ class TissueTracker:
         self._repeat = None if events or released_any else (key, now)
         return events
 
-    def _on_entry(self, t, p):
+    def _on_entry(self, t: float, p: np.ndarray) -> TissueEvent:
         self.punctures.append(Puncture('entry', p, float(t)))
         self._rebuild_occupied()
         self._n_entries += 1
@@ -483,7 +490,7 @@ class TissueTracker:
             self._entry_error = dist
         return TissueEvent(t, 'entry', self._to_world(p), dist, name)
 
-    def _on_exit(self, t, p):
+    def _on_exit(self, t: float, p: np.ndarray) -> TissueEvent:
         wr = self.config.withdraw_radius
         for i in self._occ_index:
             punct = self.punctures[i]
@@ -505,16 +512,16 @@ class TissueTracker:
 
     # ------------------------------------------------------------------ state
     @property
-    def inside_fraction(self):
+    def inside_fraction(self) -> float:
         """Fraction of sampled needle points inside the tissue at the last update."""
         return self._inside_fraction
 
     @property
-    def tip_inside(self):
+    def tip_inside(self) -> bool:
         """Whether the tip was inside the tissue at the last update."""
         return self._prev_in
 
-    def wire_depth(self, T_world_needle):
+    def wire_depth(self, T_world_needle: ArrayLike) -> float:
         """
         Return how deep (m) the needle's centre line dips below the tissue's top surface.
 
@@ -527,26 +534,26 @@ class TissueTracker:
         return float(depth.max())
 
     @property
-    def in_tissue(self):
+    def in_tissue(self) -> bool:
         """Whether the needle is in the tissue (a point inside or a puncture occupied)."""
         return self._any_inside or bool(self._occ_index)
 
     @property
-    def extracted(self):
+    def extracted(self) -> bool:
         """Whether the needle has been pulled through after an exit."""
         return self._extracted
 
     @property
-    def trauma_max(self):
+    def trauma_max(self) -> float:
         """Largest puncture-to-arc distance (m) so far."""
         return self._trauma_max
 
     @property
-    def trauma_mean(self):
+    def trauma_mean(self) -> float:
         """Mean over occupied updates of the largest puncture-to-arc distance (m)."""
         return self._trauma_sum / self._trauma_n if self._trauma_n else 0.0
 
-    def state(self):
+    def state(self) -> TissueState:
         """
         Snapshot of the tracker (world frame).
 

@@ -25,18 +25,27 @@ Size: every body lives in one PyBullet client whose per-step calls are batched h
 simulator's hot path), so the bodies are built and moved in one file.
 """
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 import math
 import os
+from pathlib import Path
 import tempfile
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 from sim_bridge.bullet import pybullet
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.common.geometry import invert_transform, quaternion_from_matrix
+from sim_bridge.common.needle import NeedleGeometry, ThreadGeometry
 from sim_bridge.common.paths import config_path
 from sim_bridge.common.validation import check_positive
+
+if TYPE_CHECKING:
+    from sim_bridge.scene.phantom import Phantom
+    import trimesh
 
 # Frames of the arms' Cartesian poses (WorldConfig.frames): a patient cart (PSMs in the camera
 # frame) or each arm in its own base.
@@ -74,7 +83,7 @@ class Placement:
     rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
-    def T(self):  # noqa: N802 (the project names poses T_a_b)
+    def T(self) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
         """``T_world_base``, shape (4, 4)."""
         T = np.eye(4)
         T[:3, :3] = Rotation.from_euler('xyz', self.rpy).as_matrix()
@@ -177,7 +186,7 @@ class WorldConfig:
     phantom_collision_margin: float = 0.001
     frames: str = 'cart'
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         check_positive(self.physics_step, 'world physics_step (s)')
         if self.frames not in FRAMES:
             raise ValueError(f"world frames must be 'cart' (PSM poses in the camera frame) or "
@@ -189,7 +198,7 @@ class WorldConfig:
             raise ValueError(f'world needle_segments must be >= 1, got {self.needle_segments}')
 
 
-def read_world_config(path=None):
+def read_world_config(path: str | Path | None = None) -> 'WorldConfig':
     """
     Read the ``world`` section of ``config/world.yaml`` into a :class:`WorldConfig`.
 
@@ -208,7 +217,7 @@ def read_world_config(path=None):
     return dataclass_from_mapping(WorldConfig, data, source=str(path), prefix='world')
 
 
-def transform_from_bullet(position, quaternion):
+def transform_from_bullet(position: ArrayLike, quaternion: ArrayLike) -> np.ndarray:
     """
     Return the 4x4 pose of a PyBullet position and quaternion ``(x, y, z, w)``.
 
@@ -230,7 +239,8 @@ def transform_from_bullet(position, quaternion):
     return T
 
 
-def _wire_mesh(needle, n_arc=48, n_ring=12):
+def _wire_mesh(needle: NeedleGeometry, n_arc: int = 48, n_ring: int = 12
+               ) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """
     Return the needle's wire as a closed triangle mesh in the needle frame, for drawing.
 
@@ -262,7 +272,7 @@ def _wire_mesh(needle, n_arc=48, n_ring=12):
             c, d = a + n_ring, b + n_ring
             indices += [a, c, b, b, c, d]
     tangent = needle.tangent_at(np.array([0.0, 1.0]))
-    caps = []
+    caps: list[tuple[np.ndarray, np.ndarray]] = []
     for k, (row, direction) in enumerate(((0, -tangent[0]), (n_arc, tangent[1]))):
         first = len(vertices) + sum(len(c[0]) for c in caps)
         ring_vertices = vertices[row * n_ring:(row + 1) * n_ring]
@@ -276,7 +286,8 @@ def _wire_mesh(needle, n_arc=48, n_ring=12):
     return vertices, normals, indices
 
 
-def _arc_mass_properties(points, mass):
+def _arc_mass_properties(points: np.ndarray, mass: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre of mass, principal axes and inertias of a wire through ``points`` (n, 3)."""
     mid = 0.5 * (points[1:] + points[:-1])
     seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
@@ -302,7 +313,8 @@ class World:
     config : WorldConfig
         Physics and scene settings (arm placements included).
     kinematics : mapping of str to SerialChain
-        Kinematics per arm name; ``PsmKinematics`` arms get jaws.
+        Kinematics per arm name; ``PsmKinematics`` arms get jaws. (Annotated ``Any``: the
+        scene package does not import the kinematics package.)
     phantom : sim_bridge.scene.phantom.Phantom
         The phantom (mesh in its frame, markers in ``world``).
     needle : sim_bridge.common.needle.NeedleGeometry
@@ -314,7 +326,9 @@ class World:
 
     """
 
-    def __init__(self, config, kinematics, phantom, needle, thread, client):
+    def __init__(self, config: 'WorldConfig', kinematics: Mapping[str, Any],
+                 phantom: 'Phantom', needle: NeedleGeometry, thread: ThreadGeometry,
+                 client: Any) -> None:
         self.config = config
         self.client = client
         self.kinematics = dict(kinematics)
@@ -335,9 +349,9 @@ class World:
                                     numSolverIterations=config.solver_iterations,
                                     numSubSteps=0, deterministicOverlappingPairs=1)
         c.setGravity(0.0, 0.0, -config.gravity)
-        self.arm_body = {}
-        self.link_index = {}
-        self._dof = {}
+        self.arm_body: dict[str, int] = {}
+        self.link_index: dict[str, dict[str, int]] = {}
+        self._dof: dict[str, list[int]] = {}
         for name, chain in self.kinematics.items():
             self._build_arm(name, chain)
         self.table_body = self._build_table()
@@ -347,7 +361,7 @@ class World:
         self.thread_bodies = self._build_thread()
 
     # ------------------------------------------------------------------ construction
-    def _build_arm(self, name, chain):
+    def _build_arm(self, name: str, chain: Any) -> None:
         c = self.client
         shape = self.config.instrument
         is_psm = hasattr(chain, 'jaw_lower')
@@ -383,7 +397,7 @@ class World:
                       [0.0, side * jaw_half[1], jaw_half[2]], [0, 0, 0, 1])], shape.jaw_rgba)
                 visuals.append(v)
                 collisions.append(col)
-            link_names = PSM_LINKS
+            link_names: tuple[str, ...] = PSM_LINKS
         else:
             half = 0.5 * shape.endoscope_length
             visuals[roll_link], collisions[roll_link] = self._build_compound(
@@ -416,7 +430,8 @@ class World:
         self._dof[name] = dof
         self.set_arm_joints(name, chain.home, 0.0 if is_psm else None)
 
-    def _build_compound(self, parts, rgba):
+    def _build_compound(self, parts: Sequence[tuple[int, dict, Sequence[float], Sequence[float]]],
+                        rgba: Sequence[float]) -> tuple[int, int]:
         """Visual and collision shape ids of a list of (kind, kwargs, position, quaternion)."""
         c = self.client
         kinds = [p[0] for p in parts]
@@ -434,7 +449,7 @@ class World:
             collisionFramePositions=positions, collisionFrameOrientations=orientations)
         return visual, collision
 
-    def _build_table(self):
+    def _build_table(self) -> int:
         c = self.client
         cfg = self.config
         col = c.createCollisionShape(pybullet.GEOM_PLANE)
@@ -448,7 +463,8 @@ class World:
         c.setCollisionFilterGroupMask(body, -1, GROUP_ENVIRONMENT, GROUP_NEEDLE)
         return body
 
-    def _mesh_shapes(self, mesh, rgba, collision_offset):
+    def _mesh_shapes(self, mesh: 'trimesh.Trimesh', rgba: Sequence[float],
+                     collision_offset: Sequence[float]) -> tuple[int, int]:
         c = self.client
         offset = list(collision_offset)
         vertices = np.asarray(mesh.vertices, dtype=float)
@@ -477,7 +493,7 @@ class World:
             os.remove(path)
         return vis, col
 
-    def _build_phantom(self):
+    def _build_phantom(self) -> int:
         c = self.client
         margin = self.config.phantom_collision_margin
         # Bullet keeps concave meshes ``margin`` apart from what touches them; lowering the
@@ -490,13 +506,13 @@ class World:
         c.setCollisionFilterGroupMask(body, -1, GROUP_ENVIRONMENT, GROUP_NEEDLE)
         return body
 
-    def _build_markers(self):
+    def _build_markers(self) -> dict[str, int]:
         c = self.client
         r = self.phantom.marker_radius
         thick = self.config.marker_thickness
         vis = c.createVisualShape(pybullet.GEOM_CYLINDER, radius=r, length=thick,
                                   rgbaColor=list(self.phantom.marker_rgba))
-        bodies = {}
+        bodies: dict[str, int] = {}
         for pair in self.phantom.markers.values():
             for which, point, normal in (('entry', pair.entry, pair.entry_normal),
                                          ('exit', pair.exit, pair.exit_normal)):
@@ -507,7 +523,7 @@ class World:
                     0.0, -1, vis, centre.tolist(), quaternion_from_matrix(R).tolist())
         return bodies
 
-    def _build_needle(self):
+    def _build_needle(self) -> int:
         c = self.client
         cfg = self.config
         g = self.needle
@@ -540,7 +556,7 @@ class World:
         self.set_needle_collisions(False)
         return body
 
-    def _build_thread(self):
+    def _build_thread(self) -> list[int]:
         c = self.client
         t = self.thread
         n = t.n_segments
@@ -554,11 +570,12 @@ class World:
 
     # ------------------------------------------------------------------ arms
     @property
-    def arm_names(self):
+    def arm_names(self) -> tuple[str, ...]:
         """Arm names, tuple of str."""
         return tuple(self.arm_body)
 
-    def set_arm_joints(self, name, q, jaw=None):
+    def set_arm_joints(self, name: str, q: Sequence[float] | np.ndarray,
+                       jaw: float | None = None) -> None:
         """
         Place an arm at joint values ``q`` (and jaw angle ``jaw`` for a PSM).
 
@@ -579,7 +596,7 @@ class World:
             values += [[half], [-half]]
         self.client.resetJointStatesMultiDof(self.arm_body[name], dof, values)
 
-    def link_poses(self, name):
+    def link_poses(self, name: str) -> np.ndarray:
         """
         World poses of every link of an arm, as PyBullet computes them.
 
@@ -599,7 +616,7 @@ class World:
         states = self.client.getLinkStates(body, list(range(n)), computeForwardKinematics=1)
         return np.stack([transform_from_bullet(s[4], s[5]) for s in states])
 
-    def tool_tip_pose(self, name):
+    def tool_tip_pose(self, name: str) -> np.ndarray:
         """
         World pose of an arm's tool tip (``measured_cp`` frame) from PyBullet.
 
@@ -618,7 +635,7 @@ class World:
                                      computeForwardKinematics=1)
         return transform_from_bullet(s[4], s[5])
 
-    def instrument_points(self, name, q, jaw):
+    def instrument_points(self, name: str, q: ArrayLike, jaw: float) -> np.ndarray:
         """
         Points on a PSM instrument's end that can touch tissue, from the DH chain (no PyBullet).
 
@@ -658,7 +675,7 @@ class World:
                          hinge + 0.5 * L * dir_b, hinge, wrist, shaft_end])
 
     # ------------------------------------------------------------------ needle
-    def set_needle_collisions(self, enabled):
+    def set_needle_collisions(self, enabled: bool) -> None:
         """
         Let the needle touch the table and phantom (a free needle) or nothing (held, in tissue).
 
@@ -674,8 +691,10 @@ class World:
         mask = GROUP_ENVIRONMENT if enabled else GROUP_NONE
         self.client.setCollisionFilterGroupMask(body, -1, GROUP_NEEDLE, mask)
 
-    def set_needle_pose(self, T_world_needle, linear_velocity=(0.0, 0.0, 0.0),
-                        angular_velocity=(0.0, 0.0, 0.0)):
+    def set_needle_pose(self, T_world_needle: ArrayLike,
+                        linear_velocity: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+                        angular_velocity: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0)
+                        ) -> None:
         """
         Place the needle (and set its velocity, used when it becomes free).
 
@@ -701,7 +720,7 @@ class World:
                             [vx + (wy * rz - wz * ry), vy + (wz * rx - wx * rz),
                              vz + (wx * ry - wy * rx)], [wx, wy, wz])
 
-    def needle_pose(self):
+    def needle_pose(self) -> np.ndarray:
         """
         Needle frame in ``world`` as PyBullet has it.
 
@@ -714,7 +733,7 @@ class World:
         pos, quat = self.client.getBasePositionAndOrientation(self.needle_body)
         return transform_from_bullet(pos, quat) @ self._T_com_needle
 
-    def needle_speed(self):
+    def needle_speed(self) -> tuple[float, float]:
         """
         Linear (m/s) and angular (rad/s) speed of the needle body.
 
@@ -728,7 +747,7 @@ class World:
         return float(np.linalg.norm(v)), float(np.linalg.norm(w))
 
     # ------------------------------------------------------------------ thread
-    def set_thread_points(self, points):
+    def set_thread_points(self, points: ArrayLike) -> None:
         """
         Draw the thread capsules between consecutive points.
 
@@ -754,11 +773,11 @@ class World:
             c.resetBasePositionAndOrientation(body, pos, q)
 
     # ------------------------------------------------------------------ physics
-    def step(self):
+    def step(self) -> None:
         """Advance the physics by one fixed step (only the free needle moves)."""
         self.client.stepSimulation()
 
-    def support_height(self, xy):
+    def support_height(self, xy: ArrayLike) -> np.ndarray:
         """
         Height (m, world) of the support below world x-y points: phantom top or table.
 

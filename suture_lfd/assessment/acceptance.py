@@ -20,8 +20,10 @@ The combined score of a demonstration is the largest of its screened z-scores,
 reasons of a rejection name each score over its bound.
 """
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +51,7 @@ class AcceptanceRule:
     reference_group: str = 'experienced'
     k_sd: float = 2.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.metrics:
             raise ValueError('AcceptanceRule.metrics must name at least one score')
         if not (isinstance(self.k_sd, (int, float)) and math.isfinite(self.k_sd)
@@ -57,7 +59,9 @@ class AcceptanceRule:
             raise ValueError(f'AcceptanceRule.k_sd must be a number > 0, got {self.k_sd!r}')
 
 
-def proficiency_bounds(rows, rule, without_subject=None):
+def proficiency_bounds(rows: Sequence[Mapping[str, Any]], rule: 'AcceptanceRule',
+                       without_subject: str | None = None
+                       ) -> dict[str, tuple[float, float, float]]:
     """
     Return ``metric -> (mean, sd, bound)`` of the reference group's demonstrations.
 
@@ -81,7 +85,7 @@ def proficiency_bounds(rows, rule, without_subject=None):
         raise ValueError(f'proficiency bounds need at least two demonstrations of the '
                          f'{rule.reference_group!r} group besides {without_subject!r}, got '
                          f'{len(ref)}')
-    out = {}
+    out: dict[str, tuple[float, float, float]] = {}
     for metric in rule.metrics:
         values = np.array([float(r[metric]) for r in ref], float)
         values = values[np.isfinite(values)]
@@ -93,7 +97,8 @@ def proficiency_bounds(rows, rule, without_subject=None):
     return out
 
 
-def assess_cohort(rows, rule=None):
+def assess_cohort(rows: Sequence[Mapping[str, Any]], rule: 'AcceptanceRule | None' = None
+                  ) -> list[dict[str, Any]]:
     """
     Return each demonstration's combined score, verdict and reasons.
 

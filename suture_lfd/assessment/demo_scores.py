@@ -26,13 +26,22 @@ Frames: ``world``; lengths in m in the arrays and in mm / deg in the table (``_m
 ``_deg``), times in s.
 """
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sim_bridge.common.geometry import transform_from_pose
 from sim_bridge.common.vocabulary import PSMS, SUBTASKS
 from suture_lfd.assessment.motion import MotionConfig, motion_metrics, rests, speed_profile
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from suture_lfd.demos.demonstration import Demonstration
+    from suture_lfd.demos.segment_file import SegmentFile
+    from suture_lfd.segmentation import Segmentation
 
 ARMS = tuple(psm.lower() for psm in PSMS)  # the demonstration's field prefixes
 MOTION_FIELDS = ('path_length_m', 'economy', 'rms_jerk', 'log_dimensionless_jerk',
@@ -60,7 +69,7 @@ class Crossing:
     error_m: float
 
 
-def tip_positions(needle_pose, needle):
+def tip_positions(needle_pose: np.ndarray, needle: 'NeedleGeometry') -> np.ndarray:
     """
     Return the needle tip (n, 3) of needle poses (n, 7), ``world``.
 
@@ -68,7 +77,7 @@ def tip_positions(needle_pose, needle):
     ----------
     needle_pose : ndarray, shape (n, 7)
         Needle poses ``(x, y, z, qx, qy, qz, qw)``.
-    needle : sim_bridge.needle.NeedleGeometry
+    needle : sim_bridge.common.needle.NeedleGeometry
         The needle (the tip in its frame).
 
     """
@@ -76,7 +85,8 @@ def tip_positions(needle_pose, needle):
     return np.einsum('nij,j->ni', T[:, :3, :3], needle.tip) + T[:, :3, 3]
 
 
-def surface_crossings(t, tips, marker, normal, inward):
+def surface_crossings(t: np.ndarray, tips: np.ndarray, marker: np.ndarray, normal: np.ndarray,
+                      inward: bool) -> list['Crossing']:
     """
     Return every crossing of the surface plane at ``marker`` in one direction.
 
@@ -115,7 +125,8 @@ def surface_crossings(t, tips, marker, normal, inward):
     return out
 
 
-def arc_deviation(t, needle_pose, punctures, needle, end_time):
+def arc_deviation(t: np.ndarray, needle_pose: np.ndarray, punctures: list['Crossing'],
+                  needle: 'NeedleGeometry', end_time: float) -> tuple[float, float]:
     """
     Return the distance from the punctures to the needle's circle while the needle holds them.
 
@@ -127,7 +138,7 @@ def arc_deviation(t, needle_pose, punctures, needle, end_time):
         Needle poses (``world``).
     punctures : list of Crossing
         Punctures, each occupied from its time on.
-    needle : sim_bridge.needle.NeedleGeometry
+    needle : sim_bridge.common.needle.NeedleGeometry
     end_time : float
         Last time (s) looked at (the end of the extraction).
 
@@ -156,7 +167,8 @@ def arc_deviation(t, needle_pose, punctures, needle, end_time):
     return float(worst[held].max()), float(worst[held].mean())
 
 
-def plane_tilt_deg(needle_pose, entry, exit_, normal):
+def plane_tilt_deg(needle_pose: np.ndarray, entry: np.ndarray, exit_: np.ndarray,
+                   normal: np.ndarray) -> np.ndarray:
     """
     Return the angles (deg) between the needle plane and the ideal suture plane.
 
@@ -177,22 +189,24 @@ def plane_tilt_deg(needle_pose, entry, exit_, normal):
     return np.degrees(np.arccos(cos))
 
 
-def _rising_edges(flags):
+def _rising_edges(flags: np.ndarray) -> int:
     flags = np.asarray(flags, bool)
     return int(np.count_nonzero(flags[1:] & ~flags[:-1]) + (1 if flags.size and flags[0] else 0))
 
 
-def assess_demonstration(demo, segments, needle=None, config=None):
+def assess_demonstration(demo: 'Demonstration', segments: 'SegmentFile | Segmentation',
+                         needle: 'NeedleGeometry | None' = None,
+                         config: MotionConfig | None = None) -> dict[str, Any]:
     """
     Return the objective scores of one demonstration.
 
     Parameters
     ----------
-    demo : suture_lfd.demonstration.Demonstration
+    demo : suture_lfd.demos.demonstration.Demonstration
         The record (read from its bag with :func:`suture_lfd.demo_bag.demonstration_from_bag`).
-    segments : suture_lfd.segments.SegmentFile or suture_lfd.segmentation.Segmentation
+    segments : suture_lfd.demos.segment_file.SegmentFile or suture_lfd.segmentation.Segmentation
         Its subtasks (a segment file, or the segmenter's result).
-    needle : sim_bridge.needle.NeedleGeometry, optional
+    needle : sim_bridge.common.needle.NeedleGeometry, optional
         The needle (default: the scene's).
     config : MotionConfig, optional
         Thresholds of the motion metrics.
@@ -265,12 +279,12 @@ def assess_demonstration(demo, segments, needle=None, config=None):
     return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in row.items()}
 
 
-def finite(value):
+def finite(value: object) -> bool:
     """Return whether a table value is a finite number."""
     return isinstance(value, (int, float)) and math.isfinite(value)
 
 
-def write_score_table(path, row):
+def write_score_table(path: str | Path, row: Mapping[str, Any]) -> None:
     """
     Write one demonstration's scores as a two-column CSV table (``score,value``).
 
@@ -293,11 +307,11 @@ def write_score_table(path, row):
             writer.writerow((key, value))
 
 
-def read_score_table(path):
+def read_score_table(path: str | Path) -> dict[str, Any]:
     """Read a table written by :func:`write_score_table` back into a dict (numbers parsed)."""
     import csv
 
-    out = {}
+    out: dict[str, Any] = {}
     with open(path, newline='') as f:
         for rec in csv.DictReader(f):
             value = rec['value']
@@ -309,7 +323,9 @@ def read_score_table(path):
     return out
 
 
-def assess_bag(bag, segments=None, pair=None, needle=None, config=None):
+def assess_bag(bag: str | Path, segments: str | Path | None = None, pair: str | None = None,
+               needle: 'NeedleGeometry | None' = None,
+               config: MotionConfig | None = None) -> dict[str, Any]:
     """
     Score the demonstration recorded in a bag.
 
@@ -334,6 +350,7 @@ def assess_bag(bag, segments=None, pair=None, needle=None, config=None):
     from suture_lfd.demos.demo_bag import demonstration_from_bag
 
     demo = demonstration_from_bag(bag, pair=pair)
+    seg: 'SegmentFile | Segmentation'
     if segments is None:
         from suture_lfd.segmentation import segment_demonstration
 

@@ -30,10 +30,12 @@ evenly spaced time grid; rests (idle time, the movements between them) from posi
 low-passed at ``idle_cutoff_hz``, so that a hand at rest with a tremor still rests. Units: m, s.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.signal import butter, sosfiltfilt
 from sim_bridge.common.validation import check_array, check_times
 
@@ -76,7 +78,7 @@ class MotionConfig:
     sparc_threshold: float = 0.05
     sparc_padding: int = 4
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('cutoff_hz', 'idle_cutoff_hz', 'idle_speed', 'peak_prominence',
                      'sparc_cutoff_hz', 'sparc_threshold'):
             value = getattr(self, name)
@@ -126,7 +128,7 @@ class MotionMetrics:
     movements: int
 
 
-def _grid(T, P):
+def _grid(T: ArrayLike, P: ArrayLike) -> tuple[np.ndarray, np.ndarray, float]:
     T = check_times(T, 'T', min_points=4)
     P = check_array(P, 'P')
     if P.ndim == 1:
@@ -142,7 +144,7 @@ def _grid(T, P):
     return T, P, float(T[1] - T[0])
 
 
-def smoothed(T, P, cutoff_hz):
+def smoothed(T: np.ndarray, P: np.ndarray, cutoff_hz: float) -> np.ndarray:
     """
     Return positions low-passed at ``cutoff_hz`` (zero-phase 2nd-order Butterworth).
 
@@ -176,7 +178,8 @@ def smoothed(T, P, cutoff_hz):
     return sosfiltfilt(sos, P, axis=0, padtype='odd', padlen=pad)
 
 
-def speed_profile(T, P, config=None, cutoff_hz=None):
+def speed_profile(T: ArrayLike, P: ArrayLike, config: 'MotionConfig | None' = None,
+                  cutoff_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """
     Return the evenly spaced times and the speed of a trajectory.
 
@@ -205,7 +208,7 @@ def speed_profile(T, P, config=None, cutoff_hz=None):
     return T, np.linalg.norm(V, axis=1)
 
 
-def path_length(P):
+def path_length(P: ArrayLike) -> float:
     """Return the length (m) of the polyline through the positions ``P`` (n, n_dims)."""
     P = check_array(P, 'P')
     if P.ndim == 1:
@@ -213,7 +216,8 @@ def path_length(P):
     return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
 
 
-def rests(T, speed, idle_speed, min_idle_s):
+def rests(T: np.ndarray, speed: np.ndarray, idle_speed: float,
+          min_idle_s: float) -> list[tuple[int, int]]:
     """
     Return the rests of a speed profile: ``(start, end)`` sample index pairs (end exclusive).
 
@@ -227,7 +231,8 @@ def rests(T, speed, idle_speed, min_idle_s):
             if (b - a) * dt >= min_idle_s - 1e-9]
 
 
-def spectral_arc_length(speed, dt, cutoff_hz=10.0, threshold=0.05, padding=4):
+def spectral_arc_length(speed: ArrayLike, dt: float, cutoff_hz: float = 10.0,
+                        threshold: float = 0.05, padding: int = 4) -> float:
     """
     Return the spectral arc length (SPARC) of a speed profile.
 
@@ -272,7 +277,7 @@ def spectral_arc_length(speed, dt, cutoff_hz=10.0, threshold=0.05, padding=4):
     return -float(np.sum(np.hypot(df, np.diff(V))))
 
 
-def velocity_peaks(speed, delta):
+def velocity_peaks(speed: Sequence[float] | np.ndarray, delta: float) -> int:
     """
     Return the number of speed peaks that rise and fall by at least ``delta``.
 
@@ -282,7 +287,7 @@ def velocity_peaks(speed, delta):
 
     Parameters
     ----------
-    speed : array_like, shape (n,)
+    speed : sequence of float or ndarray, shape (n,)
         Speed samples, m/s.
     delta : float
         Least rise and fall, m/s (> 0).
@@ -306,7 +311,8 @@ def velocity_peaks(speed, delta):
     return count
 
 
-def motion_metrics(T, P, config=None):
+def motion_metrics(T: ArrayLike, P: ArrayLike, config: 'MotionConfig | None' = None
+                   ) -> 'MotionMetrics':
     """
     Return the motion metrics of a trajectory.
 

@@ -6,10 +6,12 @@ files the package installs (``share/suture_lfd/interfaces/<pkg>/msg``), so bags 
 read without ROS; a bag's topics record the QoS profiles their publishers offered.
 """
 
+from collections.abc import Iterator, Sequence
 import functools
 import os
 from pathlib import Path
 import sys
+from typing import Any
 
 from rosbags.interfaces import (
     Qos,
@@ -21,6 +23,7 @@ from rosbags.interfaces import (
 )
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
+from rosbags.typesys.store import Typestore
 from sim_bridge.common.paths import share_dir
 from suture_lfd.errors import BagError
 
@@ -32,7 +35,7 @@ _NO_DURATION = QosTime(0, 0)
 
 # --- message types -------------------------------------------------------------------------------
 
-def interface_definitions(root=None):
+def interface_definitions(root: str | Path | None = None) -> dict[str, str]:
     """
     Return the ``.msg`` text of the package's own interfaces (crtk_msgs, tf2_msgs).
 
@@ -61,14 +64,14 @@ def interface_definitions(root=None):
 
 
 @functools.lru_cache(maxsize=1)
-def _interface_types():
-    types = {}
+def _interface_types() -> dict[str, Any]:
+    types: dict[str, Any] = {}
     for name, text in interface_definitions().items():
         types.update(get_types_from_msg(text, name))
     return types
 
 
-def make_typestore():
+def make_typestore() -> Typestore:
     """
     Return a new rosbags typestore: ROS 2 Jazzy plus crtk_msgs and tf2_msgs.
 
@@ -84,13 +87,13 @@ def make_typestore():
     return store
 
 
-def _share_prefixes():
+def _share_prefixes() -> list[Path]:
     prefixes = [Path(sys.prefix)]
     prefixes += [Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
     return prefixes
 
 
-def ensure_type(store, msgtype, msgdef=None):
+def ensure_type(store: Typestore, msgtype: str, msgdef: str | None = None) -> None:
     """
     Make ``msgtype`` known to ``store``, from ``msgdef`` or from an installed ``.msg`` file.
 
@@ -133,7 +136,7 @@ def ensure_type(store, msgtype, msgdef=None):
             ensure_type(store, nested)
 
 
-def _nested_types(desc):
+def _nested_types(desc: tuple[Any, Any]) -> Iterator[str]:
     """Yield the message type names a rosbags field description refers to."""
     kind, detail = desc
     if kind == Nodetype.NAME:
@@ -145,7 +148,7 @@ def _nested_types(desc):
 
 # --- QoS -----------------------------------------------------------------------------------------
 
-def make_qos(*, reliable=True, transient_local=False, depth=100):
+def make_qos(*, reliable: bool = True, transient_local: bool = False, depth: int = 100) -> Qos:
     """
     Return the rosbags description of a QoS profile, for a bag's ``offered_qos_profiles``.
 
@@ -172,7 +175,7 @@ def make_qos(*, reliable=True, transient_local=False, depth=100):
         liveliness_lease_duration=_NO_DURATION, avoid_ros_namespace_conventions=False)
 
 
-def qos_fields(profiles):
+def qos_fields(profiles: Sequence[Qos]) -> tuple[bool, bool, int] | None:
     """
     Summarise a topic's offered QoS profiles as (reliable, transient_local, depth).
 

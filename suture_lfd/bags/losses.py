@@ -16,11 +16,13 @@ stream jumps past another's numbers by a loss.
 class PublicationGaps:
     """Count the publication sequence numbers a subscriber never saw, per topic."""
 
-    def __init__(self):
-        self._streams = {}   # topic -> list of the last number of each writer
-        self.missed = {}     # topic -> messages missed since the topic's first message
+    def __init__(self) -> None:
+        # topic -> list of the last number of each writer
+        self._streams: dict[str, list[int]] = {}
+        # topic -> messages missed since the topic's first message
+        self.missed: dict[str, int] = {}
 
-    def observe(self, topic, sequence):
+    def observe(self, topic: str, sequence: int | None) -> int:
         """
         Note a received message's publication sequence number.
 

@@ -14,8 +14,11 @@ Byte offsets count from the start of the ``.mcap`` file.
 """
 
 from binascii import crc32
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+import mmap
 import struct
+from typing import Any
 
 from rosbags.rosbag2.storage_mcap import McapWriter
 from suture_lfd.errors import McapDamageError
@@ -30,6 +33,10 @@ _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _MESSAGE_HEAD = struct.Struct('<HIQQ')          # channel id, sequence, log time, publish time
 _STATISTICS_HEAD = struct.Struct('<QHIIIIQQ')   # counts, message start and end time
 _CRC_AT = 1 + 8 + 24                            # chunk CRC offset in its record
+# The bytes of an MCAP file or chunk, copied, viewed or mapped.
+_Buffer = bytes | memoryview | mmap.mmap
+# A message of a chunk: (channel id, log time ns, serialised data).
+_Message = tuple[int, int, bytes]
 
 
 @dataclass
@@ -47,7 +54,7 @@ class McapFacts:
     summary_crc: bool = False
 
     @property
-    def intact(self):
+    def intact(self) -> bool:
         """Whether the data and summary CRCs together prove every byte of the file."""
         return self.data_crc and self.summary_crc
 
@@ -55,7 +62,7 @@ class McapFacts:
 class CrcMcapWriter(McapWriter):
     """The rosbags MCAP writer, with chunk, data section and summary CRC-32s filled in."""
 
-    def close_chunk(self):
+    def close_chunk(self) -> None:
         crc = crc32(self.chunk.bio.getbuffer())
         start = self.bio.tell()
         super().close_chunk()
@@ -64,7 +71,7 @@ class CrcMcapWriter(McapWriter):
         self.bio.write(_U32.pack(crc))
         self.bio.seek(end)
 
-    def close(self, version, metadata):
+    def close(self, version: int, metadata: Any) -> None:
         super().close(version, metadata)
         with self.path.open('r+b') as file:
             data = file.read()
@@ -79,7 +86,7 @@ class CrcMcapWriter(McapWriter):
             file.write(_U32.pack(crc32(data[summary_start:footer + _FOOTER.size - 4])))
 
 
-def _string(buf, at):
+def _string(buf: _Buffer, at: int) -> tuple[str, int]:
     (n,) = _U32.unpack_from(buf, at)
     end = at + 4 + n
     if end > len(buf):
@@ -87,7 +94,7 @@ def _string(buf, at):
     return bytes(buf[at + 4:end]).decode(), end
 
 
-def _chunk_body(data, at, end):
+def _chunk_body(data: _Buffer, at: int, end: int) -> tuple[bytes, int]:
     """(uncompressed records, stored CRC) of the chunk record whose body spans [at, end)."""
     _, _, size, crc = _CHUNK_HEAD.unpack_from(data, at)
     compression, at = _string(data, at + _CHUNK_HEAD.size)
@@ -106,7 +113,7 @@ def _chunk_body(data, at, end):
     return body, crc
 
 
-def _records(buf, start, stop):
+def _records(buf: _Buffer, start: int, stop: int) -> Iterator[tuple[int, int, int, int]]:
     """Yield (offset, opcode, body start, body end) of the records in buf[start:stop]."""
     at = start
     while at < stop:
@@ -121,7 +128,7 @@ def _records(buf, start, stop):
         at = body + length
 
 
-def _summary(data, start, stop, facts):
+def _summary(data: _Buffer, start: int, stop: int, facts: McapFacts) -> None:
     """Read channels and statistics of the summary section into ``facts``."""
     stats = None
     for _, op, at, _ in _records(data, start, stop):
@@ -142,7 +149,7 @@ def _summary(data, start, stop, facts):
         facts.counts[topic] = facts.counts.get(topic, 0) + count
 
 
-def _following_topics(data, at, stop, facts):
+def _following_topics(data: _Buffer, at: int, stop: int, facts: McapFacts) -> list[str]:
     """Topics of the message index records that follow a chunk ending at ``at``."""
     topics = []
     for _, op, body, _ in _records(data, at, stop):
@@ -153,7 +160,7 @@ def _following_topics(data, at, stop, facts):
     return topics
 
 
-def check_mcap(data):
+def check_mcap(data: _Buffer) -> McapFacts:
     """
     Check an MCAP file's frame and every non-zero CRC.
 
@@ -233,8 +240,9 @@ class Salvage:
     stop: str = ''                                   # why the walk ended early ('' if it did not)
 
 
-def _map(buf, at):
+def _map(buf: _Buffer, at: int) -> tuple[dict[str, str], int]:
     (size,) = _U32.unpack_from(buf, at)
+    out: dict[str, str]
     end, at, out = at + 4 + size, at + 4, {}
     while at < end:
         key, at = _string(buf, at)
@@ -242,9 +250,12 @@ def _map(buf, at):
     return out, end
 
 
-def _inner(body):
+def _inner(body: _Buffer) -> tuple[dict[int, tuple[str, str, bytes]],
+                                    dict[int, tuple[str, int, dict[str, str]]], list[_Message]]:
     """Parse a verified chunk's records: (schemas, channels, [(channel id, log time, data)])."""
-    schemas, channels, messages = {}, {}, []
+    schemas: dict[int, tuple[str, str, bytes]] = {}
+    channels: dict[int, tuple[str, int, dict[str, str]]] = {}
+    messages: list[_Message] = []
     for _, op, at, end in _records(body, 0, len(body)):
         if op == OP_SCHEMA:
             (sid,) = _U16.unpack_from(body, at)
@@ -264,7 +275,7 @@ def _inner(body):
     return schemas, channels, messages
 
 
-def salvage_messages(data):
+def salvage_messages(data: _Buffer) -> tuple['Salvage', list[_Message]]:
     """
     Yield the messages of every chunk of an MCAP file that checks out, in file order.
 
@@ -291,6 +302,7 @@ def salvage_messages(data):
     data = memoryview(data)
     if bytes(data[:len(MAGIC)]) != MAGIC:
         raise McapDamageError('not an MCAP file (invalid magic)', 0)
+    messages: list[_Message]
     salvage, messages = Salvage(), []
     try:
         for at, op, body, end in _records(data, len(MAGIC), len(data)):
@@ -316,7 +328,7 @@ def salvage_messages(data):
     return salvage, messages
 
 
-def _summary_definitions(data, salvage):
+def _summary_definitions(data: _Buffer, salvage: 'Salvage') -> None:
     """Add the schemas and channels of an intact summary section that the chunks lacked."""
     footer = len(data) - len(MAGIC) - _FOOTER.size
     if footer < len(MAGIC) or bytes(data[-len(MAGIC):]) != MAGIC:

@@ -6,18 +6,19 @@ Opening a bag checks the CRC-32s of its MCAP chunks, data section and summary
 flipped byte is refused before any message is read.
 """
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 import logging
 import mmap
 import os
 from pathlib import Path
 import struct
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from rosbags.rosbag2 import Reader
 from rosbags.rosbag2.errors import ReaderError
 from suture_lfd.bags.format import METADATA, ensure_type, make_typestore, qos_fields
-from suture_lfd.bags.mcap_check import check_mcap
+from suture_lfd.bags.mcap_check import McapFacts, check_mcap
 from suture_lfd.errors import BagError, McapDamageError
 import yaml
 
@@ -70,14 +71,14 @@ class BagSummary:
     topics: dict
 
     @property
-    def duration_s(self):
+    def duration_s(self) -> float:
         """Time between the first and last message, seconds."""
         return max(0, self.end_ns - self.start_ns) * 1e-9
 
 
 
 
-def _checked_storage(path, file):
+def _checked_storage(path: Path, file: Path) -> McapFacts | None:
     """Check an MCAP storage file's frame and CRCs; return its :class:`McapFacts`."""
     if file.suffix != '.mcap':
         return None
@@ -95,7 +96,8 @@ def _checked_storage(path, file):
 
 
 
-def _agree_with_metadata(path, summary, facts):
+def _agree_with_metadata(path: Path, summary: BagSummary,
+                         facts: list[McapFacts | None]) -> None:
     """Refuse a ``metadata.yaml`` whose topics, counts or times differ from the MCAP summary."""
     if len(facts) != 1 or facts[0] is None or not facts[0].counts:
         return
@@ -109,7 +111,7 @@ def _agree_with_metadata(path, summary, facts):
                        f'recover {path}` to rebuild it')
 
 
-def _check_bag_dir(path):
+def _check_bag_dir(path: str | Path) -> tuple[Path, list[Path]]:
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag (expected a rosbag2 directory)')
@@ -141,7 +143,7 @@ class BagReader:
 
     """
 
-    def __init__(self, path, *, typestore=None):
+    def __init__(self, path: str | Path, *, typestore: Any = None) -> None:
         self.path, self.files = _check_bag_dir(path)
         self.typestore = typestore if typestore is not None else make_typestore()
         facts = [_checked_storage(self.path, file) for file in self.files]
@@ -158,7 +160,8 @@ class BagReader:
                     ensure_type(self.typestore, connection.msgtype, connection.msgdef.data)
                 except BagError as exc:
                     LOG.warning('%s: cannot decode %s: %s', self.path, connection.topic, exc)
-        topics = {}
+        topics: dict[str, TopicSummary] = {}
+        info: Any  # rosbags types a connection's ext as rosbag1's or rosbag2's; here rosbag2's
         for name, info in self._reader.topics.items():
             qos = tuple(q for c in info.connections for q in c.ext.offered_qos_profiles)
             topics[name] = TopicSummary(info.msgtype or '', int(info.msgcount), qos)
@@ -170,15 +173,16 @@ class BagReader:
             end_ns=int(self._reader.end_time) - 1 if count else 0, topics=topics)
         _agree_with_metadata(self.path, self.summary, facts)
 
-    def _files_text(self):
+    def _files_text(self) -> str:
         return ', '.join(str(f) for f in self.files) or str(self.path)
 
     @property
-    def topics(self):
+    def topics(self) -> dict[str, TopicSummary]:
         """Topics by name (:class:`TopicSummary`)."""
         return self.summary.topics
 
-    def messages(self, topics=None, *, start_ns=None, stop_ns=None):
+    def messages(self, topics: Iterable[str] | None = None, *, start_ns: int | None = None,
+                 stop_ns: int | None = None) -> Iterator[BagMessage]:
         """
         Yield the stored messages in time-stamp order.
 
@@ -209,7 +213,7 @@ class BagReader:
 
     __iter__ = messages
 
-    def deserialize(self, message):
+    def deserialize(self, message: BagMessage) -> Any:
         """
         Decode a :class:`BagMessage` into a rosbags message object (fields as in ROS).
 
@@ -226,19 +230,20 @@ class BagReader:
                            f'{message.topic} stamped {message.t_ns} ns does not decode '
                            f'({exc!r})') from None
 
-    def close(self):
+    def close(self) -> None:
         """Close the bag's files."""
         self._reader.close()
 
-    def __enter__(self):
+    def __enter__(self) -> 'BagReader':
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
 
-def open_bag(path, *, required=(), typestore=None):
+def open_bag(path: str | Path, *, required: Iterable[str] = (), typestore: Any = None
+             ) -> BagReader:
     """
     Open a rosbag2 bag for reading.
 
@@ -275,7 +280,7 @@ def open_bag(path, *, required=(), typestore=None):
     return reader
 
 
-def bag_summary(path):
+def bag_summary(path: str | Path) -> BagSummary:
     """
     Summarise a bag: topics, types, counts, time span.
 
@@ -294,7 +299,7 @@ def bag_summary(path):
         return reader.summary
 
 
-def bag_custom_data(path):
+def bag_custom_data(path: str | Path) -> dict[str, str]:
     """
     Return the ``custom_data`` strings of a bag's ``metadata.yaml`` (recorder counts, ...).
 
@@ -317,11 +322,11 @@ def bag_custom_data(path):
     return {str(k): str(v) for k, v in custom.items()}
 
 
-def _seconds_text(t_ns):
+def _seconds_text(t_ns: int) -> str:
     return f'{t_ns // 10**9}.{t_ns % 10**9:09d}'
 
 
-def format_summary(summary):
+def format_summary(summary: BagSummary) -> str:
     """Return a bag summary as the text ``suture-lfd bag info`` prints."""
     lines = [f'bag       {summary.path}',
              f'storage   {summary.storage}',

@@ -9,10 +9,11 @@ import logging
 import math
 from pathlib import Path
 import shutil
+from typing import Any
 
 from rosbags.rosbag2.metadata import parse_qos
 from suture_lfd.bags.mcap_check import salvage_messages
-from suture_lfd.bags.reader import bag_summary
+from suture_lfd.bags.reader import BagSummary, bag_summary
 from suture_lfd.bags.writer import MCAP_CHUNK_LIMIT, BagWriter
 from suture_lfd.errors import BagError, McapDamageError
 import yaml
@@ -20,7 +21,7 @@ import yaml
 LOG = logging.getLogger(__name__)
 
 
-def _storage_files(path):
+def _storage_files(path: str | Path) -> list[Path]:
     path = Path(path)
     if not path.exists():
         raise BagError(f'{path}: no such bag or MCAP file')
@@ -32,7 +33,7 @@ def _storage_files(path):
     return files
 
 
-def _copy_records(file, writer, stats):
+def _copy_records(file: Path, writer: BagWriter, stats: dict[str, Any]) -> None:
     """Copy the messages of ``file``'s chunks that check out into ``writer``; update ``stats``."""
     try:
         salvage, messages = salvage_messages(file.read_bytes())
@@ -42,6 +43,7 @@ def _copy_records(file, writer, stats):
     stats['dropped'] += [f'{file}: dropped {what}' for what in salvage.dropped]
     if salvage.stop:
         stats['stops'].append(f'{file}: {salvage.stop}')
+    channel: Any  # (topic, schema id, metadata); a missing one finds no schema below
     for cid, t_ns, rawdata in messages:
         channel = salvage.channels.get(cid)
         schema = salvage.schemas.get(channel[1]) if channel else None
@@ -59,7 +61,7 @@ def _copy_records(file, writer, stats):
         writer.write(topic, t_ns, rawdata)
 
 
-def recover_bag(path, out=None):
+def recover_bag(path: str | Path, out: str | Path | None = None) -> BagSummary:
     """
     Rebuild a valid bag from an unfinished one (writer killed, file truncated).
 
@@ -94,7 +96,7 @@ def recover_bag(path, out=None):
         out = base.with_name(base.name + '-recovered')
     out = Path(out)
     writer = BagWriter(out, chunk_bytes=MCAP_CHUNK_LIMIT, chunk_seconds=math.inf)
-    stats = {'orphans': 0, 'dropped': [], 'stops': []}
+    stats: dict[str, Any] = {'orphans': 0, 'dropped': [], 'stops': []}
     try:
         for file in files:
             _copy_records(file, writer, stats)

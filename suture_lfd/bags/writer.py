@@ -6,9 +6,11 @@ to the operating system, so a writer killed mid-recording leaves every message w
 last flush in complete chunks (:func:`suture_lfd.bags.recovery.recover_bag` rebuilds the bag).
 """
 
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 import re
 import time
+from typing import Any, cast
 
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.errors import WriterError
@@ -47,8 +49,8 @@ class BagWriter:
 
     """
 
-    def __init__(self, path, *, typestore=None, chunk_bytes=CHUNK_BYTES,
-                 chunk_seconds=CHUNK_SECONDS):
+    def __init__(self, path: str | Path, *, typestore: Any = None, chunk_bytes: int = CHUNK_BYTES,
+                 chunk_seconds: float = CHUNK_SECONDS) -> None:
         self.path = Path(path)
         if not 0 < chunk_bytes <= MCAP_CHUNK_LIMIT:
             raise ValueError(f'chunk_bytes must be in (0, {MCAP_CHUNK_LIMIT}], got {chunk_bytes}')
@@ -60,8 +62,8 @@ class BagWriter:
         self.typestore = typestore if typestore is not None else make_typestore()
         self.chunk_bytes = int(chunk_bytes)
         self.chunk_seconds = float(chunk_seconds)
-        self.counts = {}
-        self._connections = {}
+        self.counts: dict[str, int] = {}
+        self._connections: dict[str, Any] = {}
         self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS,
                                         StoragePlugin.MCAP: CrcMcapWriter}
@@ -74,11 +76,12 @@ class BagWriter:
         self._last_flush = time.monotonic()
 
     @property
-    def mcap_path(self):
+    def mcap_path(self) -> Path:
         """Path of the bag's MCAP file."""
         return self.path / f'{self.path.name}.mcap'
 
-    def add_topic(self, topic, msgtype, *, qos=(), msgdef=None):
+    def add_topic(self, topic: str, msgtype: str, *, qos: Sequence[Any] = (),
+                  msgdef: str | None = None) -> None:
         """
         Declare a topic before its first message (again for the same type: no-op).
 
@@ -105,11 +108,11 @@ class BagWriter:
             topic, msgtype, typestore=self.typestore, offered_qos_profiles=list(qos))
         self.counts[topic] = 0
 
-    def has_topic(self, topic):
+    def has_topic(self, topic: str) -> bool:
         """Whether ``topic`` was declared with :meth:`add_topic`."""
         return topic in self._connections
 
-    def write(self, topic, t_ns, rawdata):
+    def write(self, topic: str, t_ns: int, rawdata: bytes) -> None:
         """
         Append one serialised message.
 
@@ -130,12 +133,13 @@ class BagWriter:
                 from None
         self._writer.write(connection, int(t_ns), rawdata)
         self.counts[topic] += 1
-        if self._writer.storage.chunk.bio.tell() >= self.chunk_bytes:
+        # the MCAP storage writer (checked at open; cast: typing only)
+        if cast(McapWriter, self._writer.storage).chunk.bio.tell() >= self.chunk_bytes:
             self.flush()
 
-    def flush(self):
+    def flush(self) -> None:
         """Close the open chunk (if it holds messages) and hand the file data to the OS."""
-        storage = self._writer.storage
+        storage = cast('McapWriter | None', self._writer.storage)  # MCAP (checked at open)
         if storage is None:
             return
         if storage.chunk.msgs:
@@ -143,18 +147,18 @@ class BagWriter:
         storage.bio.flush()
         self._last_flush = time.monotonic()
 
-    def flush_if_due(self):
+    def flush_if_due(self) -> bool:
         """Flush when ``chunk_seconds`` passed since the last flush; return whether it did."""
         if time.monotonic() - self._last_flush >= self.chunk_seconds:
             self.flush()
             return True
         return False
 
-    def set_custom_data(self, key, value):
+    def set_custom_data(self, key: object, value: object) -> None:
         """Store a string in the ``custom_data`` of ``metadata.yaml`` (written at close)."""
         self._writer.set_custom_data(str(key), str(value))
 
-    def close(self):
+    def close(self) -> Path:
         """
         Finish the bag: MCAP summary and ``metadata.yaml``.
 
@@ -169,21 +173,21 @@ class BagWriter:
             _name_ros_distro(self.path / METADATA)
         return self.path
 
-    def abort(self):
+    def abort(self) -> None:
         """Close the file without summary or ``metadata.yaml`` (a recoverable bag remains)."""
         if self._writer.storage is not None:
             self.flush()
             self._writer.abort()
 
-    def __enter__(self):
+    def __enter__(self) -> 'BagWriter':
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
 
-def _name_ros_distro(meta):
+def _name_ros_distro(meta: Path) -> None:
     """Write the ROS distribution the bag's types are from (rosbags' writer names itself)."""
     text = meta.read_text()
     meta.write_text(re.sub(r'^(\s*ros_distro:)\s*rosbags\s*$', rf'\1 {ROS_DISTRO}', text,
@@ -191,11 +195,11 @@ def _name_ros_distro(meta):
 
 
 
-def _nanoseconds(t):
+def _nanoseconds(t: float) -> int:
     return int(round(float(t) * 1e9))
 
 
-def pose_stamped_cdr(t, frame_id, pose):
+def pose_stamped_cdr(t: float, frame_id: str, pose: Sequence[float]) -> bytes:
     """
     Return the CDR bytes of a geometry_msgs/PoseStamped.
 
@@ -216,7 +220,7 @@ def pose_stamped_cdr(t, frame_id, pose):
     return cdr.pose_stamped(_nanoseconds(t), frame_id, pose)
 
 
-def joint_state_cdr(t, names, position):
+def joint_state_cdr(t: float, names: Iterable[str], position: Sequence[float]) -> bytes:
     """Return the CDR bytes of a sensor_msgs/JointState of ``name`` and ``position`` only."""
     return cdr.joint_state(_nanoseconds(t), tuple(names), position)
 

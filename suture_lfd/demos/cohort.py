@@ -13,6 +13,7 @@ Units: m, s, deg where a name says so, Hz.
 
 from dataclasses import dataclass, fields, replace
 import math
+from pathlib import Path
 import zlib
 
 import numpy as np
@@ -86,7 +87,7 @@ class SkillProfile:
     correction_distance: float = 0.0
     correction_time: float = 0.3
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
@@ -129,7 +130,7 @@ class Subject:
     seed: int
     profile: SkillProfile
 
-    def trial_seed(self, pair, attempt=0):
+    def trial_seed(self, pair: str, attempt: int = 0) -> int:
         """
         Return the seed of this subject's demonstration on a pair.
 
@@ -193,12 +194,12 @@ class StudyDesign:
     phantoms: dict[str, tuple[str, ...]]
 
     @property
-    def trials(self):
+    def trials(self) -> list[tuple[str, str]]:
         """List of ``(phantom, pair)`` in the order every subject demonstrates them."""
         return [(phantom, pair) for phantom, pairs in self.phantoms.items() for pair in pairs]
 
 
-def load_study_design(path=None):
+def load_study_design(path: str | Path | None = None) -> StudyDesign:
     """
     Read the study design from ``config/cohort.yaml``.
 
@@ -263,8 +264,8 @@ def load_study_design(path=None):
     return StudyDesign(groups=tuple(specs), phantoms=order)
 
 
-def _draw_profile(spec, rng):
-    values = {}
+def _draw_profile(spec: GroupSpec, rng: np.random.Generator) -> SkillProfile:
+    values: dict[str, float] = {}
     for f in fields(SkillProfile):
         mean = getattr(spec.profile, f.name)
         s = spec.spread.get(f.name, 0.0)
@@ -275,12 +276,12 @@ def _draw_profile(spec, rng):
     return replace(spec.profile, **values)
 
 
-def subject_seed(cohort_seed, index):
+def subject_seed(cohort_seed: int, index: int) -> int:
     """Return the seed of subject ``index`` (0-based) of the cohort drawn with ``cohort_seed``."""
     return int(np.random.SeedSequence([int(cohort_seed), int(index)]).generate_state(1)[0])
 
 
-def load_cohort(path=None, seed=0):
+def load_cohort(path: str | Path | None = None, seed: int = 0) -> list[Subject]:
     """
     Draw the cohort of the study design: every subject's seed and skill profile.
 
@@ -300,7 +301,7 @@ def load_cohort(path=None, seed=0):
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f'cohort seed must be a non-negative integer, got {seed!r}')
     design = load_study_design(path)
-    subjects = []
+    subjects: list[Subject] = []
     for spec in design.groups:
         for _ in range(spec.count):
             index = len(subjects)

@@ -8,6 +8,8 @@ tag and version.
 """
 
 from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from sim_bridge.common.archive import load_archive, save_archive
@@ -61,7 +63,7 @@ class Demonstration:
     normal: np.ndarray
     pair: str = ''
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('t',) + _POSES + _SIGNALS + _POINTS:
             object.__setattr__(self, name, check_array(getattr(self, name), name).copy())
         for name in _FLAGS:
@@ -73,7 +75,7 @@ class Demonstration:
             object.__setattr__(self, name, value.copy())
         self.validate()
 
-    def validate(self):
+    def validate(self) -> 'Demonstration':
         """
         Check shapes, finiteness, time order, unit quaternions and the pair geometry.
 
@@ -109,16 +111,16 @@ class Demonstration:
         return self
 
     @property
-    def n(self):
+    def n(self) -> int:
         """int: Number of samples."""
         return self.t.size
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         """float: ``t[-1] - t[0]``, s."""
         return float(self.t[-1] - self.t[0])
 
-    def window(self, start_index, end_index):
+    def window(self, start_index: int, end_index: int) -> 'Demonstration':
         """
         Return the samples ``start_index .. end_index`` (inclusive) as a new demonstration.
 
@@ -142,7 +144,7 @@ class Demonstration:
             values[name] = values[name][cut]
         return Demonstration(**values)
 
-    def save(self, path):
+    def save(self, path: str | Path) -> None:
         """
         Write the demonstration to an ``.npz`` file (format tag and version included).
 
@@ -156,7 +158,7 @@ class Demonstration:
         save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
-    def load(cls, path):
+    def load(cls, path: str | Path) -> 'Demonstration':
         """
         Read a demonstration written by :meth:`save`.
 
@@ -182,7 +184,7 @@ class Demonstration:
         missing = [name for name in names if name not in arrays]
         if missing:
             raise ValueError(f'{path}: demonstration file lacks {missing}')
-        values = {name: arrays[name] for name in names}
+        values: dict[str, Any] = {name: arrays[name] for name in names}
         values['pair'] = str(values['pair'])
         try:
             return cls(**values)

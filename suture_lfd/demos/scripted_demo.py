@@ -10,11 +10,20 @@ where a subtask starts (as a person does before inserting, after regrasping), an
 the expert's own subtask labels.
 """
 
+from typing import TYPE_CHECKING, Any, cast
+
 import numpy as np
 from sim_bridge.common.geometry import pose_from_transform
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ScriptedExpert
+from suture_lfd.planning.plan import PlanFollower
+
+if TYPE_CHECKING:
+    from sim_bridge.control import Command, ExpertConfig, Observation
+    from sim_bridge.scene.scoring import ThrowScore
+    from sim_bridge.simulation import Simulation
+    from suture_lfd.planning.plan import Plan
 
 
 class PausingExpert:
@@ -38,52 +47,55 @@ class PausingExpert:
 
     """
 
-    def __init__(self, *args, pause=0.3, **kwargs):
+    def __init__(self, *args: Any, pause: float = 0.3, **kwargs: Any) -> None:
         self.expert = ScriptedExpert(*args, **kwargs)
         self.pause = float(pause)
-        self._rests = []
-        self._rest_end = None
+        self._rests: list[float] = []
+        self._rest_end: float | None = None
 
     @property
-    def plan_(self):
+    def plan_(self) -> 'Plan | None':
         """suture_lfd.planning.plan.Plan or None: The expert's plan (after :meth:`reset`)."""
         return self.expert.plan_
 
     @property
-    def done(self):
+    def done(self) -> bool:
         """Whether the plan has run to its end."""
         return self.expert.done
 
     @property
-    def plan_time(self):
+    def plan_time(self) -> float:
         """Plan time (s) of the last command."""
         return self.expert.plan_time
 
-    def reset(self, obs):
+    def reset(self, obs: 'Observation') -> None:
         """Plan the throw and start its clock at ``obs.t``."""
         self.expert.reset(obs)
-        self._rests = [t for t, name in self.plan_.labels if name in ('ii', 'iii', 'iv', 'v')]
+        plan = cast('Plan', self.plan_)  # planned by the reset just above
+        self._rests = [t for t, name in plan.labels if name in ('ii', 'iii', 'iv', 'v')]
         self._rest_end = None
 
-    def step(self, obs):
+    def step(self, obs: 'Observation') -> 'Command':
         """Command for ``obs``; the plan clock stops for ``pause`` at each subtask start."""
         if self.plan_ is None:
             self.reset(obs)
-        clock = self.expert.follower
+        clock = cast(PlanFollower, self.expert.follower)  # set by the reset
         tau = clock.tau(obs.t)
         if self._rest_end is None and self._rests and tau >= self._rests[0]:
             self._rest_end = obs.t + self.pause
             clock.offset += tau - self._rests.pop(0)
         if self._rest_end is not None:
             if obs.t < self._rest_end:
-                clock.offset = obs.t - clock.t0 - clock.plan_time
+                clock.offset = obs.t - cast(float, clock.t0) - clock.plan_time  # set by a step
             else:
                 self._rest_end = None
         return self.expert.step(obs)
 
 
-def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3,
-                                  sample_period=0.01, timeout=60.0):
+def record_scripted_demonstration(sim: 'Simulation', pair_name: str, seed: int = 0,
+                                  config: 'ExpertConfig | None' = None, pause: float = 0.3,
+                                  sample_period: float = 0.01, timeout: float = 60.0
+                                  ) -> tuple[Demonstration, np.ndarray, 'ThrowScore']:
     """
     Run the pausing scripted expert for one throw and record it.
 
@@ -121,7 +133,7 @@ def record_scripted_demonstration(sim, pair_name, seed=0, config=None, pause=0.3
     rows = []
 
     class _Recorder:
-        def step(self, obs):
+        def step(self, obs: 'Observation') -> 'Command':
             cmd = expert.step(obs)
             rows.append((obs.t, obs.T_world_tool['PSM1'], obs.T_world_tool['PSM2'],
                          obs.jaw['PSM1'], obs.jaw['PSM2'], obs.T_world_needle,

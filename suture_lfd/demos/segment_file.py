@@ -18,6 +18,8 @@ file and key of anything wrong or missing.
 """
 
 from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from sim_bridge.common.archive import load_archive, save_archive
@@ -77,7 +79,7 @@ class SegmentFile:
     ii_grasp: np.ndarray
     iv_grasp: np.ndarray
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for f in fields(self):
             if f.name in _STRINGS:
                 if not isinstance(getattr(self, f.name), str):
@@ -102,31 +104,31 @@ class SegmentFile:
             if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.abs(grasp[3] - [0, 0, 0, 1]).max():
                 raise ValueError(f'{task}_grasp must be a rigid transform')
 
-    def times(self, subtask):
+    def times(self, subtask: str) -> tuple[float, float]:
         """Return ``(start, end)`` (s) of a subtask ``'i'`` .. ``'v'``."""
         if subtask not in SUBTASK_NAMES:
             raise KeyError(f'no subtask {subtask!r}; expected one of {list(SUBTASK_NAMES)}')
         start, end = self.subtask_times[SUBTASK_NAMES.index(subtask)]
         return float(start), float(end)
 
-    def needle(self, task):
+    def needle(self, task: str) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(t (n,), poses (n, 7))`` of the needle in task ``'ii'`` or ``'iv'``."""
         if task not in ('ii', 'iv'):
             raise KeyError(f"needle trajectories exist for tasks 'ii' and 'iv', not {task!r}")
         return getattr(self, f'{task}_t'), getattr(self, f'{task}_needle')
 
-    def grasp(self, task):
+    def grasp(self, task: str) -> np.ndarray:
         """Return the grasp ``T_tool_needle`` (4, 4) measured in task ``'ii'`` or ``'iv'``."""
         if task not in ('ii', 'iv'):
             raise KeyError(f"grasps exist for tasks 'ii' and 'iv', not {task!r}")
         return getattr(self, f'{task}_grasp')
 
     @property
-    def durations(self):
+    def durations(self) -> dict[str, float]:
         """Durations (s) of the subtasks, by name."""
         return {name: float(e - s) for name, (s, e) in zip(SUBTASK_NAMES, self.subtask_times)}
 
-    def save(self, path):
+    def save(self, path: str | Path) -> None:
         """
         Write the segments to an ``.npz`` file (format tag and version included).
 
@@ -140,7 +142,7 @@ class SegmentFile:
         save_archive(path, arrays, FORMAT, FORMAT_VERSION)
 
     @classmethod
-    def load(cls, path):
+    def load(cls, path: str | Path) -> 'SegmentFile':
         """
         Read a segment file written by :meth:`save`.
 
@@ -152,7 +154,7 @@ class SegmentFile:
 
         """
         arrays = load_archive(path, FORMAT, FORMAT_VERSION, 'segment file')
-        values = {}
+        values: dict[str, Any] = {}
         for f in fields(cls):
             if f.name not in arrays:
                 raise ValueError(f'{path}: segment file lacks key {f.name!r}')
@@ -163,7 +165,7 @@ class SegmentFile:
             raise ValueError(f'{path}: {exc}') from exc
 
 
-def _grasp_at(demo, arm, start, end):
+def _grasp_at(demo: Demonstration, arm: str, start: int, end: int) -> np.ndarray:
     holds = demo.psm1_holds if arm == 'PSM1' else demo.psm2_holds
     tools = demo.psm1_pose if arm == 'PSM1' else demo.psm2_pose
     held = np.flatnonzero(holds[start:end + 1])
@@ -174,7 +176,9 @@ def _grasp_at(demo, arm, start, end):
     return grasp_transform(tools[k], demo.needle_pose[k])
 
 
-def make_segment_file(demo, segmentation, dmp_config=None, source='', subject=''):
+def make_segment_file(demo: Demonstration, segmentation: Segmentation,
+                      dmp_config: str | Path | None = None, source: str = '',
+                      subject: str = '') -> SegmentFile:
     """
     Build the segment file of a segmented demonstration.
 

@@ -10,6 +10,7 @@ as the "realistic" workload of lfd_anchors section 3.0.
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import (
     quaternion_from_rotvec,
     quaternion_product,
@@ -18,7 +19,7 @@ from sim_bridge.common.geometry import (
 from sim_bridge.common.validation import check_array, check_positive
 
 
-def minimum_jerk(s):
+def minimum_jerk(s: ArrayLike) -> np.ndarray:
     """
     Return the minimum-jerk profile ``10 s^3 - 15 s^4 + 6 s^5``.
 
@@ -37,9 +38,11 @@ def minimum_jerk(s):
     return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
-def needle_throw(n_pts=500, duration=1.0, *, radius=0.010, rotation_deg=150.0,
-                 wobble_deg=5.0, drift=(0.0010, -0.0006, 0.0004), centre=(0.0, 0.0, 0.0),
-                 start_rotvec=(0.4, -0.3, 0.2)):
+def needle_throw(n_pts: int = 500, duration: float = 1.0, *, radius: float = 0.010,
+                 rotation_deg: float = 150.0, wobble_deg: float = 5.0,
+                 drift: ArrayLike = (0.0010, -0.0006, 0.0004),
+                 centre: ArrayLike = (0.0, 0.0, 0.0), start_rotvec: ArrayLike = (0.4, -0.3, 0.2)
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Return times, needle-tip positions and needle orientations of a synthetic throw.
 

@@ -6,12 +6,16 @@ Frames: 4x4 transforms ``T_camera_needle``; the needle frame is
 """
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
 
-def rotvec_matrix(w):
+
+def rotvec_matrix(w: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector (rad), Rodrigues' formula in scalars."""
     theta = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     if theta < 1e-12:
@@ -21,7 +25,7 @@ def rotvec_matrix(w):
     return np.eye(3) + math.sin(theta) * K + (1.0 - math.cos(theta)) * (K @ K)
 
 
-def flip_transform(geometry):
+def flip_transform(geometry: 'NeedleGeometry') -> np.ndarray:
     """``T`` (4, 4) turning the arc half a turn about its middle radius (tail <-> tip)."""
     phi = geometry.angle_at(0.5)
     axis = np.array([math.cos(phi), math.sin(phi), 0.0])
@@ -30,7 +34,7 @@ def flip_transform(geometry):
     return T
 
 
-def mirrored(T):
+def mirrored(T: np.ndarray) -> np.ndarray:
     """
     Return the pose whose arc projects almost alike: the plane reflected about the line of sight.
 
@@ -49,7 +53,7 @@ def mirrored(T):
     return M
 
 
-def kabsch(model, data):
+def kabsch(model: np.ndarray, data: np.ndarray) -> np.ndarray:
     """Rigid ``T`` (4, 4) taking model points (n, 3) onto data points (n, 3)."""
     mc, dc = model.mean(axis=0), data.mean(axis=0)
     H = (model - mc).T @ (data - dc)

@@ -10,10 +10,17 @@ throws with these two functions. A controller has ``reset(obs)``, ``step(obs) ->
 ``done`` (:mod:`sim_bridge.control`); a recorder wrapping it sees every observation.
 """
 
+from collections.abc import Callable
 import math
+from typing import TYPE_CHECKING, cast
+
+if TYPE_CHECKING:
+    from sim_bridge.control import CommandSource, Controller
+    from sim_bridge.scene.phantom import MarkerPair
+    from sim_bridge.simulation import Simulation
 
 
-def start_episode(sim, pair_name, seed=0):
+def start_episode(sim: 'Simulation', pair_name: str, seed: int = 0) -> 'MarkerPair':
     """
     Reset the scene with ``seed``, enable and home the arms, and select the target pair.
 
@@ -35,11 +42,14 @@ def start_episode(sim, pair_name, seed=0):
     sim.reset(seed=seed)
     sim.enable_and_home_all()
     sim.set_target_pair(pair_name)
-    return sim.target_pair
+    return cast('MarkerPair', sim.target_pair)  # set just above
 
 
-def run_episode(sim, controller, control_period, *, stepper=None, until=None, timeout=math.inf,
-                chunk=0.5, settle=0.2, always_settle=False, reset=True, stop_at_done=False):
+def run_episode(sim: 'Simulation', controller: 'Controller', control_period: float, *,
+                stepper: 'CommandSource | None' = None, until: Callable[[], bool] | None = None,
+                timeout: float = math.inf, chunk: float = 0.5, settle: float = 0.2,
+                always_settle: bool = False, reset: bool = True,
+                stop_at_done: bool = False) -> float:
     """
     Run ``controller`` on the simulation until it is done (or ``timeout``), then settle.
 
@@ -54,7 +64,7 @@ def run_episode(sim, controller, control_period, *, stepper=None, until=None, ti
         ``reset(obs)``, ``step(obs) -> Command`` and ``done``.
     control_period : float
         Seconds of simulation between two commands.
-    stepper : object, optional
+    stepper : sim_bridge.control.CommandSource, optional
         What the simulation calls each control period instead of ``controller`` (a recorder
         that forwards to it, a wrapper that alters its commands); its ``step`` may return
         None (no new command) when ``stop_at_done`` is set.
@@ -83,7 +93,7 @@ def run_episode(sim, controller, control_period, *, stepper=None, until=None, ti
     """
     stepper = controller if stepper is None else stepper
     if until is None:
-        def until():
+        def until() -> bool:
             return controller.done
     t_start = sim.time
     if reset:

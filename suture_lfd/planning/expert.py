@@ -31,6 +31,7 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 """
 
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from sim_bridge.control import ExpertConfig
@@ -41,10 +42,17 @@ from suture_lfd.planning.throw_geometry import ThrowArc
 from suture_lfd.planning.tracks import translated
 from suture_lfd.planning.waypoints import ArcPath, RigidPath, rotation_exp
 
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.control import Command, Observation
+    from sim_bridge.kinematics import PsmKinematics
+    from sim_bridge.scene.phantom import MarkerPair
+
 __all__ = ['ARMS', 'LABELS', 'Gate', 'Plan', 'ScriptedExpert', 'expert_paths']
 
 
-def expert_paths(arc, pair, needle_geometry, config, next_pair=None):
+def expert_paths(arc: ThrowArc, pair: 'MarkerPair', needle_geometry: 'NeedleGeometry',
+                 config: ExpertConfig, next_pair: 'MarkerPair | None' = None) -> ThrowPaths:
     """
     Return the scripted expert's needle paths: turning about the throw circle.
 
@@ -137,8 +145,10 @@ class ScriptedExpert:
 
     """
 
-    def __init__(self, pair, needle_geometry, config=None, rng=None, kinematics=None,
-                 next_pair=None):
+    def __init__(self, pair: 'MarkerPair', needle_geometry: 'NeedleGeometry',
+                 config: ExpertConfig | None = None, rng: np.random.Generator | None = None,
+                 kinematics: 'PsmKinematics | dict[str, PsmKinematics] | None' = None,
+                 next_pair: 'MarkerPair | None' = None) -> None:
         self.pair = pair
         self.needle = needle_geometry
         self.config = ExpertConfig() if config is None else config
@@ -146,10 +156,10 @@ class ScriptedExpert:
         self.grasps = GraspPlanner(pair, needle_geometry, self.config, kinematics)
         self.kinematics = self.grasps.kinematics
         self.next_pair = next_pair
-        self.plan_ = None
-        self.follower = None
+        self.plan_: Plan | None = None
+        self.follower: PlanFollower | None = None
 
-    def noisy_pair(self):
+    def noisy_pair(self) -> 'MarkerPair':
         """Return the target pair moved and turned by the skill noise (the pair without it)."""
         c = self.config
         pair = self.pair
@@ -166,7 +176,7 @@ class ScriptedExpert:
         return pair.transformed(T)
 
     # ------------------------------------------------------------------ planning
-    def plan(self, obs):
+    def plan(self, obs: 'Observation') -> Plan:
         """
         Plan the whole throw from an observation.
 
@@ -191,7 +201,7 @@ class ScriptedExpert:
         return plan_throw(obs, self.grasps, arc, paths, self.config)
 
     # ------------------------------------------------------------------ control
-    def reset(self, obs):
+    def reset(self, obs: 'Observation') -> None:
         """
         Plan the throw from the observation and start its clock at ``obs.t``.
 
@@ -205,17 +215,17 @@ class ScriptedExpert:
         self.follower = PlanFollower(self.plan_, obs.t, self.config.gate_timeout)
 
     @property
-    def done(self):
+    def done(self) -> bool:
         """Whether the plan has run to its end."""
         return self.follower is not None and self.follower.done
 
     @property
-    def plan_time(self):
+    def plan_time(self) -> float:
         """Plan time (s) of the last command."""
         return 0.0 if self.follower is None else self.follower.plan_time
 
-    def step(self, obs):
+    def step(self, obs: 'Observation') -> 'Command':
         """Return the command for ``obs`` (planned at the first call; see PlanFollower.step)."""
         if self.plan_ is None:
             self.reset(obs)
-        return self.follower.step(obs)
+        return cast(PlanFollower, self.follower).step(obs)  # set by reset

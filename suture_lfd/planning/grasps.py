@@ -11,14 +11,22 @@ limits, and with the closed jaw kept off the tissue where asked.
 Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians.
 """
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import functools
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import PSMS as ARMS
 from suture_lfd.planning.tracks import backed_off, dense_poses
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.control import ExpertConfig, Observation
+    from sim_bridge.kinematics import PsmKinematics
+    from sim_bridge.scene.phantom import MarkerPair
 
 # What decides whether the arms reach a throw, and where a user changes it.
 PROBE_STRIDE = 6  # carrying poses solved per candidate before its full path: every 6th
@@ -51,16 +59,17 @@ class GraspPhase:
 
     """
 
-    start: object
+    start: np.ndarray | None
     roll0: float
     grasp_at: np.ndarray
-    paths: tuple
+    paths: Sequence[Callable[[float], np.ndarray]]
     clear: tuple
     bases: dict
 
 
 @functools.lru_cache(maxsize=256)
-def _grasp_candidates(needle, s, step):
+def _grasp_candidates(needle: 'NeedleGeometry', s: float, step: float
+                      ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
     """
     Return the candidate grasps at arc parameter ``s`` and their inverses (read-only arrays).
 
@@ -96,7 +105,9 @@ class GraspPlanner:
 
     """
 
-    def __init__(self, pair, needle_geometry, config, kinematics=None):
+    def __init__(self, pair: 'MarkerPair', needle_geometry: 'NeedleGeometry',
+                 config: 'ExpertConfig',
+                 kinematics: 'PsmKinematics | dict[str, PsmKinematics] | None' = None) -> None:
         self.pair = pair
         self.needle = needle_geometry
         self.config = config
@@ -106,7 +117,8 @@ class GraspPlanner:
         self.kinematics = (dict(kinematics) if isinstance(kinematics, dict)
                            else dict.fromkeys(ARMS, kinematics))
 
-    def path_cost(self, arm, T_world_base, roll0, tools):
+    def path_cost(self, arm: str, T_world_base: Mapping[str, np.ndarray], roll0: float,
+                  tools: Sequence[np.ndarray]) -> tuple[float, float | None]:
         """
         Return the cost of a dense tool path for an arm whose roll joint starts at ``roll0``.
 
@@ -120,7 +132,8 @@ class GraspPlanner:
         return self.joint_path_cost(chain, Q, ok, roll0)
 
     @staticmethod
-    def joint_path_cost(chain, Q, ok, roll0):
+    def joint_path_cost(chain: 'PsmKinematics', Q: np.ndarray, ok: np.ndarray,
+                        roll0: float) -> tuple[float, float | None]:
         """Return :meth:`path_cost` of a path already solved (joints ``Q``, ``ok`` reachable)."""
         if not ok.all():
             return math.inf, None
@@ -133,7 +146,7 @@ class GraspPlanner:
             return math.inf, None
         return float(np.abs(Q[:, 4:6]).max()), float(roll[-1])
 
-    def start_roll(self, arm, obs):
+    def start_roll(self, arm: str, obs: 'Observation') -> float:
         """Return the roll joint (rad) of ``arm`` in the observation (measured, else by IK)."""
         q = getattr(obs, 'q', None)
         if q is not None and arm in q:
@@ -142,7 +155,7 @@ class GraspPlanner:
         T = invert_transform(obs.T_world_base[arm]) @ np.asarray(obs.T_world_tool[arm])
         return float(chain.ik(T)[3])
 
-    def jaw_clearance(self, tools):
+    def jaw_clearance(self, tools: Sequence[np.ndarray]) -> float:
         """Return the lowest height (m) of the closed jaw's outline above the surface plane."""
         c = self.config
         L, w = c.jaw_length, c.jaw_half_width
@@ -151,7 +164,8 @@ class GraspPlanner:
         pts = np.einsum('nij,kj->nki', np.asarray(tools), outline)[..., :3]
         return float(((pts - self.pair.midpoint) @ self.pair.normal).min())
 
-    def choose_grasp(self, arm, s, phase, what):
+    def choose_grasp(self, arm: str, s: float, phase: GraspPhase, what: str
+                     ) -> tuple[np.ndarray, float]:
         """
         Return the grasp at arc parameter ``s`` that keeps a holding phase reachable.
 
@@ -189,9 +203,11 @@ class GraspPlanner:
         if best is None:
             raise ValueError(f'{arm} cannot reach a grasp at arc parameter {s:.2f} for '
                              f'{what} of pair {self.pair.name}; {UNREACHABLE_ADVICE}')
-        return best.copy(), best_roll
+        return best.copy(), cast(float, best_roll)  # a finite cost comes with its roll
 
-    def _candidate_costs(self, chain, phase, carried, n_c, invs, T_base_world):
+    def _candidate_costs(self, chain: 'PsmKinematics', phase: GraspPhase, carried: np.ndarray,
+                         n_c: int, invs: Sequence[np.ndarray], T_base_world: np.ndarray
+                         ) -> dict[int, tuple[float, float | None]]:
         """
         Return ``{candidate: (cost, end roll)}`` of the grasp candidates that can be the best.
 
@@ -223,7 +239,7 @@ class GraspPlanner:
         n_k = len(invs)
         probe = np.arange(0, n_c, PROBE_STRIDE)
         Qp, okp = chain.ik_batch(carried[(np.arange(n_k)[:, None] * n_c + probe).ravel()])
-        okp = okp.reshape(n_k, -1).all(axis=1)
+        okp = cast(np.ndarray, okp.reshape(n_k, -1).all(axis=1))  # one flag per candidate
         bound = np.abs(Qp[:, 4:6]).reshape(n_k, -1).max(axis=1)
         order = [k for k in np.argsort(np.where(okp, bound, np.inf), kind='stable') if okp[k]]
         costs, lowest, done, size = {}, math.inf, 0, 2
@@ -256,7 +272,9 @@ class GraspPlanner:
                 lowest = min(lowest, cost)
         return costs
 
-    def choose_grasp_along(self, arm, s, span, phase, what, candidates=9):
+    def choose_grasp_along(self, arm: str, s: float, span: Sequence[float],
+                           phase: GraspPhase, what: str, candidates: int = 9
+                           ) -> tuple[np.ndarray, float, float]:
         """
         Return a reachable grasp at arc parameter ``s`` or, failing that, the nearest in ``span``.
 
@@ -305,7 +323,9 @@ class GraspPlanner:
         raise ValueError(f'{first}; no arc parameter in [{lo:.2f}, {hi:.2f}] is reachable '
                          f'either') from first
 
-    def held_grasp(self, arm, obs, paths, what):
+    def held_grasp(self, arm: str, obs: 'Observation',
+                   paths: Sequence[Callable[[float], np.ndarray]], what: str
+                   ) -> tuple[np.ndarray, float]:
         """
         Return the grasp the arm holds the needle with, checked along the needle paths.
 

@@ -9,14 +9,18 @@ scripted expert, the demonstrator and the DMP executor all use it.
 Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 import logging
+from typing import cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import PSMS as ARMS
-from sim_bridge.control import Command
+from sim_bridge.control import Command, Observation
 from suture_lfd.planning.throw_geometry import ThrowArc
+from suture_lfd.planning.waypoints import ToolMove
 
 _LOG = logging.getLogger(__name__)
 
@@ -78,11 +82,11 @@ class Plan:
     alphas: dict = field(default_factory=dict)
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         """Plan length (s)."""
         return max(seg[-1].t1 for seg in self.segments.values())
 
-    def segment_at(self, arm, t):
+    def segment_at(self, arm: str, t: float) -> ToolMove:
         """
         Return the motion segment of ``arm`` at plan time ``t`` (s) (the last one after it).
 
@@ -104,7 +108,7 @@ class Plan:
                 return seg
         return segs[-1]
 
-    def label(self, t):
+    def label(self, t: float) -> str:
         """Subtask label at plan time ``t`` (s)."""
         current = self.labels[0][1]
         for t0, name in self.labels:
@@ -112,7 +116,7 @@ class Plan:
                 current = name
         return current
 
-    def sample(self, t, grasps=None):
+    def sample(self, t: float, grasps: Mapping[str, np.ndarray] | None = None) -> Command:
         """
         Command at plan time ``t`` (s).
 
@@ -131,7 +135,8 @@ class Plan:
         """
         return Command(float(t), *self.targets(t, grasps))
 
-    def targets(self, t, grasps=None):
+    def targets(self, t: float, grasps: Mapping[str, np.ndarray] | None = None
+                ) -> tuple[dict[str, np.ndarray], dict[str, float], str]:
         """
         Return the targets of :meth:`sample` at plan time ``t`` (s), without a Command.
 
@@ -143,6 +148,8 @@ class Plan:
 
         """
         grasps = grasps or {}
+        tools: dict[str, np.ndarray]
+        jaws: dict[str, float]
         tools, jaws = {}, {}
         for arm in self.segments:
             seg = self.segment_at(arm, t)
@@ -150,7 +157,7 @@ class Plan:
             jaws[arm] = seg.jaw(t)
         return tools, jaws, self.label(t)
 
-    def needle(self, t):
+    def needle(self, t: float) -> np.ndarray | None:
         """
         Planned needle pose at plan time ``t`` (s), or None while no arm carries it.
 
@@ -170,7 +177,7 @@ class Plan:
                 return seg.needle(t)
         return None
 
-    def knots(self, arm):
+    def knots(self, arm: str) -> list[tuple[float, np.ndarray, float]]:
         """
         List the timed waypoints of one arm: the segment boundaries.
 
@@ -191,7 +198,7 @@ class Plan:
         out.append((last.t1, last.tool(last.t1), last.jaw(last.t1)))
         return out
 
-    def sampled(self, dt):
+    def sampled(self, dt: float) -> dict[str, np.ndarray]:
         """
         Sample the plan every ``dt`` seconds (an open-loop demonstration).
 
@@ -225,7 +232,8 @@ class Plan:
         return out
 
 
-def track_grasps(grasps, obs, holders=None):
+def track_grasps(grasps: dict[str, np.ndarray], obs: Observation,
+                 holders: set[str] | None = None) -> None:
     """
     Keep the grasps of the needle in step with the PSMs that hold it in ``obs``.
 
@@ -280,7 +288,7 @@ class PlanFollower:
 
     """
 
-    def __init__(self, plan, t0, gate_timeout):
+    def __init__(self, plan: Plan, t0: float | None, gate_timeout: float) -> None:
         self.plan = plan
         self.t0 = None if t0 is None else float(t0)
         self.gate_timeout = gate_timeout
@@ -288,14 +296,14 @@ class PlanFollower:
         self.plan_time = 0.0
         self._gate = 0
         self._waited = 0.0
-        self._grasps = {}
+        self._grasps: dict[str, np.ndarray] = {}
 
     @property
-    def done(self):
+    def done(self) -> bool:
         """Whether the plan has run to its end."""
         return self.plan_time >= self.plan.duration
 
-    def set_grasp(self, arm, grasp):
+    def set_grasp(self, arm: str, grasp: ArrayLike) -> None:
         """
         Take ``grasp`` (``T_tool_needle``, 4x4) as ``arm``'s grasp from now on (measured again).
 
@@ -303,11 +311,11 @@ class PlanFollower:
         """
         self._grasps[arm] = np.asarray(grasp, dtype=float)
 
-    def tau(self, t):
+    def tau(self, t: float) -> float:
         """Plan time (s) at simulation time ``t`` before gates are considered."""
-        return t - self.t0 - self.offset
+        return t - cast(float, self.t0) - self.offset  # t0 is set by the first step
 
-    def step(self, obs):
+    def step(self, obs: Observation) -> Command:
         """
         Command for the observation.
 

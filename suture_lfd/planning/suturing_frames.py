@@ -14,6 +14,7 @@ metres.
 """
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import (
     compose_poses,
     invert_transform,
@@ -23,7 +24,7 @@ from sim_bridge.common.geometry import (
 from sim_bridge.common.validation import check_array
 
 
-def suture_frame(entry, exit, normal):
+def suture_frame(entry: ArrayLike, exit: ArrayLike, normal: ArrayLike) -> np.ndarray:
     """
     Return the suture frame ``T_world_suture`` of an entry/exit pair.
 
@@ -64,7 +65,7 @@ def suture_frame(entry, exit, normal):
     return T
 
 
-def _check_poses(poses, name):
+def _check_poses(poses: ArrayLike, name: str) -> tuple[np.ndarray, bool]:
     """Return (array, is_vector) for 7-vector poses (..., 7) or 4x4 transforms (..., 4, 4)."""
     poses = check_array(poses, name)
     if poses.ndim >= 1 and poses.shape[-1] == 7:
@@ -76,7 +77,7 @@ def _check_poses(poses, name):
                      f'got shape {poses.shape}')
 
 
-def _left(T_left, poses, name):
+def _left(T_left: np.ndarray, poses: ArrayLike, name: str) -> np.ndarray:
     """Return ``T_left * poses`` in the layout of ``poses`` (quaternion signs kept)."""
     poses, is_vector = _check_poses(poses, name)
     if is_vector:
@@ -84,7 +85,7 @@ def _left(T_left, poses, name):
     return T_left @ poses
 
 
-def _right(poses, T_right, name):
+def _right(poses: ArrayLike, T_right: np.ndarray, name: str) -> np.ndarray:
     """Return ``poses * T_right`` in the layout of ``poses`` (quaternion signs kept)."""
     poses, is_vector = _check_poses(poses, name)
     if is_vector:
@@ -92,7 +93,7 @@ def _right(poses, T_right, name):
     return poses @ T_right
 
 
-def _check_frame(T, name):
+def _check_frame(T: ArrayLike, name: str) -> np.ndarray:
     T = check_array(T, name, shape=(4, 4))
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or not np.allclose(T[3], [0, 0, 0, 1]):
@@ -101,7 +102,7 @@ def _check_frame(T, name):
     return T
 
 
-def transfer_pose(poses, T_world_from, T_world_to):
+def transfer_pose(poses: ArrayLike, T_world_from: ArrayLike, T_world_to: ArrayLike) -> np.ndarray:
     """
     Carry world poses from one suture frame to another: ``T_to T_from^-1 T_pose``.
 
@@ -129,7 +130,8 @@ def transfer_pose(poses, T_world_from, T_world_to):
     return _left(change, poses, 'poses')
 
 
-def throw_start_goal(start, goal, T_world_from, T_world_to):
+def throw_start_goal(start: ArrayLike, goal: ArrayLike, T_world_from: ArrayLike,
+                     T_world_to: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """
     Return the needle start and goal poses of a throw on a new pair from a demonstrated one.
 
@@ -150,7 +152,7 @@ def throw_start_goal(start, goal, T_world_from, T_world_to):
             transfer_pose(goal, T_world_from, T_world_to))
 
 
-def poses_in_frame(T_world_frame, poses):
+def poses_in_frame(T_world_frame: ArrayLike, poses: ArrayLike) -> np.ndarray:
     """
     Express world poses in another frame: ``T_frame_pose = T_world_frame^-1 T_world_pose``.
 
@@ -173,7 +175,7 @@ def poses_in_frame(T_world_frame, poses):
     return _left(invert_transform(_check_frame(T_world_frame, 'T_world_frame')), poses, 'poses')
 
 
-def poses_from_frame(T_world_frame, poses):
+def poses_from_frame(T_world_frame: ArrayLike, poses: ArrayLike) -> np.ndarray:
     """
     Express poses given in a frame in world coordinates: ``T_world_frame T_frame_pose``.
 
@@ -193,7 +195,7 @@ def poses_from_frame(T_world_frame, poses):
     return _left(_check_frame(T_world_frame, 'T_world_frame'), poses, 'poses')
 
 
-def grasp_transform(tool_pose, needle_pose):
+def grasp_transform(tool_pose: ArrayLike, needle_pose: ArrayLike) -> np.ndarray:
     """
     Return the grasp ``T_tool_needle = T_world_tool^-1 T_world_needle``.
 
@@ -217,7 +219,7 @@ def grasp_transform(tool_pose, needle_pose):
     return invert_transform(T_world_tool) @ T_world_needle
 
 
-def tool_from_needle_trajectory(needle_poses, T_tool_needle):
+def tool_from_needle_trajectory(needle_poses: ArrayLike, T_tool_needle: ArrayLike) -> np.ndarray:
     """
     Return the tool trajectory that carries the needle along ``needle_poses``.
 
@@ -240,7 +242,7 @@ def tool_from_needle_trajectory(needle_poses, T_tool_needle):
     return _right(needle_poses, invert_transform(grasp), 'needle_poses')
 
 
-def needle_from_tool_trajectory(tool_poses, T_tool_needle):
+def needle_from_tool_trajectory(tool_poses: ArrayLike, T_tool_needle: ArrayLike) -> np.ndarray:
     """
     Return the needle trajectory carried by a tool.
 

@@ -24,15 +24,23 @@ each grasp and release (:class:`~suture_lfd.planning.plan.PlanFollower`).
 Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 """
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sim_bridge.common.geometry import invert_transform
 from suture_lfd.planning.grasps import GraspPhase
 from suture_lfd.planning.plan import Gate, Plan
 from suture_lfd.planning.tracks import Track, backed_off, translated
-from suture_lfd.planning.waypoints import RigidPath
+from suture_lfd.planning.waypoints import ArcPath, NeedlePath, PoseInterpolator, RigidPath
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.control import ExpertConfig, Observation
+    from suture_lfd.planning.grasps import GraspPlanner
+    from suture_lfd.planning.throw_geometry import ThrowArc
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,7 +59,7 @@ class Carry:
 
     """
 
-    path: object
+    path: PoseInterpolator | ArcPath
     drive: bool = False
     min_duration: float | None = None
 
@@ -60,7 +68,7 @@ class Carry:
 class Follow:
     """A leg carrying the held needle along ``path`` with the path's own timing (a rollout)."""
 
-    path: object
+    path: NeedlePath
     duration: float
 
 
@@ -135,7 +143,8 @@ class ThrowPaths:
     alphas: dict = field(default_factory=dict)
 
 
-def drive_grasp_s(arc, needle_geometry, config):
+def drive_grasp_s(arc: 'ThrowArc', needle_geometry: 'NeedleGeometry',
+                  config: 'ExpertConfig') -> float:
     """
     Return the arc parameter of PSM2's grasp for the insertion.
 
@@ -164,7 +173,7 @@ def drive_grasp_s(arc, needle_geometry, config):
     return min(c.grasp_s_max, max(c.grasp_s_min, s_g))
 
 
-def _run(track, legs):
+def _run(track: Track, legs: Iterable[Carry | Follow | Hold]) -> None:
     for leg in legs:
         if isinstance(leg, Hold):
             track.hold(leg.duration)
@@ -174,7 +183,8 @@ def _run(track, legs):
             track.carry(leg.path, drive=leg.drive, min_duration=leg.min_duration)
 
 
-def plan_throw(obs, grasps, arc, paths, config):
+def plan_throw(obs: 'Observation', grasps: 'GraspPlanner', arc: 'ThrowArc', paths: ThrowPaths,
+               config: 'ExpertConfig') -> Plan:
     """
     Plan a whole throw around the given needle paths.
 

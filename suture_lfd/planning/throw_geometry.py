@@ -18,11 +18,16 @@ World frame, metres, radians.
 """
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.scene.phantom import MarkerPair
 
-def _rot_z(a):
+
+def _rot_z(a: float) -> np.ndarray:
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -53,7 +58,7 @@ class ThrowArc:
 
     """
 
-    def __init__(self, pair, needle):
+    def __init__(self, pair: 'MarkerPair', needle: 'NeedleGeometry') -> None:
         entry = np.asarray(pair.entry, dtype=float)
         exit_ = np.asarray(pair.exit, dtype=float)
         chord = exit_ - entry
@@ -87,16 +92,16 @@ class ThrowArc:
         self.depth = R - h
 
     @property
-    def inside_angle(self):
+    def inside_angle(self) -> float:
         """Angle (rad) of the circle inside the tissue: ``2 asin(chord / 2R)``."""
         return 2.0 * math.asin(0.5 * self.chord / self.needle.radius)
 
     @property
-    def plane_normal(self):
+    def plane_normal(self) -> np.ndarray:
         """Unit normal (world) of the needle plane; the needle turns about its negative."""
         return self.R0[:, 2].copy()
 
-    def rotation(self, alpha):
+    def rotation(self, alpha: float) -> np.ndarray:
         """
         Needle orientation at ``alpha``.
 
@@ -113,7 +118,7 @@ class ThrowArc:
         """
         return self.R0 @ _rot_z(alpha)
 
-    def T_world_needle(self, alpha):  # noqa: N802 (the project names poses T_a_b)
+    def T_world_needle(self, alpha: float) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
         """
         Needle pose at ``alpha``.
 
@@ -133,7 +138,7 @@ class ThrowArc:
         T[:3, 3] = self.centre
         return T
 
-    def alpha_for_s_at_entry(self, s):
+    def alpha_for_s_at_entry(self, s: float) -> float:
         """
         ``alpha`` (rad) at which the needle point of arc parameter ``s`` is at the entry.
 
@@ -149,7 +154,7 @@ class ThrowArc:
         """
         return self.alpha_tail_entry + s * self.needle.arc
 
-    def alpha_for_s_at_exit(self, s):
+    def alpha_for_s_at_exit(self, s: float) -> float:
         """
         ``alpha`` (rad) at which the needle point of arc parameter ``s`` is at the exit.
 

@@ -5,25 +5,38 @@ Frames: ``world``; poses 4x4 ``T_world_*``; metres, radians, seconds.
 """
 
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
-from suture_lfd.planning.waypoints import ArcPath, NeedleMove, RigidPath, ToolMove
+from suture_lfd.planning.waypoints import (
+    ArcPath,
+    NeedleMove,
+    NeedlePath,
+    PoseInterpolator,
+    RigidPath,
+    ToolMove,
+)
+
+if TYPE_CHECKING:
+    from sim_bridge.control import ExpertConfig
 
 
-def translated(T, v):
+def translated(T: ArrayLike, v: ArrayLike) -> np.ndarray:
     """Return a copy of pose ``T`` (4, 4) moved by ``v`` (3,) in its parent frame."""
     out = np.array(T, dtype=float)
     out[:3, 3] = out[:3, 3] + v
     return out
 
 
-def backed_off(T, distance):
+def backed_off(T: ArrayLike, distance: float) -> np.ndarray:
     """Move a pose ``distance`` along its own minus ``z`` axis."""
     return translated(T, -distance * np.asarray(T)[:3, 2])
 
 
-def dense_poses(A, B, step=0.1, spacing=0.002):
+def dense_poses(A: ArrayLike, B: ArrayLike, step: float = 0.1,
+                spacing: float = 0.002) -> list[np.ndarray]:
     """Poses from A towards B (B excluded), about ``step`` rad and ``spacing`` m apart."""
     path = RigidPath(A, B)
     n = max(2, int(math.ceil(max(path.angle / step, path.distance / spacing))))
@@ -33,7 +46,7 @@ def dense_poses(A, B, step=0.1, spacing=0.002):
 class TimedNeedleMove(NeedleMove):
     """A tool carrying the needle along a path with the path's own timing (a DMP rollout)."""
 
-    def sigma(self, t):
+    def sigma(self, t: float) -> float:
         """Path parameter: linear in time (the path sets the speed profile)."""
         if self.t1 <= self.t0:
             return 1.0
@@ -73,16 +86,18 @@ class Track:
 
     """
 
-    def __init__(self, arm, pose, jaw, config):
+    def __init__(self, arm: str, pose: ArrayLike, jaw: float, config: 'ExpertConfig') -> None:
         self.arm = arm
         self.t = 0.0
         self.pose = np.array(pose, dtype=float)
         self.jaw = float(jaw)
         self.cfg = config
-        self.segments = []
-        self.held = None          # (needle pose, grasp) while the arm holds the needle
+        self.segments: list[ToolMove] = []
+        # (needle pose, grasp) while the arm holds the needle
+        self.held: tuple[np.ndarray, np.ndarray] | None = None
 
-    def move_time(self, distance, angle, angular_speed=None):
+    def move_time(self, distance: float, angle: float,
+                  angular_speed: float | None = None) -> float:
         """Return the time (s) of a minimum-jerk motion over ``distance`` (m), ``angle`` (rad)."""
         c = self.cfg
         w = c.tool_angular_speed if angular_speed is None else angular_speed
@@ -91,7 +106,7 @@ class Track:
                    math.sqrt(5.7735 * distance / c.tool_acceleration),
                    math.sqrt(5.7735 * angle / c.tool_angular_acceleration)) / c.speed_scale
 
-    def _still(self, t1, jaw):
+    def _still(self, t1: float, jaw: float) -> None:
         if self.held is None:
             seg = ToolMove(self.t, t1, self.pose, self.pose, self.jaw, jaw)
         else:
@@ -100,28 +115,28 @@ class Track:
         self.segments.append(seg)
         self.t, self.jaw = t1, float(jaw)
 
-    def hold_until(self, t):
+    def hold_until(self, t: float) -> None:
         """Keep still until plan time ``t`` (s)."""
         if t > self.t + 1e-12:
             self._still(t, self.jaw)
 
-    def hold(self, duration):
+    def hold(self, duration: float) -> None:
         """Keep still for ``duration`` (s)."""
         self.hold_until(self.t + duration)
 
-    def set_jaw(self, jaw):
+    def set_jaw(self, jaw: float) -> None:
         """Open or close the jaw to ``jaw`` (rad) in ``jaw_time``."""
         self._still(self.t + self.cfg.jaw_time / self.cfg.speed_scale, jaw)
 
-    def grab(self, needle_pose, grasp):
+    def grab(self, needle_pose: ArrayLike, grasp: ArrayLike) -> None:
         """From now on the arm holds the needle (after its jaw closed on it)."""
         self.held = (np.array(needle_pose, dtype=float), np.array(grasp, dtype=float))
 
-    def let_go(self):
+    def let_go(self) -> None:
         """From now on the arm holds nothing (after its jaw opened)."""
         self.held = None
 
-    def move(self, B, jaw=None):
+    def move(self, B: ArrayLike, jaw: float | None = None) -> None:
         """Move the free tool to pose ``B`` (and the jaw to ``jaw``), minimum-jerk timed."""
         if self.held is not None:
             raise RuntimeError(f'{self.arm} holds the needle: use carry()')
@@ -134,7 +149,8 @@ class Track:
         self.segments.append(seg)
         self.t, self.pose, self.jaw = seg.t1, np.array(B, dtype=float), jaw
 
-    def carry(self, path, drive=False, min_duration=None):
+    def carry(self, path: PoseInterpolator | ArcPath, drive: bool = False,
+              min_duration: float | None = None) -> None:
         """
         Carry the held needle along ``path`` (a needle path), minimum-jerk timed.
 
@@ -161,7 +177,7 @@ class Track:
         self.t, self.pose = seg.t1, B
         self.held = (path.B, grasp)
 
-    def follow(self, path, duration):
+    def follow(self, path: NeedlePath, duration: float) -> None:
         """
         Carry the held needle along ``path`` with the path's own timing (a DMP rollout).
 
@@ -174,7 +190,8 @@ class Track:
             Duration (s).
 
         """
-        grasp = self.held[1]
+        # a rollout carries the needle the arm holds (cast: typing only)
+        grasp = cast('tuple[np.ndarray, np.ndarray]', self.held)[1]
         seg = TimedNeedleMove(self.t, self.t + duration, path, grasp, self.jaw)
         self.segments.append(seg)
         self.t = seg.t1

@@ -17,12 +17,17 @@ Poses are 4x4 homogeneous matrices (world frame, metres); angles in radians.
 """
 
 import math
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
 
+if TYPE_CHECKING:
+    from suture_lfd.planning.throw_geometry import ThrowArc
 
-def minimum_jerk(u):
+
+def minimum_jerk(u: float) -> float:
     """
     Minimum-jerk profile ``10 u^3 - 15 u^4 + 6 u^5`` on [0, 1] (clamped outside).
 
@@ -41,7 +46,7 @@ def minimum_jerk(u):
     return u * u * u * (10.0 + u * (-15.0 + 6.0 * u))
 
 
-def rotation_log(R):
+def rotation_log(R: ArrayLike) -> np.ndarray:
     """
     Rotation vector (axis times angle, rad) of a rotation matrix.
 
@@ -71,7 +76,7 @@ def rotation_log(R):
     return angle / (2.0 * math.sin(angle)) * w
 
 
-def rotation_exp(w):
+def rotation_exp(w: ArrayLike) -> np.ndarray:
     """
     Rotation matrix of a rotation vector (Rodrigues).
 
@@ -94,6 +99,33 @@ def rotation_exp(w):
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 
+class NeedlePath(Protocol):
+    """
+    A path of poses over ``sigma`` in [0, 1].
+
+    :class:`RigidPath`, :class:`ArcPath` or a sampled one (a DMP rollout).
+    """
+
+    @property
+    def A(self) -> np.ndarray:  # noqa: N802 (pose names follow the project's T_a_b style)
+        """Start pose (4, 4)."""
+
+    @property
+    def B(self) -> np.ndarray:  # noqa: N802
+        """End pose (4, 4)."""
+
+    @property
+    def angle(self) -> float:
+        """Rotation angle (rad)."""
+
+    @property
+    def distance(self) -> float:
+        """Distance (m) travelled."""
+
+    def __call__(self, sigma: float) -> np.ndarray:
+        """Return the pose (4, 4) at path parameter ``sigma``."""
+
+
 class PoseInterpolator:
     """
     Straight-line position and constant-axis rotation between two poses.
@@ -105,12 +137,12 @@ class PoseInterpolator:
 
     """
 
-    def __init__(self, A, B):
+    def __init__(self, A: ArrayLike, B: ArrayLike) -> None:
         self.A = np.array(A, dtype=float)
         self.B = np.array(B, dtype=float)
         self._dp = self.B[:3, 3] - self.A[:3, 3]
         self._w = rotation_log(self.A[:3, :3].T @ self.B[:3, :3])
-        self._still = None
+        self._still: np.ndarray | None = None
         if not self._dp.any() and float(np.linalg.norm(self._w)) < 1e-12:
             # A pose held still: every sigma below 1 gives the pose at sigma 0 (the rotation
             # vector sigma * w is below rotation_exp's 1e-12 for every sigma <= 1, and
@@ -118,16 +150,16 @@ class PoseInterpolator:
             self._still = self._at(0.0)
 
     @property
-    def distance(self):
+    def distance(self) -> float:
         """Translation length (m)."""
         return float(np.linalg.norm(self._dp))
 
     @property
-    def angle(self):
+    def angle(self) -> float:
         """Rotation angle (rad)."""
         return float(np.linalg.norm(self._w))
 
-    def __call__(self, sigma):
+    def __call__(self, sigma: float) -> np.ndarray:
         """
         Pose at path parameter ``sigma`` in [0, 1].
 
@@ -147,13 +179,13 @@ class PoseInterpolator:
             return self._still.copy()
         return self._at(sigma)
 
-    def _at(self, sigma):
+    def _at(self, sigma: float) -> np.ndarray:
         T = np.eye(4)
         T[:3, :3] = self.A[:3, :3] @ rotation_exp(sigma * self._w)
         T[:3, 3] = self.A[:3, 3] + sigma * self._dp
         return T
 
-    def many(self, sigmas):
+    def many(self, sigmas: ArrayLike) -> np.ndarray:
         """
         Poses at many path parameters in [0, 1) at once.
 
@@ -202,36 +234,36 @@ class ArcPath:
 
     """
 
-    def __init__(self, arc, alpha_a, alpha_b):
+    def __init__(self, arc: 'ThrowArc', alpha_a: float, alpha_b: float) -> None:
         self.arc = arc
         self.alpha_a = float(alpha_a)
         self.alpha_b = float(alpha_b)
 
     @property
-    def A(self):  # noqa: N802 (pose names follow the project's T_a_b style)
+    def A(self) -> np.ndarray:  # noqa: N802 (pose names follow the project's T_a_b style)
         """Start needle pose (4, 4)."""
         return self.arc.T_world_needle(self.alpha_a)
 
     @property
-    def B(self):  # noqa: N802
+    def B(self) -> np.ndarray:  # noqa: N802
         """End needle pose (4, 4)."""
         return self.arc.T_world_needle(self.alpha_b)
 
     @property
-    def angle(self):
+    def angle(self) -> float:
         """Rotation angle (rad)."""
         return abs(self.alpha_b - self.alpha_a)
 
     @property
-    def distance(self):
+    def distance(self) -> float:
         """Largest distance (m) travelled by a needle point."""
         return self.arc.needle.radius * self.angle
 
-    def alpha(self, sigma):
+    def alpha(self, sigma: float) -> float:
         """Angle (rad) at path parameter ``sigma``."""
         return self.alpha_a + sigma * (self.alpha_b - self.alpha_a)
 
-    def __call__(self, sigma):
+    def __call__(self, sigma: float) -> np.ndarray:
         """
         Needle pose at path parameter ``sigma`` in [0, 1].
 
@@ -265,20 +297,21 @@ class ToolMove:
 
     carries_needle = False
 
-    def __init__(self, t0, t1, A, B, jaw0, jaw1):
+    def __init__(self, t0: float, t1: float, A: ArrayLike, B: ArrayLike, jaw0: float,
+                 jaw1: float) -> None:
         self.t0 = float(t0)
         self.t1 = float(t1)
-        self.path = PoseInterpolator(A, B)
+        self.path: NeedlePath = PoseInterpolator(A, B)
         self.jaw0 = float(jaw0)
         self.jaw1 = float(jaw1)
 
-    def sigma(self, t):
+    def sigma(self, t: float) -> float:
         """Minimum-jerk path parameter at time ``t`` (s)."""
         if self.t1 <= self.t0:
             return 1.0
         return minimum_jerk((t - self.t0) / (self.t1 - self.t0))
 
-    def tool(self, t, T_tool_needle=None):
+    def tool(self, t: float, T_tool_needle: np.ndarray | None = None) -> np.ndarray:
         """
         Tool-tip pose ``T_world_tool`` (4, 4) at time ``t`` (s).
 
@@ -296,11 +329,11 @@ class ToolMove:
         """
         return self.path(self.sigma(t))
 
-    def jaw(self, t):
+    def jaw(self, t: float) -> float:
         """Jaw angle (rad) at time ``t`` (s)."""
         return self.jaw0 + self.sigma(t) * (self.jaw1 - self.jaw0)
 
-    def needle(self, t):
+    def needle(self, t: float) -> np.ndarray | None:
         """Needle pose carried by this segment (None: it carries none)."""
         return None
 
@@ -313,7 +346,7 @@ class NeedleMove(ToolMove):
     ----------
     t0, t1 : float
         Start and end time (s).
-    path : RigidPath or ArcPath
+    path : NeedlePath
         Needle pose as a function of the path parameter.
     T_tool_needle : array_like, shape (4, 4)
         Planned grasp (tool-tip frame <- needle frame).
@@ -324,21 +357,23 @@ class NeedleMove(ToolMove):
 
     carries_needle = True
 
-    def __init__(self, t0, t1, path, T_tool_needle, jaw0, jaw1=None):
+    def __init__(self, t0: float, t1: float, path: NeedlePath,
+                 T_tool_needle: ArrayLike, jaw0: float, jaw1: float | None = None) -> None:
         self.t0 = float(t0)
         self.t1 = float(t1)
         self.path = path
         self.grasp = np.array(T_tool_needle, dtype=float)
         self._inv = invert_transform(self.grasp)
-        self._measured = self._measured_inv = None
+        self._measured: np.ndarray | None = None
+        self._measured_inv: np.ndarray | None = None
         self.jaw0 = float(jaw0)
         self.jaw1 = self.jaw0 if jaw1 is None else float(jaw1)
 
-    def needle(self, t):
+    def needle(self, t: float) -> np.ndarray:
         """Planned needle pose ``T_world_needle`` (4, 4) at time ``t`` (s)."""
         return self.path(self.sigma(t))
 
-    def tool(self, t, T_tool_needle=None):
+    def tool(self, t: float, T_tool_needle: np.ndarray | None = None) -> np.ndarray:
         """
         Tool-tip pose carrying the needle at time ``t`` (s).
 
@@ -359,7 +394,8 @@ class NeedleMove(ToolMove):
         if T_tool_needle is None:
             inv = self._inv
         elif T_tool_needle is self._measured:
-            inv = self._measured_inv  # the same measured grasp as the last call (not changed)
+            # the same measured grasp as the last call (not changed), so its inverse is set
+            inv = cast(np.ndarray, self._measured_inv)
         else:
             inv = invert_transform(T_tool_needle)
             self._measured, self._measured_inv = T_tool_needle, inv

@@ -59,7 +59,7 @@ class Method:
     description: str = ''
     regression: str = 'lwr'
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.frame not in ('world', 'suture', 'arc'):
             raise ValueError(f"method {self.name}: frame must be 'world', 'suture' or 'arc', "
                              f'got {self.frame!r}')
@@ -82,7 +82,7 @@ METHODS = {
 }
 
 
-def get_method(name):
+def get_method(name: 'str | Method') -> 'Method':
     """
     Return the registered :class:`Method` called ``name``.
 

@@ -17,12 +17,12 @@ _NOT_RESULTS = frozenset({
     'study/signals.py', 'study/digest.py', 'study/assessed.py', 'cli.py'})
 
 
-def file_digest(path):
+def file_digest(path: str | Path) -> str:
     """Return the first 16 hex digits of the SHA-256 of a file's content."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-def code_digest():
+def code_digest() -> str:
     """Return the digest of the simulator and LfD sources a job's result depends on."""
     h = hashlib.sha256()
     package = Path(__file__).resolve().parent.parent

@@ -10,7 +10,10 @@ The study's figures as PNG files (matplotlib, Agg backend, no display needed).
   Fig. 7).
 """
 
+from collections.abc import Mapping
 import math
+from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -21,7 +24,7 @@ import numpy as np  # noqa: E402
 _CMAP = 'RdYlGn'
 
 
-def _annotate(ax, m):
+def _annotate(ax: Any, m: np.ndarray) -> None:
     for i in range(m.shape[0]):
         for j in range(m.shape[1]):
             if not math.isnan(m[i, j]):
@@ -29,7 +32,7 @@ def _annotate(ax, m):
                         f'{m[i, j]:.0f}', ha='center', va='center', fontsize=6)
 
 
-def heat_maps(gen, path, title=''):
+def heat_maps(gen: Mapping[str, Any], path: str | Path, title: str = '') -> None:
     """
     Draw the per-subject and average generality heat maps into one PNG.
 
@@ -71,7 +74,7 @@ def heat_maps(gen, path, title=''):
     plt.close(fig)
 
 
-def task_time_bars(times, path, title=''):
+def task_time_bars(times: Mapping[str, Any], path: str | Path, title: str = '') -> None:
     """
     Draw mean full-throw times (with standard deviations) of demonstrations and LfD executions.
 
@@ -109,7 +112,7 @@ def task_time_bars(times, path, title=''):
     plt.close(fig)
 
 
-def trajectory_figure(curves, path, title=''):
+def trajectory_figure(curves: Mapping[str, Any], path: str | Path, title: str = '') -> None:
     """
     Draw demonstrated and regenerated needle trajectories (the paper's Fig. 7).
 

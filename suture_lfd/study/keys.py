@@ -22,6 +22,9 @@ canonical JSON of
 Which other methods, subjects or pairs run beside a job, and in which order, is not in it.
 """
 
+from collections.abc import Mapping, Sequence
+from typing import Any
+
 from suture_lfd.study.store import config_hash
 
 #: Version of the recipe: a change of what goes into an ``id`` changes every ``id``.
@@ -30,7 +33,7 @@ ID_FORMAT = 1
 BOOKKEEPING = ('id', 'order', 'train_order', 'test_order', 'demo_key')
 
 
-def job_context(config):
+def job_context(config: Mapping[str, Any]) -> dict[str, Any]:
     """
     Return what every job of a study configuration depends on beside its own fields.
 
@@ -49,7 +52,8 @@ def job_context(config):
             'code': config['code'], 'via_ros': config.get('via_ros')}
 
 
-def with_ids(jobs, config, demo_ids=None):
+def with_ids(jobs: Sequence[Mapping[str, Any]], config: Mapping[str, Any],
+             demo_ids: Mapping[str, str] | None = None) -> list[dict[str, Any]]:
     """
     Return the jobs with their ``id``, demonstrations first in the list or in ``demo_ids``.
 
@@ -77,7 +81,7 @@ def with_ids(jobs, config, demo_ids=None):
     context = job_context(config)
     subjects = {s['name']: s for s in config['subjects']}
     ids = dict(demo_ids or {})
-    out = []
+    out: list[dict[str, Any]] = []
     for job in jobs:
         decided = {k: v for k, v in job.items() if k not in BOOKKEEPING}
         decided['subject'] = subjects[job['subject']]
@@ -90,6 +94,6 @@ def with_ids(jobs, config, demo_ids=None):
     return out
 
 
-def demo_ids(demos):
+def demo_ids(demos: Sequence[Mapping[str, Any]]) -> dict[str, str]:
     """Return ``demo key -> id`` of demonstration jobs that have their ``id``."""
     return {job['key']: job['id'] for job in demos}

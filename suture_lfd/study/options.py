@@ -6,13 +6,15 @@ nothing that loads PyBullet or the jobs (the commands import :mod:`suture_lfd.st
 :mod:`suture_lfd.study.sweep` only when they run).
 """
 
+import argparse
+
 from suture_lfd.study import held_out, physical
 
 QUICK_SUBJECTS = 2
 QUICK_PAIRS = 2
 
 
-def add_study_arguments(parser):
+def add_study_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``suture-lfd study`` to an argparse parser."""
     parser.add_argument('--seed', type=int, default=0,
                         help='cohort and study seed (same seed, same report; default 0)')
@@ -56,7 +58,7 @@ def add_study_arguments(parser):
                         help='write the report from the results stored so far, run nothing')
 
 
-def add_sweep_arguments(parser):
+def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of ``suture-lfd sweep`` to an argparse parser."""
     parser.add_argument('sweep_file', help='sweep file (YAML, see config/sweep_table1.yaml)')
     parser.add_argument('--out', default='sweep', help='sweep folder (default ./sweep)')
