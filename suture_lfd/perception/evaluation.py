@@ -282,6 +282,33 @@ class SceneMaker:
             self._hold(arm, T_tool, G)
         return replace(self._render(kind), history=history)
 
+    def carry(self, translation, arm='PSM2'):
+        """
+        Move the arm holding the needle by ``translation`` and render the pair again.
+
+        Parameters
+        ----------
+        translation : array_like, shape (3,)
+            Displacement (m, world frame) of the tool, the grasp kept.
+        arm : str
+            The holding arm (it must hold the needle: after a ``held`` scene).
+
+        Returns
+        -------
+        RenderedScene
+            Kind ``held``.
+
+        """
+        sim = self.sim
+        if arm not in sim.grasp.holders:
+            raise ValueError(f'{arm} does not hold the needle: render a held scene first')
+        T_tool = sim.tool_pose(arm)
+        G = invert_transform(T_tool) @ sim.needle_pose()
+        moved = T_tool.copy()
+        moved[:3, 3] += np.asarray(translation, dtype=float).reshape(3)
+        self._hold(arm, moved, G)
+        return self._render('held')
+
     def _render(self, kind):
         sim = self.sim
         frame = sim.render()

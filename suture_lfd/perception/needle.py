@@ -46,6 +46,7 @@ from scipy.optimize import least_squares
 from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
 from suture_lfd.perception.images import check_image
+from suture_lfd.perception.reacquire import shifted_priors
 from suture_lfd.perception.wire_images import (
     WireImage,
     hidden_in_images,
@@ -431,7 +432,8 @@ class NeedleTracker:
         return starts
 
     # ------------------------------------------------------------------ the estimate
-    def estimate(self, left, right, stereo, prior=None, tools=(), support_normal=None):
+    def estimate(self, left, right, stereo, prior=None, tools=(), support_normal=None,
+                 search=0):
         """
         Estimate the needle's pose in the camera frame from a rectified stereo pair.
 
@@ -452,6 +454,10 @@ class NeedleTracker:
             :attr:`suture_lfd.perception.markers.MarkerDetections.normal`: of the poses that
             fit the images alike, one whose plane is within ``max_support_tilt`` of it is
             taken. Without it (and without a prior) such a tie is "not found".
+        search : int
+            With a prior: also start from the prior moved to where the images show the needle
+            within this many pixels (:func:`suture_lfd.perception.reacquire.shifted_priors`),
+            to re-acquire a needle lost by tracking; 0: from the prior only.
 
         Returns
         -------
@@ -474,6 +480,9 @@ class NeedleTracker:
             support_normal = support_normal / np.linalg.norm(support_normal)
         if prior is not None:
             starts = [_pose(prior, 'prior')]
+            if search > 0:
+                starts += shifted_priors(starts[0], (fields[0].mask, fields[1].mask), stereo,
+                                         self._model, self.geometry.wire_diameter, int(search))
         else:
             starts = self._detections(stereo, fields)
             if not starts:

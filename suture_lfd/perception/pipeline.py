@@ -5,7 +5,11 @@ One call per stereo pair: the markers, then the needle tracked from frame to fra
 rate; an executor in-process): it finds the markers (their plane tells on which surface a free
 needle lies), then estimates the needle from the best prior it has -- the one the caller gives
 (tool pose times grasp while held), else its own last estimate while that is recent, else none
-(a detection) -- and falls back to a detection when a tracked estimate is lost.
+(a detection). A needle the tracking loses, or that was last seen longer ago, is looked for
+around where it was last seen, farther than tracking reaches
+(:func:`suture_lfd.perception.reacquire.shifted_priors`): an arm may have carried it a few
+millimetres between two pairs, and a held needle cannot be detected afresh (the jaw's metal
+joins its pixels); only then is it detected anew.
 """
 
 from dataclasses import dataclass
@@ -47,14 +51,19 @@ class StereoPerception:
         Age (s) beyond which the last estimate is no prior any more.
     markers : bool
         Look for the markers (their plane helps detect a free needle).
+    search_reach : int
+        Reach (pixels, either axis) of the search around the last estimate when tracking
+        lost the needle; 0: no search.
 
     """
 
-    def __init__(self, tracker=None, marker_config=None, track_timeout=1.0, markers=True):
+    def __init__(self, tracker=None, marker_config=None, track_timeout=1.0, markers=True,
+                 search_reach=80):
         self.tracker = tracker or NeedleTracker()
         self.marker_config = marker_config or MarkerConfig()
         self.track_timeout = float(track_timeout)
         self.find_markers = bool(markers)
+        self.search_reach = int(search_reach)
         self._last = None  # (time, T_camera_needle) of the last found estimate
         self._normal = None
 
@@ -94,15 +103,25 @@ class StereoPerception:
             markers = detect_markers(left, right, stereo, self.marker_config)
             if markers.n_pairs:
                 self._normal = markers.normal
+        given = prior is not None
         tracked = False
-        if prior is None and self._last is not None and t - self._last[0] <= self.track_timeout:
+        if not given and self._last is not None and t - self._last[0] <= self.track_timeout:
             prior, tracked = self._last[1], True
-        est = self.tracker.estimate(left, right, stereo, prior=prior, tools=tools,
-                                    support_normal=None if prior is not None else self._normal)
-        if not est.found and tracked:
-            tracked = False
-            est = self.tracker.estimate(left, right, stereo, tools=tools,
-                                        support_normal=self._normal)
+        est = None
+        if prior is not None:
+            est = self.tracker.estimate(left, right, stereo, prior=prior, tools=tools)
+        if not given and (est is None or not est.found):
+            est, tracked = self._reacquire(left, right, stereo, tools)
         if est.found:
             self._last = (t, est.pose_camera)
         return PerceptionResult(markers=markers, needle=est, tracked=tracked)
+
+    def _reacquire(self, left, right, stereo, tools):
+        """Look for a needle not tracked: around its last pose first, then anywhere."""
+        if self._last is not None and self.search_reach > 0:
+            searched = self.tracker.estimate(left, right, stereo, prior=self._last[1],
+                                             tools=tools, search=self.search_reach)
+            if searched.found:
+                return searched, True
+        return self.tracker.estimate(left, right, stereo, tools=tools,
+                                     support_normal=self._normal), False
