@@ -29,7 +29,9 @@ Method
 
 Size: one tracker whose detection, fit and trust measures share the arc's model and its
 projections; what the images say about a wire is in :mod:`suture_lfd.perception.wire_images`,
-the pose helpers in :mod:`suture_lfd.perception.arc_poses`.
+the pose helpers in :mod:`suture_lfd.perception.arc_poses`, the optional fit to the
+triangulated centre line in :mod:`suture_lfd.perception.arc_stereo`, the search for a lost
+needle in :mod:`suture_lfd.perception.reacquire`.
 
 Frames: ``pose_camera`` is ``T_camera_needle`` (4, 4) in the camera (left optical) frame of
 :mod:`suture_lfd.perception.stereo`; the needle frame is :mod:`sim_bridge.common.needle`'s (origin
@@ -45,6 +47,11 @@ import numpy as np
 from scipy.optimize import least_squares
 from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
+from suture_lfd.perception.arc_stereo import (
+    arc_distances,
+    centre_line_points,
+    fit_arc_to_points,
+)
 from suture_lfd.perception.images import check_image
 from suture_lfd.perception.reacquire import shifted_priors
 from suture_lfd.perception.wire_images import (
@@ -104,6 +111,17 @@ class TrackerConfig:
         Smallest blob (pixels) that may be a needle when detecting without a prior.
     min_elongation : float
         Smallest length-to-width ratio of such a blob.
+    centre_line : bool
+        Move a detection onto the wire's centre line triangulated row by row before the edges
+        refine it (:mod:`suture_lfd.perception.arc_stereo`). Off by default: it halves the
+        90th-percentile error of a needle lying on the curved (scanned) pad, but doubles the
+        median error on the flat one and leaves more detections ambiguous
+        (``bench/bench_lying_needle.py``).
+    min_stereo_points : int
+        Fewest triangulated centre-line points for which a detection is fitted to them.
+    stereo_weight : float
+        Cost (pixels) of a detection per millimetre of the triangulated points' median
+        distance from its arc, added to its image cost.
 
     """
 
@@ -129,6 +147,9 @@ class TrackerConfig:
     end_weight: float = 4.0
     min_blob_area: int = 40
     min_elongation: float = 5.0
+    centre_line: bool = False
+    min_stereo_points: int = 20
+    stereo_weight: float = 0.5
 
     def __post_init__(self):
         if self.n_points < 8:
@@ -478,6 +499,7 @@ class NeedleTracker:
         if support_normal is not None:
             support_normal = np.asarray(support_normal, dtype=float).reshape(3)
             support_normal = support_normal / np.linalg.norm(support_normal)
+        points = None
         if prior is not None:
             starts = [_pose(prior, 'prior')]
             if search > 0:
@@ -495,6 +517,19 @@ class NeedleTracker:
             starts = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
                       for T0 in starts]
             starts += [mirrored(T) for T in starts]
+            if c.centre_line:
+                # seen nearly face on, a tilt across the line of sight hardly changes the
+                # images (both fits above may be off by it): the wire's depth, triangulated
+                # where it crosses the rows steeply, fixes the plane; the edges then refine it
+                wire_px = self.geometry.wire_diameter * stereo.fx / max(
+                    float(np.median([T[2, 3] for T in starts])), 1e-3)
+                points = centre_line_points(fields[0].mask, fields[1].mask, stereo,
+                                            int(2.0 * wire_px) + 1)
+                if len(points) >= c.min_stereo_points:
+                    starts = [self._refine(fit_arc_to_points(T, points, self.geometry),
+                                           stereo, fields, none) for T in starts]
+                else:
+                    points = None
         candidates = []
         for T in starts:
             hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
@@ -503,7 +538,12 @@ class NeedleTracker:
             residual, share, share_l, share_r = self._score(T, stereo, fields, hidden)
             trusted = share >= c.min_visible and residual <= c.max_residual
             # the closest fit, a hidden tenth of the arc counting as 0.2 px
-            candidates.append((trusted, residual + 2.0 * (1.0 - share), T, residual, share,
+            cost = residual + 2.0 * (1.0 - share)
+            if points is not None:
+                # and off the triangulated wire: px per mm of the points' median distance
+                cost += c.stereo_weight * 1e3 * float(np.median(arc_distances(
+                    T, points, self.geometry)))
+            candidates.append((trusted, cost, T, residual, share,
                                share_l, share_r))
         if support_normal is not None:
             # a needle lying free lies on the tissue: its plane near the surface's

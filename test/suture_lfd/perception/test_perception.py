@@ -21,7 +21,9 @@ from suture_lfd.perception import (
     needle_prior,
     stereo_from_camera_info,
 )
+from suture_lfd.perception.arc_stereo import arc_distances, centre_line_points, fit_arc_to_points
 from suture_lfd.perception.evaluation import SceneMaker, needle_errors, perturbed
+from suture_lfd.perception.wire_images import WireImage
 
 
 def on_disk(scene, tmp_path):
@@ -166,6 +168,24 @@ def test_a_held_needle_carried_out_of_the_trackers_reach_is_found_again(syntheti
         assert largest < 0.002 and angle < math.radians(8.0), (total, largest, angle)
         found += without.needle.found
     assert found < 3  # without the search, it is lost (the claim above can fail)
+
+
+def test_the_wire_triangulated_row_by_row_lies_on_the_true_arc_and_fixes_its_plane(scanned,
+                                                                                  tmp_path):
+    geometry = NeedleTracker().geometry
+    for scene, rng in scenes(scanned, 'free', 2, seed=3):
+        left, right, stereo = on_disk(scene, tmp_path)
+        masks = [WireImage(image, 1.0).mask for image in (left, right)]
+        wire_px = geometry.wire_diameter * stereo.fx / scene.T_camera_needle[2, 3]
+        points = centre_line_points(*masks, stereo, int(2.0 * wire_px) + 1)
+        assert len(points) >= 20
+        d = arc_distances(scene.T_camera_needle, points, geometry)
+        assert np.median(d) < 0.0006, np.median(d)  # about half a pixel of disparity
+        T0 = perturbed(scene.T_camera_needle, rng, 0.002, math.radians(10.0))
+        fitted = fit_arc_to_points(T0, points, geometry)
+        before = needle_errors(T0, scene.T_camera_needle, geometry)
+        after = needle_errors(fitted, scene.T_camera_needle, geometry)
+        assert after[1] < min(before[1], 0.0015) and after[2] < before[2], (before, after)
 
 
 def test_a_partly_inserted_needle_uses_what_it_sees_and_says_so(synthetic, tmp_path):
