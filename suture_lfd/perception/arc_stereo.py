@@ -110,13 +110,13 @@ def fit_arc_to_points(T0: np.ndarray, points: np.ndarray, geometry: NeedleGeomet
     if len(points) < 6:
         return T0
 
-    def pose(x):
+    def pose(x: np.ndarray) -> np.ndarray:
         T = np.eye(4)
         T[:3, :3] = rotvec_matrix(x[:3]) @ T0[:3, :3]
         T[:3, 3] = T0[:3, 3] + 1e-3 * x[3:]
         return T
 
-    def residuals(x):
+    def residuals(x: np.ndarray) -> np.ndarray:
         return arc_distances(pose(x), points, geometry) / scale
 
     result = least_squares(residuals, np.zeros(6), loss='soft_l1', diff_step=1e-3,

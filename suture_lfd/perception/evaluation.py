@@ -16,13 +16,17 @@ estimated and the true needle frame. Frames: the camera frame (left optical fram
 
 from dataclasses import dataclass, replace
 import math
+from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.needle import NeedleGeometry
 from sim_bridge.control import Command
+from sim_bridge.scene.camera import CameraConfig
 from sim_bridge.simulation import Simulation, load_simulation_config
-from suture_lfd.perception.stereo import stereo_from_camera_info
+from suture_lfd.perception.stereo import StereoModel, stereo_from_camera_info
 from suture_lfd.planning.throw_geometry import ThrowArc
 
 KINDS = ('free', 'held', 'inserted', 'handover')
@@ -71,12 +75,13 @@ class RenderedScene:
     history: tuple = ()
 
     @property
-    def stereo(self):
+    def stereo(self) -> StereoModel:
         """The camera model perception gets (:func:`stereo_from_camera_info`)."""
         return stereo_from_camera_info(*self.camera_info)
 
 
-def needle_errors(T_estimate, T_true, geometry):
+def needle_errors(T_estimate: ArrayLike, T_true: ArrayLike,
+                  geometry: NeedleGeometry) -> tuple[float, float, float]:
     """
     Return the SRC Challenge 1 error of a needle estimate: summed and largest point error, angle.
 
@@ -100,7 +105,8 @@ def needle_errors(T_estimate, T_true, geometry):
     return float(d.sum()), float(d.max()), float(angle.magnitude())
 
 
-def perturbed(T, rng, position, angle):
+def perturbed(T: ArrayLike, rng: np.random.Generator, position: float,
+              angle: float) -> np.ndarray:
     """
     Return ``T`` (4, 4) moved by a random translation and rotation of the given sizes.
 
@@ -137,7 +143,8 @@ class SceneMaker:
 
     """
 
-    def __init__(self, phantom='synthetic', camera=None):
+    def __init__(self, phantom: str | Path = 'synthetic',
+                 camera: CameraConfig | None = None) -> None:
         cfg = load_simulation_config()
         camera = camera or replace(cfg.camera, depth=False)
         cfg = replace(cfg, arm=replace(cfg.arm, tracking='exact'), camera=camera)
@@ -145,18 +152,19 @@ class SceneMaker:
         self.sim = Simulation(cfg, phantom=phantom)
         self.geometry = self.sim.needle_geometry
 
-    def close(self):
+    def close(self) -> None:
         """Release the simulation."""
         self.sim.close()
 
     # ------------------------------------------------------------------ placing things
-    def _start(self, rng):
+    def _start(self, rng: np.random.Generator) -> None:
         sim = self.sim
         sim.reset(seed=int(rng.integers(1 << 30)))
         sim.enable_and_home_all()
         sim.pop_events()
 
-    def _reachable(self, arm, T_world_needle, s_range, rng):
+    def _reachable(self, arm: str, T_world_needle: np.ndarray, s_range: tuple[float, float],
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
         """Return a tool pose (world) grasping the needle in ``s_range`` that the arm reaches."""
         sim = self.sim
         chain = sim.kinematics[arm]
@@ -176,14 +184,14 @@ class SceneMaker:
                 best, best_cost = (T_tool, G), float(np.abs(Q[0, 4:]).max())
         return best if best_cost < math.radians(70.0) else None
 
-    def _hold(self, arm, T_tool, G):
+    def _hold(self, arm: str, T_tool: np.ndarray, G: np.ndarray) -> None:
         sim = self.sim
         sim.apply(_command(arm, T_tool, -0.3))
         sim.run(0.01)
         sim.attach_needle(arm, G)
         sim.run(0.01)
 
-    def _free_needle_pose(self, rng):
+    def _free_needle_pose(self, rng: np.random.Generator) -> np.ndarray:
         """Return a needle pose in the air above the pad, its plane turned towards the camera."""
         sim = self.sim
         T_world_camera = sim.camera_pose()
@@ -201,14 +209,15 @@ class SceneMaker:
         T[:3, 3] = centre
         return T
 
-    def _above_tissue(self, T_world_needle, margin=0.001):
+    def _above_tissue(self, T_world_needle: np.ndarray, margin: float = 0.001) -> bool:
         points = self.geometry.points_world(T_world_needle, 24)
         lowered = points - np.array([0.0, 0.0, margin])
         return float(self.sim.phantom.penetration(lowered).max()) == 0.0
 
-    def _grasp_history(self, G, n, rng):
+    def _grasp_history(self, G: np.ndarray, n: int,
+                       rng: np.random.Generator) -> tuple['RenderedScene', ...] | None:
         """``n`` frames of PSM2 holding the needle with grasp ``G`` in the air (or None)."""
-        frames = []
+        frames: list[RenderedScene] = []
         for _ in range(8 * n):
             if len(frames) == n:
                 break
@@ -226,7 +235,8 @@ class SceneMaker:
                 frames.append(self._render('held'))
         return tuple(frames) if len(frames) == n else None
 
-    def scene(self, kind, rng, grasp_frames=0):
+    def scene(self, kind: str, rng: np.random.Generator,
+              grasp_frames: int = 0) -> 'RenderedScene | None':
         """
         Place the needle as ``kind`` wants and render the pair.
 
@@ -272,17 +282,18 @@ class SceneMaker:
             if grasp is None:
                 return None
             holders['PSM2'] = grasp
-        history = ()
+        history: tuple[RenderedScene, ...] = ()
         if grasp_frames and holders:
-            history = self._grasp_history(holders['PSM2'][1], grasp_frames, rng)
-            if history is None:
+            frames = self._grasp_history(holders['PSM2'][1], grasp_frames, rng)
+            if frames is None:
                 return None
+            history = frames
             self.sim.attach_needle('PSM2', holders['PSM2'][1])
         for arm, (T_tool, G) in holders.items():
             self._hold(arm, T_tool, G)
         return replace(self._render(kind), history=history)
 
-    def carry(self, translation, arm='PSM2'):
+    def carry(self, translation: ArrayLike, arm: str = 'PSM2') -> 'RenderedScene':
         """
         Move the arm holding the needle by ``translation`` and render the pair again.
 
@@ -309,7 +320,7 @@ class SceneMaker:
         self._hold(arm, moved, G)
         return self._render('held')
 
-    def _render(self, kind):
+    def _render(self, kind: str) -> 'RenderedScene':
         sim = self.sim
         frame = sim.render()
         T_left_world = invert_transform(frame.T_world_left)
@@ -327,10 +338,10 @@ class SceneMaker:
                              grasps=grasps, entries=entries, exits=exits)
 
 
-def _unit(v):
+def _unit(v: ArrayLike) -> np.ndarray:
     v = np.asarray(v, dtype=float)
     return v / np.linalg.norm(v)
 
 
-def _command(arm, T, jaw):
+def _command(arm: str, T: np.ndarray, jaw: float) -> Command:
     return Command(t=0.0, T_world_tool={arm: T}, jaw={arm: jaw}, subtask='')

@@ -13,10 +13,16 @@ weighted by ``1 / (residual_px + 0.1)``.
 Frames: camera = the left optical frame; tool = the PSM tool-tip frame (``measured_cp``'s); metres.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:
+    from suture_lfd.perception.needle import NeedleEstimate
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,7 +49,8 @@ class GraspEstimate:
     n_frames: int
 
 
-def estimate_grasp(tool_poses, estimates):
+def estimate_grasp(tool_poses: Sequence[ArrayLike],
+                   estimates: Sequence['NeedleEstimate']) -> GraspEstimate:
     """
     Estimate the grasp ``T_tool_needle`` from a few frames of one grasp.
 
@@ -70,10 +77,10 @@ def estimate_grasp(tool_poses, estimates):
         raise ValueError(f'estimate_grasp needs one tool pose per estimate, got '
                          f'{len(tool_poses)} and {len(estimates)}')
     grasps, weights = [], []
-    for T_tool, est in zip(tool_poses, estimates):
-        if not est.found:
+    for pose, est in zip(tool_poses, estimates):
+        if not est.found or est.pose_camera is None:
             continue
-        T_tool = np.asarray(T_tool, dtype=float)
+        T_tool = np.asarray(pose, dtype=float)
         if T_tool.shape != (4, 4):
             raise ValueError(f'tool pose must be 4x4, got shape {T_tool.shape}')
         R = T_tool[:3, :3]
@@ -99,7 +106,7 @@ def estimate_grasp(tool_poses, estimates):
                          n_frames=len(grasps))
 
 
-def needle_prior(T_camera_tool, grasp):
+def needle_prior(T_camera_tool: ArrayLike, grasp: GraspEstimate) -> np.ndarray:
     """
     Return where a held needle should be: ``T_camera_tool @ grasp.T_tool_needle`` (4, 4).
 

@@ -9,11 +9,17 @@ the scene's colours as an endoscope shows them, independent of the light's brigh
 - **thread** (the suture, attached to the needle's tail): purple, red and blue well above green.
 """
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from suture_lfd.perception.stereo import StereoModel
 
 
-def check_image(image, stereo, side):
+def check_image(image: ArrayLike, stereo: 'StereoModel', side: str) -> np.ndarray:
     """
     Return an image as a contiguous uint8 RGB array, or say what is wrong with it.
 
@@ -48,12 +54,12 @@ def check_image(image, stereo, side):
     return np.ascontiguousarray(array)
 
 
-def _channels(rgb):
+def _channels(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rgb = rgb.astype(np.int16)
     return rgb[:, :, 0], rgb[:, :, 1], rgb[:, :, 2]
 
 
-def red_mask(rgb, min_red=60, max_ratio=0.45):
+def red_mask(rgb: np.ndarray, min_red: int = 60, max_ratio: float = 0.45) -> np.ndarray:
     """
     Marker pixels: red above ``min_red`` with green and blue under ``max_ratio`` of it.
 
@@ -76,7 +82,8 @@ def red_mask(rgb, min_red=60, max_ratio=0.45):
     return ((r >= min_red) & (g <= limit) & (b <= limit)).astype(np.uint8) * 255
 
 
-def metal_mask(rgb, min_value=70, max_saturation=0.16):
+def metal_mask(rgb: np.ndarray, min_value: int = 70,
+               max_saturation: float = 0.16) -> np.ndarray:
     """
     Needle pixels: bright (``max >= min_value``) and unsaturated (``(max - min) / max``).
 
@@ -97,12 +104,14 @@ def metal_mask(rgb, min_value=70, max_saturation=0.16):
     r, g, b = cv2.split(rgb)
     hi = cv2.max(cv2.max(r, g), b)
     spread = cv2.subtract(hi, cv2.min(cv2.min(r, g), b))
-    bright = cv2.compare(hi, min_value, cv2.CMP_GE)
-    grey = cv2.compare(spread, cv2.multiply(hi, max_saturation), cv2.CMP_LE)
+    # OpenCV's stubs know no scalar operands: the saturating uint8 arithmetic is what is meant
+    bright = cv2.compare(hi, min_value, cv2.CMP_GE)  # type: ignore[call-overload]
+    grey = cv2.compare(spread, cv2.multiply(hi, max_saturation),  # type: ignore[call-overload]
+                       cv2.CMP_LE)
     return cv2.bitwise_and(bright, grey)
 
 
-def thread_mask(rgb, min_ratio=1.4, min_blue=50):
+def thread_mask(rgb: np.ndarray, min_ratio: float = 1.4, min_blue: int = 50) -> np.ndarray:
     """
     Thread pixels: purple (red and blue both ``min_ratio`` times green, blue >= ``min_blue``).
 

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from suture_lfd.perception.images import check_image, red_mask
+from suture_lfd.perception.stereo import StereoModel
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ class MarkerConfig:
     dot_height: float = 0.0002
     entry_row: str = 'far'
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.entry_row not in ('far', 'near'):
             raise ValueError(f"marker entry_row must be 'far' or 'near', got {self.entry_row!r}")
         if self.min_area < 1 or self.max_row_offset <= 0 or self.max_disparity_offset <= 0:
@@ -87,18 +88,19 @@ class MarkerDetections:
     unmatched: int = 0
 
     @property
-    def n_pairs(self):
+    def n_pairs(self) -> int:
         """Number of entry/exit pairs found."""
         return len(self.entries)
 
 
-def _blobs(mask, min_area):
+def _blobs(mask: np.ndarray, min_area: int) -> np.ndarray:
     n, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = stats[1:, cv2.CC_STAT_AREA] >= min_area
     return centroids[1:][keep]
 
 
-def _match(left, right, config):
+def _match(left: np.ndarray, right: np.ndarray,
+           config: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
     """Return the indices of matching blobs: rows within ``max_row_offset``, disparities alike."""
     if not len(left) or not len(right):
         return np.zeros(0, int), np.zeros(0, int)
@@ -119,7 +121,8 @@ def _match(left, right, config):
     return i[good], j[good]
 
 
-def _pairs(points, normal, entry_row):
+def _pairs(points: np.ndarray, normal: np.ndarray,
+           entry_row: str) -> tuple[np.ndarray, np.ndarray]:
     """
     Split dots into two rows along their principal axis and pair them along the wound.
 
@@ -164,7 +167,8 @@ def _pairs(points, normal, entry_row):
     return (lead, other) if lead_is_entry else (other, lead)
 
 
-def detect_markers(left, right, stereo, config=None):
+def detect_markers(left: np.ndarray, right: np.ndarray, stereo: StereoModel,
+                   config: MarkerConfig | None = None) -> MarkerDetections:
     """
     Find the red entry/exit markers in a stereo pair and pair them along the wound.
 

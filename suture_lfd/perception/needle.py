@@ -39,11 +39,13 @@ at the arc centre, arc in the x-y plane, tail at 180 deg, tip at 60 deg). Length
 image distances in pixels.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
@@ -54,6 +56,7 @@ from suture_lfd.perception.arc_stereo import (
 )
 from suture_lfd.perception.images import check_image
 from suture_lfd.perception.reacquire import shifted_priors
+from suture_lfd.perception.stereo import StereoModel
 from suture_lfd.perception.wire_images import (
     WireImage,
     hidden_in_images,
@@ -61,6 +64,8 @@ from suture_lfd.perception.wire_images import (
     sample,
     tool_capsules,
 )
+
+Fields = tuple[WireImage, WireImage]  # the left and right images' wire fields
 
 _OUT_OF_VIEW = 30.0  # cost (pixels) of an arc point outside an image
 _BEYOND = np.arange(0.5, 4.6, 1.0)  # pixels past a wire's end where the thread is looked for
@@ -151,7 +156,7 @@ class TrackerConfig:
     min_stereo_points: int = 20
     stereo_weight: float = 0.5
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.n_points < 8:
             raise ValueError(f'tracker n_points must be >= 8, got {self.n_points}')
         for name in ('loss_scale', 'seen_distance', 'max_residual', 'jaw_length',
@@ -198,7 +203,7 @@ class NeedleEstimate:
     partial: bool = False
     reason: str = ''
 
-    def points_camera(self, geometry=None):
+    def points_camera(self, geometry: NeedleGeometry | None = None) -> np.ndarray | None:
         """Return the base (tail), middle and tip (3, 3) in the camera frame (m), or None."""
         if self.pose_camera is None:
             return None
@@ -226,7 +231,8 @@ class NeedleTracker:
 
     """
 
-    def __init__(self, geometry=None, config=None):
+    def __init__(self, geometry: NeedleGeometry | None = None,
+                 config: TrackerConfig | None = None) -> None:
         self.geometry = geometry or NeedleGeometry()
         self.config = config or TrackerConfig()
         self._model = self.geometry.arc_points(self.config.n_points)
@@ -241,11 +247,13 @@ class NeedleTracker:
 
     # ------------------------------------------------------------------ fields
     # ------------------------------------------------------------------ fit
-    def _project(self, T, stereo):
+    def _project(self, T: np.ndarray,
+                 stereo: StereoModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         points = self._model @ T[:3, :3].T + T[:3, 3]
         return points, *stereo.project(points)
 
-    def _residuals(self, x, T0, stereo, fields, keep):
+    def _residuals(self, x: np.ndarray, T0: np.ndarray, stereo: StereoModel, fields: Fields,
+                   keep: np.ndarray) -> np.ndarray:
         R = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
         t = T0[:3, 3] + x[3:] * self._scale[3:]
         points = self._model[keep] @ R.T + t
@@ -258,7 +266,8 @@ class NeedleTracker:
         r = np.concatenate([r_l, r_r])
         return np.where(np.isnan(r), _OUT_OF_VIEW, r)
 
-    def _fit(self, T0, stereo, fields, hidden):
+    def _fit(self, T0: np.ndarray, stereo: StereoModel, fields: Fields,
+             hidden: np.ndarray) -> np.ndarray:
         keep = ~hidden.any(axis=0)
         if keep.sum() < 4:
             return T0
@@ -272,7 +281,9 @@ class NeedleTracker:
         T[:3, 3] = T0[:3, 3] + x[3:] * self._scale[3:]
         return T
 
-    def _profiles(self, T, stereo, fields, hidden):
+    def _profiles(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
+                  hidden: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                    np.ndarray]]:
         """
         Where the wire is seen around each projected arc point, in both images.
 
@@ -325,7 +336,8 @@ class NeedleTracker:
             out.append((index, dirs, offset, np.concatenate([valid, ends_valid])))
         return out
 
-    def _refine(self, T, stereo, fields, hidden):
+    def _refine(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
+                hidden: np.ndarray) -> np.ndarray:
         """Gauss-Newton on the edges' offsets (Huber weights); returns the pose."""
         c = self.config
         n = len(self._model)
@@ -367,7 +379,8 @@ class NeedleTracker:
                 break
         return T
 
-    def _score(self, T, stereo, fields, hidden):
+    def _score(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
+               hidden: np.ndarray) -> tuple[float, float, float, float]:
         """Residual (px), visible shares (both, left, right) of a pose."""
         points = self._model @ T[:3, :3].T + T[:3, 3]
         if np.any(points[:, 2] <= 1e-4):
@@ -382,7 +395,7 @@ class NeedleTracker:
         off = np.concatenate([off_l[both], off_r[both]])
         return float(np.sqrt(np.mean(off ** 2))), both.sum() / n, share_l, share_r
 
-    def _thread_near_tail(self, T, stereo, fields):
+    def _thread_near_tail(self, T: np.ndarray, stereo: StereoModel, fields: Fields) -> int:
         """Thread pixels near the tail minus near the tip, both images (a count)."""
         g = self.geometry
         ends = np.array([g.tail, g.tip]) @ T[:3, :3].T + T[:3, 3]
@@ -405,7 +418,7 @@ class NeedleTracker:
         return score
 
     # ------------------------------------------------------------------ detection
-    def _blobs(self, field, stereo):
+    def _blobs(self, field: WireImage, stereo: StereoModel) -> list[np.ndarray]:
         """End, end and bulge pixels (3, 2) of the elongated needle blobs, largest first."""
         c = self.config
         mask = (field.mask > 0).astype(np.uint8)
@@ -433,7 +446,7 @@ class NeedleTracker:
             blobs.append(np.array([a, b, bulge]))
         return blobs
 
-    def _detections(self, stereo, fields):
+    def _detections(self, stereo: StereoModel, fields: Fields) -> list[np.ndarray]:
         """Start poses from triangulated blob ends and bulges, each both ways round."""
         g = self.geometry
         model = g.point_at(np.array([0.0, 1.0, 0.5]))
@@ -453,8 +466,9 @@ class NeedleTracker:
         return starts
 
     # ------------------------------------------------------------------ the estimate
-    def estimate(self, left, right, stereo, prior=None, tools=(), support_normal=None,
-                 search=0):
+    def estimate(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel,
+                 prior: ArrayLike | None = None, tools: Sequence[ArrayLike] = (),
+                 support_normal: ArrayLike | None = None, search: int = 0) -> NeedleEstimate:
         """
         Estimate the needle's pose in the camera frame from a rectified stereo pair.
 
@@ -576,7 +590,7 @@ class NeedleTracker:
                               visible_right=float(share_r),
                               partial=bool(share < c.partial_below), reason=reason)
 
-    def _distance(self, T_a, T_b):
+    def _distance(self, T_a: np.ndarray, T_b: np.ndarray) -> float:
         """Mean distance (m) of the arcs' base, middle and tip, tail and tip either way."""
         p = self.geometry.point_at(np.array([0.0, 0.5, 1.0]))
         a = p @ T_a[:3, :3].T + T_a[:3, 3]
@@ -586,7 +600,7 @@ class NeedleTracker:
         return float(min(same, swapped))
 
 
-def _pose(T, what):
+def _pose(T: ArrayLike, what: str) -> np.ndarray:
     array = np.asarray(T, dtype=float)
     if array.shape != (4, 4) or not np.all(np.isfinite(array)):
         raise ValueError(f'{what} must be a finite 4x4 transform, got shape {array.shape}')

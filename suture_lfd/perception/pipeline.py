@@ -12,10 +12,14 @@ millimetres between two pairs, and a held needle cannot be detected afresh (the 
 joins its pixels); only then is it detected anew.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-from suture_lfd.perception.markers import MarkerConfig, detect_markers
-from suture_lfd.perception.needle import NeedleTracker
+import numpy as np
+from numpy.typing import ArrayLike
+from suture_lfd.perception.markers import MarkerConfig, MarkerDetections, detect_markers
+from suture_lfd.perception.needle import NeedleEstimate, NeedleTracker
+from suture_lfd.perception.stereo import StereoModel
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,8 +38,8 @@ class PerceptionResult:
 
     """
 
-    markers: object
-    needle: object
+    markers: MarkerDetections | None
+    needle: NeedleEstimate
     tracked: bool
 
 
@@ -57,21 +61,25 @@ class StereoPerception:
 
     """
 
-    def __init__(self, tracker=None, marker_config=None, track_timeout=1.0, markers=True,
-                 search_reach=80):
+    def __init__(self, tracker: NeedleTracker | None = None,
+                 marker_config: MarkerConfig | None = None, track_timeout: float = 1.0,
+                 markers: bool = True, search_reach: int = 80) -> None:
         self.tracker = tracker or NeedleTracker()
         self.marker_config = marker_config or MarkerConfig()
         self.track_timeout = float(track_timeout)
         self.find_markers = bool(markers)
         self.search_reach = int(search_reach)
-        self._last = None  # (time, T_camera_needle) of the last found estimate
-        self._normal = None
+        # (time, T_camera_needle) of the last found estimate
+        self._last: tuple[float, np.ndarray] | None = None
+        self._normal: np.ndarray | None = None
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget the tracked needle (after the scene changed)."""
         self._last = None
 
-    def process(self, left, right, stereo, t, prior=None, tools=()):
+    def process(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel, t: float,
+                prior: ArrayLike | None = None,
+                tools: Sequence[ArrayLike] = ()) -> PerceptionResult:
         """
         Perceive one stereo pair.
 
@@ -107,16 +115,17 @@ class StereoPerception:
         tracked = False
         if not given and self._last is not None and t - self._last[0] <= self.track_timeout:
             prior, tracked = self._last[1], True
-        est = None
+        est: NeedleEstimate | None = None
         if prior is not None:
             est = self.tracker.estimate(left, right, stereo, prior=prior, tools=tools)
-        if not given and (est is None or not est.found):
+        if est is None or (not given and not est.found):
             est, tracked = self._reacquire(left, right, stereo, tools)
-        if est.found:
+        if est.found and est.pose_camera is not None:
             self._last = (t, est.pose_camera)
         return PerceptionResult(markers=markers, needle=est, tracked=tracked)
 
-    def _reacquire(self, left, right, stereo, tools):
+    def _reacquire(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel,
+                   tools: Sequence[ArrayLike]) -> tuple[NeedleEstimate, bool]:
         """Look for a needle not tracked: around its last pose first, then anywhere."""
         if self._last is not None and self.search_reach > 0:
             searched = self.tracker.estimate(left, right, stereo, prior=self._last[1],

@@ -11,8 +11,10 @@ same row in the other, ``d = u_left - u_right = fx * baseline / z`` pixels apart
 """
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,31 +40,31 @@ class StereoModel:
     P_right: np.ndarray
 
     @property
-    def fx(self):
+    def fx(self) -> float:
         """Focal length along ``u`` (pixels)."""
         return float(self.P_left[0, 0])
 
     @property
-    def fy(self):
+    def fy(self) -> float:
         """Focal length along ``v`` (pixels)."""
         return float(self.P_left[1, 1])
 
     @property
-    def cx(self):
+    def cx(self) -> float:
         """Principal point ``u`` (pixels)."""
         return float(self.P_left[0, 2])
 
     @property
-    def cy(self):
+    def cy(self) -> float:
         """Principal point ``v`` (pixels)."""
         return float(self.P_left[1, 2])
 
     @property
-    def baseline(self):
+    def baseline(self) -> float:
         """Distance (m) between the optical centres: ``-P_right[0, 3] / fx``."""
         return float(-self.P_right[0, 3] / self.P_right[0, 0])
 
-    def project(self, points):
+    def project(self, points: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """
         Pixels of camera-frame points in both images.
 
@@ -85,7 +87,7 @@ class StereoModel:
         uv_right = np.column_stack([u - self.fx * self.baseline / z, v])
         return uv_left, uv_right
 
-    def triangulate(self, uv_left, uv_right):
+    def triangulate(self, uv_left: ArrayLike, uv_right: ArrayLike) -> np.ndarray:
         """
         Camera-frame points seen at matching pixels of the two images.
 
@@ -114,7 +116,7 @@ class StereoModel:
         return np.column_stack([x, y, z])
 
 
-def _matrix(info, name, shape, side):
+def _matrix(info: Any, name: str, shape: tuple[int, int], side: str) -> np.ndarray:
     value = info[name] if isinstance(info, dict) else getattr(info, name, None)
     if value is None:
         raise ValueError(f'{side} camera_info has no {name}')
@@ -125,14 +127,14 @@ def _matrix(info, name, shape, side):
     return array.reshape(shape)
 
 
-def _size(info, name, side):
+def _size(info: Any, name: str, side: str) -> int:
     value = info[name] if isinstance(info, dict) else getattr(info, name, None)
     if value is None or int(value) < 2:
         raise ValueError(f'{side} camera_info {name} must be >= 2 pixels, got {value}')
     return int(value)
 
 
-def stereo_from_camera_info(left, right):
+def stereo_from_camera_info(left: Any, right: Any) -> StereoModel:
     """
     Return the rectified stereo model of a pair's two ``camera_info``.
 

@@ -9,9 +9,18 @@ an instrument covers in each image (its jaws, wrist and shaft as capsules,
 :func:`tool_capsules`). Pixels: ``(u, v)``, ``(0, 0)`` the centre of the top-left pixel.
 """
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from suture_lfd.perception.images import metal_mask, thread_mask
+
+if TYPE_CHECKING:
+    from suture_lfd.perception.stereo import StereoModel
+
+Capsule = tuple[np.ndarray, np.ndarray, float]  # start (3,), end (3,) m, radius m
 
 _CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _RIDGE = np.ones((3, 3), np.uint8)
@@ -20,23 +29,26 @@ _RIDGE = np.ones((3, 3), np.uint8)
 class WireImage:
     """One image's needle pixels, and (on demand) the fields the detection needs."""
 
-    def __init__(self, rgb, blur):
+    def __init__(self, rgb: np.ndarray, blur: float) -> None:
         self.rgb = rgb
         self._blur = blur
         # a closing fills the renderer's one-pixel cracks along the thin wire
         self.mask = cv2.morphologyEx(metal_mask(rgb), cv2.MORPH_CLOSE, _CLOSE)
         self.soft = (self.mask > 0).astype(np.float32)
-        self._cost = self._d_out = self._thread = self._thread_soft = None
+        self._cost: np.ndarray | None = None
+        self._d_out: np.ndarray | None = None
+        self._thread: np.ndarray | None = None
+        self._thread_soft: np.ndarray | None = None
 
     @property
-    def d_out(self):
+    def d_out(self) -> np.ndarray:
         """Distance (pixels) to the nearest needle pixel (0 on them)."""
         if self._d_out is None:
             self._d_out = cv2.distanceTransform(cv2.bitwise_not(self.mask), cv2.DIST_L2, 5)
         return self._d_out
 
     @property
-    def cost(self):
+    def cost(self) -> np.ndarray:
         """Distance (pixels, blurred) to the centre line of the needle pixels."""
         if self._cost is None:
             d_in = cv2.distanceTransform(self.mask, cv2.DIST_L2, 5)
@@ -49,21 +61,21 @@ class WireImage:
         return self._cost
 
     @property
-    def thread_soft(self):
+    def thread_soft(self) -> np.ndarray:
         """Thread pixels as 0.0 / 1.0 (float32)."""
         if self._thread_soft is None:
             self._thread_soft = (self.thread > 0).astype(np.float32)
         return self._thread_soft
 
     @property
-    def thread(self):
+    def thread(self) -> np.ndarray:
         """Thread pixels (uint8, 255)."""
         if self._thread is None:
             self._thread = thread_mask(self.rgb)
         return self._thread
 
 
-def sample(image, uv):
+def sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear samples of a float image at pixels ``uv`` (n, 2); NaN outside."""
     h, w = image.shape
     u, v = uv[:, 0], uv[:, 1]
@@ -78,7 +90,8 @@ def sample(image, uv):
     return np.where(inside, f, np.nan)
 
 
-def runs(profile, steps, step, closed=True):
+def runs(profile: np.ndarray, steps: np.ndarray, step: float,
+         closed: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """
     Edges (sub-pixel) of the run of needle samples through or nearest each profile's middle.
 
@@ -122,7 +135,8 @@ def runs(profile, steps, step, closed=True):
     return np.array([a, b]), valid
 
 
-def tool_capsules(T_camera_tool, jaw_length, jaw_radius, shaft_length, shaft_radius):
+def tool_capsules(T_camera_tool: ArrayLike, jaw_length: float, jaw_radius: float,
+                  shaft_length: float, shaft_radius: float) -> list[Capsule]:
     """
     Return an instrument's jaws and its wrist and shaft as capsules (camera frame).
 
@@ -146,7 +160,8 @@ def tool_capsules(T_camera_tool, jaw_length, jaw_radius, shaft_length, shaft_rad
             (hinge, hinge - shaft_length * z, shaft_radius)]
 
 
-def hidden_in_images(points, capsules, stereo):
+def hidden_in_images(points: np.ndarray, capsules: Sequence[Capsule],
+                     stereo: 'StereoModel') -> np.ndarray:
     """
     Return the arc points (n, 3) whose pixel falls on an instrument's, per image (2, n) bool.
 
