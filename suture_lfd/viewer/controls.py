@@ -12,11 +12,14 @@ does through callbacks and knows nothing of ROS:
 Handles. Each MTM's handle sits at the tool of the PSM it drives (``psm_of_mtm``, MTMR drives
 PSM2 and MTML PSM1 by default: each hand on its side of the endoscope image) once
 :meth:`MtmControls.place` puts it there: the viewer does when the arms are homed and at every
-clutch. A handle keeps a fixed size on screen (:data:`HANDLE_PX`) and, in the default mode, moves
-only in the image plane of the endoscope (its two arrows and the square between them, no
-rotation ring to catch by mistake); the ``Handle`` control (keys :data:`MODE_KEYS`) switches to
-``depth`` (the arrow along the view) or ``rotate`` (the rings alone). The pose sent keeps the
-orientation the person gave in ``rotate`` mode whatever the mode shows.
+clutch. In the default mode (``move in image``) a handle is a ball of a fixed size on screen
+(:data:`GRAB_PX` radius, rescaled by :meth:`MtmControls.tick` from the page's camera) with
+nothing else to catch: a drag that starts anywhere on it moves the handle in the plane of the
+page's image (the endoscope's in the surgeon's view) by the pointer's motion, and never turns
+or pushes it (:meth:`MtmControls.drag`). The ``Handle`` control (keys :data:`MODE_KEYS`)
+switches to ``depth`` (an arrow along the view) or ``rotate`` (rings), gizmos of
+:data:`HANDLE_PX` on screen shown in place of the ball. The pose sent keeps the orientation the
+person gave in ``rotate`` mode whatever the mode shows.
 
 Pedals. ``Clutch`` is pressed only while held: the button held down with the mouse, or key C
 held (key repeat ignored; a page script turns key down and up into the button's press and
@@ -36,7 +39,11 @@ from suture_lfd.viewer.scene import wxyz_from_matrix
 
 PSM_OF_MTM = {'MTMR': 'PSM2', 'MTML': 'PSM1'}
 GRIPPER_MAX = math.radians(60.0)  # rad, the MTM gripper's opening range
-HANDLE_PX = 110.0  # px, length of a handle's arrows on screen
+HANDLE_PX = 110.0  # px, length of a handle's arrows on screen (depth and rotate modes)
+GRAB_PX = 28.0  # px, radius on screen of a handle's ball (the default mode)
+GRAB_COLOR = (250, 200, 40)  # the balls' colour, unlike the tools' (green PSM1, blue PSM2)
+GRAB_OPACITY = 0.6
+GRAB_RADIUS = 0.003  # m, a ball's radius until the page reports its camera
 HOLD_HZ = 20.0  # Hz at which a held clutch button reports it is held
 HOLD_TIMEOUT = 1.0  # s without a report before a held clutch counts as released
 MODES = ('move in image', 'depth', 'rotate')
@@ -48,7 +55,7 @@ NEXT_ACTION = {
     None: 'start its teleop node',
     'SETTING_ARMS': 'wait: the arms are being enabled and homed',
     'ALIGNING': 'press Coag (V) and pinch the gripper (move its slider), in either order',
-    'FOLLOWING': 'drag the handle; hold C to clutch and bring it back to the tool',
+    'FOLLOWING': 'drag the handle (the yellow ball); hold C to clutch and bring it back',
     'CLUTCHED': 'release C to follow again',
     'DISABLED': 'the teleop is disabled',
 }
@@ -137,6 +144,11 @@ class MtmControls:
         self._lock = threading.RLock()
         self._last_hold = -math.inf
         self.handles = {}
+        self.balls = {}                 # each handle's ball (the default mode)
+        self._positions = {}            # each handle's position (world, m)
+        self._grabs = {}                # drag under way: (handle's position, point grabbed)
+        self._radii = {}                # each ball's radius (m)
+        self._page = None
         self.sliders = {}
         self.buttons = {}
         self.commands = {}
@@ -154,6 +166,7 @@ class MtmControls:
     def attach(self, page):
         """Build the handles, sliders, buttons and key bindings on ``page``."""
         server = page.server
+        self._page = page
         with server.gui.add_folder('Console'):
             clutch = server.gui.add_button(CLUTCH_LABEL, color='gray',
                                            hint='pressed while held (mouse or key C)')
@@ -194,17 +207,41 @@ class MtmControls:
                 visible=False, **self._mode_props(self.mode))
             handle.on_update(self._pose_callback(mtm))
             self.handles[mtm] = handle
+            self.balls[mtm] = server.scene.add_icosphere(
+                f'/mtm_grab/{mtm}', radius=1.0, color=GRAB_COLOR, subdivisions=2,
+                scale=GRAB_RADIUS, opacity=GRAB_OPACITY, cast_shadow=False,
+                receive_shadow=False, visible=False)
+            self._bind_ball(mtm)
 
     @staticmethod
-    def _mode_props(mode):
+    def _mode_props(mode: str) -> dict[str, object]:
+        """Return the gizmo's properties in ``mode`` (none to catch in the default mode)."""
         if mode == 'depth':
             return {'active_axes': (False, False, True), 'disable_axes': False,
                     'disable_sliders': True, 'disable_rotations': True}
         if mode == 'rotate':
             return {'active_axes': (True, True, True), 'disable_axes': True,
                     'disable_sliders': True, 'disable_rotations': False}
-        return {'active_axes': (True, True, False), 'disable_axes': False,
-                'disable_sliders': False, 'disable_rotations': True}
+        return {'active_axes': (False, False, False), 'disable_axes': True,
+                'disable_sliders': True, 'disable_rotations': True}
+
+    def _bind_ball(self, mtm: str) -> None:
+        """Show ``mtm``'s ball and take its drags in the default mode, the gizmo in the others."""
+        ball, handle = self.balls.get(mtm), self.handles[mtm]
+        placed = mtm in self._placed
+        default = self.mode == MODES[0]
+        handle.visible = placed and not default
+        if ball is None:
+            return
+        ball.remove_drag_callback()
+        if default:
+            ball.on_drag('left')(self._drag_callback(mtm))
+        ball.visible = placed and default
+
+    def _drag_callback(self, mtm):
+        async def callback(event):  # async: the page's events handled in order
+            self.drag(mtm, event.phase, event.start_position, event.end_position)
+        return callback
 
     # --- what the viewer tells it --------------------------------------------------------------
 
@@ -234,14 +271,77 @@ class MtmControls:
                 self._R_user[mtm] = T_world_tool[:3, :3].copy()
             self._R_shown[mtm] = self._R_image.copy() if self.mode != 'rotate' \
                 else self._R_user[mtm].copy()
-            handle.position = tuple(T_world_tool[:3, 3].tolist())
+            self._grabs.pop(mtm, None)
+            self._move_to(mtm, T_world_tool[:3, 3])
             handle.wxyz = wxyz_from_matrix(self._R_shown[mtm])
-            handle.visible = True
             self._placed.add(mtm)
+            self._bind_ball(mtm)
             T = np.eye(4)
             T[:3, :3] = self._R_user[mtm]
             T[:3, 3] = T_world_tool[:3, 3]
         self._on_pose(mtm, T)
+
+    def _move_to(self, mtm: str, position: np.ndarray) -> None:
+        """Put ``mtm``'s gizmo and ball at ``position`` (world, m)."""
+        self._positions[mtm] = np.array(position, dtype=float)
+        xyz = tuple(float(v) for v in position)
+        self.handles[mtm].position = xyz
+        ball = self.balls.get(mtm)
+        if ball is not None:
+            ball.position = xyz
+
+    def drag(self, mtm: str, phase: str, grabbed, pointer) -> None:
+        """
+        Move ``mtm``'s handle by a drag of its ball, in the plane of the page's image.
+
+        Parameters
+        ----------
+        mtm : str
+            The MTM whose handle is dragged.
+        phase : str
+            ``start``, ``update`` or ``end`` (viser's drag phases).
+        grabbed : array_like, shape (3,)
+            The point of the ball grabbed (world, m); read at ``start``.
+        pointer : array_like, shape (3,)
+            The pointer on the plane through ``grabbed`` parallel to the page's image (world,
+            m): the handle moves by the pointer's motion since ``start``, wherever the ball was
+            grabbed, and keeps its orientation and its depth in the view.
+
+        """
+        with self._lock:
+            if mtm not in self._placed or self.mode != MODES[0]:
+                return
+            if phase == 'start':
+                self._grabs[mtm] = (self._positions[mtm].copy(),
+                                    np.array(grabbed, dtype=float))
+            grab = self._grabs.get(mtm)
+            if grab is None:
+                return
+            if phase == 'end':
+                del self._grabs[mtm]
+            position = grab[0] + (np.array(pointer, dtype=float) - grab[1])
+            self._move_to(mtm, position)
+            T = np.eye(4)
+            T[:3, :3] = self._R_user[mtm]
+            T[:3, 3] = position
+        self._on_pose(mtm, T)
+
+    def _rescale_balls(self) -> None:
+        """Keep each ball :data:`GRAB_PX` in radius on the page's screen."""
+        cameras = self._page.client_cameras() if self._page is not None else []
+        if not cameras:
+            return
+        camera = cameras[0]
+        focal = 0.5 * camera['height'] / math.tan(0.5 * camera['fov'])   # px
+        eye = np.asarray(camera['position'], dtype=float)
+        for mtm, ball in self.balls.items():
+            position = self._positions.get(mtm)
+            if position is None or focal <= 0:
+                continue
+            radius = GRAB_PX * float(np.linalg.norm(position - eye)) / focal
+            if radius > 0 and abs(radius / self._radii.get(mtm, GRAB_RADIUS) - 1.0) > 0.05:
+                self._radii[mtm] = radius
+                ball.scale = radius
 
     def placed(self, mtm):
         """Whether ``mtm``'s handle has been placed at its tool."""
@@ -259,10 +359,11 @@ class MtmControls:
             self._recording = text
         self._show_status()
 
-    def tick(self):
-        """Release a held clutch whose page stopped reporting it (call it every frame)."""
+    def tick(self) -> None:
+        """Release a held clutch whose page stopped reporting it; size the balls (each frame)."""
         with self._lock:
             lost = self.pedals['clutch'] and self._clock() - self._last_hold > HOLD_TIMEOUT
+            self._rescale_balls()
         if lost:
             self.clutch_released(None)
 
@@ -300,6 +401,8 @@ class MtmControls:
             for mtm, handle in self.handles.items():
                 for key, value in self._mode_props(mode).items():
                     setattr(handle, key, value)
+                self._grabs.pop(mtm, None)
+                self._bind_ball(mtm)
                 if mtm not in self._placed:
                     continue
                 self._R_shown[mtm] = self._R_user[mtm].copy() if mode == 'rotate' \
@@ -317,7 +420,13 @@ class MtmControls:
                     self._R_user[mtm] = T[:3, :3].copy()
                     self._R_shown[mtm] = T[:3, :3].copy()
                 T[:3, :3] = self._R_user[mtm]
-                self._placed.add(mtm)
+                self._positions[mtm] = T[:3, 3].copy()
+                ball = self.balls.get(mtm)
+                if ball is not None:
+                    ball.position = tuple(float(v) for v in T[:3, 3])
+                if mtm not in self._placed:
+                    self._placed.add(mtm)
+                    self._bind_ball(mtm)
             self._on_pose(mtm, T)
         return callback
 
