@@ -28,12 +28,15 @@ is released. ``Coag`` (key V) toggles the operator's presence; ``Record`` (key R
 camera pedal once (the recorder starts or stops a bag).
 """
 
+from collections.abc import Callable, Iterable, Sequence
 import json
 import math
 import threading
 import time
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import matrix_from_quaternion
 from suture_lfd.viewer.scene import wxyz_from_matrix
 
@@ -44,6 +47,7 @@ GRAB_PX = 28.0  # px, radius on screen of a handle's ball (the default mode)
 GRAB_COLOR = (250, 200, 40)  # the balls' colour, unlike the tools' (green PSM1, blue PSM2)
 GRAB_OPACITY = 0.6
 GRAB_RADIUS = 0.003  # m, a ball's radius until the page reports its camera
+RESCALE_PERIOD = 0.25  # s between two sizings of the balls from the page's camera
 HOLD_HZ = 20.0  # Hz at which a held clutch button reports it is held
 HOLD_TIMEOUT = 1.0  # s without a report before a held clutch counts as released
 MODES = ('move in image', 'depth', 'rotate')
@@ -82,14 +86,14 @@ _KEY_SCRIPT = (
 )
 
 
-def key_script_html():
+def key_script_html() -> str:
     """Return the HTML of the page element that installs the clutch key's script."""
     script = _KEY_SCRIPT.replace('LABEL', json.dumps(CLUTCH_LABEL).replace('"', "'"))
     return (f'<img alt="" src="data:image/png;base64,AA==" style="display:none" '
             f'onerror="{script}">')
 
 
-def _matrix(position, wxyz):
+def _matrix(position: ArrayLike, wxyz: Iterable[float]) -> np.ndarray:
     T = np.eye(4)
     w, x, y, z = (float(v) for v in wxyz)
     T[:3, :3] = matrix_from_quaternion((x, y, z, w))
@@ -97,7 +101,7 @@ def _matrix(position, wxyz):
     return T
 
 
-def next_action(state, coag):
+def next_action(state: str | None, coag: int | bool) -> str:
     """Return what the person should do next for a teleop in ``state`` (None: none seen)."""
     if state == 'ALIGNING' and coag:
         return NEXT_ACTION_PRESENT
@@ -128,42 +132,50 @@ class MtmControls:
 
     """
 
-    def __init__(self, mtms=('MTML', 'MTMR'), on_pose=None, on_gripper=None, on_pedals=None,
-                 psm_of_mtm=None, clock=time.monotonic):
+    def __init__(self, mtms: Sequence[str] = ('MTML', 'MTMR'),
+                 on_pose: Callable[[str, np.ndarray], None] | None = None,
+                 on_gripper: Callable[[str, float], None] | None = None,
+                 on_pedals: Callable[[int, int, int], None] | None = None,
+                 psm_of_mtm: dict[str, str] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         unknown = [m for m in mtms if not m]
         if unknown or len(set(mtms)) != len(mtms):
             raise ValueError(f'mtms must be distinct non-empty names, got {list(mtms)}')
         self.mtms = tuple(mtms)
         self.psm_of_mtm = dict(PSM_OF_MTM if psm_of_mtm is None else psm_of_mtm)
-        self._on_pose = on_pose or (lambda mtm, T: None)
-        self._on_gripper = on_gripper or (lambda mtm, angle: None)
-        self._on_pedals = on_pedals or (lambda clutch, coag, camera: None)
+        self._on_pose: Callable[[str, np.ndarray], None] = on_pose or (lambda mtm, T: None)
+        self._on_gripper: Callable[[str, float], None] = on_gripper or (
+            lambda mtm, angle: None)
+        self._on_pedals: Callable[[int, int, int], None] = on_pedals or (
+            lambda clutch, coag, camera: None)
         self._clock = clock
         self.pedals = {'clutch': 0, 'coag': 0}
         self.mode = MODES[0]
         self._lock = threading.RLock()
         self._last_hold = -math.inf
-        self.handles = {}
-        self.balls = {}                 # each handle's ball (the default mode)
-        self._positions = {}            # each handle's position (world, m)
-        self._grabs = {}                # drag under way: (handle's position, point grabbed)
-        self._radii = {}                # each ball's radius (m)
-        self._page = None
-        self.sliders = {}
-        self.buttons = {}
-        self.commands = {}
+        self.handles: dict[str, Any] = {}   # viser transform controls
+        self.balls: dict[str, Any] = {}     # each handle's ball (the default mode)
+        self._positions: dict[str, np.ndarray] = {}   # each handle's position (world, m)
+        # drag under way: (handle's position, point grabbed)
+        self._grabs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._radii: dict[str, float] = {}  # each ball's radius (m)
+        self._rescaled = -math.inf      # when the balls were last sized (clock, s)
+        self._page: Any = None
+        self.sliders: dict[str, Any] = {}
+        self.buttons: dict[str, Any] = {}
+        self.commands: dict[str, Any] = {}
         self._R_image = np.eye(3)       # the handles' frame when not rotating: the image plane
-        self._R_shown = {}              # orientation each handle shows (world)
-        self._R_user = {}               # orientation each handle sends (world)
-        self._placed = set()
-        self._states = {}               # teleop state of each MTM
+        self._R_shown: dict[str, np.ndarray] = {}   # orientation each handle shows (world)
+        self._R_user: dict[str, np.ndarray] = {}    # orientation each handle sends (world)
+        self._placed: set[str] = set()
+        self._states: dict[str, str] = {}           # teleop state of each MTM
         self._recording = ''
-        self._status = None
-        self._mode_input = None
+        self._status: Any = None
+        self._mode_input: Any = None
 
     # --- building the page ---------------------------------------------------------------------
 
-    def attach(self, page):
+    def attach(self, page: Any) -> None:
         """Build the handles, sliders, buttons and key bindings on ``page``."""
         server = page.server
         self._page = page
@@ -238,25 +250,27 @@ class MtmControls:
             ball.on_drag('left')(self._drag_callback(mtm))
         ball.visible = placed and default
 
-    def _drag_callback(self, mtm):
-        async def callback(event):  # async: the page's events handled in order
+    def _drag_callback(self, mtm: str) -> Callable[[Any], Any]:
+        async def callback(event: Any) -> None:  # async: the page's events handled in order
             self.drag(mtm, event.phase, event.start_position, event.end_position)
         return callback
 
     # --- what the viewer tells it --------------------------------------------------------------
 
-    def set_image_rotation(self, R_world_image):
+    def set_image_rotation(self, R_world_image: ArrayLike) -> None:
         """Orient the handles' arrows along the endoscope image (3x3: x right, y down, z ahead)."""
         with self._lock:
             self._R_image = np.array(R_world_image, dtype=float)[:3, :3]
             if self.mode == 'rotate':
                 return
             for mtm, handle in self.handles.items():
-                if mtm in self._placed and not np.allclose(self._R_shown.get(mtm), self._R_image):
+                shown = self._R_shown.get(mtm)
+                if mtm in self._placed and (shown is None
+                                            or not np.allclose(shown, self._R_image)):
                     self._R_shown[mtm] = self._R_image.copy()
                     handle.wxyz = wxyz_from_matrix(self._R_image)
 
-    def place(self, mtm, T_world_tool):
+    def place(self, mtm: str, T_world_tool: ArrayLike) -> None:
         """
         Put ``mtm``'s handle at a PSM tool pose (4x4, ``world``) and send that pose.
 
@@ -281,16 +295,16 @@ class MtmControls:
             T[:3, 3] = T_world_tool[:3, 3]
         self._on_pose(mtm, T)
 
-    def _move_to(self, mtm: str, position: np.ndarray) -> None:
+    def _move_to(self, mtm: str, position: ArrayLike) -> None:
         """Put ``mtm``'s gizmo and ball at ``position`` (world, m)."""
-        self._positions[mtm] = np.array(position, dtype=float)
-        xyz = tuple(float(v) for v in position)
+        p = self._positions[mtm] = np.array(position, dtype=float)
+        xyz = (float(p[0]), float(p[1]), float(p[2]))
         self.handles[mtm].position = xyz
         ball = self.balls.get(mtm)
         if ball is not None:
             ball.position = xyz
 
-    def drag(self, mtm: str, phase: str, grabbed, pointer) -> None:
+    def drag(self, mtm: str, phase: str, grabbed: ArrayLike, pointer: ArrayLike) -> None:
         """
         Move ``mtm``'s handle by a drag of its ball, in the plane of the page's image.
 
@@ -343,17 +357,17 @@ class MtmControls:
                 self._radii[mtm] = radius
                 ball.scale = radius
 
-    def placed(self, mtm):
+    def placed(self, mtm: str) -> bool:
         """Whether ``mtm``'s handle has been placed at its tool."""
         return mtm in self._placed
 
-    def set_teleop_state(self, mtm, state):
+    def set_teleop_state(self, mtm: str, state: str) -> None:
         """Show the teleop state of ``mtm``'s pair (``FOLLOWING``, ...) and the next action."""
         with self._lock:
             self._states[mtm] = state
         self._show_status()
 
-    def set_recording(self, text):
+    def set_recording(self, text: str) -> None:
         """Show the recorder's state (markdown, e.g. the bag's path)."""
         with self._lock:
             self._recording = text
@@ -362,14 +376,17 @@ class MtmControls:
     def tick(self) -> None:
         """Release a held clutch whose page stopped reporting it; size the balls (each frame)."""
         with self._lock:
-            lost = self.pedals['clutch'] and self._clock() - self._last_hold > HOLD_TIMEOUT
-            self._rescale_balls()
+            now = self._clock()
+            lost = self.pedals['clutch'] and now - self._last_hold > HOLD_TIMEOUT
+            if now - self._rescaled >= RESCALE_PERIOD:
+                self._rescaled = now
+                self._rescale_balls()
         if lost:
             self.clutch_released(None)
 
     # --- page callbacks ------------------------------------------------------------------------
 
-    def _status_text(self):
+    def _status_text(self) -> str:
         lines = []
         for mtm in self.mtms:
             state = self._states.get(mtm)
@@ -378,19 +395,19 @@ class MtmControls:
         lines.append(self._recording or 'Record (R): press to start a bag')
         return '  \n'.join(lines)
 
-    def _show_status(self):
+    def _show_status(self) -> None:
         if self._status is not None:
             text = self._status_text()
             if self._status.content != text:
                 self._status.content = text
 
-    def _select_mode(self, mode):
+    def _select_mode(self, mode: str) -> None:
         if self._mode_input is not None and self._mode_input.value != mode:
             self._mode_input.value = mode   # its callback sets the mode
         else:
             self.set_mode(mode)
 
-    def set_mode(self, mode):
+    def set_mode(self, mode: str) -> None:
         """Switch the handles to ``mode`` (one of :data:`MODES`)."""
         if mode not in MODES:
             raise ValueError(f'handle mode must be one of {MODES}, got {mode!r}')
@@ -409,8 +426,8 @@ class MtmControls:
                     else self._R_image.copy()
                 handle.wxyz = wxyz_from_matrix(self._R_shown[mtm])
 
-    def _pose_callback(self, mtm):
-        def callback(event):
+    def _pose_callback(self, mtm: str) -> Callable[[Any], None]:
+        def callback(event: Any) -> None:
             handle = event.target
             with self._lock:
                 T = _matrix(handle.position, handle.wxyz)
@@ -430,16 +447,16 @@ class MtmControls:
             self._on_pose(mtm, T)
         return callback
 
-    def _gripper_callback(self, mtm, slider):
-        def callback(_event):
+    def _gripper_callback(self, mtm: str, slider: Any) -> Callable[[Any], None]:
+        def callback(_event: Any) -> None:
             angle = min(max(math.radians(float(slider.value)), 0.0), GRIPPER_MAX)
             self._on_gripper(mtm, angle)
         return callback
 
-    def _send_pedals(self, camera=0):
+    def _send_pedals(self, camera: int = 0) -> None:
         self._on_pedals(self.pedals['clutch'], self.pedals['coag'], camera)
 
-    def clutch_held(self, _event=None):
+    def clutch_held(self, _event: Any = None) -> None:
         """Press the clutch: the page says it is held (at press, then at :data:`HOLD_HZ`)."""
         with self._lock:
             self._last_hold = self._clock()
@@ -449,7 +466,7 @@ class MtmControls:
             self._send_pedals()
         self.buttons['clutch'].color = 'red'
 
-    def clutch_released(self, _event=None):
+    def clutch_released(self, _event: Any = None) -> None:
         """Release the clutch: the page says it was let go (the click at pointer up)."""
         with self._lock:
             if not self.pedals['clutch']:
@@ -458,7 +475,7 @@ class MtmControls:
             self._send_pedals()
         self.buttons['clutch'].color = 'gray'
 
-    def _on_coag(self, _event):
+    def _on_coag(self, _event: Any) -> None:
         with self._lock:
             self.pedals['coag'] = 1 - self.pedals['coag']
             self._send_pedals()
@@ -466,7 +483,7 @@ class MtmControls:
         self.buttons['coag'].color = 'red' if pressed else 'gray'
         self._show_status()
 
-    def _on_record(self, _event):
+    def _on_record(self, _event: Any) -> None:
         with self._lock:
             self._send_pedals(camera=1)
             self._send_pedals(camera=0)
