@@ -248,7 +248,8 @@ def measure(label, code, args, domain_id):
         result['load'].append(_loadavg())
     finally:
         executor.shutdown(timeout_sec=2)
-        spin.join(5.0)               # its last wait ends before the node's handles go
+        spin.join(60.0)              # its last wait ends before the node's handles go (a
+                                     # loaded machine takes seconds to end it)
         node.destroy_node()
         rclpy.try_shutdown(context=context)
         for p in reversed(list(procs.values())):

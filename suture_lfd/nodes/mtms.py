@@ -35,11 +35,14 @@ and the console's ``/console/clutch``, ``/console/operator_present``, ``/console
 Parameters: ``config/mtms.yaml``.
 
 Nobody moving costs little: the cycle (device polling and the state topics) runs at ``rate``
-while an MTM is enabled (a client such as ``dvrk_teleoperation.py`` reads its state every 5 ms
-and takes anything older than 20 ms as a fault) or something changes (a device input, a pose, a
-gripper, a pedal, a ``move_cp``) and for ``idle_after`` s after, at ``idle_rate`` otherwise.
-The browser's hand poses and grippers are read at the start of every cycle, the newest of each
-(no callback per sample); a new one brings the full rate back.
+while something changes (a device input, a pose, a gripper, a pedal, a ``move_cp``) and for
+``idle_after`` s after; then at ``keep_alive_rate`` while an MTM is enabled, at ``idle_rate``
+otherwise. The keep-alive rate is the dVRK's own state rate (100 Hz): a client such as
+``dvrk_teleoperation.py`` reads its state every 5 ms and takes data received more than 20 ms
+ago as a fault, so an enabled MTM nobody moves still publishes well within that age (50 Hz
+would leave no margin: data 20 ms old plus its delivery). The browser's hand poses and grippers
+are read at the start of every cycle, the newest of each (no callback per sample); a new one
+brings the full rate back.
 """
 
 from dataclasses import dataclass
@@ -83,7 +86,10 @@ class MtmsConfig:
     rate : float
         Hz of the state topics and of the device polling.
     idle_rate : float
-        Hz of both while nothing changes.
+        Hz of both while nothing changes and no MTM is enabled.
+    keep_alive_rate : float
+        Hz of both while nothing changes and an MTM is enabled (its state stays fresh for a
+        client that refuses data older than 20 ms).
     idle_after : float
         s without a change before the cycle slows to ``idle_rate``.
     pedals : str
@@ -114,6 +120,7 @@ class MtmsConfig:
     mtms: tuple[str, ...] = ('MTMR', 'MTML')
     rate: float = 200.0
     idle_rate: float = 10.0
+    keep_alive_rate: float = 100.0
     idle_after: float = 0.5
     pedals: str = 'own'
     move_duration: float = 0.5
@@ -135,8 +142,8 @@ class MtmsConfig:
             raise ValueError(f'parameter pedals must be own or emulate, got {self.pedals!r}')
         if not self.mtms:
             raise ValueError('parameter mtms must name at least one MTM')
-        for name in ('rate', 'idle_rate', 'idle_after', 'linear_speed', 'angular_speed',
-                     'gripper_speed'):
+        for name in ('rate', 'idle_rate', 'keep_alive_rate', 'idle_after', 'linear_speed',
+                     'angular_speed', 'gripper_speed'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.move_duration < 0:
@@ -365,10 +372,11 @@ class MtmsNode(Node):
     def _wake(self):
         """Something changed: the cycle runs at the full rate for ``idle_after`` s."""
         self._active_until = self._now() + self.config.idle_after
-        self._pace(True)
+        self._pace(self.config.rate)
 
-    def _pace(self, active):
-        period_ns = int(1e9 / (self.config.rate if active else self.config.idle_rate))
+    def _pace(self, rate):
+        """Run the cycle at ``rate`` Hz from now on."""
+        period_ns = int(1e9 / rate)
         if period_ns != self._period_ns:
             self._period_ns = period_ns
             self._timer.timer_period_ns = period_ns
@@ -438,10 +446,15 @@ class MtmsNode(Node):
                     pubs['goal_reached'].publish(Bool(data=True))
         if changed:
             self._active_until = t + self.config.idle_after
-        # an enabled MTM streams at the full rate, as a powered console's does: a dVRK client
-        # (dvrk_teleoperation.py) takes data older than 4 of its 5 ms periods as a fault
-        self._pace(t < self._active_until
-                   or any(mtm.state == 'ENABLED' for mtm in self.mtms.values()))
+        # an enabled MTM nobody moves keeps its state fresh at the keep-alive rate: a dVRK
+        # client (dvrk_teleoperation.py) takes data older than 4 of its 5 ms periods as a fault
+        cfg = self.config
+        if t < self._active_until:
+            self._pace(cfg.rate)
+        elif any(mtm.state == 'ENABLED' for mtm in self.mtms.values()):
+            self._pace(cfg.keep_alive_rate)
+        else:
+            self._pace(cfg.idle_rate)
 
     def destroy_node(self):
         self._inputs.destroy_node()

@@ -12,11 +12,14 @@ does through callbacks and knows nothing of ROS:
 Handles. Each MTM's handle sits at the tool of the PSM it drives (``psm_of_mtm``, MTMR drives
 PSM2 and MTML PSM1 by default: each hand on its side of the endoscope image) once
 :meth:`MtmControls.place` puts it there: the viewer does when the arms are homed and at every
-clutch. A handle keeps a fixed size on screen (:data:`HANDLE_PX`) and, in the default mode, moves
-only in the image plane of the endoscope (its two arrows and the square between them, no
-rotation ring to catch by mistake); the ``Handle`` control (keys :data:`MODE_KEYS`) switches to
-``depth`` (the arrow along the view) or ``rotate`` (the rings alone). The pose sent keeps the
-orientation the person gave in ``rotate`` mode whatever the mode shows.
+clutch. In the default mode (``move in image``) a handle is a ball of a fixed size on screen
+(:data:`GRAB_PX` radius, rescaled by :meth:`MtmControls.tick` from the page's camera) with
+nothing else to catch: a drag that starts anywhere on it moves the handle in the plane of the
+page's image (the endoscope's in the surgeon's view) by the pointer's motion, and never turns
+or pushes it (:meth:`MtmControls.drag`). The ``Handle`` control (keys :data:`MODE_KEYS`)
+switches to ``depth`` (an arrow along the view) or ``rotate`` (rings), gizmos of
+:data:`HANDLE_PX` on screen shown in place of the ball. The pose sent keeps the orientation the
+person gave in ``rotate`` mode whatever the mode shows.
 
 Pedals. ``Clutch`` is pressed only while held: the button held down with the mouse, or key C
 held (key repeat ignored; a page script turns key down and up into the button's press and
@@ -25,18 +28,26 @@ is released. ``Coag`` (key V) toggles the operator's presence; ``Record`` (key R
 camera pedal once (the recorder starts or stops a bag).
 """
 
+from collections.abc import Callable, Iterable, Sequence
 import json
 import math
 import threading
 import time
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import matrix_from_quaternion
 from suture_lfd.viewer.scene import wxyz_from_matrix
 
 PSM_OF_MTM = {'MTMR': 'PSM2', 'MTML': 'PSM1'}
 GRIPPER_MAX = math.radians(60.0)  # rad, the MTM gripper's opening range
-HANDLE_PX = 110.0  # px, length of a handle's arrows on screen
+HANDLE_PX = 110.0  # px, length of a handle's arrows on screen (depth and rotate modes)
+GRAB_PX = 28.0  # px, radius on screen of a handle's ball (the default mode)
+GRAB_COLOR = (250, 200, 40)  # the balls' colour, unlike the tools' (green PSM1, blue PSM2)
+GRAB_OPACITY = 0.6
+GRAB_RADIUS = 0.003  # m, a ball's radius until the page reports its camera
+RESCALE_PERIOD = 0.25  # s between two sizings of the balls from the page's camera
 HOLD_HZ = 20.0  # Hz at which a held clutch button reports it is held
 HOLD_TIMEOUT = 1.0  # s without a report before a held clutch counts as released
 MODES = ('move in image', 'depth', 'rotate')
@@ -48,7 +59,7 @@ NEXT_ACTION = {
     None: 'start its teleop node',
     'SETTING_ARMS': 'wait: the arms are being enabled and homed',
     'ALIGNING': 'press Coag (V) and pinch the gripper (move its slider), in either order',
-    'FOLLOWING': 'drag the handle; hold C to clutch and bring it back to the tool',
+    'FOLLOWING': 'drag the handle (the yellow ball); hold C to clutch and bring it back',
     'CLUTCHED': 'release C to follow again',
     'DISABLED': 'the teleop is disabled',
 }
@@ -75,14 +86,14 @@ _KEY_SCRIPT = (
 )
 
 
-def key_script_html():
+def key_script_html() -> str:
     """Return the HTML of the page element that installs the clutch key's script."""
     script = _KEY_SCRIPT.replace('LABEL', json.dumps(CLUTCH_LABEL).replace('"', "'"))
     return (f'<img alt="" src="data:image/png;base64,AA==" style="display:none" '
             f'onerror="{script}">')
 
 
-def _matrix(position, wxyz):
+def _matrix(position: ArrayLike, wxyz: Iterable[float]) -> np.ndarray:
     T = np.eye(4)
     w, x, y, z = (float(v) for v in wxyz)
     T[:3, :3] = matrix_from_quaternion((x, y, z, w))
@@ -90,7 +101,7 @@ def _matrix(position, wxyz):
     return T
 
 
-def next_action(state, coag):
+def next_action(state: str | None, coag: int | bool) -> str:
     """Return what the person should do next for a teleop in ``state`` (None: none seen)."""
     if state == 'ALIGNING' and coag:
         return NEXT_ACTION_PRESENT
@@ -121,39 +132,53 @@ class MtmControls:
 
     """
 
-    def __init__(self, mtms=('MTML', 'MTMR'), on_pose=None, on_gripper=None, on_pedals=None,
-                 psm_of_mtm=None, clock=time.monotonic):
+    def __init__(self, mtms: Sequence[str] = ('MTML', 'MTMR'),
+                 on_pose: Callable[[str, np.ndarray], None] | None = None,
+                 on_gripper: Callable[[str, float], None] | None = None,
+                 on_pedals: Callable[[int, int, int], None] | None = None,
+                 psm_of_mtm: dict[str, str] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         unknown = [m for m in mtms if not m]
         if unknown or len(set(mtms)) != len(mtms):
             raise ValueError(f'mtms must be distinct non-empty names, got {list(mtms)}')
         self.mtms = tuple(mtms)
         self.psm_of_mtm = dict(PSM_OF_MTM if psm_of_mtm is None else psm_of_mtm)
-        self._on_pose = on_pose or (lambda mtm, T: None)
-        self._on_gripper = on_gripper or (lambda mtm, angle: None)
-        self._on_pedals = on_pedals or (lambda clutch, coag, camera: None)
+        self._on_pose: Callable[[str, np.ndarray], None] = on_pose or (lambda mtm, T: None)
+        self._on_gripper: Callable[[str, float], None] = on_gripper or (
+            lambda mtm, angle: None)
+        self._on_pedals: Callable[[int, int, int], None] = on_pedals or (
+            lambda clutch, coag, camera: None)
         self._clock = clock
         self.pedals = {'clutch': 0, 'coag': 0}
         self.mode = MODES[0]
         self._lock = threading.RLock()
         self._last_hold = -math.inf
-        self.handles = {}
-        self.sliders = {}
-        self.buttons = {}
-        self.commands = {}
+        self.handles: dict[str, Any] = {}   # viser transform controls
+        self.balls: dict[str, Any] = {}     # each handle's ball (the default mode)
+        self._positions: dict[str, np.ndarray] = {}   # each handle's position (world, m)
+        # drag under way: (handle's position, point grabbed)
+        self._grabs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._radii: dict[str, float] = {}  # each ball's radius (m)
+        self._rescaled = -math.inf      # when the balls were last sized (clock, s)
+        self._page: Any = None
+        self.sliders: dict[str, Any] = {}
+        self.buttons: dict[str, Any] = {}
+        self.commands: dict[str, Any] = {}
         self._R_image = np.eye(3)       # the handles' frame when not rotating: the image plane
-        self._R_shown = {}              # orientation each handle shows (world)
-        self._R_user = {}               # orientation each handle sends (world)
-        self._placed = set()
-        self._states = {}               # teleop state of each MTM
+        self._R_shown: dict[str, np.ndarray] = {}   # orientation each handle shows (world)
+        self._R_user: dict[str, np.ndarray] = {}    # orientation each handle sends (world)
+        self._placed: set[str] = set()
+        self._states: dict[str, str] = {}           # teleop state of each MTM
         self._recording = ''
-        self._status = None
-        self._mode_input = None
+        self._status: Any = None
+        self._mode_input: Any = None
 
     # --- building the page ---------------------------------------------------------------------
 
-    def attach(self, page):
+    def attach(self, page: Any) -> None:
         """Build the handles, sliders, buttons and key bindings on ``page``."""
         server = page.server
+        self._page = page
         with server.gui.add_folder('Console'):
             clutch = server.gui.add_button(CLUTCH_LABEL, color='gray',
                                            hint='pressed while held (mouse or key C)')
@@ -194,32 +219,58 @@ class MtmControls:
                 visible=False, **self._mode_props(self.mode))
             handle.on_update(self._pose_callback(mtm))
             self.handles[mtm] = handle
+            self.balls[mtm] = server.scene.add_icosphere(
+                f'/mtm_grab/{mtm}', radius=1.0, color=GRAB_COLOR, subdivisions=2,
+                scale=GRAB_RADIUS, opacity=GRAB_OPACITY, cast_shadow=False,
+                receive_shadow=False, visible=False)
+            self._bind_ball(mtm)
 
     @staticmethod
-    def _mode_props(mode):
+    def _mode_props(mode: str) -> dict[str, object]:
+        """Return the gizmo's properties in ``mode`` (none to catch in the default mode)."""
         if mode == 'depth':
             return {'active_axes': (False, False, True), 'disable_axes': False,
                     'disable_sliders': True, 'disable_rotations': True}
         if mode == 'rotate':
             return {'active_axes': (True, True, True), 'disable_axes': True,
                     'disable_sliders': True, 'disable_rotations': False}
-        return {'active_axes': (True, True, False), 'disable_axes': False,
-                'disable_sliders': False, 'disable_rotations': True}
+        return {'active_axes': (False, False, False), 'disable_axes': True,
+                'disable_sliders': True, 'disable_rotations': True}
+
+    def _bind_ball(self, mtm: str) -> None:
+        """Show ``mtm``'s ball and take its drags in the default mode, the gizmo in the others."""
+        ball, handle = self.balls.get(mtm), self.handles[mtm]
+        placed = mtm in self._placed
+        default = self.mode == MODES[0]
+        handle.visible = placed and not default
+        if ball is None:
+            return
+        ball.remove_drag_callback()
+        if default:
+            ball.on_drag('left')(self._drag_callback(mtm))
+        ball.visible = placed and default
+
+    def _drag_callback(self, mtm: str) -> Callable[[Any], Any]:
+        async def callback(event: Any) -> None:  # async: the page's events handled in order
+            self.drag(mtm, event.phase, event.start_position, event.end_position)
+        return callback
 
     # --- what the viewer tells it --------------------------------------------------------------
 
-    def set_image_rotation(self, R_world_image):
+    def set_image_rotation(self, R_world_image: ArrayLike) -> None:
         """Orient the handles' arrows along the endoscope image (3x3: x right, y down, z ahead)."""
         with self._lock:
             self._R_image = np.array(R_world_image, dtype=float)[:3, :3]
             if self.mode == 'rotate':
                 return
             for mtm, handle in self.handles.items():
-                if mtm in self._placed and not np.allclose(self._R_shown.get(mtm), self._R_image):
+                shown = self._R_shown.get(mtm)
+                if mtm in self._placed and (shown is None
+                                            or not np.allclose(shown, self._R_image)):
                     self._R_shown[mtm] = self._R_image.copy()
                     handle.wxyz = wxyz_from_matrix(self._R_image)
 
-    def place(self, mtm, T_world_tool):
+    def place(self, mtm: str, T_world_tool: ArrayLike) -> None:
         """
         Put ``mtm``'s handle at a PSM tool pose (4x4, ``world``) and send that pose.
 
@@ -234,41 +285,108 @@ class MtmControls:
                 self._R_user[mtm] = T_world_tool[:3, :3].copy()
             self._R_shown[mtm] = self._R_image.copy() if self.mode != 'rotate' \
                 else self._R_user[mtm].copy()
-            handle.position = tuple(T_world_tool[:3, 3].tolist())
+            self._grabs.pop(mtm, None)
+            self._move_to(mtm, T_world_tool[:3, 3])
             handle.wxyz = wxyz_from_matrix(self._R_shown[mtm])
-            handle.visible = True
             self._placed.add(mtm)
+            self._bind_ball(mtm)
             T = np.eye(4)
             T[:3, :3] = self._R_user[mtm]
             T[:3, 3] = T_world_tool[:3, 3]
         self._on_pose(mtm, T)
 
-    def placed(self, mtm):
+    def _move_to(self, mtm: str, position: ArrayLike) -> None:
+        """Put ``mtm``'s gizmo and ball at ``position`` (world, m)."""
+        p = self._positions[mtm] = np.array(position, dtype=float)
+        xyz = (float(p[0]), float(p[1]), float(p[2]))
+        self.handles[mtm].position = xyz
+        ball = self.balls.get(mtm)
+        if ball is not None:
+            ball.position = xyz
+
+    def drag(self, mtm: str, phase: str, grabbed: ArrayLike, pointer: ArrayLike) -> None:
+        """
+        Move ``mtm``'s handle by a drag of its ball, in the plane of the page's image.
+
+        Parameters
+        ----------
+        mtm : str
+            The MTM whose handle is dragged.
+        phase : str
+            ``start``, ``update`` or ``end`` (viser's drag phases).
+        grabbed : array_like, shape (3,)
+            The point of the ball grabbed (world, m); read at ``start``.
+        pointer : array_like, shape (3,)
+            The pointer on the plane through ``grabbed`` parallel to the page's image (world,
+            m): the handle moves by the pointer's motion since ``start``, wherever the ball was
+            grabbed, and keeps its orientation and its depth in the view.
+
+        """
+        with self._lock:
+            if mtm not in self._placed or self.mode != MODES[0]:
+                return
+            if phase == 'start':
+                self._grabs[mtm] = (self._positions[mtm].copy(),
+                                    np.array(grabbed, dtype=float))
+            grab = self._grabs.get(mtm)
+            if grab is None:
+                return
+            if phase == 'end':
+                del self._grabs[mtm]
+            position = grab[0] + (np.array(pointer, dtype=float) - grab[1])
+            self._move_to(mtm, position)
+            T = np.eye(4)
+            T[:3, :3] = self._R_user[mtm]
+            T[:3, 3] = position
+        self._on_pose(mtm, T)
+
+    def _rescale_balls(self) -> None:
+        """Keep each ball :data:`GRAB_PX` in radius on the page's screen."""
+        cameras = self._page.client_cameras() if self._page is not None else []
+        if not cameras:
+            return
+        camera = cameras[0]
+        focal = 0.5 * camera['height'] / math.tan(0.5 * camera['fov'])   # px
+        eye = np.asarray(camera['position'], dtype=float)
+        for mtm, ball in self.balls.items():
+            position = self._positions.get(mtm)
+            if position is None or focal <= 0:
+                continue
+            radius = GRAB_PX * float(np.linalg.norm(position - eye)) / focal
+            if radius > 0 and abs(radius / self._radii.get(mtm, GRAB_RADIUS) - 1.0) > 0.05:
+                self._radii[mtm] = radius
+                ball.scale = radius
+
+    def placed(self, mtm: str) -> bool:
         """Whether ``mtm``'s handle has been placed at its tool."""
         return mtm in self._placed
 
-    def set_teleop_state(self, mtm, state):
+    def set_teleop_state(self, mtm: str, state: str) -> None:
         """Show the teleop state of ``mtm``'s pair (``FOLLOWING``, ...) and the next action."""
         with self._lock:
             self._states[mtm] = state
         self._show_status()
 
-    def set_recording(self, text):
+    def set_recording(self, text: str) -> None:
         """Show the recorder's state (markdown, e.g. the bag's path)."""
         with self._lock:
             self._recording = text
         self._show_status()
 
-    def tick(self):
-        """Release a held clutch whose page stopped reporting it (call it every frame)."""
+    def tick(self) -> None:
+        """Release a held clutch whose page stopped reporting it; size the balls (each frame)."""
         with self._lock:
-            lost = self.pedals['clutch'] and self._clock() - self._last_hold > HOLD_TIMEOUT
+            now = self._clock()
+            lost = self.pedals['clutch'] and now - self._last_hold > HOLD_TIMEOUT
+            if now - self._rescaled >= RESCALE_PERIOD:
+                self._rescaled = now
+                self._rescale_balls()
         if lost:
             self.clutch_released(None)
 
     # --- page callbacks ------------------------------------------------------------------------
 
-    def _status_text(self):
+    def _status_text(self) -> str:
         lines = []
         for mtm in self.mtms:
             state = self._states.get(mtm)
@@ -277,19 +395,19 @@ class MtmControls:
         lines.append(self._recording or 'Record (R): press to start a bag')
         return '  \n'.join(lines)
 
-    def _show_status(self):
+    def _show_status(self) -> None:
         if self._status is not None:
             text = self._status_text()
             if self._status.content != text:
                 self._status.content = text
 
-    def _select_mode(self, mode):
+    def _select_mode(self, mode: str) -> None:
         if self._mode_input is not None and self._mode_input.value != mode:
             self._mode_input.value = mode   # its callback sets the mode
         else:
             self.set_mode(mode)
 
-    def set_mode(self, mode):
+    def set_mode(self, mode: str) -> None:
         """Switch the handles to ``mode`` (one of :data:`MODES`)."""
         if mode not in MODES:
             raise ValueError(f'handle mode must be one of {MODES}, got {mode!r}')
@@ -300,14 +418,16 @@ class MtmControls:
             for mtm, handle in self.handles.items():
                 for key, value in self._mode_props(mode).items():
                     setattr(handle, key, value)
+                self._grabs.pop(mtm, None)
+                self._bind_ball(mtm)
                 if mtm not in self._placed:
                     continue
                 self._R_shown[mtm] = self._R_user[mtm].copy() if mode == 'rotate' \
                     else self._R_image.copy()
                 handle.wxyz = wxyz_from_matrix(self._R_shown[mtm])
 
-    def _pose_callback(self, mtm):
-        def callback(event):
+    def _pose_callback(self, mtm: str) -> Callable[[Any], None]:
+        def callback(event: Any) -> None:
             handle = event.target
             with self._lock:
                 T = _matrix(handle.position, handle.wxyz)
@@ -317,20 +437,26 @@ class MtmControls:
                     self._R_user[mtm] = T[:3, :3].copy()
                     self._R_shown[mtm] = T[:3, :3].copy()
                 T[:3, :3] = self._R_user[mtm]
-                self._placed.add(mtm)
+                self._positions[mtm] = T[:3, 3].copy()
+                ball = self.balls.get(mtm)
+                if ball is not None:
+                    ball.position = tuple(float(v) for v in T[:3, 3])
+                if mtm not in self._placed:
+                    self._placed.add(mtm)
+                    self._bind_ball(mtm)
             self._on_pose(mtm, T)
         return callback
 
-    def _gripper_callback(self, mtm, slider):
-        def callback(_event):
+    def _gripper_callback(self, mtm: str, slider: Any) -> Callable[[Any], None]:
+        def callback(_event: Any) -> None:
             angle = min(max(math.radians(float(slider.value)), 0.0), GRIPPER_MAX)
             self._on_gripper(mtm, angle)
         return callback
 
-    def _send_pedals(self, camera=0):
+    def _send_pedals(self, camera: int = 0) -> None:
         self._on_pedals(self.pedals['clutch'], self.pedals['coag'], camera)
 
-    def clutch_held(self, _event=None):
+    def clutch_held(self, _event: Any = None) -> None:
         """Press the clutch: the page says it is held (at press, then at :data:`HOLD_HZ`)."""
         with self._lock:
             self._last_hold = self._clock()
@@ -340,7 +466,7 @@ class MtmControls:
             self._send_pedals()
         self.buttons['clutch'].color = 'red'
 
-    def clutch_released(self, _event=None):
+    def clutch_released(self, _event: Any = None) -> None:
         """Release the clutch: the page says it was let go (the click at pointer up)."""
         with self._lock:
             if not self.pedals['clutch']:
@@ -349,7 +475,7 @@ class MtmControls:
             self._send_pedals()
         self.buttons['clutch'].color = 'gray'
 
-    def _on_coag(self, _event):
+    def _on_coag(self, _event: Any) -> None:
         with self._lock:
             self.pedals['coag'] = 1 - self.pedals['coag']
             self._send_pedals()
@@ -357,7 +483,7 @@ class MtmControls:
         self.buttons['coag'].color = 'red' if pressed else 'gray'
         self._show_status()
 
-    def _on_record(self, _event):
+    def _on_record(self, _event: Any) -> None:
         with self._lock:
             self._send_pedals(camera=1)
             self._send_pedals(camera=0)

@@ -90,9 +90,13 @@ class TransformTree:
         self.version = 0
 
     def set(self, parent, child, T):
-        """Store ``T_parent_child`` (4x4, m)."""
+        """Store ``T_parent_child`` (4x4, m); the version moves only when it changed."""
+        T = np.array(T, dtype=float)        # a copy: the caller may reuse its array
         with self._lock:
-            self._parent[child] = (parent, np.asarray(T, dtype=float))
+            old = self._parent.get(child)
+            if old is not None and old[0] == parent and np.array_equal(old[1], T):
+                return      # a scene at rest: nothing to draw again
+            self._parent[child] = (parent, T)
             self.version += 1
 
     def has(self, frame):

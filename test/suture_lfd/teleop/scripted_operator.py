@@ -137,9 +137,12 @@ class ScriptedOperator(DemonstratorNode):
         return all(self._teleop_state.get(a) == 'FOLLOWING' for a in MTM_OF)
 
     def _anchor_hands(self):
+        # The correction a hand has learnt stays: the tool's setpoint (the anchor) already
+        # carries it, and forgetting it here moved the setpoint back by up to MAX_CORRECTION at
+        # the clutch before the insertion, backing a tip that the push had put into the tissue
+        # out of its puncture ("withdrawn") when the tools lagged on a busy machine.
         for arm in MTM_OF:
             self._anchor[arm] = (self._hands[arm].copy(), self._tool_setpoint(arm))
-            self._bias[arm] = np.zeros(3)
 
     def _correct(self):
         """
@@ -225,11 +228,12 @@ class ScriptedOperator(DemonstratorNode):
         if dem is not None and self.sim.ready():
             lag = {a: round(float(np.linalg.norm(self.sim.world_tool(a)[:3, 3] - T[:3, 3])), 4)
                    for a, T in dem._last_cmd.items()}
+        correction = {a: round(float(np.linalg.norm(b)), 4) for a, b in self._bias.items()}
         self.get_logger().info(
             f'stage {self._stage}, clutching {self._clutching and self._clutching[0]}, '
             f'teleops {self._teleop_state}, anchored {sorted(self._anchor)}, '
             f'plan time {dem.plan_time if dem else None}, waits {dem.waits if dem else None}, '
-            f'lag {lag}')
+            f'lag {lag}, correction {correction}')
 
     def _on_timer(self):
         self._report()
@@ -260,7 +264,8 @@ class ScriptedOperator(DemonstratorNode):
         self._correct()
 
     def _finish(self, ok, why='', outcome=None):
-        self.get_logger().info(f'operator clutched {self.clutches} times')
+        self.get_logger().info(f'operator clutched {self.clutches} times, correction at the end '
+                               f'{ {a: np.round(b, 4).tolist() for a, b in self._bias.items()} }')
         super()._finish(ok, why, outcome=outcome)
 
 

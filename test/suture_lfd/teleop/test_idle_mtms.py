@@ -1,27 +1,33 @@
 """
-The virtual MTMs at rest: a hand nobody moves costs few cycles, and the next input is taken
+The virtual MTMs at rest: a hand nobody moves costs few cycles (the idle rate; the keep-alive
+rate once a client has enabled the MTM, fresh enough for the dVRK's 20 ms age check), and the
+next input is taken
 (a real ``mtms`` process, browser back-end, beside the simulator whose ECM places the browser's
 handles in the display frame, over DDS on loopback).
 """
 
 import time
 
+from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped
 from harness import FAST_ARMS, wait_for
 import numpy as np
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sim_bridge.ros import conversions as cv
 from std_msgs.msg import Float64
 
-RATE, IDLE_RATE = 200.0, 10.0    # config/mtms.yaml
+RATE, IDLE_RATE, KEEP_ALIVE_RATE = 200.0, 10.0, 100.0    # config/mtms.yaml
+LATCHED = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,   # as crtk's
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 START_TIMEOUT = 120.0            # s for a node to start on a loaded 2-core machine
 
 
-def test_a_virtual_mtm_nobody_moves_slows_to_its_idle_rate_and_wakes_at_the_first_input(
+def test_a_virtual_mtm_nobody_moves_slows_to_its_idle_or_keep_alive_rate_and_wakes_at_input(
         ros, launch):
     sim = launch('simulator', '--ros-args', *FAST_ARMS)
     proc = launch('mtms', '--ros-args', '-p', 'device:=browser', '-p', f'rate:={RATE}',
-                  '-p', f'idle_rate:={IDLE_RATE}', '-p', 'idle_after:=0.5')
+                  '-p', f'idle_rate:={IDLE_RATE}', '-p', 'idle_after:=0.5',
+                  '-p', f'keep_alive_rate:={KEEP_ALIVE_RATE}')
     node = ros.node('idle_probe')
     seen = []                    # (receive time, position of MTMR's measured_cp)
     node.create_subscription(PoseStamped, 'MTMR/measured_cp',
@@ -48,6 +54,21 @@ def test_a_virtual_mtm_nobody_moves_slows_to_its_idle_rate_and_wakes_at_the_firs
     at_rest = len(seen) - n0
     # at most the idle rate (a busy machine only lowers it); the full rate would give 600
     assert 0 < at_rest <= 3.0 * IDLE_RATE * 1.5, at_rest
+    # enabled by a client, as the dVRK's teleoperation script does: the keep-alive rate, well
+    # above the idle rate and below the full rate (which would give 600)
+    states = []
+    node.create_subscription(OperatingState, 'MTMR/operating_state', states.append,
+                             QoSProfile(depth=100))
+    command = node.create_publisher(StringStamped, 'MTMR/state_command', LATCHED)
+    assert wait_for(lambda: command.publish(StringStamped(string='enable'))
+                    or (states and states[-1].state == 'ENABLED'), 60.0, period=0.5), proc.log()
+    time.sleep(1.0)
+    n0 = len(seen)
+    time.sleep(3.0)
+    kept_alive = len(seen) - n0
+    assert 3.0 * IDLE_RATE * 1.5 < kept_alive <= 3.0 * KEEP_ALIVE_RATE * 1.5, kept_alive
+    assert np.linalg.norm(seen[-1][1] - seen[n0][1]) < 1e-9     # the same pose, kept fresh
+    rest = seen[-1][1]
     # an input is taken: the MTM's pose follows the hand again
     put(0.02)
     assert wait_for(lambda: np.linalg.norm(seen[-1][1] - rest) > 0.005, 30.0), proc.log()

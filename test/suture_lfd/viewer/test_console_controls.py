@@ -68,15 +68,48 @@ def test_a_handle_sits_at_its_tool_in_the_image_plane_and_keeps_the_hands_orient
     handle = controls.handles['MTMR']
     np.testing.assert_allclose(np.abs(handle.wxyz), np.abs(wxyz_from_matrix(R_image)),
                                atol=1e-9)                        # the arrows: the image's
-    assert handle.disable_rotations and handle.active_axes == (True, True, False)
+    # the default mode: the ball alone, no gizmo part to catch
+    ball = controls.balls['MTMR']
+    assert ball.visible and not handle.visible
+    assert handle.disable_rotations and handle.disable_axes and handle.disable_sliders
+    np.testing.assert_allclose(ball.position, T_tool[:3, 3], atol=1e-12)
     controls.set_mode('rotate')
     assert not handle.disable_rotations and handle.disable_axes and handle.disable_sliders
+    assert handle.visible and not ball.visible
     controls.set_mode(MODES[0])
+    assert ball.visible and not handle.visible
     T_tool[:3, 3] += 0.01                       # at the next clutch: back to the moved tool
     controls.place('MTMR', T_tool)
     np.testing.assert_allclose(sent['poses'][-1][1][:3, 3], T_tool[:3, 3], atol=1e-12)
     with pytest.raises(ValueError, match='handle mode'):
         controls.set_mode('scale')
+
+
+def test_a_drag_moves_the_handle_in_the_image_plane_wherever_its_ball_is_grabbed(console):
+    controls, sent, _ = console
+    T_tool = np.eye(4)
+    T_tool[:3, :3] = matrix_from_quaternion((0.0, math.sin(0.5), 0.0, math.cos(0.5)))
+    T_tool[:3, 3] = (0.04, 0.0, 0.04)
+    controls.place('MTMR', T_tool)
+    grabbed = T_tool[:3, 3] + (0.001, -0.002, 0.0015)   # off the ball's centre
+    right = np.array([0.004, 0.001, 0.0])                # the pointer's motion on the plane
+    controls.drag('MTMR', 'start', grabbed, grabbed)
+    controls.drag('MTMR', 'update', grabbed + 0.5 * right, grabbed + 0.5 * right)
+    controls.drag('MTMR', 'end', grabbed + right, grabbed + right)
+    mtm, T = sent['poses'][-1]
+    assert mtm == 'MTMR'
+    np.testing.assert_allclose(T[:3, 3], T_tool[:3, 3] + right, atol=1e-12)
+    np.testing.assert_allclose(T[:3, :3], T_tool[:3, :3], atol=1e-12)   # never turned
+    np.testing.assert_allclose(controls.balls['MTMR'].position, T[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(controls.handles['MTMR'].position, T[:3, 3], atol=1e-12)
+    n = len(sent['poses'])
+    controls.drag('MTMR', 'update', grabbed, grabbed)     # no drag under way: nothing
+    controls.set_mode('rotate')                          # and none of the ball in rotate mode
+    controls.drag('MTMR', 'start', grabbed, grabbed + right)
+    assert len(sent['poses']) == n
+    controls.set_mode(MODES[0])
+    controls.drag('MTML', 'start', grabbed, grabbed + right)   # not placed yet: nothing
+    assert len(sent['poses']) == n
 
 
 def test_the_page_says_what_to_do_next():

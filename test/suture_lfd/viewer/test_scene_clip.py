@@ -1,7 +1,11 @@
-"""Line markers cut at the endoscope's near plane: what is in front stays, what is behind goes."""
+"""
+Line markers cut at the endoscope's near plane: what is in front stays, what is behind goes;
+the transform tree's version moves only when a transform changes (a scene at rest is not drawn
+again).
+"""
 
 import numpy as np
-from suture_lfd.viewer.scene import clip_segments, rotation_with_z
+from suture_lfd.viewer.scene import TransformTree, clip_segments, rotation_with_z
 
 
 def test_segments_are_cut_at_the_plane_and_dropped_behind_it():
@@ -31,3 +35,18 @@ def test_a_rotation_with_a_given_z_axis_is_a_rotation():
         np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
         np.testing.assert_allclose(R[:, 2], z, atol=1e-12)
         assert np.linalg.det(R) > 0
+
+
+def test_the_transform_tree_moves_its_version_only_when_a_transform_changes():
+    tree = TransformTree()
+    T = np.eye(4)
+    T[:3, 3] = (0.01, 0.02, 0.03)
+    tree.set('world', 'PSM1_base', T)
+    version = tree.version
+    tree.set('world', 'PSM1_base', T.copy())         # a scene at rest: the same transform
+    assert tree.version == version
+    T[0, 3] += 1e-9
+    tree.set('world', 'PSM1_base', T.copy())
+    assert tree.version == version + 1
+    tree.set('ECM', 'PSM1_base', T.copy())           # the same pose from another parent
+    assert tree.version == version + 2
