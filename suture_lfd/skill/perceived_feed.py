@@ -115,7 +115,10 @@ class PerceptionFeed(PerceivedScene):
     GRASP_REACH = 0.010
 
     def __init__(self, pair_name, pair_index, needle_geometry=None, grasp_reach=None):
-        super().__init__(pair_name, pair_index, needle_geometry)
+        # let go, the needle is believed where the holder left it until a look taken after
+        # the release comes (the newest look at that moment shows it before: still moving)
+        super().__init__(pair_name, pair_index, needle_geometry, look_again=False)
+        self._look_after = None  # stamp (s) of the last release while no look since
         reach = self.GRASP_REACH if grasp_reach is None else grasp_reach
         if not reach > 0:
             raise ValueError(f'grasp_reach must be > 0 m, got {reach}')
@@ -228,6 +231,15 @@ class PerceptionFeed(PerceivedScene):
             return NeedleView(None, status)
         return NeedleView(self.T_world_camera @ T_c, status)
 
+    def _fresh_needle(self, after):
+        """Return the needle (``world``) of a look stamped after ``after`` (s), or None."""
+        if self._needle_c is None or self.T_world_camera is None:
+            return None
+        stamp, T_c, _ = self._needle_c
+        if stamp <= after or T_c is None:
+            return None
+        return self.T_world_camera @ T_c
+
     # ------------------------------------------------------------------ observer
     def observe(self, arms):
         """
@@ -239,6 +251,9 @@ class PerceptionFeed(PerceivedScene):
             The arms' own reports (``T_world_tool`` through their believed bases, jaws,
             joints); its needle, holders and pair are ignored.
 
+        When the last holder lets go, the needle is believed where it was let go until the
+        first look stamped after the release finds it; then it is where that look saw it.
+
         Returns
         -------
         sim_bridge.control.Observation
@@ -246,7 +261,15 @@ class PerceptionFeed(PerceivedScene):
             are not seen.
 
         """
+        held_before = bool(self._holders)
         needle, holders, pair = self.estimate(None, arms)
+        if held_before and not holders:
+            self._look_after = arms.t
+        if not holders and self._look_after is not None:
+            fresh = self._fresh_needle(self._look_after)
+            if fresh is not None:
+                self._free_needle = needle = fresh
+                self._look_after = None
         return Observation(t=arms.t, T_world_tool=arms.T_world_tool, jaw=arms.jaw,
                            T_world_needle=needle, holders=tuple(holders), pair=pair,
                            T_world_base=arms.T_world_base, q=arms.q)
