@@ -22,7 +22,12 @@ from ``ECM/local/measured_cp``; the markers and the needle from the ``perception
 closes. The pair is found in the markers by its position along the wound (``pair_index``, or
 the number the pair's name ends in). Before the throw starts the node waits for the markers and
 the needle seen after the arms were homed; a throw whose markers or needle are not seen within
-``prepare_timeout`` is not pushed: it fails with ``not seen: ...``. The score is the
+``prepare_timeout`` is not pushed: it fails with ``not seen: ...``. With ``correction`` (the
+default) the node first registers each PSM against the endoscope, once (state ``registering``):
+it commands the PSM to six poses in view, finds the instrument in ``<camera>/left|right/
+image_raw`` (with their ``camera_info``), fits each arm's joint offsets and base translation
+(:mod:`suture_lfd.skill.arm_registration`, the core the in-process physical mode runs), then
+runs every throw on the corrected kinematics. The score is the
 evaluation's (not read here): the outcome's ``score`` is None.
 
 It stops commanding and reports when an arm stops answering, when an arm leaves ``ENABLED``
@@ -36,7 +41,8 @@ came for ``clock_timeout`` s of wall time; on the same machine the simulator's p
 ``starved_timeout`` s) from an exited one.
 
 ``~/status`` (std_msgs/String JSON, latched) carries the state (``idle``, ``preparing``,
-``running``, ``settling``, ``done``, ``stopped``, ``failed``), the pair and the reason;
+``registering``, ``running``, ``settling``, ``done``, ``stopped``, ``failed``), the pair and
+the reason;
 ``~/result`` (latched) the outcome of each throw (pair, score, subtasks, entry and exit errors
 from ``sim/events``, duration, ``time_s``: the score's throw time counted from the start of the
 throw instead of the pair's selection); every score event of a throw is logged as
@@ -72,7 +78,7 @@ from sim_bridge.ros.peer import ProcessWatch
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.nodes import executables
-from suture_lfd.nodes.perception_topics import PerceptionTopics
+from suture_lfd.nodes.perception_topics import PerceptionTopics, StereoImages
 from suture_lfd.skill import ThrowSkill, learn_skill
 from suture_lfd.skill.executor_machine import ExecutorMachine, MachineConfig
 from suture_lfd.skill.watchdog import ArmWatchdog
@@ -99,6 +105,8 @@ class ExecutorNodeConfig:
     result_file: str = ''
     physical: bool = False
     pair_index: int = 0
+    correction: bool = True
+    camera: str = 'ECM'
 
     def __post_init__(self):
         if not self.segments and not self.skill:
@@ -133,6 +141,8 @@ class ExecutorNode(NodeHooks, Node):
         self._perceived = (PerceptionTopics(self, on_needle=self._feed_needle,
                                             on_markers=self._feed_markers)
                            if cfg.physical else None)
+        self._images = (StereoImages(self, cfg.camera) if cfg.physical and cfg.correction
+                        else None)
         self._status = self.create_publisher(String, '~/status', qos.LATCHED)
         self._result = self.create_publisher(String, '~/result', qos.LATCHED)
         self.machine = ExecutorMachine(
@@ -141,11 +151,13 @@ class ExecutorNode(NodeHooks, Node):
             MachineConfig(settle_time=cfg.settle_time, timeout=cfg.timeout,
                           prepare_timeout=cfg.prepare_timeout, home=cfg.home,
                           phase_stopping=cfg.phase_stopping, physical=cfg.physical,
-                          pair_index=cfg.pair_index, result_file=cfg.result_file),
+                          pair_index=cfg.pair_index, result_file=cfg.result_file,
+                          correction=cfg.correction),
             logger=self.get_logger(), on_status=self._publish_status,
             on_result=self._publish_result,
             on_feed=None if self._perceived is None else self._perceived.replay,
-            exit_when_done=cfg.exit_when_done or bool(cfg.pair))
+            exit_when_done=cfg.exit_when_done or bool(cfg.pair),
+            images=None if self._images is None else self._images.newest)
         self.create_subscription(ClockMsg, '/clock', self._on_clock, qos.CLOCK_LATEST)
         self.create_subscription(String, '~/execute', self._on_execute, qos.STREAM)
         self.create_subscription(Empty, '~/stop', self._on_stop, qos.STREAM)

@@ -3,8 +3,13 @@ The executor's sequence as plain logic: prepare, run, settle, report, for a node
 
 A throw requested on a pair goes through the stages ``preparing`` (the arms enabled and homed,
 the pair selected, and in physical mode the markers and the needle seen after homing),
-``running`` (the :class:`suture_lfd.skill.executor.ThrowExecutor` stepped on every new
-measurement) and ``settling`` (``settle_time`` s of simulation after the plan is done), and ends
+``registering`` (physical mode with ``correction``, once per machine: each PSM registered
+against the endoscope, :class:`suture_lfd.skill.registration_run.RegistrationRun`, on the camera's
+images; afterwards the machine looks at markers and needle afresh), ``running`` (the
+:class:`suture_lfd.skill.executor.ThrowExecutor` stepped on every new measurement, wrapped in a
+:class:`suture_lfd.skill.arm_registration.CorrectedController` once registered: it sees the
+tools where the correction puts them and its targets are turned into what to command) and
+``settling`` (``settle_time`` s of simulation after the plan is done), and ends
 ``done``, ``stopped``, ``failed`` or ``interrupted``. :class:`ExecutorMachine` holds that
 sequence; its caller hands it the arrivals (:meth:`ExecutorMachine.event`,
 :meth:`ExecutorMachine.execute`, :meth:`ExecutorMachine.stop`) and ticks it
@@ -16,7 +21,8 @@ topics, :class:`sim_bridge.ros.client.SimClient`, is one; an in-process simulati
 another) and reports through callables: ``on_status(record)`` at every change of stage,
 ``on_result(record)`` once a throw ends (the record is the ``~/result`` JSON object), and
 ``on_feed(feed)`` when a physical-mode throw gets its :class:`PerceptionFeed` (so the caller can
-hand it the newest perception outputs). With ``result_file`` each outcome is also written there
+hand it the newest perception outputs); ``images()`` gives the newest stereo pair for the
+registration. With ``result_file`` each outcome is also written there
 as one JSON object, replaced atomically.
 
 Units: seconds (stamps and ``t``: simulation time; ``now``: monotonic wall time), metres;
@@ -36,13 +42,16 @@ import numpy as np
 from sim_bridge.common.geometry import pose_from_transform
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Command, Observation
+from sim_bridge.scene.world import InstrumentShape
+from suture_lfd.skill.arm_registration import CorrectedController, KinematicCorrection
 from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
 from suture_lfd.skill.perceived_feed import PerceptionFeed, pair_index_from_name
+from suture_lfd.skill.registration_run import RegistrationRun, StereoLook
 from suture_lfd.skill.throw_skill import ThrowSkill
 from suture_lfd.skill.watchdog import ArmWatchdog, WatchedProcess
 
 #: the stages in which a throw is in progress
-ACTIVE = ('preparing', 'running', 'settling')
+ACTIVE = ('preparing', 'registering', 'running', 'settling')
 #: scene events logged while a throw runs
 LOGGED_EVENTS = ('grasp', 'release', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma', 'drop')
 
@@ -104,6 +113,9 @@ class MachineConfig:
         1-based position of the pair along the wound (0: from the pair's name).
     result_file : str
         Where each outcome is written ('' for nowhere).
+    correction : bool
+        Physical mode: register the arms against the endoscope before the first throw and run
+        on the corrected kinematics (False: open loop on the arms' own kinematics).
 
     """
 
@@ -115,6 +127,7 @@ class MachineConfig:
     physical: bool = False
     pair_index: int = 0
     result_file: str = ''
+    correction: bool = True
 
 
 def throw_time(seconds: float) -> str:
@@ -148,6 +161,12 @@ class ExecutorMachine:
         See the module's docstring.
     clock : callable, optional
         Monotonic wall clock (s) for the stage times (default :func:`time.monotonic`).
+    images : callable, optional
+        ``images() -> (stamp, stereo, left_rgb, right_rgb) or None``: the newest stereo pair
+        and its camera model (physical mode with ``correction``).
+    instrument : sim_bridge.scene.world.InstrumentShape, optional
+        The instrument's shape, as its maker gives it (its closed jaws are what the
+        registration sees).
 
     Attributes
     ----------
@@ -159,6 +178,8 @@ class ExecutorMachine:
         The physical-mode throw's perception (None in ground-truth mode).
     simulator : WatchedProcess or None
         The simulator's process, when known (set by the caller).
+    correction : KinematicCorrection or None
+        The arms' correction once registered (kept for every later throw).
     finished, exit_code
         Set when a throw ends with ``exit_when_done``: whether to stop and the exit code
         (0: a throw scored 1.0, or complete in physical mode).
@@ -172,7 +193,9 @@ class ExecutorMachine:
                  on_result: Callable[[dict], None] | None = None,
                  on_feed: Callable[[PerceptionFeed], None] | None = None,
                  clock: Callable[[], float] = time.monotonic,
-                 exit_when_done: bool = False) -> None:
+                 exit_when_done: bool = False,
+                 images: Callable[[], tuple | None] | None = None,
+                 instrument: InstrumentShape | None = None) -> None:
         self.skill, self.scene, self.kinematics = skill, scene, kinematics
         self.arms, self._send_cb, self.watchdog = arms, send, watchdog
         self.config = config
@@ -182,6 +205,13 @@ class ExecutorMachine:
         self._on_feed = on_feed
         self._clock = clock
         self.exit_when_done = bool(exit_when_done)
+        self._images = images
+        shape = InstrumentShape() if instrument is None else instrument
+        self._jaw = (shape.jaw_length, shape.jaw_width, shape.jaw_thickness)
+        self.correction: KinematicCorrection | None = None
+        self._registration: RegistrationRun | None = None
+        self._registration_t0 = 0.0  # arms' time (s) the registration started
+        self._controller: Any = None
         self.finished = False
         self.exit_code = 0
         self.simulator: WatchedProcess | None = None
@@ -326,8 +356,12 @@ class ExecutorMachine:
         if fault is not None:
             self._halt('stopped', f'arm fault: {fault}')
             return
-        if max(stamps[a] for a in PSMS) == self._last_obs_t and self.stage == 'running':
+        if max(stamps[a] for a in PSMS) == self._last_obs_t \
+                and self.stage in ('running', 'registering'):
             return  # nothing new measured since the last command
+        if self.stage == 'registering':
+            self._register()
+            return
         obs = self.observe()
         self._last_obs_t = obs.t
         if self.stage == 'running':
@@ -339,7 +373,7 @@ class ExecutorMachine:
     def _run(self, obs: Observation) -> None:
         """Step the controller on ``obs``, send its command, notice the end."""
         assert self._executor is not None and self._t_start is not None  # running
-        command = self._executor.step(obs)
+        command = self._controller.step(obs)
         self._sent += self._send_cb(command, obs.t)
         if command.subtask in ('ii', 'iv') and obs.T_world_needle is not None:
             self._executed.setdefault(command.subtask, []).append(
@@ -394,7 +428,10 @@ class ExecutorMachine:
         camera = self.arms.camera_pose()
         if camera is not None:
             self.feed.camera_moved(camera)
-        return self.feed.observe(self.arms.observation(None))
+        arms = self.arms.observation(None)
+        if self.correction is not None:
+            arms = self.correction.observe(arms)
+        return self.feed.observe(arms)
 
     def _begin(self, obs: Observation) -> None:
         """Plan the throw on what ``obs`` shows and start commanding."""
@@ -403,7 +440,10 @@ class ExecutorMachine:
                 self.skill, obs.pair, self.scene.needle, kinematics=self.kinematics,
                 config=ExecutorConfig(script=self.scene.expert,
                                       phase_stopping=self.config.phase_stopping))
-            self._executor.reset(obs)
+            self._controller = self._executor
+            if self.correction is not None and self.correction.arms:
+                self._controller = CorrectedController(self._executor, self.correction)
+            self._controller.reset(obs)
         except ValueError as exc:
             self._halt('failed', f'cannot plan the throw on {self.pair}: {exc}',
                        planning_error=str(exc))
@@ -454,7 +494,63 @@ class ExecutorMachine:
                                      'on the endoscope?)')
             return
         assert obs is not None
+        if cfg.correction and self.correction is None:
+            self._start_registration(now, obs)
+            return
         self._begin(obs)
+
+    def _start_registration(self, now: float, obs: Observation) -> None:
+        """Register the arms around the markers seen, once a stereo pair has come."""
+        assert self.feed is not None
+        look = None if self._images is None else self._images()
+        centre = self.feed.markers_centre()
+        if look is None or centre is None:
+            if self._waited(now) > self.config.prepare_timeout:
+                self._halt('failed', 'cannot register the arms: '
+                                     + ('no stereo pair on the camera image topics'
+                                        if look is None else 'no marker seen')
+                                     + f' within {self.config.prepare_timeout} s')
+            return
+        kinematics = dict.fromkeys(PSMS, self.kinematics)
+        self._registration = RegistrationRun(kinematics, look[1], self._jaw, centre)
+        self._registration_t0 = obs.t
+        self._enter('registering', 'registering the arms against the endoscope')
+
+    def _register(self) -> None:
+        """Step the registration; once done, keep the correction and look again."""
+        run = self._registration
+        assert run is not None
+        arms = self.arms.observation(None)
+        self._last_obs_t = arms.t
+        look = self._stereo_look()
+        self._send_cb(run.step(arms, look), arms.t)
+        if run.done:
+            self.correction = run.correction
+            assert self.correction is not None
+            fits = ', '.join(f'{a} {1e3 * np.linalg.norm(f.translation):.1f} mm base, '
+                             f'{f.residual_px:.2f} px' for a, f in self.correction.arms.items())
+            self.log.info(f'registration done in {arms.t - self._registration_t0:.1f} s: '
+                          f'{fits or "no arm trusted: open loop"}')
+            self._registration = None
+            # look at markers and needle afresh, with the arms back in place
+            self.feed = PerceptionFeed(self.pair, self.feed.pair_index if self.feed else 1,
+                                       self.scene.needle)
+            if self._on_feed is not None:
+                self._on_feed(self.feed)
+            self._seen_after = None
+            self._enter('preparing', 'registered; looking at the markers and the needle again')
+        elif arms.t - self._registration_t0 > self.config.timeout:
+            self._halt('failed', f'registration not done after {self.config.timeout} s '
+                                 f'(arm {run.arm}: the instrument not seen?)')
+
+    def _stereo_look(self) -> StereoLook | None:
+        """Return the newest stereo pair with the camera's reported pose, or None."""
+        pair = None if self._images is None else self._images()
+        camera = self.arms.camera_pose()
+        if pair is None or camera is None:
+            return None
+        stamp, _, left, right = pair
+        return StereoLook(stamp, left, right, camera)
 
     # --- reporting --------------------------------------------------------------------------
 

@@ -178,6 +178,18 @@ class PerceptionFeed(PerceivedScene):
             missing.append('needle')
         return missing
 
+    def markers_centre(self):
+        """Return the centre (``world``, shape (3,)) of every marker last seen, or None."""
+        if self._markers_c is None or self.T_world_camera is None:
+            return None
+        _, entries, exits, _ = self._markers_c
+        points = np.vstack([entries, exits])
+        points = points[np.isfinite(points).all(axis=1)]
+        if not len(points):
+            return None
+        T = self.T_world_camera
+        return T[:3, :3] @ points.mean(axis=0) + T[:3, 3]
+
     # ------------------------------------------------------------------ looks
     def markers(self, sim=None):
         """

@@ -6,17 +6,23 @@ machine's questions from it and applies its commands); the machine's wall clock 
 simulation's own clock, so every timeout is counted deterministically.
 """
 
+from dataclasses import replace
 import json
 
+import numpy as np
 import pytest
 from sim_bridge.common.vocabulary import PSMS
+from sim_bridge.observers import PhysicalObserver
 from sim_bridge.scene.scene_config import load_scene_config
+from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.demos.scripted_demo import record_scripted_demonstration
 from suture_lfd.demos.segment_file import make_segment_file
+from suture_lfd.perception import StereoPerception, stereo_from_camera_info
 from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.skill import learn_skill
+from suture_lfd.skill import learn_skill, training_data
 from suture_lfd.skill.executor import _event_dict
 from suture_lfd.skill.executor_machine import ExecutorMachine, MachineConfig
+from suture_lfd.skill.perceived_feed import NeedleStatus
 from suture_lfd.skill.watchdog import ArmWatchdog
 
 CONTROL_PERIOD = 0.01  # s of simulation between ticks
@@ -114,12 +120,22 @@ def run(sim, arms, machine, watchdog, seconds):
 
 
 @pytest.fixture(scope='module')
-def skill(simulation, tmp_path_factory):
+def segments(simulation, tmp_path_factory):
     demo, _, score = record_scripted_demonstration(simulation, 'synth1', seed=0)
     assert score.score == 1.0, score.failure
     path = tmp_path_factory.mktemp('executor_machine') / 'synth1_segments.npz'
     make_segment_file(demo, segment_demonstration(demo), source='scripted expert').save(path)
-    return learn_skill(path)
+    return path
+
+
+@pytest.fixture(scope='module')
+def skill(segments):
+    return learn_skill(segments)
+
+
+@pytest.fixture(scope='module')
+def pair_frame_skill(segments):
+    return learn_skill(training_data(segments), 'pair_frame')
 
 
 def test_a_throw_goes_through_its_stages_and_its_outcome_is_written(simulation, skill,
@@ -203,3 +219,96 @@ def test_in_physical_mode_nothing_seen_fails_with_what_was_not_seen(simulation, 
     run(simulation, arms, machine, watchdog, 10.0)
     assert results[-1]['state'] == 'failed'
     assert results[-1]['reason'].startswith('not seen: markers, needle'), results[-1]
+
+
+class PerceivedSceneArms(SceneArms):
+    """
+    The in-process scene as a physical dVRK shows it: the arms' reports, a stereo pair once
+    every ``image_period`` simulated seconds, and a perception process on those images.
+    """
+
+    def __init__(self, sim, image_period=0.5):
+        super().__init__(sim)
+        self.observer = PhysicalObserver(sim, estimator=None)
+        self.perception = StereoPerception()
+        camera = sim.camera
+        self.stereo = stereo_from_camera_info(camera.camera_info('left'),
+                                              camera.camera_info('right'))
+        self.image_period = image_period
+        self.feed = None
+        self.pair = None   # the newest stereo pair: (stamp, stereo, left, right)
+        self._last = -np.inf
+
+    def select_pair(self, name):
+        self.sim.set_target_pair(name)  # the evaluation's, not read by the machine
+
+    def observation(self, pair):
+        return self.observer.arm_state()
+
+    def camera_pose(self):
+        return self.sim.reported_tool_pose('ECM') @ self.sim.camera.T_tip_left
+
+    def images(self):
+        return self.pair
+
+    def look(self):
+        """Take a stereo pair when one is due and hand the perception's outputs to the feed."""
+        if self.sim.time - self._last < self.image_period - 1e-9:
+            return
+        self._last = t = self.sim.time
+        frame = self.sim.render()
+        self.pair = (t, self.stereo, frame.left_rgb, frame.right_rgb)
+        result = self.perception.process(frame.left_rgb, frame.right_rgb, self.stereo, t)
+        if self.feed is None:
+            return
+        est = result.needle
+        self.feed.needle_seen(t, est.pose_camera if est.found else None,
+                              NeedleStatus(est.found, est.reason))
+        if result.markers is not None:
+            self.feed.markers_seen(t, result.markers.entries, result.markers.exits,
+                                   result.markers.normal)
+
+
+def run_physical(sim, arms, machine, watchdog, seconds):
+    """Tick the machine on the perceived scene for up to ``seconds`` of simulation."""
+    steps = round(CONTROL_PERIOD / sim.dt)
+    end = sim.time + seconds
+    while machine.active and sim.time < end:
+        arms.feed = machine.feed
+        arms.look()
+        for a in PSMS:
+            watchdog.measured(a, sim.time, sim.time)
+        watchdog.clock(sim.time, sim.time)
+        machine.tick()
+        for _ in range(steps):
+            sim.step()
+    score = sim.score()
+    return score
+
+
+@pytest.mark.parametrize('level', [0.0, 3.0])
+def test_in_physical_mode_the_machine_registers_the_arms_and_scores_on_what_it_sees(
+        pair_frame_skill, level):
+    config = replace(load_simulation_config(), kinematic_error_level=level,
+                     kinematic_error_seed=1)
+    sim = Simulation(config)
+    try:
+        sim.reset(seed=0)
+        arms = PerceivedSceneArms(sim)
+        statuses, results = [], []
+        watchdog = ArmWatchdog(PSMS, 1.0 / CONTROL_PERIOD, 0.1, 1.0, 30.0)
+        machine = ExecutorMachine(
+            pair_frame_skill, load_scene_config(), sim.kinematics['PSM1'], arms, arms.send,
+            watchdog, MachineConfig(physical=True, prepare_timeout=30.0),
+            on_status=statuses.append, on_result=results.append, clock=lambda: sim.time,
+            images=arms.images, instrument=sim.config.world.instrument)
+        assert machine.execute('synth1')
+        score = run_physical(sim, arms, machine, watchdog, 150.0)
+    finally:
+        sim.close()
+    stages = [s['state'] for s in statuses]
+    assert stages[:3] == ['preparing', 'registering', 'preparing'], statuses
+    assert set(machine.correction.arms) == {'PSM1', 'PSM2'}
+    assert results and results[-1]['state'] == 'done', (results, statuses[-3:])
+    assert score.score >= 0.8, (score.score, score.failure, score.entry_error_mm,
+                                score.exit_error_mm)
