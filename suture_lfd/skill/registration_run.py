@@ -26,6 +26,7 @@ import logging
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Command, Observation
@@ -86,7 +87,7 @@ class RegistrationRun:
     """
 
     def __init__(self, kinematics: Mapping[str, Any], stereo: Any,
-                 jaw: tuple[float, float, float], centre: Sequence[float],
+                 jaw: tuple[float, float, float], centre: ArrayLike,
                  arms: Sequence[str] = PSMS) -> None:
         self.kinematics = dict(kinematics)
         self.stereo = stereo
