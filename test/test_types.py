@@ -27,7 +27,9 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/demos/cohort.py', 'suture_lfd/demos/scripted_demo.py',
              'suture_lfd/skill/method.py', 'suture_lfd/study/digest.py',
              'suture_lfd/study/options.py', 'suture_lfd/study/keys.py',
-             'suture_lfd/study/figures.py', 'suture_lfd/perception/arc_poses.py')
+             'suture_lfd/study/figures.py', 'suture_lfd/perception/arc_poses.py',
+             'suture_lfd/demos/demo_bag.py', 'suture_lfd/demos/demonstrator.py',
+             'suture_lfd/study/records.py')
 
 
 def run_mypy(paths, cache_dir):
