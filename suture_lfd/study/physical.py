@@ -26,9 +26,11 @@ variant beside ground-truth mode and the paper, and, with more than one level or
 curve of generality against the error level (``physical_curve.png``, ``physical_curve.csv``).
 """
 
+from dataclasses import replace
 import math
 
 from suture_lfd.study import tables
+from suture_lfd.study.records import DemoRecord, RobotErrors, ThrowRecord
 
 #: The levels of the issue's curve (mm class).
 CURVE_LEVELS = (0.0, 1.0, 3.0, 5.0)
@@ -124,7 +126,8 @@ def plan_physical(physical, demos, throws, job_seed, seed):
     ----------
     physical : dict
         Output of :func:`physical_config`.
-    demos, throws : list of dict
+    demos : list of DemoJob
+    throws : list of ThrowJob
         The study's ground-truth jobs (:func:`suture_lfd.study.run.plan_jobs`).
     job_seed : callable
         ``(study seed, key) -> seed``: the errors' seed of a job.
@@ -133,37 +136,35 @@ def plan_physical(physical, demos, throws, job_seed, seed):
 
     Returns
     -------
-    demos, throws : list of dict
+    demos : list of DemoJob
+    throws : list of ThrowJob
         Per level its demonstrations (``physical/level-L/...``), per variant its throws,
         learning from the demonstrations of their level; with ``demos`` ``'ground-truth'``
         no demonstrations, the throws learning from the ground-truth ones.
 
     """
     out_demos, out_throws = [], []
-    strip = ('id',)
     recorded = physical.get('demos', 'recorded') == 'recorded'
     for level in physical['levels'] if recorded else ():
         where = f'physical/{variant_name(level, True)}'
         for job in demos:
-            key = f'{where}/{job["key"]}'
-            out_demos.append({
-                **{k: v for k, v in job.items() if k not in strip}, 'key': key,
-                'folder': where, 'bag': f'{where}/{job["bag"]}',
-                'segments': f'{where}/{job["segments"]}',
-                'physical': {'error_level': level, 'error_seed': job_seed(seed, key)}})
+            key = f'{where}/{job.key}'
+            out_demos.append(replace(
+                job, id='', key=key, folder=where, bag=f'{where}/{job.bag}',
+                segments=f'{where}/{job.segments}',
+                physical=RobotErrors(error_level=level, error_seed=job_seed(seed, key))))
     for name, level, correction in variants(physical):
         where = f'physical/{name}'
         demo_where = f'physical/{variant_name(level, True)}'
-        for job in throws:
-            key = f'{where}/{job["key"]}'
-            trajectories = job.get('trajectories')
-            out_throws.append({
-                **{k: v for k, v in job.items() if k not in strip}, 'key': key,
-                'folder': where,
-                'demo_key': f'{demo_where}/{job["demo_key"]}' if recorded else job['demo_key'],
-                'trajectories': f'{where}/{trajectories}' if trajectories else None,
-                'physical': {'error_level': level, 'error_seed': job_seed(seed, key),
-                             'correction': correction}})
+        for throw in throws:
+            key = f'{where}/{throw.key}'
+            trajectories = throw.trajectories
+            out_throws.append(replace(
+                throw, id='', key=key, folder=where,
+                demo_key=f'{demo_where}/{throw.demo_key}' if recorded else throw.demo_key,
+                trajectories=f'{where}/{trajectories}' if trajectories else None,
+                physical=RobotErrors(error_level=level, error_seed=job_seed(seed, key),
+                                     correction=correction)))
     return out_demos, out_throws
 
 
@@ -173,31 +174,31 @@ def variant_records(records, name, level, ground_demos=None):
 
     Parameters
     ----------
-    records : list of dict
+    records : list of DemoRecord or ThrowRecord
         Physical-mode records (demonstrations and throws of every variant).
     name : str
         The variant (:func:`variant_name`).
     level : float
         Its level (its demonstrations are the level's).
-    ground_demos : list of dict, optional
+    ground_demos : list of DemoRecord, optional
         The ground-truth demonstrations, when the throws learnt from them.
 
     Returns
     -------
-    list of dict
+    list of DemoRecord or ThrowRecord
 
     """
     demo_prefix = f'physical/{variant_name(level, True)}/'
     throw_prefix = f'physical/{name}/'
     out = list(ground_demos or [])
     for r in records:
-        if r['kind'] == 'demo' and r['key'].startswith(demo_prefix):
-            out.append({**r, 'key': r['key'][len(demo_prefix):]})
-        elif r['kind'] == 'throw' and r['key'].startswith(throw_prefix):
-            t = r.get('trajectories')
-            out.append({**r, 'key': r['key'][len(throw_prefix):],
-                        'trajectories': t[len(throw_prefix):]
-                        if t and t.startswith(throw_prefix) else t})
+        if isinstance(r, DemoRecord) and r.key.startswith(demo_prefix):
+            out.append(replace(r, key=r.key[len(demo_prefix):]))
+        elif isinstance(r, ThrowRecord) and r.kind == 'throw' and r.key.startswith(throw_prefix):
+            t = r.trajectories
+            out.append(replace(r, key=r.key[len(throw_prefix):],
+                               trajectories=t[len(throw_prefix):]
+                               if t and t.startswith(throw_prefix) else t))
     return out
 
 
