@@ -443,3 +443,10 @@ def register_arms(sim, seed=0):
     correction = KinematicCorrection(arms)
     _REGISTERED[sim] = correction
     return correction
+
+
+# The registration's poses and instrument model, for a registration stepped by a node's
+# controller (suture_lfd.skill.registration_run) instead of run on an in-process simulation.
+SPOTS, SIDE, REACH_TIME, RETURN_TIME = _SPOTS, _SIDE, _REACH_TIME, _RETURN_TIME
+model_points = _model_points
+straight_pose = _straight_pose

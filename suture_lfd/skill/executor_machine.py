@@ -27,6 +27,9 @@ as one JSON object, replaced atomically.
 
 Units: seconds (stamps and ``t``: simulation time; ``now``: monotonic wall time), metres;
 frames: ``world`` as the arms report it.
+
+Size: one sequence whose stages share the throw's state (pair, stamps, controller, feed,
+correction, outcome); split, each part would reach into the others' state.
 """
 
 from collections.abc import Callable, Mapping, Sequence

@@ -136,12 +136,12 @@ class RegistrationRun:
         arm = self.arm
         if arm is None:
             return Command(t=obs.t, T_world_tool={}, jaw={}, subtask='registration')
-        going_back = self._spot >= len(registration._SPOTS)
+        going_back = self._spot >= len(registration.SPOTS)
         if self._sent_at is None:
             self._sent_at = obs.t
             self._target = (self._start[arm] if going_back
                             else self._pose(arm, self._spot))
-        wait = registration._RETURN_TIME if going_back else registration._REACH_TIME[self._spot]
+        wait = registration.RETURN_TIME if going_back else registration.REACH_TIME[self._spot]
         if obs.t - self._sent_at >= wait:
             if going_back:
                 self._next_arm()
@@ -154,9 +154,9 @@ class RegistrationRun:
                        jaw={} if going_back else {arm: 0.0}, subtask='registration')
 
     def _pose(self, arm: str, spot: int) -> np.ndarray:
-        x, y, z = registration._SPOTS[spot]
-        tip = self.centre + np.array([registration._SIDE[arm] * x, y, z])
-        return registration._straight_pose(self._bases[arm][:3, 3], tip, self._start[arm])
+        x, y, z = registration.SPOTS[spot]
+        tip = self.centre + np.array([registration.SIDE[arm] * x, y, z])
+        return registration.straight_pose(self._bases[arm][:3, 3], tip, self._start[arm])
 
     def _see(self, arm: str, obs: Observation,
              look: StereoLook) -> tuple[np.ndarray, np.ndarray, InstrumentView | None,
@@ -165,7 +165,7 @@ class RegistrationRun:
         assert obs.q is not None, 'the registration needs the reported joints'
         q = np.asarray(obs.q[arm], dtype=float)
         T_cw = invert_transform(look.T_world_camera)
-        pts = registration._model_points(self.kinematics[arm], self._bases[arm], q,
+        pts = registration.model_points(self.kinematics[arm], self._bases[arm], q,
                                          np.zeros(6), self.jaw)
         uv_l, uv_r = self.stereo.project(pts @ T_cw[:3, :3].T + T_cw[:3, 3])
         views = [find_instrument(img, uv[:2], uv[2])

@@ -101,6 +101,8 @@ def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone
     time.sleep(2.0)
     score = scores[-1]['score']
     print('physical node throw:', json.dumps(score), flush=True)
+    if score['score'] < 0.8:
+        print('executor log:', executor.log()[-12000:], sep='\n', flush=True)
     assert score['score'] >= 0.8, (score, logs())
     # the whole throw long, it read none of the truth
     subs = subscriptions() or subs
