@@ -164,6 +164,12 @@ class WorkerState:
     base_frames : dict or None
         ``config/world.yaml``'s ``T_world_base`` of the PSMs (the demonstration bags' arm
         bases), read on first use.
+    robots : dict
+        ``(phantom, physics step, error level, error seed) -> Simulation``: the physical-mode
+        robots (hidden kinematic errors) of the latest jobs, at most :data:`ROBOTS_KEPT`,
+        the least recently used closed first; each keeps its registration
+        (:func:`suture_lfd.skill.arm_registration.register_arms`), so a robot is registered
+        once, not per job.
 
     """
 
@@ -175,9 +181,12 @@ class WorkerState:
     ros: RosThrows | None = None
     dmp_params: dict | None = None
     base_frames: dict | None = None
+    robots: dict = field(default_factory=dict)
 
     def close(self):
         """Release what the state holds beyond this process's memory (node processes)."""
+        while self.robots:
+            self.robots.pop(next(iter(self.robots))).close()
         if self.ros is not None:
             self.ros.close()
             self.ros = None
@@ -235,18 +244,37 @@ def _simulation(state, phantom, step=None, spec=None):
     return sims[phantom, step]
 
 
+#: Physical-mode robots a study process keeps between jobs (the jobs of one subject on one
+#: phantom come in a row, so a few cover a process's share of them).
+ROBOTS_KEPT = 4
+
+
 def _physical_simulation(state, phantom, step, physical):
     """
-    Return a simulation of a phantom for a physical-mode job, and whether it is the job's own.
+    Return the simulation of a phantom for a physical-mode job (the worker's: kept).
 
-    ``physical``: the job's robot errors. Level 0 is the
-    worker's shared simulation (perfect kinematics: nothing to draw); any other level a new
-    simulation with the arms' hidden errors drawn from the job's seed, to be closed after the
-    job (a robot's errors last its life; a job is a robot of its own).
+    ``physical``: the job's robot errors. Level 0 is the worker's shared simulation (perfect
+    kinematics: nothing to draw); any other level the robot of those errors (drawn per subject
+    and phantom, :func:`suture_lfd.study.physical.robot_key`), kept in ``state.robots`` for
+    the next jobs on it.
     """
     level = float(physical.error_level)
     if level == 0.0:
-        return _simulation(state, phantom, step), False
+        return _simulation(state, phantom, step)
+    key = (phantom, float(step), level, int(physical.error_seed))
+    robots = state.robots
+    sim = robots.pop(key, None)
+    if sim is None:
+        sim = _robot(state, phantom, step, physical)
+        while len(robots) >= ROBOTS_KEPT:
+            robots.pop(next(iter(robots))).close()
+    robots[key] = sim  # the most recently used last
+    return sim
+
+
+def _robot(state, phantom, step, physical):
+    """Build the simulation of a robot with the hidden kinematic errors ``physical``."""
+    level = float(physical.error_level)
     s = state.settings
     config = load_simulation_config()
     loop = replace(config.loop, thread_period=s.thread_period,
@@ -254,7 +282,7 @@ def _physical_simulation(state, phantom, step, physical):
     config = replace(config, world=replace(config.world, physics_step=float(step)), loop=loop,
                      kinematic_error_level=level,
                      kinematic_error_seed=int(physical.error_seed))
-    return Simulation(config, phantom=phantom, rng=np.random.default_rng(0)), True
+    return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
 
 
 def _subject(state, name, seed=None):
@@ -320,23 +348,19 @@ def demo_job(job, state):
     subject = _subject(state, job.subject, job.cohort_seed)
     physical = job.physical
     if physical is None:
-        sim, own = _simulation(state, job.phantom, s.demo_physics_step), False
+        sim = _simulation(state, job.phantom, s.demo_physics_step)
         link = None
     else:
-        sim, own = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
+        sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
         link = TeleoperatedRobot(sim, job.pair)
-    try:
-        run = run_demonstration(sim, subject, job.pair, seed=job.seed,
-                                sample_rate=s.sample_rate, command_rate=s.command_rate,
-                                timeout=s.timeout,
-                                attempts=s.demo_attempts, next_pair=job.next_pair,
-                                require_success=False, link=link)
-        # a robot's recorder writes its arms as it believes them: measured_cp through the
-        # believed bases
-        bases = None if link is None else {arm: sim.believed_base(arm) for arm in PSMS}
-    finally:
-        if own:
-            sim.close()
+    run = run_demonstration(sim, subject, job.pair, seed=job.seed,
+                            sample_rate=s.sample_rate, command_rate=s.command_rate,
+                            timeout=s.timeout,
+                            attempts=s.demo_attempts, next_pair=job.next_pair,
+                            require_success=False, link=link)
+    # a robot's recorder writes its arms as it believes them: measured_cp through the believed
+    # bases
+    bases = None if link is None else {arm: sim.believed_base(arm) for arm in PSMS}
     record = DemoRecord.of(job, attempts=int(run.attempts), demo_score=float(run.score.score),
                            failure=run.score.failure, time_s=float(run.score.time_s), ok=False)
     demo = _through_bag(state, run.demo, out / job.bag, job.pair, bases)
@@ -494,20 +518,16 @@ def throw_job(job, state):
     # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
     replay = replay_name(to_json(job))
     if physical is not None:
-        sim, own = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
-        try:
-            sampler = ThrowSampler(sim)
-            outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
-                                    timeout=s.timeout, control_period=s.control_period,
-                                    observer=sampler, physical=True,
-                                    correction=bool(physical.correction))
-            markers = sim.phantom.markers
-            replay = f'{job.folder}/{replay}'
-            replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
-                                        outcome.subtask_times)
-        finally:
-            if own:
-                sim.close()
+        sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
+        sampler = ThrowSampler(sim)
+        outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
+                                timeout=s.timeout, control_period=s.control_period,
+                                observer=sampler, physical=True,
+                                correction=bool(physical.correction))
+        markers = sim.phantom.markers
+        replay = f'{job.folder}/{replay}'
+        replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
+                                    outcome.subtask_times)
     elif ros is None:
         sim = (_simulation(state, job.test_key, spec=job.test_config)
                if job.test_config is not None else _simulation(state, job.test_phantom))

@@ -7,9 +7,11 @@ demonstrations and throws in physical mode, in-process, once per *variant*: an e
 comma-separated list) and whether the executor corrects on what it sees (``--correction
 on|off|both``, ``--no-correction`` for ``off``):
 
-- every job's simulation has the PSMs' hidden kinematic errors at the level, drawn from the
-  job's own seed (``error_seed``); the scene seed is the ground-truth job's, so the two modes
-  differ only by the robot;
+- the PSMs' hidden kinematic errors are drawn per subject and phantom (:func:`robot_key`: one
+  robot per setup, as a lab registers a dVRK once per setup, not per throw) at the level; the
+  jobs of that subject on that phantom share the robot (``error_seed``), so a study worker
+  builds and registers it once (:mod:`suture_lfd.study.jobs`); the scene seed is the
+  ground-truth job's, so the two modes differ only by the robot;
 - a demonstration is teleoperated through the robot and recorded as the robot sees it
   (:mod:`suture_lfd.study.teleoperated`: the arms' reports, the needle and markers from the
   endoscope); it depends on the level, not on the correction, so the variants of a level share
@@ -118,6 +120,27 @@ def variants(physical):
             for level in physical['levels'] for c in physical['corrections']]
 
 
+def robot_key(subject, phantom):
+    """
+    Return the name the errors' seed of a subject's robot on a phantom is drawn from.
+
+    Parameters
+    ----------
+    subject : str
+        The subject (its demonstrations and the throws learnt from them).
+    phantom : str
+        The phantom the robot works on (a throw's test phantom).
+
+    Returns
+    -------
+    str
+        ``robot/<subject>/<phantom>``: the same at every level (the level scales the errors),
+        so the curve compares the same robots.
+
+    """
+    return f'robot/{subject}/{phantom}'
+
+
 def plan_physical(physical, demos, throws, job_seed, seed):
     """
     Return the physical-mode jobs made from the ground-truth ones (without ``id``).
@@ -130,7 +153,7 @@ def plan_physical(physical, demos, throws, job_seed, seed):
     throws : list of ThrowJob
         The study's ground-truth jobs (:func:`suture_lfd.study.run.plan_jobs`).
     job_seed : callable
-        ``(study seed, key) -> seed``: the errors' seed of a job.
+        ``(study seed, key) -> seed``: the errors' seed of a robot (:func:`robot_key`).
     seed : int
         The study seed.
 
@@ -152,7 +175,8 @@ def plan_physical(physical, demos, throws, job_seed, seed):
             out_demos.append(replace(
                 job, id='', key=key, folder=where, bag=f'{where}/{job.bag}',
                 segments=f'{where}/{job.segments}',
-                physical=RobotErrors(error_level=level, error_seed=job_seed(seed, key))))
+                physical=RobotErrors(error_level=level, error_seed=job_seed(
+                    seed, robot_key(job.subject, job.phantom)))))
     for name, level, correction in variants(physical):
         where = f'physical/{name}'
         demo_where = f'physical/{variant_name(level, True)}'
@@ -163,8 +187,9 @@ def plan_physical(physical, demos, throws, job_seed, seed):
                 throw, id='', key=key, folder=where,
                 demo_key=f'{demo_where}/{throw.demo_key}' if recorded else throw.demo_key,
                 trajectories=f'{where}/{trajectories}' if trajectories else None,
-                physical=RobotErrors(error_level=level, error_seed=job_seed(seed, key),
-                                     correction=correction)))
+                physical=RobotErrors(error_level=level, error_seed=job_seed(
+                    seed, robot_key(throw.subject, throw.test_phantom)),
+                    correction=correction)))
     return out_demos, out_throws
 
 
@@ -281,8 +306,9 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
     md = ['## Physical mode', '',
           "The same design run on what a physical dVRK provides: the PSMs' kinematic errors "
           'hidden in the simulation (joints 1-2 up to ±L deg, insertion ±L mm, base '
-          'registration ±L mm per axis, drawn per job), demonstrations teleoperated through '
-          'the robot and recorded as it reports them, with the needle and the markers from '
+          'registration ±L mm per axis, drawn per subject and phantom: one robot per '
+          'setup, registered once), demonstrations teleoperated through the robot and '
+          'recorded as it reports them, with the needle and the markers from '
           "the endoscope's images; throws executed on the arms' reports and perception. The "
           "scoring reads the simulation's truth, as an observer of the real robot would. Each "
           'variant has its full report in `physical/<variant>/`.', '']

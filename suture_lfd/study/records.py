@@ -38,7 +38,8 @@ class RobotErrors:
     error_level : float
         Error class (mm) of the arms' kinematics; 0 is perfect kinematics.
     error_seed : int
-        Seed of the drawn errors (a robot's errors last its life: one robot per job).
+        Seed of the drawn errors (a robot's errors last its life: one robot per subject
+        and phantom).
     correction : bool
         A throw corrects its plan from what the robot perceives (demonstrations: unused).
 
