@@ -42,7 +42,9 @@ def segments(simulation, tmp_path_factory):
 
 def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone(
         launch, ros, segments, tmp_path):
-    sim = launch('simulator', '--ros-args', *FAST_ARMS, '-p', 'real_time_factor:=0.25',
+    # a tenth of real time: at a quarter, on a loaded 2-core machine, the executor's commands
+    # lag the arms through the insertion and the needle misses the exit (score 0 in two runs)
+    sim = launch('simulator', '--ros-args', *FAST_ARMS, '-p', 'real_time_factor:=0.1',
                  '-p', 'physical:=true', '-p', f'kinematic_error_level:={ERROR_LEVEL}',
                  '-p', 'camera_rate:=1.0', '-p', 'max_lag:=10.0',
                  '-p', 'visualization_rate:=0.0')
@@ -103,11 +105,7 @@ def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone
     print('physical node throw:', json.dumps(score), flush=True)
     if score['score'] < 0.8:
         print('executor log:', executor.log()[-12000:], sep='\n', flush=True)
-    # registered, the needle enters at the perceived entry (open loop at level 1 it did not);
-    # the score is not asserted yet: the insertion that scores 1.0 in-process on the same core
-    # (test_executor_machine) misses the exit over the node graph (README, physical mode)
-    assert score['subtasks']['i'], (score, logs())
-    assert score['entry_error_mm'] is not None and score['entry_error_mm'] < 1.5, (score, logs())
+    assert score['score'] >= 0.8, (score, logs())
     # the whole throw long, it read none of the truth
     subs = subscriptions() or subs
     assert not [t for t in subs if t.startswith('/evaluation/')], sorted(subs)
