@@ -319,8 +319,9 @@ class ScenePhysics:
         if cached is not None and cached[0] is local:
             return cached[1]
         if name in self._errors:
+            # the arm's own valid joints plus offsets of a few degrees: scalar, unchecked
             q = self._true_jp(name, self.arms[name])
-            T = self._T_world_base_true[name] @ self.kinematics[name].fk(q)
+            T = self._T_world_base_true[name] @ self.kinematics[name].fk_unchecked(q.tolist())
         else:
             T = self._T_world_base[name] @ local
         T.flags.writeable = False

@@ -28,6 +28,12 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/skill/method.py', 'suture_lfd/study/digest.py',
              'suture_lfd/study/options.py', 'suture_lfd/study/keys.py',
              'suture_lfd/study/figures.py', 'suture_lfd/perception/arc_poses.py',
+             'suture_lfd/demos/demo_bag.py',
+             'suture_lfd/demos/demonstrator.py',
+             'suture_lfd/study/records.py',
+             'suture_lfd/skill/executor_machine.py',
+             'suture_lfd/skill/registration_run.py',
+             'suture_lfd/skill/perceived_feed.py',
              'suture_lfd/viewer/controls.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',

@@ -279,6 +279,10 @@ class SimClient:
                 return f'{a} is {s.state}'
         return None
 
+    def measured_stamps(self):
+        """Return per arm the stamp (s) of its newest ``measured_cp``."""
+        return {a: self.tools[a][0] for a in self.arms if a in self.tools}
+
     def world_tool(self, arm):
         """Return the arm's newest tool pose ``T_world_tool``."""
         _, frame, T = self.tools[arm]

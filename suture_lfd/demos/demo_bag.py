@@ -27,16 +27,20 @@ the message header stamps (simulation time), resampled to a common rate.
 Frames: ``world`` unless a frame_id says otherwise; m, rad, s; quaternions (x, y, z, w).
 """
 
+from collections.abc import Callable, Iterable, Mapping, Sequence
 import json
 import math
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common import cdr
 from sim_bridge.common.geometry import (
     pose_from_transform,
     transform_from_pose,
 )
+from sim_bridge.common.validation import FloatArray
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.scene.markers import marker_frame
 from suture_lfd import bags
@@ -70,7 +74,7 @@ _EVENT_QOS = bags.make_qos(transient_local=True, depth=1000)
 _STATE_QOS = bags.make_qos(depth=100)
 
 
-def marker_topics(pair):
+def marker_topics(pair: str) -> tuple[str, str]:
     """Return the entry and exit marker topics of a pair (absolute names)."""
     return (MARKER_TOPIC.format(pair=pair, which='entry'),
             MARKER_TOPIC.format(pair=pair, which='exit'))
@@ -78,21 +82,21 @@ def marker_topics(pair):
 
 # --- messages (rosbags objects) <-> arrays ---------------------------------------------------
 
-def _stamp(store, t):
+def _stamp(store: Any, t: float) -> Any:
     ns = int(round(float(t) * 1e9))
     return store.types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
 
 
-def _header(store, t, frame_id=''):
+def _header(store: Any, t: float, frame_id: str = '') -> Any:
     return store.types['std_msgs/msg/Header'](stamp=_stamp(store, t), frame_id=frame_id)
 
 
-def _pose_stamped(store, pose, frame_id, t):
+def _pose_stamped(store: Any, pose: ArrayLike, frame_id: str, t: float) -> Any:
     """PoseStamped of a 7-vector pose ``(x, y, z, qx, qy, qz, qw)`` or a 4x4 matrix."""
-    pose = np.asarray(pose, dtype=float)
-    if pose.shape == (4, 4):
-        pose = pose_from_transform(pose)
-    x, y, z, qx, qy, qz, qw = (float(v) for v in pose)
+    vector = np.asarray(pose, dtype=float)
+    if vector.shape == (4, 4):
+        vector = pose_from_transform(vector)
+    x, y, z, qx, qy, qz, qw = (float(v) for v in vector)
     ty = store.types
     msg = ty['geometry_msgs/msg/Pose'](
         position=ty['geometry_msgs/msg/Point'](x=x, y=y, z=z),
@@ -100,37 +104,40 @@ def _pose_stamped(store, pose, frame_id, t):
     return ty[POSE](header=_header(store, t, frame_id), pose=msg)
 
 
-def _joint_state(store, names, position, t):
+def _joint_state(store: Any, names: Iterable[str], position: ArrayLike, t: float) -> Any:
     return store.types[JOINTS](header=_header(store, t), name=list(names),
                                position=np.asarray(position, dtype=np.float64),
                                velocity=np.zeros(0), effort=np.zeros(0))
 
 
-def _event(store, t, kind, **data):
+def _event(store: Any, t: float, kind: str, **data: Any) -> Any:
     text = json.dumps({'kind': kind, 't': float(t), **data}, sort_keys=True)
     return store.types[EVENTS](header=_header(store, t), string=text)
 
 
-def _seconds(stamp):
-    return stamp.sec + stamp.nanosec * 1e-9
+def _seconds(stamp: Any) -> float:
+    return float(stamp.sec + stamp.nanosec * 1e-9)
 
 
-def _pose_vector(msg):
+def _pose_vector(msg: Any) -> FloatArray:
     p, q = msg.pose.position, msg.pose.orientation
     return np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
 
 
 # --- writing ---------------------------------------------------------------------------------
 
-def default_base_frames():
+def default_base_frames() -> dict[str, FloatArray]:
     """Return ``T_world_base`` of PSM1 and PSM2 from ``config/world.yaml`` (4x4 each)."""
     from sim_bridge.scene.world import read_world_config
     world = read_world_config()
     return {arm: np.array(world.arms[arm].T, dtype=float) for arm in PSMS}
 
 
-def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='base',
-                            other_pairs=None, typestore=None):
+def write_demonstration_bag(path: str | Path, demo: Demonstration, *,
+                            base_frames: Mapping[str, ArrayLike] | None = None,
+                            measured_frame: str = 'base',
+                            other_pairs: Mapping[str, tuple[ArrayLike, ArrayLike, ArrayLike]]
+                            | None = None, typestore: Any = None) -> dict[str, int]:
     """
     Write a demonstration as the recorder records it from the simulator.
 
@@ -165,19 +172,20 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
     store = typestore if typestore is not None else bags.make_typestore()
     frames = default_base_frames() if base_frames is None else {
         arm: np.asarray(base_frames[arm], dtype=float) for arm in PSMS}
-    pairs = {demo.pair: (demo.entry, demo.exit, demo.normal)}
+    pairs: dict[str, tuple[ArrayLike, ArrayLike, ArrayLike]] = {
+        demo.pair: (demo.entry, demo.exit, demo.normal)}
     pairs.update(other_pairs or {})
     t = demo.t
     t0 = float(t[0])
-    messages = []   # (t, topic, message object or CDR bytes)
+    messages: list[tuple[float, str, Any]] = []   # (t, topic, message object or CDR bytes)
 
-    def put(time, topic, msg):
+    def put(time: float, topic: str, msg: Any) -> None:
         messages.append((float(time), topic, msg))
 
     for arm in PSMS:
         put(t0, f'/sim/{arm}/base_frame', _pose_stamped(store, frames[arm], 'world', t0))
-    for name, (entry, exit_, normal) in pairs.items():
-        entry, exit_, normal = (np.asarray(v, dtype=float) for v in (entry, exit_, normal))
+    for name, points in pairs.items():
+        entry, exit_, normal = (np.asarray(v, dtype=float) for v in points)
         topic_in, topic_out = marker_topics(name)
         put(t0, topic_in, _pose_stamped(store, marker_frame(entry, normal, exit_), 'world', t0))
         put(t0, topic_out, _pose_stamped(store, marker_frame(exit_, normal, entry), 'world',
@@ -216,27 +224,31 @@ def write_demonstration_bag(path, demo, *, base_frames=None, measured_frame='bas
             msgtype = DEMO_TOPICS.get(topic, POSE)
             if not writer.has_topic(topic):
                 writer.add_topic(topic, msgtype, qos=qos.get(topic, [_STATE_QOS]))
-            raw = msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype)
+            raw = msg if isinstance(msg, bytes) else cast(bytes,
+                                                          store.serialize_cdr(msg, msgtype))
             writer.write(topic, int(round(time * 1e9)), raw)
         writer.set_custom_data('suture_lfd.demonstration', demo.pair)
         return dict(writer.counts)
 
 
-def messages_topics(messages):
+def messages_topics(messages: Iterable[tuple[float, str, Any]]) -> list[str]:
     """Return the distinct topics of ``(t, topic, msg)`` tuples, in first-seen order."""
     return list(dict.fromkeys(topic for _, topic, _ in messages))
 
 
 # --- reading ---------------------------------------------------------------------------------
 
-def _series(reader, messages, decode, fast=None):
+def _series(reader: Any, messages: Iterable[Any], decode: Callable[[Any], Any],
+            fast: Callable[[bytes], tuple[float, Any] | None] | None = None
+            ) -> tuple[FloatArray, list[Any]]:
     """
     Return (stamps (n,), values list) of one topic's messages, by header stamp, sorted.
 
     ``fast(raw) -> (stamp, value) or None`` reads a message's bytes directly; a message it
     cannot read is decoded into a message object and given to ``decode``.
     """
-    times, values = [], []
+    times: list[float] = []
+    values: list[Any] = []
     for message in messages:
         got = fast(message.rawdata) if fast is not None else None
         if got is None:
@@ -249,46 +261,47 @@ def _series(reader, messages, decode, fast=None):
     return np.asarray(times)[order], [values[i] for i in order]
 
 
-def _fast_pose(raw):
+def _fast_pose(raw: bytes) -> tuple[float, tuple[str, FloatArray]] | None:
     got = cdr.pose_stamped_fields(raw)
     return None if got is None else (got[0], (got[1], np.array(got[2])))
 
 
-def _fast_pose_matrix(raw):
+def _fast_pose_matrix(raw: bytes) -> tuple[float, FloatArray] | None:
     got = cdr.pose_stamped_fields(raw)
     return None if got is None else (got[0], transform_from_pose(np.array(got[2])))
 
 
-def _fast_pose_vector(raw):
+def _fast_pose_vector(raw: bytes) -> tuple[float, FloatArray] | None:
     got = cdr.pose_stamped_fields(raw)
     return None if got is None else (got[0], np.array(got[2]))
 
 
-def _unique(times, values, path, topic):
+def _unique(times: FloatArray, values: Sequence[Any] | FloatArray, path: Path, topic: str
+            ) -> tuple[FloatArray, FloatArray]:
     keep = np.concatenate(([True], np.diff(times) > 0.0))
-    times = times[keep]
-    values = np.asarray(values)[keep]
-    if times.size < 2:
+    kept = np.asarray(values)[keep]
+    if times[keep].size < 2:
         raise bags.BagError(f'{path}: topic {topic} has fewer than two distinct time stamps')
-    return times, values
+    return times[keep], kept
 
 
-def _world_poses(frames, poses, arm, T_world_base, path):
+def _world_poses(frames: Sequence[str], poses: ArrayLike, arm: str, T_world_base: FloatArray,
+                 path: Path) -> FloatArray:
     """World 7-vector poses of ``measured_cp`` samples given in ``frames`` (n,)."""
-    poses = np.asarray(poses, dtype=float)
+    world = np.asarray(poses, dtype=float)
     unknown = sorted(set(frames) - {'world', '', f'{arm}_base'})
     if unknown:
         raise bags.BagError(f'{path}: /{arm}/measured_cp is in frame {unknown[0]!r}; expected '
                             f'{arm}_base or world')
     in_base = np.array([f != 'world' for f in frames])
     if in_base.any():
-        T = np.einsum('ij,njk->nik', T_world_base, transform_from_pose(poses[in_base]))
-        poses = poses.copy()
-        poses[in_base] = pose_from_transform(T)
-    return poses
+        T = np.einsum('ij,njk->nik', T_world_base, transform_from_pose(world[in_base]))
+        world = world.copy()
+        world[in_base] = pose_from_transform(T)
+    return world
 
 
-def _pose_topic(reader, by_topic, arm):
+def _pose_topic(reader: Any, by_topic: Mapping[str, list[Any]], arm: str) -> str:
     """
     Return the topic an arm's tool poses are read from: ``measured_cp`` or its local one.
 
@@ -304,8 +317,8 @@ def _pose_topic(reader, by_topic, arm):
     return topic
 
 
-def _events(reader):
-    out = []
+def _events(reader: Any) -> list[tuple[float, dict[str, Any]]]:
+    out: list[tuple[float, dict[str, Any]]] = []
     if '/sim/events' not in reader.topics:
         return out
     for message in reader.messages(['/sim/events']):
@@ -326,23 +339,24 @@ def _events(reader):
     return out
 
 
-def _pair_name(reader, events, path):
-    names = []
+def _pair_name(reader: Any, events: Sequence[tuple[float, dict[str, Any]]], path: Path) -> str:
+    names: list[str] = []
     if '/sim/target_pair' in reader.topics:
         for message in reader.messages(['/sim/target_pair']):
             names.append(reader.deserialize(message).data)
     names += [d['pair'] for _, d in events if d['kind'] == 'target_pair' and 'pair' in d]
     if names:
-        return names[-1]
+        return str(names[-1])
     pairs = sorted({t.split('/')[3] for t in reader.topics if t.startswith('/sim/markers/')})
     if len(pairs) == 1:
-        return pairs[0]
+        return str(pairs[0])
     raise bags.BagError(f'{path}: the bag does not say which pair was sutured (no '
                         f'/sim/target_pair message or target_pair event); pass pair= one of '
                         f'{pairs}')
 
 
-def demonstration_from_bag(path, pair=None, sample_rate=100.0):
+def demonstration_from_bag(path: str | Path, pair: str | None = None,
+                           sample_rate: float = 100.0) -> Demonstration:
     """
     Read a demonstration bag into a Demonstration (world frame).
 
@@ -390,39 +404,40 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
             wanted += [f'/sim/{arm}/base_frame', f'/{arm}/measured_cp', f'/{arm}/jaw/measured_js']
             if f'/{arm}/local/measured_cp' in reader.topics:
                 wanted.append(f'/{arm}/local/measured_cp')
-        by_topic = {topic: [] for topic in wanted}
+        by_topic: dict[str, list[Any]] = {topic: [] for topic in wanted}
         for message in reader.messages(wanted):
             by_topic[message.topic].append(message)
 
-        def matrix(m):
+        def matrix(m: Any) -> FloatArray:
             return transform_from_pose(_pose_vector(m))
 
-        def lean(topic, msgtype, reader_of_bytes):
+        def lean(topic: str, msgtype: str, reader_of_bytes: Callable[[bytes], Any]
+                 ) -> Callable[[bytes], Any] | None:
             # the byte readers know one layout each: other types take the full decoder
             info = reader.topics.get(topic)
             return reader_of_bytes if info is not None and info.msgtype == msgtype else None
-        markers = {}
+        markers: dict[str, FloatArray] = {}
         for topic in (topic_in, topic_out):
             _, values = _series(reader, by_topic[topic], matrix,
                                 lean(topic, POSE, _fast_pose_matrix))
             markers[topic] = values[-1]
-        bases = {}
+        bases: dict[str, FloatArray] = {}
         for arm in PSMS:
             topic = f'/sim/{arm}/base_frame'
             _, values = _series(reader, by_topic[topic], matrix,
                                 lean(topic, POSE, _fast_pose_matrix))
             bases[arm] = values[-1]
-        series = {}
+        series: dict[str, tuple[FloatArray, FloatArray]] = {}
         for arm in PSMS:
             topic = _pose_topic(reader, by_topic, arm)
             times, values = _series(reader, by_topic[topic],
                                     lambda m: (m.header.frame_id, _pose_vector(m)),
                                     lean(topic, POSE, _fast_pose))
-            poses = _world_poses([v[0] for v in values], [v[1] for v in values], arm,
-                                 bases[arm], path) if values else values
-            series[f'{arm}_pose'] = _unique(times, list(poses), path, f'/{arm}/measured_cp')
+            world = _world_poses([v[0] for v in values], [v[1] for v in values], arm,
+                                 bases[arm], path) if values else np.zeros((0, 7))
+            series[f'{arm}_pose'] = _unique(times, list(world), path, f'/{arm}/measured_cp')
 
-            def jaw(m, a=arm):
+            def jaw(m: Any, a: str = arm) -> float:
                 if len(m.position) < 1:
                     raise bags.BagError(f'{path}: a /{a}/jaw/measured_js message has no '
                                         'position')
@@ -445,21 +460,20 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
         raise bags.BagError(f'{path}: only {n} samples of the demonstration overlap '
                             f'({stop - start:.3f} s)')
 
-    def poses(key):
+    def resampled_poses(key: str) -> FloatArray:
         times, values = series[key]
-        values = np.asarray(values)
         P = np.column_stack([np.interp(T, times, values[:, k]) for k in range(3)])
         return np.hstack((P, resample_quaternions(times, values[:, 3:], T)))
 
-    def signal(key):
+    def resampled_signal(key: str) -> FloatArray:
         times, values = series[key]
         return np.interp(T, times, np.asarray(values, dtype=float))
 
     holds = {arm: np.zeros(n, dtype=bool) for arm in PSMS}
     for t_event, data in events:
-        arm = data.get('arm')
-        if data['kind'] in ('grasp', 'release') and arm in holds:
-            holds[arm][T >= t_event - 1e-9] = data['kind'] == 'grasp'
+        who = data.get('arm')
+        if data['kind'] in ('grasp', 'release') and who in holds:
+            holds[who][T >= t_event - 1e-9] = data['kind'] == 'grasp'
         elif data['kind'] == 'reset':
             for flags in holds.values():
                 flags[T >= t_event - 1e-9] = False
@@ -467,7 +481,8 @@ def demonstration_from_bag(path, pair=None, sample_rate=100.0):
     normal = T_in[:3, 2] + T_out[:3, 2]
     normal /= np.linalg.norm(normal)
     return Demonstration(
-        t=T, psm1_pose=poses('PSM1_pose'), psm2_pose=poses('PSM2_pose'),
-        psm1_jaw=signal('PSM1_jaw'), psm2_jaw=signal('PSM2_jaw'), needle_pose=poses('needle'),
+        t=T, psm1_pose=resampled_poses('PSM1_pose'), psm2_pose=resampled_poses('PSM2_pose'),
+        psm1_jaw=resampled_signal('PSM1_jaw'), psm2_jaw=resampled_signal('PSM2_jaw'),
+        needle_pose=resampled_poses('needle'),
         psm1_holds=holds['PSM1'], psm2_holds=holds['PSM2'], entry=T_in[:3, 3].copy(),
         exit=T_out[:3, 3].copy(), normal=normal, pair=name)

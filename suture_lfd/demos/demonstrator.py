@@ -40,19 +40,27 @@ and imperfections; it is on the per-step path being made faster, so it stays one
 from dataclasses import dataclass, replace
 import logging
 import math
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 from sim_bridge.common.geometry import pose_from_transform
 from sim_bridge.common.validation import check_positive
-from sim_bridge.control import Command, ExpertConfig
+from sim_bridge.control import Command, ExpertConfig, Observation
 from suture_lfd.demos.cohort import SkillProfile, Subject
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.errors import DemonstrationError
 from suture_lfd.planning.episode import run_episode, start_episode
 from suture_lfd.planning.expert import ARMS, ScriptedExpert
-from suture_lfd.planning.plan import track_grasps
+from suture_lfd.planning.plan import Plan, track_grasps
 from suture_lfd.planning.waypoints import ArcPath, minimum_jerk, rotation_exp
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.control import CommandSource
+    from sim_bridge.kinematics import PsmKinematics
+    from sim_bridge.scene.phantom import MarkerPair
+    from sim_bridge.scene.scoring import ThrowScore
+    from sim_bridge.simulation import SimEvent, Simulation
 
 _LOG = logging.getLogger(__name__)
 
@@ -92,12 +100,12 @@ class Pause:
     offset: np.ndarray | None = None
 
 
-def _moving(seg):
+def _moving(seg: Any) -> bool:
     path = seg.path
-    return path.distance > 1e-9 or path.angle > 1e-9
+    return bool(path.distance > 1e-9 or path.angle > 1e-9)
 
 
-def _unit(v):
+def _unit(v: np.ndarray) -> np.ndarray:
     n = float(np.linalg.norm(v))
     return v / n if n > 0.0 else v
 
@@ -140,10 +148,14 @@ class Demonstrator:
 
     """
 
-    def __init__(self, subject, pair, needle_geometry, kinematics=None, rng=None,
-                 next_pair=None, expert_config=None, lag_tolerance=DEFAULT_LAG_TOLERANCE,
-                 lag_tolerance_rad=DEFAULT_LAG_TOLERANCE_RAD, max_step=0.05,
-                 entry_clearance=0.0005, entry_press=0.0001):
+    def __init__(self, subject: Subject | SkillProfile, pair: 'MarkerPair',
+                 needle_geometry: 'NeedleGeometry',
+                 kinematics: 'PsmKinematics | dict[str, PsmKinematics] | None' = None,
+                 rng: np.random.Generator | None = None, next_pair: 'MarkerPair | None' = None,
+                 expert_config: ExpertConfig | None = None,
+                 lag_tolerance: float = DEFAULT_LAG_TOLERANCE,
+                 lag_tolerance_rad: float = DEFAULT_LAG_TOLERANCE_RAD, max_step: float = 0.05,
+                 entry_clearance: float = 0.0005, entry_press: float = 0.0001) -> None:
         if isinstance(subject, Subject):
             profile, seed = subject.profile, subject.seed
         elif isinstance(subject, SkillProfile):
@@ -171,15 +183,19 @@ class Demonstrator:
                                      kinematics=kinematics, next_pair=next_pair)
         self.lag_tolerance = float(lag_tolerance)
         self.lag_tolerance_rad = float(lag_tolerance_rad)
-        self.plan_ = None
-        self.pauses = ()
+        self.plan_: Plan | None = None
+        self.pauses: tuple[Pause, ...] = ()
+        self._overshoot: dict[tuple[str, int], np.ndarray] = {}
+        self._active: Pause | None = None
+        self._insertion: Any = None
+        self._approach: Any = None
 
     # ------------------------------------------------------------------ planning
-    def _rest_times(self, plan):
+    def _rest_times(self, plan: Plan) -> list[float]:
         """Plan times where every arm is at a segment boundary or standing still."""
         times = sorted({round(seg.t1, 9) for segs in plan.segments.values() for seg in segs})
         gates = [g.t for g in plan.gates]
-        out = []
+        out: list[float] = []
         for t in times:
             if t <= 0.0 or t >= plan.duration - 1e-9:
                 continue
@@ -194,7 +210,7 @@ class Demonstrator:
                 out.append(t)
         return out
 
-    def _schedule(self, plan):
+    def _schedule(self, plan: Plan) -> tuple[Pause, ...]:
         p, rng = self.profile, self.rng
         labels = {name: t for t, name in plan.labels}
         t_entry = labels['ii']
@@ -225,7 +241,7 @@ class Demonstrator:
                 self._overshoot[(arm, k)] = offset
                 pauses.append(Pause(seg.t1, p.correction_time, 'correction', arm, offset))
         pauses.sort(key=lambda x: (x.t, x.kind != 'entry'))
-        merged = []
+        merged: list[Pause] = []
         for pause in pauses:   # one stop per plan time; corrections keep their offset
             if merged and abs(merged[-1].t - pause.t) < 1e-9:
                 keep = merged[-1] if merged[-1].kind == 'correction' else pause
@@ -234,7 +250,7 @@ class Demonstrator:
                 merged.append(pause)
         return tuple(merged)
 
-    def _draw_noise(self):
+    def _draw_noise(self) -> None:
         p, rng = self.profile, self.rng
         self._tremor_phase = {arm: rng.uniform(0.0, 2.0 * math.pi, 6) for arm in ARMS}
         self._tremor_dir = {arm: np.array([_unit(rng.standard_normal(3)) for _ in range(2)])
@@ -246,7 +262,7 @@ class Demonstrator:
         push = rng.uniform(0.7, 1.0)
         self._push_gain = push
 
-    def reset(self, obs):
+    def reset(self, obs: Observation) -> None:
         """
         Plan the throw from an observation and start the subject's clock at ``obs.t``.
 
@@ -275,27 +291,32 @@ class Demonstrator:
         self._pause_left = 0.0
         self._active = None
         self._pressed = False
-        self._grasps = {}
-        self._last_cmd = {}
+        self._grasps: dict[str, np.ndarray] = {}
+        self._last_cmd: dict[str, np.ndarray] = {}
         self.waits = {'gate': 0.0, 'lag': 0.0, 'pause': 0.0}
 
     @property
-    def done(self):
+    def done(self) -> bool:
         """Whether the plan has run to its end."""
         return self.plan_ is not None and self._tau >= self.plan_.duration
 
     @property
-    def plan_time(self):
+    def plan_time(self) -> float:
         """Current plan time (s)."""
         return self._tau
 
     @property
-    def subtask(self):
+    def subtask(self) -> str:
         """Subtask label (``'i'`` .. ``'v'``, ``'done'``) at the current plan time."""
         return 'i' if self.plan_ is None else self.plan_.label(self._tau)
 
     # ------------------------------------------------------------------ control
-    def _lagging(self, obs):
+    def _plan(self) -> Plan:
+        if self.plan_ is None:
+            raise RuntimeError('the demonstrator has no plan yet: call reset(obs) first')
+        return self.plan_
+
+    def _lagging(self, obs: Observation) -> bool:
         for arm, T_cmd in self._last_cmd.items():
             T = np.asarray(obs.T_world_tool[arm])
             if np.linalg.norm(T[:3, 3] - T_cmd[:3, 3]) > self.lag_tolerance:
@@ -305,13 +326,14 @@ class Demonstrator:
                 return True
         return False
 
-    def _advance(self, obs, dt):
-        plan = self.plan_
+    def _advance(self, obs: Observation, dt: float) -> None:
+        plan = self._plan()
         if self._pause_left > 0.0:
             self._pause_left -= dt
             self.waits['pause'] += dt
             if self._pause_left <= 0.0:
-                self._pressed = self._pressed or self._active.kind == 'entry'
+                self._pressed = self._pressed or (self._active is not None
+                                                  and self._active.kind == 'entry')
                 self._active = None
             return
         if self._lagging(obs):
@@ -345,7 +367,7 @@ class Demonstrator:
             self._active = pause
         self._tau = min(new, plan.duration)
 
-    def _offset(self, arm, seg, t_obs):
+    def _offset(self, arm: str, seg: Any, t_obs: float) -> tuple[np.ndarray, np.ndarray]:
         """Position offset (m) and rotation vector (rad) the subject adds to an arm's pose."""
         p = self.profile
         tau = self._tau
@@ -387,10 +409,11 @@ class Demonstrator:
             offset += push * math.sin(math.pi * seg.sigma(tau)) * chord
         return offset, rot
 
-    def _correction(self, arm, seg_index, seg):
+    def _correction(self, arm: str, seg_index: int, seg: Any) -> np.ndarray:
         """Overshoot offset (m) of a corrected approach motion of ``arm``, or zero."""
         active = self._active
-        if active is not None and active.kind == 'correction' and active.arm == arm:
+        if active is not None and active.kind == 'correction' and active.arm == arm \
+                and active.offset is not None:
             left = max(0.0, self._pause_left) / max(active.duration, 1e-9)
             return active.offset * minimum_jerk(left)
         offset = self._overshoot.get((arm, seg_index))
@@ -399,7 +422,7 @@ class Demonstrator:
         u = (self._tau - seg.t0) / (seg.t1 - seg.t0)
         return offset * minimum_jerk((u - 0.5) / 0.5)
 
-    def step(self, obs):
+    def step(self, obs: Observation) -> Command:
         """
         Command for the observation.
 
@@ -416,7 +439,7 @@ class Demonstrator:
         """
         if self.plan_ is None:
             self.reset(obs)
-        plan = self.plan_
+        plan = self._plan()
         dt = min(max(0.0, float(obs.t) - self._t_last), self.max_step)
         self._t_last = float(obs.t)
         self._advance(obs, dt)
@@ -463,20 +486,24 @@ class DemonstrationRun:
 
     demo: Demonstration
     labels: np.ndarray
-    score: object
-    events: list
+    score: 'ThrowScore'
+    events: list['SimEvent']
     attempts: int
     seed: int
 
 
-def _pair_rng(subject, pair_name, seed, attempt):
+def _pair_rng(subject: Subject | SkillProfile, pair_name: str, seed: int, attempt: int
+              ) -> np.random.Generator:
     base = subject.trial_seed(pair_name, attempt) if isinstance(subject, Subject) else 0
     return np.random.default_rng([base, int(seed), int(attempt)])
 
 
-def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeout=60.0,
-                      attempts=3, next_pair=None, expert_config=None, require_success=True,
-                      command_rate=None, link=None):
+def run_demonstration(sim: 'Simulation', subject: Subject | SkillProfile, pair_name: str,
+                      seed: int = 0, sample_rate: float = 100.0, timeout: float = 60.0,
+                      attempts: int = 3, next_pair: str | None = None,
+                      expert_config: ExpertConfig | None = None, require_success: bool = True,
+                      command_rate: float | None = None,
+                      link: 'RobotLink | None' = None) -> DemonstrationRun:
     """
     Run a subject's throw on a pair in-process and sample it (with score and labels).
 
@@ -541,8 +568,8 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
                          f'sample period {period} s')
     config = sim.config.scene.expert if expert_config is None else expert_config
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
-    failures = []
-    run = None
+    failures: list[str] = []
+    run: DemonstrationRun | None = None
     for attempt in range(max(1, int(attempts))):
         run = _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout,
                          nxt, config, link)
@@ -554,6 +581,7 @@ def run_demonstration(sim, subject, pair_name, seed=0, sample_rate=100.0, timeou
     if require_success:
         raise DemonstrationError(f'no successful demonstration on {pair_name} in {attempts} '
                                  f'attempts: {"; ".join(failures)}')
+    assert run is not None  # at least one attempt ran
     return run
 
 
@@ -573,26 +601,28 @@ class RobotLink(Protocol):
 
     """
 
-    def start(self):
+    def start(self) -> None:
         """Begin an attempt."""
 
-    def command(self, cmd):
+    def command(self, cmd: Command) -> Command:
         """Return the command the arms get."""
 
-    def record(self):
+    def record(self) -> Observation:
         """Return the observation recorded now."""
 
 
 class _Recorder:
     """Record every sample of a demonstration; ask the subject for a command every few."""
 
-    def __init__(self, demonstrator, per_command, link=None):
+    def __init__(self, demonstrator: Demonstrator, per_command: int,
+                 link: RobotLink | None = None) -> None:
         self.demonstrator, self.per_command, self.sample = demonstrator, per_command, 0
         self.link = link
-        self.rows = {'t': [], 'psm1': [], 'psm2': [], 'j1': [], 'j2': [], 'needle': [], 'h1': [],
-                     'h2': [], 'label': []}
+        self.rows: dict[str, list[Any]] = {
+            't': [], 'psm1': [], 'psm2': [], 'j1': [], 'j2': [], 'needle': [], 'h1': [], 'h2': [],
+            'label': []}
 
-    def step(self, obs):
+    def step(self, obs: Observation) -> Command | None:
         dem, rows = self.demonstrator, self.rows
         cmd = dem.step(obs) if self.sample % self.per_command == 0 else None
         self.sample += 1
@@ -613,19 +643,24 @@ class _Recorder:
         return cmd
 
 
-def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeout, next_pair,
-               config, link=None):
+def _one_throw(sim: 'Simulation', subject: Subject | SkillProfile, pair_name: str, seed: int,
+               attempt: int, every: int, per_command: int, timeout: float,
+               next_pair: 'MarkerPair | None', config: ExpertConfig,
+               link: RobotLink | None = None) -> DemonstrationRun:
     scene_seed = int(seed) + 1000 * attempt
     pair = start_episode(sim, pair_name, scene_seed)
     sim.pop_events()
     if link is not None:
         link.start()
-    dem = Demonstrator(subject, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM2'],
+    dem = Demonstrator(subject, pair, sim.needle_geometry,
+                       kinematics=cast('PsmKinematics', sim.kinematics['PSM2']),
                        rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
                        expert_config=config)
     recorder = _Recorder(dem, per_command, link)
-    run_episode(sim, dem, every * sim.dt, stepper=recorder, timeout=timeout, settle=0.0,
-                reset=False, stop_at_done=True)
+    # between the subject's commands the recorder returns None, which run_episode's
+    # stop_at_done loop skips (the arms keep gliding to the last command)
+    run_episode(sim, dem, every * sim.dt, stepper=cast('CommandSource', recorder),
+                timeout=timeout, settle=0.0, reset=False, stop_at_done=True)
     if not dem.done:
         raise DemonstrationError(f'demonstration on {pair_name} did not finish within '
                                  f'{timeout} s of simulated time (stuck in subtask '
@@ -634,7 +669,7 @@ def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeo
     rows = recorder.rows
     seen = None if link is None else link.record().pair
     if seen is not None:  # the recorder's markers: as the robot perceives them
-        pair = seen
+        pair = cast('MarkerPair', seen)
     demo = Demonstration(
         t=np.array(rows['t']), psm1_pose=np.array(rows['psm1']),
         psm2_pose=np.array(rows['psm2']), psm1_jaw=np.array(rows['j1']),
@@ -646,7 +681,9 @@ def _one_throw(sim, subject, pair_name, seed, attempt, every, per_command, timeo
                             seed=int(seed) + 1000 * attempt)
 
 
-def demonstrate(sim, subject, pair_name, seed=0, sample_rate=100.0, timeout=60.0, **kwargs):
+def demonstrate(sim: 'Simulation', subject: Subject | SkillProfile, pair_name: str,
+                seed: int = 0, sample_rate: float = 100.0, timeout: float = 60.0,
+                **kwargs: Any) -> Demonstration:
     """
     Run a subject's demonstration on a pair in-process and return the sampled record.
 

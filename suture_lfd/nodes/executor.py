@@ -22,7 +22,12 @@ from ``ECM/local/measured_cp``; the markers and the needle from the ``perception
 closes. The pair is found in the markers by its position along the wound (``pair_index``, or
 the number the pair's name ends in). Before the throw starts the node waits for the markers and
 the needle seen after the arms were homed; a throw whose markers or needle are not seen within
-``prepare_timeout`` is not pushed: it fails with ``not seen: ...``. The score is the
+``prepare_timeout`` is not pushed: it fails with ``not seen: ...``. With ``correction`` (the
+default) the node first registers each PSM against the endoscope, once (state ``registering``):
+it commands the PSM to six poses in view, finds the instrument in ``<camera>/left|right/
+image_raw`` (with their ``camera_info``), fits each arm's joint offsets and base translation
+(:mod:`suture_lfd.skill.arm_registration`, the core the in-process physical mode runs), then
+runs every throw on the corrected kinematics. The score is the
 evaluation's (not read here): the outcome's ``score`` is None.
 
 It stops commanding and reports when an arm stops answering, when an arm leaves ``ENABLED``
@@ -36,7 +41,8 @@ came for ``clock_timeout`` s of wall time; on the same machine the simulator's p
 ``starved_timeout`` s) from an exited one.
 
 ``~/status`` (std_msgs/String JSON, latched) carries the state (``idle``, ``preparing``,
-``running``, ``settling``, ``done``, ``stopped``, ``failed``), the pair and the reason;
+``registering``, ``running``, ``settling``, ``done``, ``stopped``, ``failed``), the pair and
+the reason;
 ``~/result`` (latched) the outcome of each throw (pair, score, subtasks, entry and exit errors
 from ``sim/events``, duration, ``time_s``: the score's throw time counted from the start of the
 throw instead of the pair's selection); every score event of a throw is logged as
@@ -55,15 +61,12 @@ start-up and exits (code 0 for a throw scored 1.0), as a shell script wants. Par
 
 from dataclasses import dataclass
 import json
-import os
-from pathlib import Path
 import sys
 import time
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sim_bridge.common.geometry import pose_from_transform
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.kinematics import psm_kinematics
 from sim_bridge.ros import conversions as cv
@@ -75,10 +78,9 @@ from sim_bridge.ros.peer import ProcessWatch
 from sim_bridge.scene.scene_config import load_scene_config
 from std_msgs.msg import Empty, String
 from suture_lfd.nodes import executables
-from suture_lfd.nodes.perception_topics import PerceptionTopics
+from suture_lfd.nodes.perception_topics import PerceptionTopics, StereoImages
 from suture_lfd.skill import ThrowSkill, learn_skill
-from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
-from suture_lfd.skill.perceived_feed import PerceptionFeed, pair_index_from_name
+from suture_lfd.skill.executor_machine import ExecutorMachine, MachineConfig
 from suture_lfd.skill.watchdog import ArmWatchdog
 
 
@@ -103,6 +105,8 @@ class ExecutorNodeConfig:
     result_file: str = ''
     physical: bool = False
     pair_index: int = 0
+    correction: bool = True
+    camera: str = 'ECM'
 
     def __post_init__(self):
         if not self.segments and not self.skill:
@@ -130,44 +134,52 @@ class ExecutorNode(NodeHooks, Node):
             self.skill = ThrowSkill.load(cfg.skill)
         else:
             self.skill = learn_skill(cfg.segments, method=cfg.method)
-        self._scene = load_scene_config()
-        self._kinematics = psm_kinematics()
-        self.finished = False
-        self.exit_code = 0
         self.watchdog = ArmWatchdog(PSMS, cfg.rate, cfg.stale_timeout, cfg.clock_timeout,
                                     cfg.starved_timeout)
-        self._pair_stamp = None  # simulator clock (s) when the simulator selected the pair
-        self._executed = {}      # 'ii' / 'iv' -> [(t, needle pose 7-vector)] measured
-        self._score = None
-        self._pair = ''
-        self._pair_confirmed = False
-        self._stage = 'idle'
-        self._stage_wall = time.monotonic()
-        self._executor = None
-        self._t_start = self._t_done = None
-        self._last_obs_t = None
-        self._sent = 0
         self.sim = SimClient(self, PSMS, on_event=self._on_event,
                              on_measured_cp=self._on_measured_cp, physical=cfg.physical)
-        self._feed = None        # PerceptionFeed of the throw (physical mode)
         self._perceived = (PerceptionTopics(self, on_needle=self._feed_needle,
                                             on_markers=self._feed_markers)
                            if cfg.physical else None)
+        self._images = (StereoImages(self, cfg.camera) if cfg.physical and cfg.correction
+                        else None)
         self._status = self.create_publisher(String, '~/status', qos.LATCHED)
         self._result = self.create_publisher(String, '~/result', qos.LATCHED)
+        self.machine = ExecutorMachine(
+            self.skill, load_scene_config(), psm_kinematics(), self.sim, self._send,
+            self.watchdog,
+            MachineConfig(settle_time=cfg.settle_time, timeout=cfg.timeout,
+                          prepare_timeout=cfg.prepare_timeout, home=cfg.home,
+                          phase_stopping=cfg.phase_stopping, physical=cfg.physical,
+                          pair_index=cfg.pair_index, result_file=cfg.result_file,
+                          correction=cfg.correction),
+            logger=self.get_logger(), on_status=self._publish_status,
+            on_result=self._publish_result,
+            on_feed=None if self._perceived is None else self._perceived.replay,
+            exit_when_done=cfg.exit_when_done or bool(cfg.pair),
+            images=None if self._images is None else self._images.newest)
         self.create_subscription(ClockMsg, '/clock', self._on_clock, qos.CLOCK_LATEST)
         self.create_subscription(String, '~/execute', self._on_execute, qos.STREAM)
         self.create_subscription(Empty, '~/stop', self._on_stop, qos.STREAM)
-        self._simulator = None   # ProcessWatch of the simulator, from sim/process
         self.create_subscription(String, 'sim/process', self._on_process, qos.LATCHED)
         # A steady (wall) clock: the watchdog must run when the simulation clock has stopped.
         self.create_timer(1.0 / cfg.rate, self._on_timer,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._publish_status('idle', f'skill learnt ({self.skill.method.name}) on '
-                                     f'{self.skill.pair.name}; waiting for a pair on '
-                                     '~/execute')
+        self.machine.publish_status(f'skill learnt ({self.skill.method.name}) on '
+                                    f'{self.skill.pair.name}; waiting for a pair on '
+                                    '~/execute')
         if cfg.pair:
-            self._start(cfg.pair)
+            self.machine.execute(cfg.pair)
+
+    @property
+    def finished(self):
+        """Whether the node's throw ended and it should exit (``pair`` or ``exit_when_done``)."""
+        return self.machine.finished
+
+    @property
+    def exit_code(self):
+        """Exit code once :attr:`finished` (0: a throw scored 1.0)."""
+        return self.machine.exit_code
 
     # --- inputs -----------------------------------------------------------------------------
 
@@ -178,302 +190,47 @@ class ExecutorNode(NodeHooks, Node):
         self.watchdog.clock(cv.seconds_from_stamp(msg.clock), time.monotonic())
 
     def _feed_needle(self, stamp, T_camera_needle, status):
-        if self._feed is not None:
-            self._feed.needle_seen(stamp, T_camera_needle, status)
+        if self.machine.feed is not None:
+            self.machine.feed.needle_seen(stamp, T_camera_needle, status)
 
     def _feed_markers(self, stamp, entries, exits, normal):
-        if self._feed is not None:
-            self._feed.markers_seen(stamp, entries, exits, normal)
+        if self.machine.feed is not None:
+            self.machine.feed.markers_seen(stamp, entries, exits, normal)
 
     def _on_process(self, msg):
         try:
-            self._simulator = ProcessWatch(msg.data)
+            self.machine.simulator = ProcessWatch(msg.data)
         except ValueError as exc:
             self.get_logger().warning(f'sim/process: {exc}')
 
     def _on_event(self, stamp, data):
-        kind, arm = data.get('kind'), data.get('arm')
-        if kind in ('grasp', 'release', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
-                    'drop') and self._stage in ('running', 'settling'):
-            at = '' if self._t_start is None else f' at {_throw_time(stamp - self._t_start)}'
-            self.get_logger().info(f'scene event {kind}{" " + arm if arm else ""}{at}')
-        if kind == 'target_pair' and data.get('pair') == self._pair \
-                and self._stage in ('preparing', 'running', 'settling'):
-            if data.get('error'):
-                if self._stage == 'preparing':
-                    self._fail(f'the simulator refused pair {self._pair!r}: {data["error"]}')
-            else:
-                self._pair_stamp = stamp  # the score's time counts from here
-                self._pair_confirmed = True
-        elif kind == 'score' and self._stage in ('running', 'settling'):
-            self._score = data.get('score')
-            self.get_logger().debug(f'sim/events: {json.dumps(data)}')
+        self.machine.event(stamp, data)
 
     def _on_execute(self, msg):
-        pair = msg.data.strip()
-        if self._stage in ('preparing', 'running', 'settling'):
-            self._warn(f'execute {pair!r} ignored: a throw on {self._pair} is in progress '
-                       f'({self._stage})')
-            return
-        if not pair:
-            self._warn('execute ignored: empty pair name')
-            return
-        self._start(pair)
+        self.machine.execute(msg.data)
 
     def _on_stop(self, _msg):
-        if self._stage in ('preparing', 'running', 'settling'):
-            self._halt('stopped', 'stop requested')
+        self.machine.stop()
 
-    # --- helpers ----------------------------------------------------------------------------
-
-    def _publish_status(self, state, reason='', **extra):
-        status = {'state': state, 'pair': self._pair, 'reason': reason, **extra}
-        self._status.publish(String(data=json.dumps(status, sort_keys=True)))
-
-    def _warn(self, text):
-        self.get_logger().warning(text)
-        self._publish_status(self._stage, text)
-
-    def _enter(self, stage, reason=''):
-        self._stage = stage
-        self._stage_wall = time.monotonic()
-        self._publish_status(stage, reason)
-
-    def _start(self, pair):
-        self._pair = pair
-        self._pair_confirmed = False
-        self._score = None
-        self._pair_stamp = None
-        self._executor = None
-        self._t_start = self._t_done = None
-        self._seen_after = None
-        if self.config.physical:
-            try:
-                index = self.config.pair_index or pair_index_from_name(pair)
-            except ValueError as exc:
-                self._warn(f'execute {pair!r} ignored: {exc} (parameter pair_index)')
-                return
-            self._feed = PerceptionFeed(pair, index, self._scene.needle)
-            self._perceived.replay(self._feed)
-        else:
-            self.sim.watch_pairs([pair])
-        self.sim.select_pair(pair)
-        self._last_target = time.monotonic()
-        self.get_logger().info(f'executing the {self.skill.method.name} skill learnt on '
-                               f'{self.skill.pair.name} on pair {pair}')
-        self._enter('preparing', f'throw on {pair} requested')
-
-    def _send(self, command, t):
-        self._sent += self.sim.send(command, cv.stamp_from_seconds(t))
-
-    def _result_record(self, state, reason):
-        score = self._score if isinstance(self._score, dict) else None
-        duration = (None if self._t_start is None
-                    else (self._t_done or self._last_obs_t or self._t_start) - self._t_start)
-        time_s = duration
-        if score is not None and score.get('score') == 1.0 and score.get('time_s') is not None \
-                and self._pair_stamp is not None and self._t_start is not None:
-            # the scorer counts from the pair's selection, before the arms were homed
-            time_s = score['time_s'] - (self._t_start - self._pair_stamp)
-        return {'pair': self._pair, 'state': state, 'outcome': state, 'reason': reason,
-                'method': self.skill.method.name, 'learnt_on': self.skill.pair.name,
-                'score': None if score is None else score.get('score'),
-                'subtasks': None if score is None else score.get('subtasks'),
-                'failure': None if score is None else score.get('failure'),
-                'entry_error_mm': None if score is None else score.get('entry_error_mm'),
-                'exit_error_mm': None if score is None else score.get('exit_error_mm'),
-                'duration': duration, 'time_s': time_s, 'servo_cp_sent': self._sent}
-
-    def _write_result(self, record):
-        """Write the outcome to ``result_file`` (whole or not at all)."""
-        path = Path(self.config.result_file)
-        executed = {task: {'t': [t - rows[0][0] for t, _ in rows],
-                           'poses': [pose.tolist() for _, pose in rows]}
-                    for task, rows in self._executed.items()}
-        data = {**record, 'score_detail': self._score if isinstance(self._score, dict) else None,
-                'executed': executed}
-        tmp = path.with_name(path.name + '.part')
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps(data, sort_keys=True))
-            os.replace(tmp, path)
-        except OSError as exc:
-            self.get_logger().error(f'cannot write result_file {path}: {exc}')
-
-    def _halt(self, state, reason, **extra):
-        """Stop commanding, say why, publish the result."""
-        self._executor = None
-        log = self.get_logger().info if state == 'done' else self.get_logger().error
-        record = {**self._result_record(state, reason), **extra}
-        log(f'throw on {self._pair} {state}: {reason} (score {record["score"]})')
-        line = json.dumps(record, sort_keys=True)
-        self._result.publish(String(data=line))
-        print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
-        if self.config.result_file:
-            self._write_result(record)
-        self._stage = state
-        self._stage_wall = time.monotonic()
-        self._publish_status(state, reason, **extra)
-        if self.config.exit_when_done or self.config.pair:
-            # in physical mode the score is the evaluation's: a complete throw is a success here
-            scored = record['score'] == 1.0 or (self.config.physical and record['score'] is None)
-            self.exit_code = 0 if state == 'done' and scored else 1
-            self.finished = True
+    def _on_timer(self):
+        self.machine.tick()
 
     def on_interrupt(self, signal_name):
         """Stop commanding (the arms hold their setpoints) and report a throw in progress."""
-        if self._stage in ('preparing', 'running', 'settling'):
-            self._halt('interrupted', f'stopped by {signal_name}')
+        self.machine.interrupt(signal_name)
 
-    def _fail(self, reason):
-        self._halt('failed', reason)
+    # --- outputs ----------------------------------------------------------------------------
 
-    # --- the sequence -----------------------------------------------------------------------
+    def _send(self, command, t):
+        return self.sim.send(command, cv.stamp_from_seconds(t))
 
-    def _on_timer(self):
-        cfg = self.config
-        stage = self._stage
-        if stage not in ('preparing', 'running', 'settling'):
-            return
-        if stage == 'preparing':
-            if not self.sim.ready([self._pair]):
-                if self._waited() > cfg.prepare_timeout:
-                    missing = 'markers of the pair' if not self.sim.has_pair(self._pair) else \
-                        'simulator topics'
-                    self._fail(f'unknown marker pair {self._pair!r} or simulator not running '
-                               f'({missing} not received in {cfg.prepare_timeout} s)')
-                return
-            if self.sim.homed():
-                if self.config.physical:
-                    self._prepare_physical()
-                    return
-                if not self._pair_confirmed:
-                    if self._waited() > cfg.prepare_timeout:
-                        self._fail(f'the simulator did not confirm pair {self._pair!r}')
-                    elif time.monotonic() - self._last_target > 1.0:
-                        # (again) every second: the first may have gone out before the
-                        # simulator's subscription was matched
-                        self._last_target = time.monotonic()
-                        self.sim.select_pair(self._pair)
-                    return
-                self._begin(self.sim.observation(self._pair))
-                return
-            if not cfg.home or self._waited() > cfg.prepare_timeout:
-                self._fail('arms not enabled and homed')
-                return
-            self.sim.enable_and_home()
-            return
-        last = min(self.sim.tools[a][0] for a in PSMS)
-        verdict = self.watchdog.check(time.monotonic(), last, settling=stage == 'settling',
-                                      process=self._simulator)
-        if verdict is not None and verdict.halt:
-            self._halt('stopped', verdict.reason, **verdict.details)
-            return
-        if verdict is not None:
-            self.get_logger().warning(verdict.reason)
-        fault = self.sim.fault()
-        if fault is not None:
-            self._halt('stopped', f'arm fault: {fault}')
-            return
-        if max(self.sim.tools[a][0] for a in PSMS) == self._last_obs_t and stage == 'running':
-            return  # nothing new measured since the last command
-        obs = self._observe()
-        self._last_obs_t = obs.t
-        if stage == 'running':
-            command = self._executor.step(obs)
-            self._send(command, obs.t)
-            if command.subtask in ('ii', 'iv') and obs.T_world_needle is not None:
-                self._executed.setdefault(command.subtask, []).append(
-                    (obs.t, pose_from_transform(obs.T_world_needle)))
-            if command.subtask != self._subtask:
-                self._subtask = command.subtask
-                self.get_logger().info(f'subtask {command.subtask} at '
-                                       f'{_throw_time(obs.t - self._t_start)}')
-            if self._executor.done:
-                self._t_done = obs.t
-                self._enter('settling')
-            elif obs.t - self._t_start > cfg.timeout:
-                self._t_done = obs.t
-                self._halt('failed', f'throw not done after {cfg.timeout} s '
-                                     f'(subtask {command.subtask})')
-            return
-        if obs.t - self._t_done >= cfg.settle_time:
-            self._halt('done', 'throw complete')
+    def _publish_status(self, record):
+        self._status.publish(String(data=json.dumps(record, sort_keys=True)))
 
-    def _observe(self):
-        """Return the observation: the simulator's topics, or the arms plus perception."""
-        if not self.config.physical:
-            return self.sim.observation(self._pair)
-        self._feed.camera_moved(self.sim.camera_pose())
-        return self._feed.observe(self.sim.observation(None))
-
-    def _begin(self, obs):
-        """Plan the throw on what ``obs`` shows and start commanding."""
-        cfg = self.config
-        try:
-            self._executor = ThrowExecutor(
-                self.skill, obs.pair, self._scene.needle, kinematics=self._kinematics,
-                config=ExecutorConfig(script=self._scene.expert,
-                                      phase_stopping=cfg.phase_stopping))
-            self._executor.reset(obs)
-        except ValueError as exc:
-            self._halt('failed', f'cannot plan the throw on {self._pair}: {exc}',
-                       planning_error=str(exc))
-            return
-        self._t_start = self._last_obs_t = obs.t
-        self._subtask = None
-        self._sent = 0
-        self._executed = {}
-        self._enter('running', f'throw on {self._pair} started')
-
-    def _prepare_physical(self):
-        """
-        Homed, in physical mode: select the pair, wait to see markers and needle, then start.
-
-        The simulator's confirmation of the pair is a truth event (not read here): the pair is
-        sent again every second until a subscriber has been matched for a second. The markers
-        and the needle must have been seen in an image taken after the arms were homed (an arm
-        moving in may have hidden them before).
-        """
-        now = time.monotonic()
-        if not self._pair_confirmed:
-            if self.sim.target_matched() and now - self._last_target > 1.0:
-                self._pair_confirmed = True
-            elif now - self._last_target > 1.0:
-                self._last_target = now
-                self.sim.select_pair(self._pair)
-            if not self._pair_confirmed:
-                if self._waited() > self.config.prepare_timeout:
-                    self._fail(f'no subscriber to sim/target_pair in '
-                               f'{self.config.prepare_timeout} s')
-                return
-        arms = self.sim.observation(None)
-        if self._seen_after is None:
-            self._seen_after = arms.t
-            self._last_target = now
-            self.sim.select_pair(self._pair)  # once more, now that the arms are in place
-        missing = self._feed.seen_since(self._seen_after)
-        obs = None if missing else self._observe()
-        if obs is not None and obs.pair is None:
-            missing = [f'the markers of pair {self._pair} (index '
-                       f'{self._feed.pair_index} along the wound)']
-        elif obs is not None and obs.T_world_needle is None:
-            missing = ['the needle']
-        if missing:
-            if self._waited() > self.config.prepare_timeout:
-                self._halt('failed', f'not seen: {", ".join(missing)} (within '
-                                     f'{self.config.prepare_timeout} s: is the perception '
-                                     'node running on the endoscope?)')
-            return
-        self._begin(obs)
-
-    def _waited(self):
-        return time.monotonic() - self._stage_wall
-
-
-def _throw_time(seconds):
-    """Format simulation seconds since the throw started, labelled, for the log."""
-    return f'sim t = {seconds:.3f} s'
+    def _publish_result(self, record):
+        line = json.dumps(record, sort_keys=True)
+        self._result.publish(String(data=line))
+        print(line, flush=True)  # the result line on stdout; progress goes to the log (stderr)
 
 
 def main(args=None):

@@ -7,6 +7,10 @@ have come, or the status says not found) and to ``perception/markers/entries|exi
 the markers is complete when both rows of one stamp have come), and hands each complete look
 over in the form :class:`suture_lfd.skill.perceived_feed.PerceptionFeed` takes.
 
+:class:`StereoImages` keeps the newest stereo pair of ``<camera>/left|right/image_raw`` and
+their ``camera_info`` (for a registration of the arms against the endoscope) and converts a pair
+only when asked.
+
 Frames: the camera's left optical frame (the messages' ``frame_id``); metres; stamps in s.
 """
 
@@ -14,11 +18,15 @@ import json
 
 from geometry_msgs.msg import PoseArray, PoseStamped
 import numpy as np
+from sensor_msgs.msg import CameraInfo, Image
 from sim_bridge.common.geometry import matrix_from_quaternion
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from std_msgs.msg import String
+from suture_lfd.perception import stereo_from_camera_info
 from suture_lfd.skill.perceived_feed import NeedleStatus
+
+SIDES = ('left', 'right')
 
 
 class PerceptionTopics:
@@ -120,3 +128,61 @@ class PerceptionTopics:
             feed.markers_seen(*self.marker_rows)
         if self.needle is not None:
             feed.needle_seen(*self.needle)
+
+
+class StereoImages:
+    """
+    The newest stereo pair of the endoscope on a client node, converted on request.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node the subscriptions are made on.
+    camera : str
+        Namespace of ``<camera>/left|right/image_raw`` and ``camera_info``.
+
+    """
+
+    def __init__(self, node, camera='ECM'):
+        self.node = node
+        self._images = dict.fromkeys(SIDES)
+        self._infos = dict.fromkeys(SIDES)
+        self._converted = None  # (stamp, stereo, left, right) of the last pair asked for
+        for side in SIDES:
+            node.create_subscription(Image, f'{camera}/{side}/image_raw',
+                                     lambda m, s=side: self._images.__setitem__(s, m),
+                                     qos.IMAGES)
+            node.create_subscription(CameraInfo, f'{camera}/{side}/camera_info',
+                                     lambda m, s=side: self._infos.__setitem__(s, m), qos.IMAGES)
+
+    def newest(self):
+        """
+        Return the newest pair of one stamp, or None.
+
+        Returns
+        -------
+        tuple or None
+            ``(stamp_s, stereo, left_rgb, right_rgb)``: the stereo model from the pair's
+            ``camera_info``, the images ``(h, w, 3)`` uint8; None until a matching pair and both
+            ``camera_info`` came, or when the pair does not fit its ``camera_info`` (logged).
+
+        """
+        left, right = self._images['left'], self._images['right']
+        if left is None or right is None or None in self._infos.values():
+            return None
+        stamp = cv.seconds_from_stamp(left.header.stamp)
+        if stamp != cv.seconds_from_stamp(right.header.stamp):
+            return None
+        if self._converted is not None and self._converted[0] == stamp:
+            return self._converted
+        try:
+            infos = [cv.camera_info_arrays(self._infos[s]) for s in SIDES]
+            stereo = stereo_from_camera_info(*infos)
+            rgb = [cv.rgb_from_image(m, i['width'], i['height'])
+                   for m, i in zip((left, right), infos)]
+        except ValueError as exc:
+            self.node.get_logger().error(f'stereo pair refused: {exc}',
+                                         throttle_duration_sec=1.0)
+            return None
+        self._converted = (stamp, stereo, rgb[0], rgb[1])
+        return self._converted

@@ -102,7 +102,10 @@ class ArmCorrection:
             Reported joints (rad, m).
 
         """
-        T = self.T_world_base @ self.kinematics.fk(np.asarray(q, dtype=float) + self.joint_offset)
+        # the reported joints are valid (the arm's own), the offsets a few degrees and
+        # millimetres: no check, scalar forward kinematics (it runs every control step)
+        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        T = self.T_world_base @ self.kinematics.fk_unchecked(qt)
         T[:3, 3] += self.translation
         return T
 
@@ -165,10 +168,20 @@ class KinematicCorrection:
         if not self.arms or obs.q is None:
             return obs
         tools = dict(obs.T_world_tool)
-        for arm in self.arms:
-            if arm in tools and obs.q.get(arm) is not None:
-                tools[arm] = self._error(arm, obs.q[arm]) \
-                    @ np.asarray(obs.T_world_tool[arm], dtype=float)
+        for arm, fit in self.arms.items():
+            q = obs.q.get(arm)
+            if arm in tools and q is not None:
+                key = np.asarray(q, dtype=float).tobytes()
+                hit = self._cache.get(arm)
+                if hit is None or hit[0] != key or len(hit) < 3:
+                    # the corrected pose straight from the joints (one forward kinematics), and
+                    # the error against the reported pose at hand, kept for the command
+                    T = fit.tool_pose(q)
+                    T.flags.writeable = False
+                    reported = np.asarray(obs.T_world_tool[arm], dtype=float)
+                    hit = (key, T @ invert_transform(reported), T)
+                    self._cache[arm] = hit
+                tools[arm] = hit[2]  # an arm standing still: the same pose as before
         return Observation(t=obs.t, T_world_tool=tools, jaw=obs.jaw,
                            T_world_needle=obs.T_world_needle, holders=obs.holders,
                            pair=obs.pair, T_world_base=obs.T_world_base, q=obs.q)
@@ -430,3 +443,10 @@ def register_arms(sim, seed=0):
     correction = KinematicCorrection(arms)
     _REGISTERED[sim] = correction
     return correction
+
+
+# The registration's poses and instrument model, for a registration stepped by a node's
+# controller (suture_lfd.skill.registration_run) instead of run on an in-process simulation.
+SPOTS, SIDE, REACH_TIME, RETURN_TIME = _SPOTS, _SIDE, _REACH_TIME, _RETURN_TIME
+model_points = _model_points
+straight_pose = _straight_pose

@@ -81,6 +81,11 @@ class ExecutorConfig:
         the tissue, fading linearly to 0 over its first quarter: the demonstrated start has
         the tip only just in, so the rollout's small deviations from the demonstration (or a
         curved surface) could pull it back out.
+    physical_start_press : float
+        ``start_press`` (m) in physical mode: the tool and the grasp are known there to a few
+        tenths of a millimetre only (the registration's residual, the needle seen lying), so
+        the tip lowered onto the entry can already be in when the insertion starts and backed
+        out by the rollout's first motion; pressed this deep, such an error leaves it in.
     final_approach_time : float
         Shortest time (s) of lowering the needle from ``start_lift`` onto the DMP ii start
         (the tip onto the entry marker): slow, so a lagging arm does not overshoot into the
@@ -97,6 +102,7 @@ class ExecutorConfig:
     phase_stop_orientation: float = 100.0
     start_lift: float = 0.005
     start_press: float = 0.0003
+    physical_start_press: float = 0.0008
     final_approach_time: float = 1.0
     resend_unchanged: bool = False
 
@@ -628,14 +634,17 @@ def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
     if sim.observation().T_world_needle is None:
         return _not_executed(pair_name, 'not seen: the needle')
     return _execute(sim, skill, pair_name, seen, timeout, config, control_period, next_pair,
-                    observer, kinematic, perception if kinematic is not None else None)
+                    observer, kinematic, perception if kinematic is not None else None,
+                    physical=True)
 
 
 def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer,
-             kinematic=None, perception=None):
+             kinematic=None, perception=None, physical=False):
     """Execute a throw on ``pair`` (as the controller sees it) from the started episode."""
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
+    if physical:
+        config = replace(config, start_press=config.physical_start_press)
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     look = None
     if perception is not None:

@@ -232,6 +232,12 @@ class PerceivedScene:
         held = self._held_needle(tools, arm) if arm in self._holders else None
         if held is None:
             return None
+        facing = self.facing(sim, held)
+        if facing < self.min_facing:
+            # edge-on to the camera, a few percent of the wire shows: not worth a render
+            _LOG.info('%s: the held needle is edge-on to the camera (%.2f), its grasp is kept',
+                      arm, facing)
+            return None
         view = self.needle(sim, prior=held, tools=list(tools.values()))
         if view.T_world_needle is None:
             _LOG.info('%s: the held needle is not seen, its grasp is kept', arm)
@@ -240,6 +246,32 @@ class PerceivedScene:
         self._grasps[arm] = grasp
         return grasp
 
+    def facing(self, sim, T_world_needle):
+        """
+        How squarely the needle at ``T_world_needle`` faces the left camera, without a render.
+
+        Parameters
+        ----------
+        sim : sim_bridge.simulation.Simulation
+        T_world_needle : array_like, shape (4, 4)
+            The needle's pose as believed (``world``).
+
+        Returns
+        -------
+        float
+            ``|cos|`` of the angle between the needle's plane normal and the line of sight
+            to its origin: 1 seen face on, 0 edge-on.
+
+        """
+        N = np.asarray(T_world_needle, dtype=float)
+        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        sight = N[:3, 3] - T[:3, 3]
+        norm = float(np.linalg.norm(sight))
+        return abs(float(N[:3, 2] @ sight)) / norm if norm > 0.0 else 0.0
+
+    #: A held needle facing the camera less than this (:meth:`facing`) is not looked at: edge
+    #: on, 2-3 % of its wire shows, far below what the tracker needs.
+    min_facing = 0.2
     closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
     grasp_reach = 0.003  # m: a jaw closed with its bite this close to the wire holds it
 

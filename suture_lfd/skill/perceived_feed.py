@@ -19,8 +19,10 @@ from dataclasses import dataclass
 import logging
 import math
 import re
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.control import Observation
 from sim_bridge.scene.markers import MarkerPair
 from suture_lfd.skill.perceived import NeedleView, PerceivedScene
@@ -48,7 +50,7 @@ class NeedleStatus:
     residual_px: float | None = None
 
 
-def pair_index_from_name(name):
+def pair_index_from_name(name: str) -> int:
     """
     Return the 1-based position along the wound a pair name gives (``'synth3'`` -> 3).
 
@@ -69,19 +71,19 @@ def pair_index_from_name(name):
     return int(match.group(1))
 
 
-def normal_quaternion(normal):
+def normal_quaternion(normal: ArrayLike) -> tuple[float, float, float, float]:
     """
     Return the shortest rotation taking ``z`` to a unit ``normal``, ``(x, y, z, w)``.
 
     The marker messages carry the plane's normal as their poses' ``z`` axis.
     """
-    n = [float(v) for v in normal]
+    n = [float(v) for v in np.asarray(normal, dtype=float).reshape(3)]
     w = 1.0 + n[2]
     if w < 1e-9:  # the normal points along -z: half a turn about x
         return 1.0, 0.0, 0.0, 0.0
     q = (-n[1], n[0], 0.0, w)  # z x n, 1 + z . n
     norm = math.sqrt(sum(c * c for c in q))
-    return tuple(c / norm for c in q)
+    return q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
 
 
 class PerceptionFeed(PerceivedScene):
@@ -114,22 +116,28 @@ class PerceptionFeed(PerceivedScene):
     #: close only to grasp, so the wider reach takes no closing for a grasp that is none.
     GRASP_REACH = 0.010
 
-    def __init__(self, pair_name, pair_index, needle_geometry=None, grasp_reach=None):
-        super().__init__(pair_name, pair_index, needle_geometry)
+    def __init__(self, pair_name: str, pair_index: int, needle_geometry: Any = None,
+                 grasp_reach: float | None = None) -> None:
+        # let go, the needle is believed where the holder left it until a look taken after
+        # the release comes (the newest look at that moment shows it before: still moving)
+        super().__init__(pair_name, pair_index, needle_geometry, look_again=False)
+        self._look_after: float | None = None  # stamp (s) of the last release while no look since
         reach = self.GRASP_REACH if grasp_reach is None else grasp_reach
         if not reach > 0:
             raise ValueError(f'grasp_reach must be > 0 m, got {reach}')
         self.grasp_reach = float(reach)
-        self.T_world_camera = None
-        self._markers_c = None   # (stamp, entries (n, 3), exits (n, 3), normal (3,)) camera
-        self._needle_c = None    # (stamp, T_camera_needle or None, NeedleStatus)
+        self.T_world_camera: np.ndarray | None = None
+        # camera frame: (stamp, entries (n, 3), exits (n, 3), normal (3,))
+        self._markers_c: tuple | None = None
+        self._needle_c: tuple | None = None  # (stamp, T_camera_needle or None, NeedleStatus)
 
     # ------------------------------------------------------------------ inputs
-    def camera_moved(self, T_world_camera):
+    def camera_moved(self, T_world_camera: ArrayLike) -> None:
         """Take the camera's newest pose (``world``, from the ECM's report)."""
         self.T_world_camera = np.asarray(T_world_camera, dtype=float)
 
-    def markers_seen(self, stamp, entries, exits, normal):
+    def markers_seen(self, stamp: float, entries: ArrayLike, exits: ArrayLike,
+                     normal: ArrayLike) -> None:
         """
         Take one look at the markers.
 
@@ -150,7 +158,8 @@ class PerceptionFeed(PerceivedScene):
                              'arrays must pair up')
         self._markers_c = (float(stamp), entries, exits, np.asarray(normal, dtype=float))
 
-    def needle_seen(self, stamp, T_camera_needle, status):
+    def needle_seen(self, stamp: float, T_camera_needle: ArrayLike | None,
+                    status: NeedleStatus) -> None:
         """
         Take one look at the needle.
 
@@ -166,7 +175,7 @@ class PerceptionFeed(PerceivedScene):
         T = None if T_camera_needle is None else np.asarray(T_camera_needle, dtype=float)
         self._needle_c = (float(stamp), T, status)
 
-    def seen_since(self, stamp):
+    def seen_since(self, stamp: float) -> list[str]:
         """Return what was not seen at or after ``stamp`` (``'markers'``, ``'needle'``)."""
         missing = []
         if self._markers_c is None or self._markers_c[0] < stamp:
@@ -175,8 +184,20 @@ class PerceptionFeed(PerceivedScene):
             missing.append('needle')
         return missing
 
+    def markers_centre(self) -> np.ndarray | None:
+        """Return the centre (``world``, shape (3,)) of every marker last seen, or None."""
+        if self._markers_c is None or self.T_world_camera is None:
+            return None
+        _, entries, exits, _ = self._markers_c
+        points = np.vstack([entries, exits])
+        points = points[np.isfinite(points).all(axis=1)]
+        if not len(points):
+            return None
+        T = self.T_world_camera
+        return T[:3, :3] @ points.mean(axis=0) + T[:3, 3]
+
     # ------------------------------------------------------------------ looks
-    def markers(self, sim=None):
+    def markers(self, sim: Any = None) -> MarkerPair | None:
         """
         Return the target pair as last seen (``world``), or None when it is not seen.
 
@@ -206,7 +227,7 @@ class PerceptionFeed(PerceivedScene):
                                 exit_normal=normal, index=self.pair_index)
         return self._pair
 
-    def needle(self, sim=None, prior=None, tools=()):
+    def needle(self, sim: Any = None, prior: Any = None, tools: Any = ()) -> NeedleView:
         """
         Return the needle as last seen (``world``).
 
@@ -228,8 +249,17 @@ class PerceptionFeed(PerceivedScene):
             return NeedleView(None, status)
         return NeedleView(self.T_world_camera @ T_c, status)
 
+    def _fresh_needle(self, after: float) -> np.ndarray | None:
+        """Return the needle (``world``) of a look stamped after ``after`` (s), or None."""
+        if self._needle_c is None or self.T_world_camera is None:
+            return None
+        stamp, T_c, _ = self._needle_c
+        if stamp <= after or T_c is None:
+            return None
+        return self.T_world_camera @ T_c
+
     # ------------------------------------------------------------------ observer
-    def observe(self, arms):
+    def observe(self, arms: Observation) -> Observation:
         """
         Return the controller's observation: the arms' reports plus the perceived scene.
 
@@ -239,6 +269,9 @@ class PerceptionFeed(PerceivedScene):
             The arms' own reports (``T_world_tool`` through their believed bases, jaws,
             joints); its needle, holders and pair are ignored.
 
+        When the last holder lets go, the needle is believed where it was let go until the
+        first look stamped after the release finds it; then it is where that look saw it.
+
         Returns
         -------
         sim_bridge.control.Observation
@@ -246,7 +279,15 @@ class PerceptionFeed(PerceivedScene):
             are not seen.
 
         """
+        held_before = bool(self._holders)
         needle, holders, pair = self.estimate(None, arms)
+        if held_before and not holders:
+            self._look_after = arms.t
+        if not holders and self._look_after is not None:
+            fresh = self._fresh_needle(self._look_after)
+            if fresh is not None:
+                self._free_needle = needle = fresh
+                self._look_after = None
         return Observation(t=arms.t, T_world_tool=arms.T_world_tool, jaw=arms.jaw,
                            T_world_needle=needle, holders=tuple(holders), pair=pair,
                            T_world_base=arms.T_world_base, q=arms.q)

@@ -23,6 +23,7 @@ generality with assessment costs no further throw.
 """
 
 import csv
+from dataclasses import replace
 import logging
 import math
 from pathlib import Path
@@ -75,20 +76,20 @@ def score_demonstrations(folder, demo_records, rule=None):
     tables_dir.mkdir(exist_ok=True)
     rows = []
     for d in demo_records:
-        if not d.get('ok') or not d.get('bag') or not d.get('segments'):
+        if not d.ok or not d.bag or not d.segments:
             continue
-        table = tables_dir / f'{d["subject"]}_{d["pair"]}.csv'
+        table = tables_dir / f'{d.subject}_{d.pair}.csv'
         scores = None
         if table.exists():
             scores = read_score_table(table)
         if scores is None or 'task_time_s' not in scores:
             try:
-                scores = assess_bag(folder / d['bag'], folder / d['segments'], pair=d['pair'])
+                scores = assess_bag(folder / d.bag, folder / d.segments, pair=d.pair)
             except (ValueError, OSError) as exc:
-                _LOG.warning('demonstration %s/%s not scored: %s', d['subject'], d['pair'], exc)
+                _LOG.warning('demonstration %s/%s not scored: %s', d.subject, d.pair, exc)
                 continue
         scores = {k: v for k, v in scores.items() if k not in VERDICT_COLUMNS}
-        rows.append({'subject': d['subject'], 'group': d['group'], 'pair': d['pair'],
+        rows.append({'subject': d.subject, 'group': d.group, 'pair': d.pair,
                      **scores})
     try:
         verdicts = assess_cohort(rows, rule)
@@ -151,7 +152,7 @@ def assessed_generality(throw_rows, verdicts, mode):
 
     Parameters
     ----------
-    throw_rows : list of dict
+    throw_rows : list of ThrowRecord
         Throw records of one method.
     verdicts : list of dict
         Rows of :func:`score_demonstrations`.
@@ -167,7 +168,7 @@ def assessed_generality(throw_rows, verdicts, mode):
     replaced = learnt_from(verdicts, mode)
     by_row = {}
     for r in throw_rows:
-        by_row.setdefault((r['subject'], r['train_pair']), []).append(r)
+        by_row.setdefault((r.subject, r.train_pair), []).append(r)
     rows = []
     for (subject, pair), own in by_row.items():
         source = replaced.get((subject, pair))
@@ -175,8 +176,8 @@ def assessed_generality(throw_rows, verdicts, mode):
             rows.extend(own)
             continue
         for r in by_row.get(source, []):
-            rows.append({**r, 'subject': subject, 'group': own[0]['group'],
-                         'train_pair': pair, 'train_order': own[0].get('train_order', 0)})
+            rows.append(replace(r, subject=subject, group=own[0].group, train_pair=pair,
+                                train_order=own[0].train_order))
     out = tables.generality(rows)
     out['replaced'] = replaced
     return out
@@ -195,7 +196,7 @@ def report_section(folder, records, mode='subject', rule=None):
     ----------
     folder : str or Path
         Report folder.
-    records : list of dict
+    records : list of DemoRecord or ThrowRecord
         Study records.
     mode : {'subject', 'cohort', 'off'}
         How rejected demonstrations are replaced; ``'off'`` gives no section.

@@ -34,7 +34,7 @@ of it stored.
 """
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import inspect
 import logging
 import time
@@ -251,7 +251,7 @@ class DaskSession:
     def _submit(self, job, job_fn, initializer, initargs):
         return self.client.submit(
             dask_job, job_fn, job, initializer, initargs, self.code,
-            key=f'suture-lfd-{job["id"]}-{time.monotonic_ns()}', pure=False,
+            key=f'suture-lfd-{job.id}-{time.monotonic_ns()}', pure=False,
             retries=RETRIES)
 
     def _run_stage(self, stage, job_fn, store, progress, initializer, initargs, stop):
@@ -262,7 +262,7 @@ class DaskSession:
         jobs = iter(stage)
         in_flight = {}
         for _, job in zip(range(window), jobs):
-            in_flight[self._submit(job, job_fn, initializer, initargs)] = job['key']
+            in_flight[self._submit(job, job_fn, initializer, initargs)] = job.key
         running = as_completed(list(in_flight))
         ran = 0
         try:
@@ -283,11 +283,11 @@ class DaskSession:
                     store.add(record)
                     ran += 1
                     if progress is not None:
-                        progress.advance(record['key'])
+                        progress.advance(record.key)
                     job = next(jobs, None)
                     if job is not None:
                         future = self._submit(job, job_fn, initializer, initargs)
-                        in_flight[future] = job['key']
+                        in_flight[future] = job.key
                         running.add(future)
         except BaseException:
             self.client.cancel(list(in_flight), force=True)
@@ -305,12 +305,12 @@ def check_code(record, code):
         When the record's ``code`` differs from ``code``.
 
     """
-    theirs = record.get('code')
+    theirs = record.code
     if theirs != code:
         raise CodeMismatchError(
-            f'a Dask worker ({record.get("worker", "?")}) runs other suture_lfd code '
+            f'a Dask worker ({record.worker or "?"}) runs other suture_lfd code '
             f"(code digest {theirs}, this study's is {code}); its result for "
-            f'{record.get("key")} was not stored. Install the same suture_lfd version on every '
+            f'{record.key} was not stored. Install the same suture_lfd version on every '
             'worker (e.g. the same checkout, `pip install -e .`) and run the study again.')
 
 
@@ -330,8 +330,7 @@ def dask_job(job_fn, job, initializer, initargs, code):
         mine = _WORKER['code'] = code_digest()
     where = _worker_address()
     if mine != code:
-        return {'id': job['id'], 'key': job['key'], 'code': mine, 'worker': where,
-                'error': 'code digest mismatch'}
+        return replace(job.failed('code digest mismatch'), code=mine, worker=where)
     init = (getattr(initializer, '__module__', None), getattr(initializer, '__qualname__', None),
             repr(initargs))
     if initializer is not None and _WORKER.get('init') != init:
@@ -339,8 +338,7 @@ def dask_job(job_fn, job, initializer, initargs, code):
         _WORKER['state'] = initializer(*initargs)
         _WORKER['init'] = init
     record = call_job(job_fn, job, _WORKER.get('state') if initializer is not None else None)
-    record['code'] = mine
-    return record
+    return replace(record, code=mine)
 
 
 def _worker_address():

@@ -20,12 +20,14 @@ Frames: held-out pairs are stored in the mesh file's frame (metres, after the me
 the generated pads that is the phantom frame.
 """
 
+from dataclasses import asdict
 import hashlib
 import math
 from pathlib import Path
 import zlib
 
 import numpy as np
+from suture_lfd.study.records import ThrowJob, ThrowRecord
 
 HELD_OUT_COLUMNS = (
     'subject', 'group', 'method', 'train_phantom', 'train_pair', 'test_phantom', 'test_pair',
@@ -183,7 +185,7 @@ def plan_held_out(config, job_seed):
 
     Returns
     -------
-    list of dict
+    list of ThrowJob
         Jobs of kind ``held_out`` (run like throws; records kept apart).
 
     """
@@ -201,14 +203,14 @@ def plan_held_out(config, job_seed):
                     train_ph, train = order[(k + j) % len(order)]
                     k += 1
                     key = f'held_out/{method}/{name}/{train}/{spec["key"]}/{pair}'
-                    jobs.append({
-                        'key': key, 'kind': 'held_out', 'subject': name,
-                        'group': subject['group'], 'method': method,
-                        'train_phantom': train_ph, 'train_pair': train,
-                        'test_phantom': phantom, 'test_pair': pair,
-                        'test_key': spec['key'], 'test_config': spec['config'],
-                        'seed': job_seed(config['seed'], key),
-                        'demo_key': f'demo/{name}/{train}', 'trajectories': None})
+                    jobs.append(ThrowJob(
+                        key=key, kind='held_out', subject=name,
+                        group=subject['group'], method=method,
+                        train_phantom=train_ph, train_pair=train,
+                        test_phantom=phantom, test_pair=pair,
+                        test_key=spec['key'], test_config=spec['config'],
+                        seed=job_seed(config['seed'], key),
+                        demo_key=f'demo/{name}/{train}', trajectories=None))
     return jobs
 
 
@@ -235,9 +237,9 @@ def summarise(records, held_records):
 
     Parameters
     ----------
-    records : list of dict
+    records : list of DemoRecord or ThrowRecord
         The study's records (``throw`` ones give the fixed-pair figure).
-    held_records : list of dict
+    held_records : list of ThrowRecord
         The ``held_out`` records.
 
     Returns
@@ -250,25 +252,25 @@ def summarise(records, held_records):
     out = {}
     methods = []
     for r in held_records:
-        if r['method'] not in methods:
-            methods.append(r['method'])
+        if r.method not in methods:
+            methods.append(r.method)
     for method in methods:
-        fixed = [r for r in records if r.get('kind') == 'throw' and not r.get('error')
-                 and r['method'] == method]
-        held = [r for r in held_records if r['method'] == method and not r.get('error')]
+        fixed = [r for r in records if isinstance(r, ThrowRecord) and r.kind == 'throw'
+                 and not r.error and r.method == method]
+        held = [r for r in held_records if r.method == method and not r.error]
         entry = {'n_fixed': len(fixed), 'n_held_out': len(held), 'fixed': {}, 'held_out': {},
                  'phantoms': {}}
         for label, rows in (('fixed', fixed), ('held_out', held)):
             for group in ('experienced', 'naive'):
-                entry[label][group] = _mean([r['score'] for r in rows if r['group'] == group])
-            entry[label]['overall'] = _mean([r['score'] for r in rows])
-        for phantom in dict.fromkeys(r['test_phantom'] for r in held):
-            rows = [r for r in held if r['test_phantom'] == phantom]
-            ph = {g: _mean([r['score'] for r in rows if r['group'] == g])
+                entry[label][group] = _mean([r.score for r in rows if r.group == group])
+            entry[label]['overall'] = _mean([r.score for r in rows])
+        for phantom in dict.fromkeys(r.test_phantom for r in held):
+            rows = [r for r in held if r.test_phantom == phantom]
+            ph = {g: _mean([r.score for r in rows if r.group == g])
                   for g in ('experienced', 'naive')}
-            ph['overall'] = _mean([r['score'] for r in rows])
+            ph['overall'] = _mean([r.score for r in rows])
             ph['n'] = len(rows)
-            ph['complete'] = sum(1 for r in rows if r['score'] == 1.0)
+            ph['complete'] = sum(1 for r in rows if r.score == 1.0)
             entry['phantoms'][phantom] = ph
         out[method] = entry
     return out
@@ -280,9 +282,9 @@ def report_section(records, held_records, config):
 
     Parameters
     ----------
-    records : list of dict
+    records : list of DemoRecord or ThrowRecord
         The study's records.
-    held_records : list of dict
+    held_records : list of ThrowRecord
         The ``held_out`` records.
     config : dict
         The study configuration (its ``held_out`` part).
@@ -326,13 +328,13 @@ def held_out_rows(held_records, config):
     """Return the held-out records as CSV rows, with the pairs' marker positions (file, mm)."""
     specs = config['held_out']['phantoms']
     rows = []
-    for r in sorted(held_records, key=lambda r: (r['method'], r['subject'], r['test_phantom'],
-                                                r['test_pair'])):
-        if r.get('error'):
+    for r in sorted(held_records, key=lambda r: (r.method, r.subject, r.test_phantom,
+                                                r.test_pair)):
+        if r.error:
             continue
-        spec = specs.get(r['test_phantom'], {}).get('config', {})
-        pair = (spec.get('markers') or {}).get(r['test_pair'])
-        row = dict(r)
+        spec = specs.get(r.test_phantom, {}).get('config', {})
+        pair = (spec.get('markers') or {}).get(r.test_pair)
+        row = asdict(r)
         if pair:
             row.update(entry_x_mm=1e3 * pair['entry'][0], entry_y_mm=1e3 * pair['entry'][1],
                        exit_x_mm=1e3 * pair['exit'][0], exit_y_mm=1e3 * pair['exit'][1])

@@ -14,11 +14,13 @@ The two kinds of study job, run in-process on the package's simulation (no ROS).
     learnt on (a regeneration) the regenerated needle trajectories of ii and iv are also
     compared with the demonstrated ones (Table II) and saved for the Fig. 7 plot.
 
-A job is a plain ``dict`` (picklable for worker processes); :func:`run_job` returns the flat
-result record stored by :mod:`suture_lfd.study.store`. Paths in jobs and records are relative
-to the study's output folder. What a process keeps between jobs is a :class:`WorkerState`,
-made once per process by :func:`init_worker` and given to every job (one simulation per phantom,
-reused with ``reset(seed)`` per throw; learnt skills; the cohort).
+A job is a frozen dataclass (:class:`~suture_lfd.study.records.DemoJob`,
+:class:`~suture_lfd.study.records.ThrowJob`, picklable for worker processes); :func:`run_job`
+returns its record (:class:`~suture_lfd.study.records.DemoRecord`,
+:class:`~suture_lfd.study.records.ThrowRecord`), stored by :mod:`suture_lfd.study.store`. Paths
+in jobs and records are relative to the study's output folder. What a process keeps between jobs
+is a :class:`WorkerState`, made once per process by :func:`init_worker` and given to every job
+(one simulation per phantom, reused with ``reset(seed)`` per throw; learnt skills; the cohort).
 
 With ``--via-ros`` (:func:`init_worker` given :class:`suture_lfd.study.ros.RosSettings`) a
 throw's skill is executed by the simulator and executor node processes instead
@@ -59,6 +61,13 @@ from suture_lfd.skill import learn_skill, training_data
 from suture_lfd.skill.executor import execute_throw
 from suture_lfd.study.held_out import phantom_config
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
+from suture_lfd.study.records import (
+    DemoJob,
+    DemoRecord,
+    ThrowJob,
+    ThrowRecord,
+    to_json,
+)
 from suture_lfd.study.ros import RosThrows
 from suture_lfd.study.teleoperated import TeleoperatedRobot
 from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
@@ -155,6 +164,12 @@ class WorkerState:
     base_frames : dict or None
         ``config/world.yaml``'s ``T_world_base`` of the PSMs (the demonstration bags' arm
         bases), read on first use.
+    robots : dict
+        ``(phantom, physics step, error level, error seed) -> Simulation``: the physical-mode
+        robots (hidden kinematic errors) of the latest jobs, at most :data:`ROBOTS_KEPT`,
+        the least recently used closed first; each keeps its registration
+        (:func:`suture_lfd.skill.arm_registration.register_arms`), so a robot is registered
+        once, not per job.
 
     """
 
@@ -166,9 +181,12 @@ class WorkerState:
     ros: RosThrows | None = None
     dmp_params: dict | None = None
     base_frames: dict | None = None
+    robots: dict = field(default_factory=dict)
 
     def close(self):
         """Release what the state holds beyond this process's memory (node processes)."""
+        while self.robots:
+            self.robots.pop(next(iter(self.robots))).close()
         if self.ros is not None:
             self.ros.close()
             self.ros = None
@@ -226,26 +244,45 @@ def _simulation(state, phantom, step=None, spec=None):
     return sims[phantom, step]
 
 
+#: Physical-mode robots a study process keeps between jobs (the jobs of one subject on one
+#: phantom come in a row, so a few cover a process's share of them).
+ROBOTS_KEPT = 4
+
+
 def _physical_simulation(state, phantom, step, physical):
     """
-    Return a simulation of a phantom for a physical-mode job, and whether it is the job's own.
+    Return the simulation of a phantom for a physical-mode job (the worker's: kept).
 
-    ``physical``: the job's ``{'error_level': mm class, 'error_seed': seed}``. Level 0 is the
-    worker's shared simulation (perfect kinematics: nothing to draw); any other level a new
-    simulation with the arms' hidden errors drawn from the job's seed, to be closed after the
-    job (a robot's errors last its life; a job is a robot of its own).
+    ``physical``: the job's robot errors. Level 0 is the worker's shared simulation (perfect
+    kinematics: nothing to draw); any other level the robot of those errors (drawn per subject
+    and phantom, :func:`suture_lfd.study.physical.robot_key`), kept in ``state.robots`` for
+    the next jobs on it.
     """
-    level = float(physical['error_level'])
+    level = float(physical.error_level)
     if level == 0.0:
-        return _simulation(state, phantom, step), False
+        return _simulation(state, phantom, step)
+    key = (phantom, float(step), level, int(physical.error_seed))
+    robots = state.robots
+    sim = robots.pop(key, None)
+    if sim is None:
+        sim = _robot(state, phantom, step, physical)
+        while len(robots) >= ROBOTS_KEPT:
+            robots.pop(next(iter(robots))).close()
+    robots[key] = sim  # the most recently used last
+    return sim
+
+
+def _robot(state, phantom, step, physical):
+    """Build the simulation of a robot with the hidden kinematic errors ``physical``."""
+    level = float(physical.error_level)
     s = state.settings
     config = load_simulation_config()
     loop = replace(config.loop, thread_period=s.thread_period,
                    collision_period=max(s.collision_period, step))
     config = replace(config, world=replace(config.world, physics_step=float(step)), loop=loop,
                      kinematic_error_level=level,
-                     kinematic_error_seed=int(physical['error_seed']))
-    return Simulation(config, phantom=phantom, rng=np.random.default_rng(0)), True
+                     kinematic_error_seed=int(physical.error_seed))
+    return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
 
 
 def _subject(state, name, seed=None):
@@ -268,22 +305,22 @@ def run_job(job, state):
 
     Parameters
     ----------
-    job : dict
-        ``kind`` 'demo' or 'throw' and the fields :func:`demo_job` / :func:`throw_job` need.
+    job : DemoJob or ThrowJob
+        The job.
     state : WorkerState
         This process's state (:func:`init_worker`).
 
     Returns
     -------
-    dict
-        Flat record (JSON-serialisable) with the job's fields and its results.
+    DemoRecord or ThrowRecord
+        The job's record: its fields and its results.
 
     """
-    if job['kind'] == 'demo':
+    if isinstance(job, DemoJob):
         return demo_job(job, state)
-    if job['kind'] in ('throw', 'held_out'):
+    if isinstance(job, ThrowJob):
         return throw_job(job, state)
-    raise ValueError(f'unknown study job kind {job["kind"]!r}')
+    raise TypeError(f'a study job is a DemoJob or a ThrowJob, got {type(job).__name__}')
 
 
 # ---------------------------------------------------------------------- demonstrations
@@ -293,17 +330,14 @@ def demo_job(job, state):
 
     Parameters
     ----------
-    job : dict
-        ``key``, ``subject``, ``group``, ``phantom``, ``pair``, ``next_pair`` (or None),
-        ``seed`` (scene seed), ``order``, ``bag`` and ``segments`` (paths relative to the
-        output folder).
-
+    job : DemoJob
+        The demonstration to record (paths relative to the output folder).
     state : WorkerState
         This process's state (:func:`init_worker`).
 
     Returns
     -------
-    dict
+    DemoRecord
         The job's fields plus ``attempts``, ``ok``, ``demo_score``, ``failure``, ``time_s``
         (full-throw time of the demonstration) and ``t_i`` .. ``t_v`` (segmented subtask
         durations, s).
@@ -311,55 +345,46 @@ def demo_job(job, state):
     """
     s = state.settings
     out = Path(s.out)
-    subject = _subject(state, job['subject'], job.get('cohort_seed'))
-    physical = job.get('physical')
+    subject = _subject(state, job.subject, job.cohort_seed)
+    physical = job.physical
     if physical is None:
-        sim, own = _simulation(state, job['phantom'], s.demo_physics_step), False
+        sim = _simulation(state, job.phantom, s.demo_physics_step)
         link = None
     else:
-        sim, own = _physical_simulation(state, job['phantom'], s.demo_physics_step, physical)
-        link = TeleoperatedRobot(sim, job['pair'])
-    try:
-        run = run_demonstration(sim, subject, job['pair'], seed=job['seed'],
-                                sample_rate=s.sample_rate, command_rate=s.command_rate,
-                                timeout=s.timeout,
-                                attempts=s.demo_attempts, next_pair=job.get('next_pair'),
-                                require_success=False, link=link)
-        # a robot's recorder writes its arms as it believes them: measured_cp through the
-        # believed bases
-        bases = None if link is None else {arm: sim.believed_base(arm) for arm in PSMS}
-    finally:
-        if own:
-            sim.close()
-    record = {**job, 'attempts': int(run.attempts), 'demo_score': float(run.score.score),
-              'failure': run.score.failure, 'time_s': float(run.score.time_s), 'ok': False}
-    demo = _through_bag(state, run.demo, out / job['bag'], job['pair'], bases)
+        sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
+        link = TeleoperatedRobot(sim, job.pair)
+    run = run_demonstration(sim, subject, job.pair, seed=job.seed,
+                            sample_rate=s.sample_rate, command_rate=s.command_rate,
+                            timeout=s.timeout,
+                            attempts=s.demo_attempts, next_pair=job.next_pair,
+                            require_success=False, link=link)
+    # a robot's recorder writes its arms as it believes them: measured_cp through the believed
+    # bases
+    bases = None if link is None else {arm: sim.believed_base(arm) for arm in PSMS}
+    record = DemoRecord.of(job, attempts=int(run.attempts), demo_score=float(run.score.score),
+                           failure=run.score.failure, time_s=float(run.score.time_s), ok=False)
+    demo = _through_bag(state, run.demo, out / job.bag, job.pair, bases)
     if run.score.score < 1.0:
-        record['failure'] = f'no successful demonstration: {run.score.failure}'
-        return record
+        return replace(record, failure=f'no successful demonstration: {run.score.failure}')
     unseen = int(np.isnan(run.demo.needle_pose).any(axis=1).sum())
     if unseen:
-        record['failure'] = (f'the recorder did not see the needle in {unseen} of '
-                             f'{len(run.demo.t)} samples')
-        return record
-    target = out / job['segments']
+        return replace(record, failure=f'the recorder did not see the needle in {unseen} of '
+                                       f'{len(run.demo.t)} samples')
+    target = out / job.segments
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(target.stem + '.part' + target.suffix)
     try:
         segmentation = segment_demonstration(demo)
-        _save_segments(demo, segmentation, tmp, source=job['bag'], subject=job['subject'])
+        _save_segments(demo, segmentation, tmp, source=job.bag, subject=job.subject)
     except ValueError as exc:
         if physical is None:
             raise
         # on what the robot saw, a demonstration the segmenter cannot read is a result (the
         # perceived grasps miss one), not a fault to run again
-        record['failure'] = f'not segmentable from what the robot recorded: {exc}'
-        return record
-    for seg in segmentation.subtasks:
-        record[f't_{seg.name}'] = float(seg.duration)
+        return replace(record, failure=f'not segmentable from what the robot recorded: {exc}')
+    durations = {f't_{seg.name}': float(seg.duration) for seg in segmentation.subtasks}
     os.replace(tmp, target)
-    record['ok'] = True
-    return record
+    return replace(record, ok=True, **durations)
 
 
 def _through_bag(state, demo, bag, pair, base_frames=None):
@@ -460,19 +485,15 @@ def throw_job(job, state):
 
     Parameters
     ----------
-    job : dict
-        ``key``, ``subject``, ``group``, ``method``, ``train_phantom``, ``train_pair``,
-        ``test_phantom``, ``test_pair``, ``seed`` (scene seed), ``segments`` (the training
-        demonstration's segment file, relative, or None when that demonstration failed),
-        ``demo_time_s``, ``trajectories`` (where to save the curves of a regeneration, or
-        None).
-
+    job : ThrowJob
+        The throw, with its training demonstration's segment file (``segments``, relative, or
+        None when that demonstration failed) and ``demo_time_s`` attached.
     state : WorkerState
         This process's state (:func:`init_worker`).
 
     Returns
     -------
-    dict
+    ThrowRecord
         The job's fields plus ``score``, ``i`` .. ``v``, ``failure``, ``time_s`` (simulated
         full-throw time), ``entry_error_mm``, ``exit_error_mm``, ``regeneration`` and, for a
         regeneration, the Table II errors ``<task>_<start|goal|traj>_<mm|deg>`` and
@@ -480,62 +501,59 @@ def throw_job(job, state):
         relative) and ``replay_bytes`` (that file's size).
 
     """
-    if job.get('blocked'):  # stored as an error: done again once the demonstration exists
-        return {**job, 'error': job['blocked']}
+    if job.blocked:  # stored as an error: done again once the demonstration exists
+        return job.failed(job.blocked)
     s = state.settings
     out = Path(s.out)
-    record = {**job, 'regeneration': job['train_pair'] == job['test_pair']}
-    spec = record.pop('test_config', None)  # a held-out pair's phantom (kept in the config)
-    if not job.get('segments'):
-        record.update(score=0.0, failure='no successful demonstration to learn from',
-                      time_s=_nan(), entry_error_mm=_nan(), exit_error_mm=_nan(),
-                      trajectories=None, **dict.fromkeys(SUBTASKS, False))
-        return record
-    path = str(out / job['segments'])
-    skill = _skill(state, path, job['method'], job.get('dmp'))
+    regeneration = job.train_pair == job.test_pair
+    if not job.segments:
+        return ThrowRecord.of(job, regeneration=regeneration, score=0.0,
+                              failure='no successful demonstration to learn from',
+                              time_s=_nan(), entry_error_mm=_nan(), exit_error_mm=_nan(),
+                              trajectories=None, **dict.fromkeys(SUBTASKS, False))
+    path = str(out / job.segments)
+    skill = _skill(state, path, job.method, job.dmp)
     ros = state.ros
-    physical = job.get('physical')
+    physical = job.physical
+    # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
+    replay = replay_name(to_json(job))
     if physical is not None:
-        sim, own = _physical_simulation(state, job['test_phantom'], s.physics_step, physical)
-        try:
-            sampler = ThrowSampler(sim)
-            outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
-                                    timeout=s.timeout, control_period=s.control_period,
-                                    observer=sampler, physical=True,
-                                    correction=bool(physical['correction']))
-            markers = sim.phantom.markers
-            record['replay'] = f'{job["folder"]}/{replay_name(job)}'
-            record['replay_bytes'] = sampler.save(out / record['replay'], job['test_pair'],
-                                                  outcome.events, outcome.subtask_times)
-        finally:
-            if own:
-                sim.close()
-    elif ros is None:
-        sim = (_simulation(state, job['test_key'], spec=spec) if spec is not None
-               else _simulation(state, job['test_phantom']))
+        sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
         sampler = ThrowSampler(sim)
-        outcome = execute_throw(sim, skill, job['test_pair'], seed=job['seed'],
+        outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
+                                timeout=s.timeout, control_period=s.control_period,
+                                observer=sampler, physical=True,
+                                correction=bool(physical.correction))
+        markers = sim.phantom.markers
+        replay = f'{job.folder}/{replay}'
+        replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
+                                    outcome.subtask_times)
+    elif ros is None:
+        sim = (_simulation(state, job.test_key, spec=job.test_config)
+               if job.test_config is not None else _simulation(state, job.test_phantom))
+        sampler = ThrowSampler(sim)
+        outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
                                 timeout=s.timeout, control_period=s.control_period,
                                 observer=sampler)
         markers = sim.phantom.markers
-        # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
-        record['replay'] = replay_name(job)
-        record['replay_bytes'] = sampler.save(out / record['replay'], job['test_pair'],
-                                              outcome.events, outcome.subtask_times)
+        replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
+                                    outcome.subtask_times)
     else:
         outcome = ros.execute(job, skill)
-        markers = ros.markers(job['test_phantom'])
+        markers = ros.markers(job.test_phantom)
         # the nodes' throws are not sampled for replay: the record says so in the same fields
-        record['replay'], record['replay_bytes'] = None, 0
-    record.update(score=float(outcome.score), failure=outcome.failure,
-                  time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
-                  exit_error_mm=float(outcome.exit_error_mm),
-                  **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS})
-    if not record['regeneration']:
-        record['trajectories'] = None
-        return record
+        replay, replay_bytes = None, 0
+    record = ThrowRecord.of(
+        job, regeneration=regeneration, replay=replay, replay_bytes=replay_bytes,
+        score=float(outcome.score), failure=outcome.failure,
+        time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
+        exit_error_mm=float(outcome.exit_error_mm),
+        **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS})
+    if not regeneration:
+        return replace(record, trajectories=None)
     data = _training(state, path)
-    pair = markers[job['test_pair']]
+    pair = markers[job.test_pair]
+    errors = {}
     curves = {}
     for task in TASKS:
         n_pts = skill.dmps[task].params.n_pts
@@ -543,20 +561,20 @@ def throw_job(job, state):
         _, P0, Q0 = resample_poses(T, P, Q, n_pts=n_pts or len(T))
         _, P1, Q1 = skill.rollout(task, pair)
         for name, value in regeneration_errors((P0, Q0), (P1, Q1)).items():
-            record[f'{task}_{name}'] = value
+            errors[f'{task}_{name}'] = value
         curves[f'demo_{task}'] = np.hstack((P0, Q0))
         curves[f'rollout_{task}'] = np.hstack((P1, Q1))
         executed = outcome.executed.get(task)
         if executed is not None and len(executed[0]) > 1:
             poses = np.asarray(executed[1], float)
-            record[f'{task}_exec_traj_mm'] = trajectory_error(P0, poses[:, :3])['mean_mm']
+            errors[f'{task}_exec_traj_mm'] = trajectory_error(P0, poses[:, :3])['mean_mm']
             curves[f'exec_{task}'] = poses
         else:
-            record[f'{task}_exec_traj_mm'] = _nan()
+            errors[f'{task}_exec_traj_mm'] = _nan()
             curves[f'exec_{task}'] = np.zeros((0, 7))
-    if job.get('trajectories'):
-        target = out / job['trajectories']
+    if job.trajectories:
+        target = out / job.trajectories
         target.parent.mkdir(parents=True, exist_ok=True)
         save_archive(target, curves, TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION,
                      compressed=True)
-    return record
+    return replace(record, **errors)

@@ -23,9 +23,13 @@ Which other methods, subjects or pairs run beside a job, and in which order, is 
 """
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import replace
+from typing import Any, TypeVar
 
+from suture_lfd.study.records import DemoJob, ThrowJob, to_json
 from suture_lfd.study.store import config_hash
+
+J = TypeVar('J', DemoJob, ThrowJob)
 
 #: Version of the recipe: a change of what goes into an ``id`` changes every ``id``.
 ID_FORMAT = 1
@@ -52,14 +56,14 @@ def job_context(config: Mapping[str, Any]) -> dict[str, Any]:
             'code': config['code'], 'via_ros': config.get('via_ros')}
 
 
-def with_ids(jobs: Sequence[Mapping[str, Any]], config: Mapping[str, Any],
-             demo_ids: Mapping[str, str] | None = None) -> list[dict[str, Any]]:
+def with_ids(jobs: Sequence[J], config: Mapping[str, Any],
+             demo_ids: Mapping[str, str] | None = None) -> list[J]:
     """
     Return the jobs with their ``id``, demonstrations first in the list or in ``demo_ids``.
 
     Parameters
     ----------
-    jobs : list of dict
+    jobs : list of DemoJob or ThrowJob
         Jobs of one study configuration; a throw names its demonstration by ``demo_key``.
     config : dict
         That configuration (its subjects and context).
@@ -69,7 +73,7 @@ def with_ids(jobs: Sequence[Mapping[str, Any]], config: Mapping[str, Any],
 
     Returns
     -------
-    list of dict
+    list of DemoJob or ThrowJob
         Copies of the jobs with ``id`` set.
 
     Raises
@@ -81,19 +85,20 @@ def with_ids(jobs: Sequence[Mapping[str, Any]], config: Mapping[str, Any],
     context = job_context(config)
     subjects = {s['name']: s for s in config['subjects']}
     ids = dict(demo_ids or {})
-    out: list[dict[str, Any]] = []
+    out: list[J] = []
     for job in jobs:
-        decided = {k: v for k, v in job.items() if k not in BOOKKEEPING}
-        decided['subject'] = subjects[job['subject']]
-        if job.get('demo_key') is not None:
-            decided['demo'] = ids[job['demo_key']]
+        decided = {k: v for k, v in to_json(job).items()
+                   if k not in BOOKKEEPING and v is not None}
+        decided['subject'] = subjects[job.subject]
+        if isinstance(job, ThrowJob):
+            decided['demo'] = ids[job.demo_key]
         digest = config_hash({'job': decided, 'context': context}, length=16)
-        out.append({**job, 'id': digest})
-        if job['kind'] == 'demo':
-            ids[job['key']] = digest
+        out.append(replace(job, id=digest))
+        if isinstance(job, DemoJob):
+            ids[job.key] = digest
     return out
 
 
-def demo_ids(demos: Sequence[Mapping[str, Any]]) -> dict[str, str]:
+def demo_ids(demos: Sequence[DemoJob]) -> dict[str, str]:
     """Return ``demo key -> id`` of demonstration jobs that have their ``id``."""
-    return {job['key']: job['id'] for job in demos}
+    return {job.key: job.id for job in demos}

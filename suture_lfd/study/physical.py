@@ -7,9 +7,11 @@ demonstrations and throws in physical mode, in-process, once per *variant*: an e
 comma-separated list) and whether the executor corrects on what it sees (``--correction
 on|off|both``, ``--no-correction`` for ``off``):
 
-- every job's simulation has the PSMs' hidden kinematic errors at the level, drawn from the
-  job's own seed (``error_seed``); the scene seed is the ground-truth job's, so the two modes
-  differ only by the robot;
+- the PSMs' hidden kinematic errors are drawn per subject and phantom (:func:`robot_key`: one
+  robot per setup, as a lab registers a dVRK once per setup, not per throw) at the level; the
+  jobs of that subject on that phantom share the robot (``error_seed``), so a study worker
+  builds and registers it once (:mod:`suture_lfd.study.jobs`); the scene seed is the
+  ground-truth job's, so the two modes differ only by the robot;
 - a demonstration is teleoperated through the robot and recorded as the robot sees it
   (:mod:`suture_lfd.study.teleoperated`: the arms' reports, the needle and markers from the
   endoscope); it depends on the level, not on the correction, so the variants of a level share
@@ -26,9 +28,11 @@ variant beside ground-truth mode and the paper, and, with more than one level or
 curve of generality against the error level (``physical_curve.png``, ``physical_curve.csv``).
 """
 
+from dataclasses import replace
 import math
 
 from suture_lfd.study import tables
+from suture_lfd.study.records import DemoRecord, RobotErrors, ThrowRecord
 
 #: The levels of the issue's curve (mm class).
 CURVE_LEVELS = (0.0, 1.0, 3.0, 5.0)
@@ -116,6 +120,27 @@ def variants(physical):
             for level in physical['levels'] for c in physical['corrections']]
 
 
+def robot_key(subject, phantom):
+    """
+    Return the name the errors' seed of a subject's robot on a phantom is drawn from.
+
+    Parameters
+    ----------
+    subject : str
+        The subject (its demonstrations and the throws learnt from them).
+    phantom : str
+        The phantom the robot works on (a throw's test phantom).
+
+    Returns
+    -------
+    str
+        ``robot/<subject>/<phantom>``: the same at every level (the level scales the errors),
+        so the curve compares the same robots.
+
+    """
+    return f'robot/{subject}/{phantom}'
+
+
 def plan_physical(physical, demos, throws, job_seed, seed):
     """
     Return the physical-mode jobs made from the ground-truth ones (without ``id``).
@@ -124,46 +149,47 @@ def plan_physical(physical, demos, throws, job_seed, seed):
     ----------
     physical : dict
         Output of :func:`physical_config`.
-    demos, throws : list of dict
+    demos : list of DemoJob
+    throws : list of ThrowJob
         The study's ground-truth jobs (:func:`suture_lfd.study.run.plan_jobs`).
     job_seed : callable
-        ``(study seed, key) -> seed``: the errors' seed of a job.
+        ``(study seed, key) -> seed``: the errors' seed of a robot (:func:`robot_key`).
     seed : int
         The study seed.
 
     Returns
     -------
-    demos, throws : list of dict
+    demos : list of DemoJob
+    throws : list of ThrowJob
         Per level its demonstrations (``physical/level-L/...``), per variant its throws,
         learning from the demonstrations of their level; with ``demos`` ``'ground-truth'``
         no demonstrations, the throws learning from the ground-truth ones.
 
     """
     out_demos, out_throws = [], []
-    strip = ('id',)
     recorded = physical.get('demos', 'recorded') == 'recorded'
     for level in physical['levels'] if recorded else ():
         where = f'physical/{variant_name(level, True)}'
         for job in demos:
-            key = f'{where}/{job["key"]}'
-            out_demos.append({
-                **{k: v for k, v in job.items() if k not in strip}, 'key': key,
-                'folder': where, 'bag': f'{where}/{job["bag"]}',
-                'segments': f'{where}/{job["segments"]}',
-                'physical': {'error_level': level, 'error_seed': job_seed(seed, key)}})
+            key = f'{where}/{job.key}'
+            out_demos.append(replace(
+                job, id='', key=key, folder=where, bag=f'{where}/{job.bag}',
+                segments=f'{where}/{job.segments}',
+                physical=RobotErrors(error_level=level, error_seed=job_seed(
+                    seed, robot_key(job.subject, job.phantom)))))
     for name, level, correction in variants(physical):
         where = f'physical/{name}'
         demo_where = f'physical/{variant_name(level, True)}'
-        for job in throws:
-            key = f'{where}/{job["key"]}'
-            trajectories = job.get('trajectories')
-            out_throws.append({
-                **{k: v for k, v in job.items() if k not in strip}, 'key': key,
-                'folder': where,
-                'demo_key': f'{demo_where}/{job["demo_key"]}' if recorded else job['demo_key'],
-                'trajectories': f'{where}/{trajectories}' if trajectories else None,
-                'physical': {'error_level': level, 'error_seed': job_seed(seed, key),
-                             'correction': correction}})
+        for throw in throws:
+            key = f'{where}/{throw.key}'
+            trajectories = throw.trajectories
+            out_throws.append(replace(
+                throw, id='', key=key, folder=where,
+                demo_key=f'{demo_where}/{throw.demo_key}' if recorded else throw.demo_key,
+                trajectories=f'{where}/{trajectories}' if trajectories else None,
+                physical=RobotErrors(error_level=level, error_seed=job_seed(
+                    seed, robot_key(throw.subject, throw.test_phantom)),
+                    correction=correction)))
     return out_demos, out_throws
 
 
@@ -173,31 +199,31 @@ def variant_records(records, name, level, ground_demos=None):
 
     Parameters
     ----------
-    records : list of dict
+    records : list of DemoRecord or ThrowRecord
         Physical-mode records (demonstrations and throws of every variant).
     name : str
         The variant (:func:`variant_name`).
     level : float
         Its level (its demonstrations are the level's).
-    ground_demos : list of dict, optional
+    ground_demos : list of DemoRecord, optional
         The ground-truth demonstrations, when the throws learnt from them.
 
     Returns
     -------
-    list of dict
+    list of DemoRecord or ThrowRecord
 
     """
     demo_prefix = f'physical/{variant_name(level, True)}/'
     throw_prefix = f'physical/{name}/'
     out = list(ground_demos or [])
     for r in records:
-        if r['kind'] == 'demo' and r['key'].startswith(demo_prefix):
-            out.append({**r, 'key': r['key'][len(demo_prefix):]})
-        elif r['kind'] == 'throw' and r['key'].startswith(throw_prefix):
-            t = r.get('trajectories')
-            out.append({**r, 'key': r['key'][len(throw_prefix):],
-                        'trajectories': t[len(throw_prefix):]
-                        if t and t.startswith(throw_prefix) else t})
+        if isinstance(r, DemoRecord) and r.key.startswith(demo_prefix):
+            out.append(replace(r, key=r.key[len(demo_prefix):]))
+        elif isinstance(r, ThrowRecord) and r.kind == 'throw' and r.key.startswith(throw_prefix):
+            t = r.trajectories
+            out.append(replace(r, key=r.key[len(throw_prefix):],
+                               trajectories=t[len(throw_prefix):]
+                               if t and t.startswith(throw_prefix) else t))
     return out
 
 
@@ -280,8 +306,9 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
     md = ['## Physical mode', '',
           "The same design run on what a physical dVRK provides: the PSMs' kinematic errors "
           'hidden in the simulation (joints 1-2 up to ±L deg, insertion ±L mm, base '
-          'registration ±L mm per axis, drawn per job), demonstrations teleoperated through '
-          'the robot and recorded as it reports them, with the needle and the markers from '
+          'registration ±L mm per axis, drawn per subject and phantom: one robot per '
+          'setup, registered once), demonstrations teleoperated through the robot and '
+          'recorded as it reports them, with the needle and the markers from '
           "the endoscope's images; throws executed on the arms' reports and perception. The "
           "scoring reads the simulation's truth, as an observer of the real robot would. Each "
           'variant has its full report in `physical/<variant>/`.', '']

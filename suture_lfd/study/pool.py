@@ -21,6 +21,7 @@ what is left.
 
 import collections
 import contextlib
+from dataclasses import replace
 import logging
 import multiprocessing
 from multiprocessing.connection import wait
@@ -126,8 +127,8 @@ class WorkerPool:
 
         Parameters
         ----------
-        jobs : list of dict
-            Jobs (each with ``key``).
+        jobs : list of job
+            Jobs (:mod:`suture_lfd.study.records`: each with ``key`` and ``failed``).
         on_record : callable
             ``record -> None``, called in this thread (it stores the record).
         stop : suture_lfd.study.signals.StopRequest
@@ -181,9 +182,9 @@ class WorkerPool:
                             'job; its error is in the log above')
         job, worker.job = worker.job, None
         if job is not None:
-            _LOG.error('the worker running job %s died (exit code %s)', job['key'], code)
-            on_record({**job, 'error': f'the worker process running it died (exit code {code})',
-                       'wall_s': float('nan')})
+            _LOG.error('the worker running job %s died (exit code %s)', job.key, code)
+            on_record(replace(job.failed(f'the worker process running it died (exit code '
+                                         f'{code})'), wall_s=float('nan')))
         self._replace(worker)
 
     def _replace(self, worker):

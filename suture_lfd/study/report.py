@@ -19,6 +19,7 @@ configuration gives byte-identical CSV files; wall times appear only in the repo
 """
 
 import csv
+from dataclasses import asdict
 import json
 import logging
 import math
@@ -27,17 +28,12 @@ from pathlib import Path
 import numpy as np
 from sim_bridge.common.archive import load_archive
 from suture_lfd.study import figures, tables
+from suture_lfd.study.records import DemoRecord, ThrowRecord, columns
 
-THROW_COLUMNS = (
-    'subject', 'group', 'method', 'train_phantom', 'train_pair', 'test_phantom', 'test_pair',
-    'regeneration', 'seed', 'score', 'i', 'ii', 'iii', 'iv', 'v', 'failure', 'time_s',
-    'demo_time_s', 'entry_error_mm', 'exit_error_mm',
-    'ii_start_mm', 'ii_goal_mm', 'ii_traj_mm', 'ii_start_deg', 'ii_goal_deg', 'ii_traj_deg',
-    'iv_start_mm', 'iv_goal_mm', 'iv_traj_mm', 'iv_start_deg', 'iv_goal_deg', 'iv_traj_deg',
-    'ii_exec_traj_mm', 'iv_exec_traj_mm')
-DEMO_COLUMNS = (
-    'subject', 'group', 'phantom', 'pair', 'seed', 'attempts', 'ok', 'demo_score', 'time_s',
-    'failure', 't_i', 't_ii', 't_iii', 't_iv', 't_v', 'bag', 'segments')
+#: ``throws.csv``'s columns: the first fields of a throw's record.
+THROW_COLUMNS = columns(ThrowRecord)
+#: ``demos.csv``'s columns: the first fields of a demonstration's record.
+DEMO_COLUMNS = columns(DemoRecord)
 
 
 def _cell(value):
@@ -133,8 +129,8 @@ def _time_table(times):
 def _subject_table(gen, demo_rows):
     rows = []
     for s, group in gen['subjects'].items():
-        own = [d for d in demo_rows if d['subject'] == s]
-        ok = sum(1 for d in own if d.get('ok'))
+        own = [d for d in demo_rows if d.subject == s]
+        ok = sum(1 for d in own if d.ok)
         m = gen['matrix'][s]
         n = len(gen['pairs'])
         diag = np.nanmean(np.diag(m)) if n else float('nan')
@@ -152,11 +148,11 @@ def _subject_table(gen, demo_rows):
 
 def _fig7_curves(folder, rows):
     """Pick the paper's Fig. 7 case (first subject at scan2, else the first regeneration)."""
-    regen = [r for r in tables.regeneration_rows(rows) if r.get('trajectories')]
+    regen = [r for r in tables.regeneration_rows(rows) if r.trajectories]
     if not regen:
         return None, None
-    pick = next((r for r in regen if r['test_pair'] == 'scan2'), regen[0])
-    path = Path(folder) / pick['trajectories']
+    pick = next((r for r in regen if r.test_pair == 'scan2'), regen[0])
+    path = Path(folder) / pick.trajectories
     if not path.exists():
         return None, None
     from suture_lfd.study.jobs import TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION
@@ -204,32 +200,32 @@ def _filmstrips(folder, rows, demo_rows, pick, method):
     from suture_lfd.viewer.throw_replay import recording_from_file
 
     folder = Path(folder)
-    demo = next((d for d in demo_rows if d['subject'] == pick['subject']
-                 and d['pair'] == pick['train_pair'] and d.get('bag')), None)
-    other = [r for r in rows if r['subject'] == pick['subject']
-             and r['train_pair'] == pick['train_pair'] and r['test_pair'] != pick['train_pair']
-             and r.get('replay') and (folder / r['replay']).is_file()]
-    if demo is None or not (folder / demo['bag']).is_dir() or not other:
+    demo = next((d for d in demo_rows if d.subject == pick.subject
+                 and d.pair == pick.train_pair and d.bag), None)
+    other = [r for r in rows if r.subject == pick.subject
+             and r.train_pair == pick.train_pair and r.test_pair != pick.train_pair
+             and r.replay and (folder / r.replay).is_file()]
+    if demo is None or not (folder / demo.bag).is_dir() or not other:
         return []
-    throw = max(other, key=lambda r: (r.get('score') or 0.0,
-                                      r['test_phantom'] == pick['train_phantom']))
+    throw = max(other, key=lambda r: (r.score or 0.0,
+                                      r.test_phantom == pick.train_phantom))
     demo_png = f'filmstrip_demo_{method}.png'
     throw_png = f'filmstrip_throw_{method}.png'
     try:
-        write_filmstrip(recording_from_bag(folder / demo['bag']), folder / demo_png,
-                        title=f'demonstration: {demo["subject"]} at {demo["pair"]}')
-        write_filmstrip(recording_from_file(folder / throw['replay']), folder / throw_png,
-                        title=f'learnt at {throw["train_pair"]}, executed at '
-                              f'{throw["test_pair"]} (score {_f(throw["score"], 1)})')
+        write_filmstrip(recording_from_bag(folder / demo.bag), folder / demo_png,
+                        title=f'demonstration: {demo.subject} at {demo.pair}')
+        write_filmstrip(recording_from_file(folder / throw.replay), folder / throw_png,
+                        title=f'learnt at {throw.train_pair}, executed at '
+                              f'{throw.test_pair} (score {_f(throw.score, 1)})')
     except (ValueError, OSError) as exc:
         logging.getLogger(__name__).warning('filmstrips not drawn: %s', exc)
         return []
     return ['#### Seen from the ECM', '',
-            f'The demonstration of {demo["subject"]} at {demo["pair"]}, and the skill learnt '
-            f'from it executed at {throw["test_pair"]} (frames at the subtask starts and the '
+            f'The demonstration of {demo.subject} at {demo.pair}, and the skill learnt '
+            f'from it executed at {throw.test_pair} (frames at the subtask starts and the '
             f'end, rendered offline from the recorded poses; replay it with `suture-lfd view '
-            f'<study folder> --throw throw/{method}/{throw["subject"]}/{throw["train_pair"]}/'
-            f'{throw["test_pair"]}`).', '', f'![demonstration]({demo_png})', '',
+            f'<study folder> --throw throw/{method}/{throw.subject}/{throw.train_pair}/'
+            f'{throw.test_pair}`).', '', f'![demonstration]({demo_png})', '',
             f'![regeneration on another pair]({throw_png})', '']
 
 
@@ -239,7 +235,7 @@ def summarise(records):
 
     Parameters
     ----------
-    records : list of dict
+    records : list of DemoRecord or ThrowRecord
         Study records.
 
     Returns
@@ -292,8 +288,8 @@ def write_report(folder, records, config, run_info=None):
     ----------
     folder : str or Path
         Report folder (exists).
-    records : list of dict
-        Study records (``kind`` 'demo' and 'throw').
+    records : list of DemoRecord or ThrowRecord
+        Study records (:mod:`suture_lfd.study.records`).
     config : dict
         The exact configuration (seeds, design, methods, cohort, files) to print.
     run_info : dict, optional
@@ -310,12 +306,12 @@ def write_report(folder, records, config, run_info=None):
     run_info = run_info or {}
     demo_rows = tables.demos(records)
     throw_rows = tables.throws(records)
-    write_csv(folder / 'throws.csv', throw_rows, THROW_COLUMNS)
-    write_csv(folder / 'demos.csv', demo_rows, DEMO_COLUMNS)
+    write_csv(folder / 'throws.csv', [asdict(r) for r in throw_rows], THROW_COLUMNS)
+    write_csv(folder / 'demos.csv', [asdict(r) for r in demo_rows], DEMO_COLUMNS)
     summary = summarise(records)
     (folder / 'summary.json').write_text(
         json.dumps(_nan_to_none(summary), indent=1, sort_keys=True) + '\n')
-    errors = [r for r in records if r.get('error')]
+    errors = [r for r in records if r.error]
 
     md = ['# Study report: suturing skills learnt from demonstrations (simulation)', '']
     md += [
@@ -327,8 +323,8 @@ def write_report(folder, records, config, run_info=None):
         'paper on the calibrated numbers is therefore by construction; the other numbers '
         '(errors, success rates per subtask, times, other methods) are what the model '
         'predicts.', '',
-        f'Subjects: {len({d["subject"] for d in demo_rows})}; demonstrations: {len(demo_rows)} '
-        f'({sum(1 for d in demo_rows if d.get("ok"))} usable); executed throws: '
+        f'Subjects: {len({d.subject for d in demo_rows})}; demonstrations: {len(demo_rows)} '
+        f'({sum(1 for d in demo_rows if d.ok)} usable); executed throws: '
         f'{len(throw_rows)}; methods: {", ".join(summary) or "none"}; jobs that raised an '
         f'error: {len(errors)}.', '',
         'Files: `throws.csv` (one row per executed throw), `demos.csv` (one row per '
@@ -386,9 +382,9 @@ def write_report(folder, records, config, run_info=None):
         if curves:
             figures.trajectory_figure(
                 curves, folder / f'trajectories_{method}.png',
-                title=f'{pick["subject"]} at {pick["test_pair"]}, method {method}')
+                title=f'{pick.subject} at {pick.test_pair}, method {method}')
             md += ['### Demonstrated and regenerated needle trajectories (Fig. 7)', '',
-                   f'Subject {pick["subject"]} ({pick["group"]}), pair {pick["test_pair"]}.',
+                   f'Subject {pick.subject} ({pick.group}), pair {pick.test_pair}.',
                    '', f'![trajectories](trajectories_{method}.png)', '']
             md += _filmstrips(folder, rows, demo_rows, pick, method)
     if len(summary) > 1:
@@ -415,7 +411,7 @@ def write_report(folder, records, config, run_info=None):
                 json.dumps(summary_all, indent=1, sort_keys=True) + '\n')
     if errors:
         md += ['## Jobs that raised an error', '',
-               _table(['job', 'error'], [[r['key'], r['error']] for r in errors[:50]]), '']
+               _table(['job', 'error'], [[r.key, r.error] for r in errors[:50]]), '']
     md += ['## Run', '']
     if run_info:
         md += [f'- command: `{run_info.get("command", "")}`',
@@ -425,7 +421,7 @@ def write_report(folder, records, config, run_info=None):
                'jobs found by the digest of their inputs and code)',
                f'- wall time of this invocation: {_f(run_info.get("wall_s", float("nan")), 1)} s',
                f'- throughput: {_f(run_info.get("rate", float("nan")), 3)} jobs/s', '']
-    wall = [r.get('wall_s') for r in records if r.get('wall_s') is not None]
+    wall = [r.wall_s for r in records if r.wall_s is not None]
     if wall:
         md += [f'- CPU-side time per job (sum over jobs, any invocation): '
                f'{_f(sum(wall), 1)} s over {len(wall)} jobs', '']

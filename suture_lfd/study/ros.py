@@ -332,9 +332,8 @@ class RosThrows:
 
         Parameters
         ----------
-        job : dict
-            A study ``throw`` job (``key``, ``method``, ``subject``, ``train_pair``,
-            ``test_phantom``, ``test_pair``, ``seed``).
+        job : suture_lfd.study.records.ThrowJob
+            A study throw job.
         skill : suture_lfd.skill.ThrowSkill
             The skill learnt from the job's training demonstration.
 
@@ -350,9 +349,9 @@ class RosThrows:
 
         """
         s = self.settings
-        name = _file_name(job['key'])
-        skill_path = self.skill_file(skill, f'{job["method"]}_{job["subject"]}_'
-                                            f'{job["train_pair"]}')
+        name = _file_name(job.key)
+        skill_path = self.skill_file(skill, f'{job.method}_{job.subject}_'
+                                            f'{job.train_pair}')
         logs = self.folder / 'logs'
         result_path = self.folder / 'results' / f'{name}.json'
         live = self.folder / 'results' / f'{name}.{os.getpid()}.live.json'
@@ -363,8 +362,8 @@ class RosThrows:
         sim = executor = None
         try:
             sim = self._start(NodeProcess(
-                [executable('simulator'), '--ros-args', '-p', f'phantom:={job["test_phantom"]}',
-                 '-p', f'seed:={int(job["seed"])}', '-p', f'target_pair:={job["test_pair"]}',
+                [executable('simulator'), '--ros-args', '-p', f'phantom:={job.test_phantom}',
+                 '-p', f'seed:={int(job.seed)}', '-p', f'target_pair:={job.test_pair}',
                  '-p', f'real_time_factor:={s.real_time_factor:g}', '-p', 'footpedals:=false',
                  # a batch run: arms start at home and power up at once, as in-process
                  '-p', 'power_up_time:=0.0', '-p', 'start_at_home:=true',
@@ -372,7 +371,7 @@ class RosThrows:
                  'camera_rate:=0.0'], logs / f'{name}.simulator.log', env))
             executor = self._start(NodeProcess(
                 [executable('executor'), '--ros-args', '-p', f'skill:={skill_path}', '-p',
-                 f'pair:={job["test_pair"]}', '-p', 'use_sim_time:=true', '-p',
+                 f'pair:={job.test_pair}', '-p', 'use_sim_time:=true', '-p',
                  f'result_file:={live}', '-p', f'rate:={s.rate:g}', '-p',
                  f'stale_timeout:={s.stale_timeout:g}', '-p',
                  f'clock_timeout:={s.clock_timeout:g}', '-p',
@@ -400,7 +399,7 @@ class RosThrows:
                     self._running.remove(proc)
         kept = {k: v for k, v in result.items() if k != 'executed'}
         tmp = result_path.with_name(result_path.stem + '.part.json')
-        tmp.write_text(json.dumps({'key': job['key'], 'domain_id': self.domain_id,
+        tmp.write_text(json.dumps({'key': job.key, 'domain_id': self.domain_id,
                                    'wall_s': time.monotonic() - started, **kept},
                                   sort_keys=True) + '\n')
         os.replace(tmp, result_path)

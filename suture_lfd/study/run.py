@@ -53,6 +53,7 @@ from suture_lfd.study.jobs import JobSettings, init_worker, run_job
 from suture_lfd.study.keys import BOOKKEEPING, demo_ids, with_ids
 from suture_lfd.study.options import QUICK_PAIRS, QUICK_SUBJECTS
 from suture_lfd.study.pool import PoolError
+from suture_lfd.study.records import DemoJob, DemoRecord, ThrowJob, to_json
 from suture_lfd.study.runner import Progress, pending
 from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash, earlier_format_files
@@ -191,7 +192,8 @@ def plan_jobs(config):
 
     Returns
     -------
-    demos, throws : list of dict
+    demos : list of DemoJob
+    throws : list of ThrowJob
         Jobs for :func:`suture_lfd.study.jobs.run_job`, each with its ``id``
         (:func:`suture_lfd.study.keys.with_ids`).
 
@@ -205,27 +207,27 @@ def plan_jobs(config):
         for ph, pairs in config['phantoms'].items():
             for k, pair in enumerate(pairs):
                 key = f'demo/{name}/{pair}'
-                demos.append({
-                    'key': key, 'kind': 'demo', 'subject': name, 'group': subject['group'],
-                    'phantom': ph, 'pair': pair, 'order': rank[pair],
-                    'next_pair': pairs[k + 1] if k + 1 < len(pairs) else None,
-                    'seed': job_seed(seed, key), 'bag': f'bags/{name}_{pair}',
-                    'segments': f'segments/{name}_{pair}.npz'})
+                demos.append(DemoJob(
+                    key=key, subject=name, group=subject['group'],
+                    phantom=ph, pair=pair, order=rank[pair],
+                    next_pair=pairs[k + 1] if k + 1 < len(pairs) else None,
+                    seed=job_seed(seed, key), bag=f'bags/{name}_{pair}',
+                    segments=f'segments/{name}_{pair}.npz'))
     for method in config['methods']:
         for subject in config['subjects']:
             name = subject['name']
             for train_ph, train in order:
                 for test_ph, test in order:
                     key = f'throw/{method}/{name}/{train}/{test}'
-                    throws.append({
-                        'key': key, 'kind': 'throw', 'subject': name,
-                        'group': subject['group'], 'method': method, 'train_phantom': train_ph,
-                        'train_pair': train, 'train_order': rank[train], 'test_phantom': test_ph,
-                        'test_pair': test, 'test_order': rank[test],
-                        'seed': job_seed(seed, key),
-                        'demo_key': f'demo/{name}/{train}',
-                        'trajectories': (f'trajectories/{method}_{name}_{train}.npz'
-                                         if train == test else None)})
+                    throws.append(ThrowJob(
+                        key=key, subject=name,
+                        group=subject['group'], method=method, train_phantom=train_ph,
+                        train_pair=train, train_order=rank[train], test_phantom=test_ph,
+                        test_pair=test, test_order=rank[test],
+                        seed=job_seed(seed, key),
+                        demo_key=f'demo/{name}/{train}',
+                        trajectories=(f'trajectories/{method}_{name}_{train}.npz'
+                                      if train == test else None)))
     demos = with_ids(demos, config)
     return demos, with_ids(throws, config, demo_ids(demos))
 
@@ -239,30 +241,31 @@ def attach_demos(throws, store, demos):
 
     Parameters
     ----------
-    throws : list of dict
+    throws : list of ThrowJob
         Throw jobs with their ``id`` (:func:`plan_jobs`).
     store : suture_lfd.study.store.ResultStore
         The stored records, where the demonstrations are found.
-    demos : list of dict
+    demos : list of DemoJob
         The demonstration jobs the throws name by ``demo_key``.
 
     Returns
     -------
-    list of dict
+    list of ThrowJob
         The throws with ``segments``, ``demo_time_s`` or ``blocked``.
 
     """
-    by_key = {job['key']: job['id'] for job in demos}
+    by_key = {job.key: job.id for job in demos}
     out = []
     for job in throws:
-        demo = store.records.get(by_key.get(job['demo_key']))
-        if demo is None or demo.get('error'):
-            out.append({**job, 'segments': None, 'demo_time_s': None,
-                        'blocked': f'demonstration {job["demo_key"]} '
-                                   + ('failed: ' + demo['error'] if demo else 'missing')})
+        demo = store.records.get(by_key.get(job.demo_key, ''))
+        if demo is None or demo.error:
+            out.append(dataclasses.replace(
+                job, segments=None, demo_time_s=None,
+                blocked=f'demonstration {job.demo_key} '
+                        + ('failed: ' + demo.error if demo else 'missing')))
             continue
-        out.append({**job, 'segments': demo.get('segments') if demo.get('ok') else None,
-                    'demo_time_s': demo.get('time_s')})
+        out.append(dataclasses.replace(job, segments=demo.segments if demo.ok else None,
+                                       demo_time_s=demo.time_s))
     return out
 
 
@@ -276,9 +279,12 @@ def ordered_records(store, jobs):
     """
     out = []
     for job in jobs:
-        record = store.records.get(job['id'])
+        record = store.records.get(job.id)
         if record is not None:
-            out.append({**record, **{k: job[k] for k in BOOKKEEPING if k in job}})
+            shared = ({f.name for f in dataclasses.fields(record)}
+                      & {f.name for f in dataclasses.fields(job)})
+            out.append(dataclasses.replace(record, **{k: getattr(job, k) for k in BOOKKEEPING
+                                                      if k in shared}))
     return out
 
 
@@ -343,7 +349,8 @@ def run_study(args, stream=None):
              if phys_throws else '')
           + f'; results in {out}', file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps(jobs, indent=1) + '\n')
+        (out / 'jobs.json').write_text(json.dumps([to_json(job) for job in jobs], indent=1)
+                                       + '\n')
         return 0
     if args.workers is not None:
         workers = args.workers
@@ -428,7 +435,7 @@ def stored_note(what, store, jobs, stream):
     configuration files or code: kept, never mixed in), and the result files of the earlier
     format, which are not read.
     """
-    ids = {job['id'] for job in jobs}
+    ids = {job.id for job in jobs}
     reused = sum(1 for job in jobs if store.done(job) is not None)
     other = sum(1 for job_id in store.records if job_id not in ids)
     if reused:
@@ -449,7 +456,7 @@ def _write_held_out(out, report, records, held_records, config):
     """Add the held-out geometry section to the report, and ``held_out.csv``."""
     from suture_lfd.study.report import write_csv
 
-    ok = [r for r in held_records if not r.get('error')]
+    ok = [r for r in held_records if not r.error]
     write_csv(out / 'held_out.csv', held_out.held_out_rows(ok, config), held_out.HELD_OUT_COLUMNS)
     (out / 'held_out.json').write_text(
         json.dumps(held_out.summarise(records, ok), indent=1, sort_keys=True) + '\n')
@@ -467,7 +474,7 @@ def _write_physical(out, report, ground_records, records, config, run_info):
     for name, level, correction in physical.variants(config['physical']):
         folder = out / 'physical' / name
         folder.mkdir(parents=True, exist_ok=True)
-        ground_demos = ([r for r in ground_records if r['kind'] == 'demo']
+        ground_demos = ([r for r in ground_records if isinstance(r, DemoRecord)]
                         if config['physical'].get('demos') == 'ground-truth' else None)
         mine = physical.variant_records(records, name, level, ground_demos)
         write_report(folder, mine, variant_config, run_info)

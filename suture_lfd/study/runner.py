@@ -1,10 +1,12 @@
 """
 Run a study's jobs: in this process or in a pool of worker processes, with progress and resume.
 
-A job is a small picklable ``dict`` with ``key`` (its name in the study), ``id`` (what decides
-its result, :mod:`suture_lfd.study.keys`) and ``kind``; a job function (module-level, so worker
-processes can import it) turns a job and its process's state (what the stage's initializer
-returned, None without one) into a result record (``dict``). Jobs run in stages (the
+A job is a small picklable frozen dataclass (:mod:`suture_lfd.study.records`) with ``key`` (its
+name in the study), ``id`` (what decides its result, :mod:`suture_lfd.study.keys`) and
+``failed(error)`` (its record as an error); a job function (module-level, so worker processes
+can import it) turns a job and its process's state (what the stage's initializer returned, None
+without one) into its result record (a frozen dataclass with ``id``, ``key``, ``error``,
+``wall_s`` and ``cpu_s``). Jobs run in stages (the
 demonstrations before the throws learnt from them); within a stage they run in any order,
 ``workers`` at a time (:class:`~suture_lfd.study.pool.WorkerPool`). Every finished record is
 appended to the :class:`~suture_lfd.study.store.ResultStore` by this (the parent) process only,
@@ -16,6 +18,7 @@ handed out, the records stored stay, the workers are stopped and
 :class:`~suture_lfd.study.signals.Interrupted` is raised.
 """
 
+from dataclasses import replace
 import logging
 import shutil
 import sys
@@ -134,20 +137,17 @@ def call_job(job_fn, job, state=None):
     try:
         record = job_fn(job, state)
     except Exception as exc:  # noqa: BLE001 -- one broken throw must not stop the study
-        _LOG.error('job %s failed:\n%s', job['key'], traceback.format_exc())
-        record = {**job, 'error': f'{type(exc).__name__}: {exc}'}
-    record.setdefault('error', '')
-    record['wall_s'] = time.perf_counter() - t0
-    record['cpu_s'] = time.process_time() - c0
-    return record
+        _LOG.error('job %s failed:\n%s', job.key, traceback.format_exc())
+        record = job.failed(f'{type(exc).__name__}: {exc}')
+    return replace(record, wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)
 
 
 def pending(jobs, store):
     """Return the jobs whose result is not stored yet (or stored with an error), in order."""
     out = []
     for job in jobs:
-        record = store.records.get(job['id'])
-        if record is None or record.get('error'):
+        record = store.records.get(job.id)
+        if record is None or record.error:
             out.append(job)
     return out
 
@@ -158,7 +158,7 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
 
     Parameters
     ----------
-    stages : list of list of dict
+    stages : list of list of job
         Jobs per stage; a stage starts when the one before it has finished.
     job_fn : callable
         Module-level function ``(job, state) -> record``.
@@ -199,7 +199,7 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
         store.add(record)
         ran += 1
         if progress is not None:
-            progress.advance(record['key'])
+            progress.advance(record.key)
 
     with stop_on_signals() as stop:
         if workers <= 1:

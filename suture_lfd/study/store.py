@@ -15,16 +15,19 @@ Files of the earlier format (``results-<configuration hash>.jsonl``, one per con
 records have no ``id``) are not read (:func:`earlier_format_files` names them for the run's
 message): their jobs run again.
 
-Every record is a flat ``dict`` with at least ``id``, ``key`` (the job's name in its run) and
-``kind``.
+Records are typed (:mod:`suture_lfd.study.records`): each line is a record's fields
+(:func:`~suture_lfd.study.records.to_json`), read back by the store's ``parse`` function
+(:func:`~suture_lfd.study.records.record_from_json` by default); a line it refuses counts as
+damaged. A record has at least ``id``, ``key`` (the job's name in its run) and ``error``.
 """
 
 import hashlib
 import json
 import logging
-import math
 import os
 from pathlib import Path
+
+from suture_lfd.study.records import record_from_json, to_json
 
 _LOG = logging.getLogger(__name__)
 
@@ -50,19 +53,6 @@ def config_hash(config, length=12):
     return hashlib.sha256(text.encode()).hexdigest()[:length]
 
 
-def _jsonable(value):
-    """Replace NaN and infinities (not JSON) by None, recursively; numpy scalars by Python."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if hasattr(value, 'item') and not isinstance(value, (str, bytes)):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 RESULTS_NAME = 'results'
 
 
@@ -86,12 +76,15 @@ class ResultStore:
         Output folder of the study or sweep (created if missing).
     name : str
         File name without ``.jsonl`` (default ``results``).
+    parse : callable
+        ``dict -> record`` of a stored line, raising ValueError or TypeError on anything else
+        (default :func:`~suture_lfd.study.records.record_from_json`).
 
     Attributes
     ----------
     path : Path
         ``<folder>/<name>.jsonl``.
-    records : dict of str to dict
+    records : dict of str to record
         Finished jobs by ``id``, in the order they were stored (the last record of an ``id``
         wins: a job stored with an error and run again).
     dropped : int
@@ -100,7 +93,8 @@ class ResultStore:
 
     """
 
-    def __init__(self, folder, name=RESULTS_NAME):
+    def __init__(self, folder, name=RESULTS_NAME, parse=record_from_json):
+        self.parse = parse
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.path = self.folder / f'{name}.jsonl'
@@ -119,14 +113,15 @@ class ResultStore:
         kept = []
         for line in lines:
             try:
-                record = json.loads(line)
-                if not isinstance(record, dict) or 'id' not in record or 'key' not in record:
+                data = json.loads(line)
+                if not isinstance(data, dict):
                     raise ValueError('not a study record')
-            except ValueError:
+                record = self.parse(data)
+            except (ValueError, TypeError):
                 if line.strip():
                     self.dropped += 1
                 continue
-            self.records[record['id']] = record
+            self.records[record.id] = record
             kept.append(line)
         if self.dropped or tail:
             _LOG.warning('%s: ignored %d damaged line(s) (an interrupted write, or not a record '
@@ -142,8 +137,8 @@ class ResultStore:
 
     def done(self, job):
         """Return the record of ``job`` (by its ``id``) if stored without an error, else None."""
-        record = self.records.get(job['id'])
-        return None if record is None or record.get('error') else record
+        record = self.records.get(job.id)
+        return None if record is None or record.error else record
 
     def __len__(self):
         return len(self.records)
@@ -154,19 +149,26 @@ class ResultStore:
 
         Parameters
         ----------
-        record : dict
-            Flat record with ``id``, ``key`` and ``kind``; NaN becomes ``null``.
+        record : dataclass
+            A record with ``id`` and ``key``; NaN becomes ``null``, and the record kept is the
+            one read back (:attr:`parse`), as a later run finds it.
+
+        Raises
+        ------
+        ValueError
+            A record without ``id`` or ``key``, or one :attr:`parse` refuses.
 
         """
-        if 'id' not in record or 'key' not in record or 'kind' not in record:
-            raise ValueError(f'a study record needs id, key and kind, got {sorted(record)}')
-        record = _jsonable(record)
+        data = to_json(record)
+        if not data.get('id') or not data.get('key'):
+            raise ValueError(f'a study record needs its id and key, got {data!r}')
+        kept = self.parse(data)
         if self._file is None:
             self._file = open(self.path, 'a')
-        self._file.write(json.dumps(record, sort_keys=True) + '\n')
+        self._file.write(json.dumps(data, sort_keys=True) + '\n')
         self._file.flush()
         os.fsync(self._file.fileno())
-        self.records[record['id']] = record
+        self.records[kept.id] = kept
 
     def close(self):
         """Close the file (records stay readable in :attr:`records`)."""

@@ -64,6 +64,7 @@ from suture_lfd.study.engine import (
 from suture_lfd.study.jobs import JobSettings, init_worker, run_job
 from suture_lfd.study.keys import demo_ids, with_ids
 from suture_lfd.study.pool import PoolError
+from suture_lfd.study.records import DemoRecord, ThrowRecord, to_json
 from suture_lfd.study.run import (
     attach_demos,
     build_config,
@@ -268,7 +269,8 @@ def plan_sweep(sweep):
     -------
     config : dict
         ``studies`` (seed -> study configuration), ``cells`` (name -> parameters), ``axes``.
-    demos, throws : list of dict
+    demos : list of DemoJob
+    throws : list of ThrowJob
         Study jobs with keys, paths and seeds of the sweep: ``seed-<s>/demo/...`` (in physical
         mode ``seed-<s>/physical/level-<L>/demo/...``) and ``<cell>/seed-<s>/throw/...``;
         throws carry their cell's ``dmp`` values; every job its ``id``
@@ -287,10 +289,10 @@ def plan_sweep(sweep):
         phys_demos, _ = physical.plan_physical({'levels': levels, 'corrections': [True]},
                                                seed_demos, [], job_seed, seed)
         ground = seed_demos if any(m is None for m in modes.values()) else []
-        placed = [{**job, 'key': f'{prefix}/{job["key"]}', 'cohort_seed': int(seed),
-                   'bag': f'{prefix}/{job["bag"]}', 'segments': f'{prefix}/{job["segments"]}'}
-                  for job in [*({k: v for k, v in j.items() if k != 'id'} for j in ground),
-                              *phys_demos]]
+        placed = [dataclasses.replace(job, id='', key=f'{prefix}/{job.key}',
+                                      cohort_seed=int(seed), bag=f'{prefix}/{job.bag}',
+                                      segments=f'{prefix}/{job.segments}')
+                  for job in [*ground, *phys_demos]]
         seed_demos = with_ids(placed, config)
         demos += seed_demos
         for name, point in cells:
@@ -301,11 +303,10 @@ def plan_sweep(sweep):
                 _, cell_throws = physical.plan_physical(
                     {'levels': [level], 'corrections': [correction]}, [], seed_throws,
                     job_seed, seed)
-            throws += with_ids([{
-                **job, 'key': f'{name}/{prefix}/{job["key"]}', 'cell': name,
-                'dmp': dmp_overrides(point), 'demo_key': f'{prefix}/{job["demo_key"]}',
-                'trajectories': (f'{where}/{job["trajectories"]}'
-                                 if job['trajectories'] else None)}
+            throws += with_ids([dataclasses.replace(
+                job, id='', key=f'{name}/{prefix}/{job.key}', cell=name,
+                dmp=dmp_overrides(point), demo_key=f'{prefix}/{job.demo_key}',
+                trajectories=f'{where}/{job.trajectories}' if job.trajectories else None)
                 for job in cell_throws], config, demo_ids(seed_demos))
     config = {'format': SWEEP_FORMAT, 'studies': studies, 'cells': dict(cells),
               'axes': [[a, list(v)] for a, v in sweep.axes], 'seeds': list(sweep.seeds)}
@@ -330,14 +331,15 @@ def _cell_records(records, name, seed, mode=None):
         prefix += f'physical/{physical.variant_name(mode[0], True)}/'
     out = []
     for r in records:
-        if r['kind'] == 'demo' and r['key'].startswith(prefix + 'demo/'):
-            out.append({**r, 'key': r['key'][len(prefix):]})
-        elif r['kind'] == 'throw' and r.get('cell') == name and \
-                r['key'].startswith(f'{name}/seed-{seed}/{variant}'):
-            t = r.get('trajectories')
+        if isinstance(r, DemoRecord) and r.key.startswith(prefix + 'demo/'):
+            out.append(dataclasses.replace(r, key=r.key[len(prefix):]))
+        elif isinstance(r, ThrowRecord) and r.kind == 'throw' and r.cell == name and \
+                r.key.startswith(f'{name}/seed-{seed}/{variant}'):
+            t = r.trajectories
             where_t = where + variant
-            out.append({**r, 'key': r['key'][len(name) + 1 + len(f'seed-{seed}/{variant}'):],
-                        'trajectories': t[len(where_t):] if t and t.startswith(where_t) else t})
+            key = r.key[len(name) + 1 + len(f'seed-{seed}/{variant}'):]
+            out.append(dataclasses.replace(
+                r, key=key, trajectories=t[len(where_t):] if t and t.startswith(where_t) else t))
     return out
 
 
@@ -496,7 +498,8 @@ def run_sweep(args, stream=None):
           f'{len(demos)} demonstrations + {len(throws)} throws; results in {out}',
           file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps(demos + throws, indent=1) + '\n')
+        (out / 'jobs.json').write_text(json.dumps([to_json(job) for job in demos + throws],
+                                                  indent=1) + '\n')
         return 0
     cohort = next(iter(config['studies'].values()))['cohort_file']
     settings = JobSettings(out=str(out), cohort_path=cohort, cohort_seed=sweep.seeds[0])

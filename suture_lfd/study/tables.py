@@ -1,12 +1,13 @@
 """
 The seed paper's evaluation tables, computed from a study's per-job records.
 
-Records are flat dicts (see :mod:`suture_lfd.study`): ``kind == 'demo'`` for a demonstration,
-``kind == 'throw'`` for one executed throw (a skill learnt on ``train_pair`` executed on
-``test_pair`` by ``method``). A throw with ``train_pair == test_pair`` is a regeneration
-(Table II); all throws of a subject form its generality matrix (heat map, Table III); the
-throws of the experienced subjects give the subtask success rates (Table IV); complete throws and
-demonstrations give the task times (the paper's task-time figure).
+Records are typed (:mod:`suture_lfd.study.records`): a :class:`DemoRecord` for a demonstration,
+a :class:`ThrowRecord` of ``kind == 'throw'`` for one executed throw (a skill learnt on
+``train_pair`` executed on ``test_pair`` by ``method``). A throw with ``train_pair ==
+test_pair`` is a regeneration (Table II); all throws of a subject form its generality matrix
+(heat map, Table III); the throws of the experienced subjects give the subtask success rates
+(Table IV); complete throws and demonstrations give the task times (the paper's task-time
+figure).
 
 Every function here is a pure function of the records, so the report's tables can be checked
 against its CSV.
@@ -17,6 +18,7 @@ import warnings
 
 import numpy as np
 from sim_bridge.common.vocabulary import SUBTASKS, TASKS
+from suture_lfd.study.records import DemoRecord, ThrowRecord
 
 GROUPS = ('experienced', 'naive')
 ERROR_KINDS = (('pos', 'mm'), ('ori', 'deg'))
@@ -47,24 +49,24 @@ PAPER = {
 
 def demos(records):
     """Return the demonstration records, sorted by subject and pair order of appearance."""
-    rows = [r for r in records if r.get('kind') == 'demo' and not r.get('error')]
-    return sorted(rows, key=lambda r: (r['subject'], r.get('order', 0), r['pair']))
+    rows = [r for r in records if isinstance(r, DemoRecord) and not r.error]
+    return sorted(rows, key=lambda r: (r.subject, r.order, r.pair))
 
 
 def throws(records, method=None):
     """Return the throw records (of one method), sorted by method, subject, train, test."""
-    rows = [r for r in records if r.get('kind') == 'throw' and not r.get('error')
-            and (method is None or r['method'] == method)]
-    return sorted(rows, key=lambda r: (r['method'], r['subject'], r.get('train_order', 0),
-                                       r['train_pair'], r.get('test_order', 0), r['test_pair']))
+    rows = [r for r in records if isinstance(r, ThrowRecord) and r.kind == 'throw'
+            and not r.error and (method is None or r.method == method)]
+    return sorted(rows, key=lambda r: (r.method, r.subject, r.train_order,
+                                       r.train_pair, r.test_order, r.test_pair))
 
 
 def methods(records):
     """Return the methods present, in first-seen order."""
     seen = []
     for r in records:
-        if r.get('kind') == 'throw' and r.get('method') and r['method'] not in seen:
-            seen.append(r['method'])
+        if isinstance(r, ThrowRecord) and r.kind == 'throw' and r.method not in seen:
+            seen.append(r.method)
     return seen
 
 
@@ -77,8 +79,8 @@ def pair_order(rows):
     """Return the marker pairs in the order of the study (train then test appearance)."""
     keyed = {}
     for r in rows:
-        keyed.setdefault(r['train_pair'], r.get('train_order', 0))
-        keyed.setdefault(r['test_pair'], r.get('test_order', 0))
+        keyed.setdefault(r.train_pair, r.train_order)
+        keyed.setdefault(r.test_pair, r.test_order)
     return sorted(keyed, key=lambda p: (keyed[p], p))
 
 
@@ -106,15 +108,15 @@ def generality(rows):
     subjects = {}
     matrix = {}
     for r in rows:
-        subjects.setdefault(r['subject'], r['group'])
-        m = matrix.setdefault(r['subject'], np.full((len(pairs), len(pairs)), np.nan))
-        m[index[r['train_pair']], index[r['test_pair']]] = r['score']
-    subject_mean = {s: _mean([r['score'] for r in rows if r['subject'] == s]) for s in subjects}
+        subjects.setdefault(r.subject, r.group)
+        m = matrix.setdefault(r.subject, np.full((len(pairs), len(pairs)), np.nan))
+        m[index[r.train_pair], index[r.test_pair]] = r.score
+    subject_mean = {s: _mean([r.score for r in rows if r.subject == s]) for s in subjects}
     group_mean, n = {}, {}
     for group in GROUPS:
-        scores = [r['score'] for r in rows if r['group'] == group]
+        scores = [r.score for r in rows if r.group == group]
         group_mean[group], n[group] = _mean(scores), len(scores)
-    group_mean['overall'] = _mean([r['score'] for r in rows])
+    group_mean['overall'] = _mean([r.score for r in rows])
     n['overall'] = len(rows)
     stack = np.array(list(matrix.values())) if matrix else np.zeros((0, len(pairs), len(pairs)))
     with np.errstate(invalid='ignore'), warnings.catch_warnings():
@@ -127,13 +129,13 @@ def generality(rows):
 
 def score_counts(rows):
     """Return ``{score level: count}`` for the levels 1.0, 0.8, 0.4, 0.0."""
-    return {level: sum(1 for r in rows if abs(r['score'] - level) < 1e-9)
+    return {level: sum(1 for r in rows if abs(r.score - level) < 1e-9)
             for level in (1.0, 0.8, 0.4, 0.0)}
 
 
 def regeneration_rows(rows):
     """Return the regeneration throws (learnt and executed on the same pair)."""
-    return [r for r in rows if r['train_pair'] == r['test_pair']]
+    return [r for r in rows if r.train_pair == r.test_pair]
 
 
 def regeneration(rows):
@@ -159,14 +161,15 @@ def regeneration(rows):
         for kind, unit in ERROR_KINDS:
             for point in ERROR_POINTS:
                 column = f'{task}_{point}_{unit}'
-                values = np.array([r[column] for r in regen if r.get(column) is not None
-                                   and not math.isnan(r[column])], float)
+                cells = [getattr(r, column) for r in regen]
+                values = np.array([v for v in cells if v is not None and not math.isnan(v)],
+                                  float)
                 errors[(task, kind, point)] = {
                     'mean': float(values.mean()) if values.size else float('nan'),
                     'std': float(values.std(ddof=1)) if values.size > 1 else float('nan'),
                     'median': float(np.median(values)) if values.size else float('nan'),
                     'n': int(values.size), 'column': column}
-    success = sum(1 for r in regen if r['score'] == 1.0)
+    success = sum(1 for r in regen if r.score == 1.0)
     total = len(regen)
     return {'errors': errors, 'success': success, 'total': total,
             'rate': success / total if total else float('nan')}
@@ -187,11 +190,11 @@ def subtask_success(rows, group='experienced'):
         cumulative successes)``.
 
     """
-    rows = [r for r in rows if group is None or r['group'] == group]
+    rows = [r for r in rows if group is None or r.group == group]
     out = {'total': len(rows)}
     alive = rows
     for task in SUBTASKS:
-        ok = [r for r in alive if r[task]]
+        ok = [r for r in alive if getattr(r, task)]
         out[task] = (len(ok), len(alive), len(ok))
         alive = ok
     return out
@@ -214,19 +217,19 @@ def task_times(rows, demo_rows):
     """
     out = {}
     for d in demo_rows:
-        if not d.get('ok'):
+        if not d.ok:
             continue
-        ph = out.setdefault(d['phantom'], {'pairs': [], 'demo': {}, 'lfd': {}})
-        if d['pair'] not in ph['pairs']:
-            ph['pairs'].append(d['pair'])
-        ph['demo'].setdefault(d['pair'], []).append(d['time_s'])
+        ph = out.setdefault(d.phantom, {'pairs': [], 'demo': {}, 'lfd': {}})
+        if d.pair not in ph['pairs']:
+            ph['pairs'].append(d.pair)
+        ph['demo'].setdefault(d.pair, []).append(d.time_s)
     for r in regeneration_rows(rows):
-        if r['score'] != 1.0:
+        if r.score != 1.0:
             continue
-        ph = out.setdefault(r['test_phantom'], {'pairs': [], 'demo': {}, 'lfd': {}})
-        if r['test_pair'] not in ph['pairs']:
-            ph['pairs'].append(r['test_pair'])
-        ph['lfd'].setdefault(r['test_pair'], []).append(r['time_s'])
+        ph = out.setdefault(r.test_phantom, {'pairs': [], 'demo': {}, 'lfd': {}})
+        if r.test_pair not in ph['pairs']:
+            ph['pairs'].append(r.test_pair)
+        ph['lfd'].setdefault(r.test_pair, []).append(r.time_s)
     for ph in out.values():
         ph['demo_mean'] = _mean([t for ts in ph['demo'].values() for t in ts])
         ph['lfd_mean'] = _mean([t for ts in ph['lfd'].values() for t in ts])

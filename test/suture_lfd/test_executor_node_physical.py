@@ -3,12 +3,14 @@ The executor node in physical mode: a throw on CRTK topics and the perception no
 
 Real processes on loopback: the simulator node with ``physical:=true`` and hidden kinematic
 errors (its truth only under ``/evaluation/``), the perception node on the simulated endoscope,
-and the executor node with ``physical:=true``. The throw's score is read from the evaluation's
+and the executor node with ``physical:=true``, which registers the arms against the endoscope
+on the camera's images before the throw. The throw's score is read from the evaluation's
 ``/evaluation/sim/events``; what the executor reads is checked from the ROS graph (its
 subscriptions), not from its code.
 """
 
 import json
+import time
 
 from crtk_msgs.msg import StringStamped
 from harness import FAST_ARMS
@@ -24,7 +26,7 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 EVENTS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 THROW_TIMEOUT = 900.0  # s of wall time for a whole throw with rendering on a loaded 2-core machine
-ERROR_LEVEL = 1.0      # mm class of the hidden kinematic errors
+ERROR_LEVEL = 3.0      # mm class of the hidden kinematic errors
 # what the executor may read besides the arms' CRTK topics and the perception node's outputs
 ALLOWED_SIM = {'/sim/process'}
 
@@ -40,7 +42,9 @@ def segments(simulation, tmp_path_factory):
 
 def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone(
         launch, ros, segments, tmp_path):
-    sim = launch('simulator', '--ros-args', *FAST_ARMS, '-p', 'real_time_factor:=0.25',
+    # a tenth of real time: at a quarter, on a loaded 2-core machine, the executor's commands
+    # lag the arms through the insertion and the needle misses the exit (score 0 in two runs)
+    sim = launch('simulator', '--ros-args', *FAST_ARMS, '-p', 'real_time_factor:=0.1',
                  '-p', 'physical:=true', '-p', f'kinematic_error_level:={ERROR_LEVEL}',
                  '-p', 'camera_rate:=1.0', '-p', 'max_lag:=10.0',
                  '-p', 'visualization_rate:=0.0')
@@ -53,7 +57,8 @@ def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone
     # message has reached this probe
     outcome = tmp_path / 'outcome.json'
     executor = launch('executor', '--ros-args', '-p', f'segments:={segments}',
-                      '-p', 'physical:=true', '-p', 'pair:=synth1', '-p', 'stale_timeout:=1.0',
+                      '-p', 'method:=pair_frame', '-p', 'physical:=true', '-p', 'pair:=synth1',
+                      '-p', 'stale_timeout:=1.0',
                       '-p', f'result_file:={outcome}')
     probe = ros.node('physical_executor_probe')
     scores, results = [], []
@@ -78,7 +83,8 @@ def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone
 
     inputs = {'/PSM1/measured_cp', '/PSM2/local/measured_cp', '/ECM/local/measured_cp',
               '/tf_static', '/perception/needle/measured_cp', '/perception/markers/entries',
-              '/perception/markers/exits', '/perception/needle/status'}
+              '/perception/markers/exits', '/perception/needle/status', '/ECM/left/image_raw',
+              '/ECM/right/camera_info'}
     assert ros.wait_for(lambda: inputs <= set(subscriptions()), 120.0), \
         (sorted(subscriptions()), logs())
     subs = subscriptions()
@@ -91,10 +97,15 @@ def test_in_physical_mode_the_executor_runs_a_throw_on_crtk_and_perception_alone
     assert ros.wait_for(lambda: results or outcome.exists(), THROW_TIMEOUT), logs()
     result = results[-1] if results else json.loads(outcome.read_text())
     assert result['state'] == 'done', (result, logs())
-    # the evaluation scored the throw; its score is not asserted here: open loop on the arms'
-    # own kinematics the node path scores 0 so far (README, physical mode)
+    assert 'registration done' in executor.log(), logs()
+    # the evaluation scored the throw: the last score event is the throw's
     assert ros.wait_for(lambda: scores, 60.0), logs()
-    assert 'score' in scores[-1]['score'], scores[-1]
+    time.sleep(2.0)
+    score = scores[-1]['score']
+    print('physical node throw:', json.dumps(score), flush=True)
+    if score['score'] < 0.8:
+        print('executor log:', executor.log()[-12000:], sep='\n', flush=True)
+    assert score['score'] >= 0.8, (score, logs())
     # the whole throw long, it read none of the truth
     subs = subscriptions() or subs
     assert not [t for t in subs if t.startswith('/evaluation/')], sorted(subs)

@@ -103,3 +103,35 @@ def test_the_marker_orientation_carries_the_plane_normal_as_its_z_axis(normal):
     q = normal_quaternion(n)
     assert np.linalg.norm(q) == pytest.approx(1.0)
     np.testing.assert_allclose(matrix_from_quaternion(q)[:3, 2], n, atol=1e-12)
+
+
+def test_a_needle_let_go_is_where_it_was_left_until_a_look_taken_after_the_release():
+    feed = PerceptionFeed('synth1', 1)
+    feed.camera_moved(camera_pose())
+    feed.markers_seen(0.0, [[0, 0.004, 0.1]], [[0, -0.004, 0.1]], [0, 0, -1])
+    T_cam_needle = np.eye(4)
+    T_cam_needle[:3, 3] = [0.02, 0.0, 0.1]     # needle centre at (0.02, 0, 0) in world
+    feed.needle_seen(0.0, T_cam_needle, NeedleStatus(True))
+    lying = feed.observe(arms(0.0, 0.8, 0.8)).T_world_needle
+    wire = feed._tracker.geometry.points_world(lying, 48)
+    tool = np.eye(4)
+    tool[:3, 3] = wire[10]
+    assert feed.observe(arms(0.1, 0.8, -0.2, tool2=tool)).holders == ('PSM2',)
+    moved = tool.copy()
+    moved[:3, 3] += [0.0, 0.005, 0.0]          # carried 5 mm along y
+    # a look while it is carried (the jaws hide it: a stale pose, 2 mm short)
+    stale = T_cam_needle.copy()
+    stale[:3, 3] += [0.0, -0.003, 0.0]         # camera y is world -y
+    feed.needle_seen(0.3, stale, NeedleStatus(True))
+    left = feed.observe(arms(0.4, 0.8, 0.8, tool2=moved))   # PSM2 lets go
+    assert left.holders == ()
+    np.testing.assert_allclose(left.T_world_needle[:3, 3], [0.02, 0.005, 0.0], atol=1e-12)
+    # the look taken before the release is not taken for where it lies now
+    assert np.allclose(feed.observe(arms(0.5, 0.8, 0.8, tool2=moved)).T_world_needle,
+                       left.T_world_needle)
+    # a look after the release is
+    seen = T_cam_needle.copy()
+    seen[:3, 3] += [0.0, -0.0055, 0.0]
+    feed.needle_seen(0.6, seen, NeedleStatus(True))
+    after = feed.observe(arms(0.7, 0.8, 0.8, tool2=moved)).T_world_needle
+    np.testing.assert_allclose(after[:3, 3], [0.02, 0.0055, 0.0], atol=1e-12)

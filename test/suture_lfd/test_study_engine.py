@@ -4,6 +4,7 @@ Every test runs a real ``distributed`` cluster of process workers on loopback (a
 ``LocalCluster``, or a scheduler with ``dask worker`` processes started here).
 """
 
+from dataclasses import dataclass
 import json
 import os
 from pathlib import Path
@@ -32,21 +33,53 @@ def study(out, *args):
     return subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT)
 
 
+@dataclass(frozen=True)
+class SquareRecord:
+    """The record of a :class:`SquareJob`: the fields the job runner and the store need."""
+
+    id: str
+    key: str
+    value: int | None = None
+    error: str = ''
+    wall_s: float | None = None
+    cpu_s: float | None = None
+    code: str | None = None
+    worker: str | None = None
+
+
+@dataclass(frozen=True)
+class SquareJob:
+    """A job of the machinery's own kind: square ``x``, leaving a file per run in ``runs``."""
+
+    id: str
+    key: str
+    x: int
+    runs: str
+    sleep: float = 0.0
+
+    def failed(self, error):
+        return SquareRecord(self.id, self.key, error=error)
+
+
+def parse(data):
+    return SquareRecord(**data)
+
+
 # module-level job functions: Dask workers import them by reference
 def square_job(job, state=None):
     """Record ``x * x``; leave a file per run so that tests can count the runs of a job."""
-    runs = Path(job['runs'])
+    runs = Path(job.runs)
     runs.mkdir(parents=True, exist_ok=True)
-    (runs / f'{job["key"]}.{os.getpid()}.{time.monotonic_ns()}').touch()
-    if job.get('sleep'):
-        time.sleep(job['sleep'])
-    return {**job, 'value': job['x'] * job['x']}
+    (runs / f'{job.key}.{os.getpid()}.{time.monotonic_ns()}').touch()
+    if job.sleep:
+        time.sleep(job.sleep)
+    return SquareRecord(job.id, job.key, value=job.x * job.x)
 
 
 def dying_job(job, state=None):
     """Kill the worker process on the first run of job 'k3' (a crash mid-job); else square."""
-    marker = Path(job['runs']) / 'killed-once'
-    if job['key'] == 'k3' and not marker.exists():
+    marker = Path(job.runs) / 'killed-once'
+    if job.key == 'k3' and not marker.exists():
         marker.parent.mkdir(parents=True, exist_ok=True)
         marker.touch()
         os._exit(1)
@@ -54,8 +87,8 @@ def dying_job(job, state=None):
 
 
 def jobs(tmp_path, n, **extra):
-    return [{'id': f'id-k{i}', 'key': f'k{i}', 'kind': 'test', 'x': i,
-             'runs': str(tmp_path / 'runs'), **extra} for i in range(n)]
+    return [SquareJob(f'id-k{i}', f'k{i}', i, str(tmp_path / 'runs'), **extra)
+            for i in range(n)]
 
 
 def runs_of(tmp_path, key):
@@ -102,37 +135,37 @@ def test_quick_study_through_dask_gives_the_local_pool_s_csv_byte_for_byte(tmp_p
 
 def test_a_worker_killed_mid_job_is_retried_and_every_job_is_stored(tmp_path):
     todo = jobs(tmp_path, 8)
-    with ResultStore(tmp_path, 'killed') as store, \
+    with ResultStore(tmp_path, 'killed', parse=parse) as store, \
             DaskSession(EngineSpec('dask'), workers=2) as session:
         ran = session.run_stages([todo], dying_job, store)
         assert ran == 8
-        assert {r['key']: r['value'] for r in store.records.values()} == \
+        assert {r.key: r.value for r in store.records.values()} == \
             {f'k{i}': i * i for i in range(8)}
-        assert all(not r['error'] for r in store.records.values())
+        assert all(not r.error for r in store.records.values())
     assert (tmp_path / 'runs' / 'killed-once').exists()  # the worker did die on k3
 
 
 def test_a_pool_worker_killed_mid_job_stores_an_error_and_the_others_run(tmp_path):
     todo = jobs(tmp_path, 6)
-    with ResultStore(tmp_path, 'pool') as store:
+    with ResultStore(tmp_path, 'pool', parse=parse) as store:
         assert run_stages([todo], dying_job, store, workers=2) == 6
-        errors = {r['key']: r['error'] for r in store.records.values() if r['error']}
+        errors = {r.key: r.error for r in store.records.values() if r.error}
         assert list(errors) == ['k3'] and 'died' in errors['k3']
         assert run_stages([todo], dying_job, store, workers=2) == 1  # only k3 again
-        assert not any(r['error'] for r in store.records.values())
+        assert not any(r.error for r in store.records.values())
     assert runs_of(tmp_path, 'k0') == 1
 
 
 def test_an_interrupted_dask_run_resumes_without_redoing_jobs(tmp_path):
     todo = jobs(tmp_path, 12, sleep=0.05)
     spec = EngineSpec('dask')
-    with ResultStore(tmp_path, 'resume') as store:
+    with ResultStore(tmp_path, 'resume', parse=parse) as store:
         with pytest.raises(KeyboardInterrupt):
             run_stages_on(spec, [todo], square_job, store, workers=2,
                           progress=InterruptAfter(12, 5))
-        stored = {r['key'] for r in store.records.values()}
+        stored = {r.key for r in store.records.values()}
     assert 5 <= len(stored) < 12
-    with ResultStore(tmp_path, 'resume') as store:
+    with ResultStore(tmp_path, 'resume', parse=parse) as store:
         ran = run_stages_on(spec, [todo], square_job, store, workers=2)
         assert ran == 12 - len(stored)
         assert len(store.records) == 12
@@ -174,7 +207,7 @@ def test_a_worker_with_other_code_is_refused_and_nothing_is_stored(tmp_path):
             spec = parse_engine(cluster.scheduler_address)
             with DaskSession(spec) as session:
                 session.client.wait_for_workers(1, timeout=120)
-                with ResultStore(tmp_path, 'other') as store:
+                with ResultStore(tmp_path, 'other', parse=parse) as store:
                     with pytest.raises(CodeMismatchError, match='other suture_lfd code'):
                         session.run_stages([jobs(tmp_path, 3)], square_job, store)
                     assert len(store.records) == 0
