@@ -29,6 +29,7 @@ the study learnt, on a private ROS domain per worker (:mod:`suture_lfd.study.ros
 demonstrations stay in-process. Its jobs have other ``id`` s than the in-process ones.
 """
 
+from collections.abc import Callable, Sequence
 import dataclasses
 import json
 import logging
@@ -37,6 +38,7 @@ from pathlib import Path
 import shlex
 import sys
 import time
+from typing import IO, Any
 import zlib
 
 import numpy as np
@@ -45,6 +47,7 @@ from suture_lfd.study.digest import code_digest, file_digest
 from suture_lfd.study.engine import (
     CodeMismatchError,
     EngineError,
+    EngineSpec,
     open_session,
     parse_engine,
     run_stages_on,
@@ -55,7 +58,7 @@ from suture_lfd.study.options import QUICK_PAIRS, QUICK_SUBJECTS
 from suture_lfd.study.pool import PoolError
 from suture_lfd.study.records import DemoJob, DemoRecord, ThrowJob, to_json
 from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
+from suture_lfd.study.signals import StopRequest, end_interrupted, signal_of, stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash, earlier_format_files
 
 _LOG = logging.getLogger(__name__)
@@ -363,45 +366,22 @@ def run_study(args, stream=None):
         return 2
     settings = JobSettings(out=str(out), cohort_path=config['cohort_file'],
                            cohort_seed=config['seed'])
-    status, interrupted = 0, None
+    status = 0
     with stop_on_signals('study') as stop, ResultStore(out) as store:
         reused = stored_note('study', store, jobs, stream)
         progress = Progress(total, done=reused, stream=stream)
         if not args.report_only:
-            session = None
-            try:
-                if engine.kind == 'dask' and pending(jobs, store):
-                    with stop.deferred():  # a cluster is never left half started
-                        session = open_session(engine, workers)
-                    stop.check()
-                    print(f'study: jobs run on the {engine.describe()} '
-                          f'({session.n_workers()} workers)', file=stream, flush=True)
-                where = session or engine
-                run_stages_on(where, [demos + phys_demos], run_job, store, workers=workers,
-                              progress=progress, initializer=init_worker,
-                              initargs=(settings,))
-                if held_jobs:  # fewer than the matrix's throws: their figure comes first
-                    run_stages_on(where, [attach_demos(held_jobs, store, demos)], run_job,
-                                  store, workers=workers, progress=progress,
-                                  initializer=init_worker, initargs=(settings,))
-                run_stages_on(where, [attach_demos(throws, store, demos)], run_job, store,
-                              workers=workers, progress=progress, initializer=init_worker,
-                              initargs=(settings, ros))
-                if phys_throws:  # in-process, whatever --via-ros says
-                    run_stages_on(where, [attach_demos(phys_throws, store, demos + phys_demos)],
-                                  run_job, store, workers=workers, progress=progress,
-                                  initializer=init_worker, initargs=(settings,))
-            except (CodeMismatchError, EngineError, PoolError) as exc:
-                progress.finish()
-                print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
-                status = 1
-            except KeyboardInterrupt as exc:
-                interrupted = signal_of(exc)
-            finally:
-                if session is not None:
-                    session.close(stop=interrupted is not None)
-            if interrupted is not None:
-                return end_interrupted('study', progress, total, store, interrupted, stream)
+            stages = [Stage(lambda: demos + phys_demos, (settings,))]
+            if held_jobs:  # fewer than the matrix's throws: their figure comes first
+                stages.append(Stage(lambda: attach_demos(held_jobs, store, demos), (settings,)))
+            stages.append(Stage(lambda: attach_demos(throws, store, demos), (settings, ros)))
+            if phys_throws:  # in-process, whatever --via-ros says
+                stages.append(Stage(lambda: attach_demos(phys_throws, store, demos + phys_demos),
+                                    (settings,)))
+            status = run_job_stages('study', engine, stages, jobs, store, stop, progress,
+                                    workers, stream)
+            if status > 128:
+                return status
         ran = progress.done - progress.resumed
         wall = time.monotonic() - t0
         records = ordered_records(store, demos + throws)
@@ -423,6 +403,90 @@ def run_study(args, stream=None):
     print(f'report: {path} ({stored}/{total} jobs'
           + (f', {missing} missing' if missing else '') + f'; {ran} run, {reused} reused; '
           f'{wall:.1f} s)', file=stream, flush=True)
+    return status
+
+
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    """
+    One stage of a run: jobs made when it starts (after the stages before it), run together.
+
+    Attributes
+    ----------
+    jobs : callable
+        ``() -> list of jobs``: called when the stage starts, so that a stage of throws can
+        attach the demonstrations the stages before it stored.
+    initargs : tuple
+        The arguments of :func:`suture_lfd.study.jobs.init_worker` for its processes.
+
+    """
+
+    jobs: Callable[[], Sequence[DemoJob | ThrowJob]]
+    initargs: tuple[Any, ...]
+
+
+def run_job_stages(what: str, engine: EngineSpec, stages: Sequence[Stage],
+                   jobs: Sequence[DemoJob | ThrowJob], store: ResultStore, stop: StopRequest,
+                   progress: Progress, workers: int, stream: IO[str]) -> int:
+    """
+    Run a study's or a sweep's stages on the engine, one after the other; return the status.
+
+    A Dask engine's session is opened once (when any of ``jobs`` is pending) and closed at the
+    end; an engine that cannot run jobs is one error line; SIGINT and SIGTERM end the run as
+    :func:`suture_lfd.study.signals.end_interrupted` says.
+
+    Parameters
+    ----------
+    what : str
+        ``'study'`` or ``'sweep'`` (the messages' subject).
+    engine : EngineSpec
+        Where the jobs run.
+    stages : list of Stage
+        The stages, in order.
+    jobs : list of DemoJob or ThrowJob
+        Every job of the run (whether a Dask session is needed at all).
+    store : suture_lfd.study.store.ResultStore
+        Where records go.
+    stop : suture_lfd.study.signals.StopRequest
+        The run's stop request.
+    progress : suture_lfd.study.runner.Progress
+        The run's progress.
+    workers : int
+        Worker processes.
+    stream : file-like
+        Progress output.
+
+    Returns
+    -------
+    int
+        0 done, 1 the engine failed, ``128 + signal`` interrupted.
+
+    """
+    session = None
+    interrupted = None
+    status = 0
+    try:
+        if engine.kind == 'dask' and pending(jobs, store):
+            with stop.deferred():  # a cluster is never left half started
+                session = open_session(engine, workers)
+            stop.check()
+            print(f'{what}: jobs run on the {engine.describe()} '
+                  f'({session.n_workers()} workers)', file=stream, flush=True)
+        where = session or engine
+        for stage in stages:
+            run_stages_on(where, [stage.jobs()], run_job, store, workers=workers,
+                          progress=progress, initializer=init_worker, initargs=stage.initargs)
+    except (CodeMismatchError, EngineError, PoolError) as exc:
+        progress.finish()
+        print(f'suture-lfd {what}: error: {exc}', file=sys.stderr, flush=True)
+        status = 1
+    except KeyboardInterrupt as exc:
+        interrupted = signal_of(exc)
+    finally:
+        if session is not None:
+            session.close(stop=interrupted is not None)
+    if interrupted is not None:
+        return end_interrupted(what, progress, len(jobs), store, interrupted, stream)
     return status
 
 

@@ -54,28 +54,23 @@ import numpy as np
 from sim_bridge.common.configfile import ConfigError, load_yaml
 from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.study import physical
-from suture_lfd.study.engine import (
-    CodeMismatchError,
-    EngineError,
-    open_session,
-    parse_engine,
-    run_stages_on,
-)
-from suture_lfd.study.jobs import JobSettings, init_worker, run_job
+from suture_lfd.study.engine import parse_engine
+from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import demo_ids, with_ids
-from suture_lfd.study.pool import PoolError
 from suture_lfd.study.records import DemoRecord, ThrowRecord, to_json
 from suture_lfd.study.run import (
+    Stage,
     attach_demos,
     build_config,
     hashed_config,
     job_seed,
     ordered_records,
     plan_jobs,
+    run_job_stages,
     stored_note,
 )
-from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
+from suture_lfd.study.runner import Progress
+from suture_lfd.study.signals import stop_on_signals
 from suture_lfd.study.store import ResultStore, config_hash
 
 SWEEP_FORMAT = 1
@@ -503,33 +498,15 @@ def run_sweep(args, stream=None):
         return 0
     cohort = next(iter(config['studies'].values()))['cohort_file']
     settings = JobSettings(out=str(out), cohort_path=cohort, cohort_seed=sweep.seeds[0])
-    status, interrupted = 0, None
     with stop_on_signals('sweep') as stop, ResultStore(out) as store:
         reused = stored_note('sweep', store, demos + throws, stream)
         progress = Progress(total, done=reused, stream=stream)
-        session = None
-        try:
-            if engine.kind == 'dask' and pending(demos + throws, store):
-                with stop.deferred():  # a cluster is never left half started
-                    session = open_session(engine, workers)
-                stop.check()
-            where = session or engine
-            run_stages_on(where, [demos], run_job, store, workers=workers, progress=progress,
-                          initializer=init_worker, initargs=(settings,))
-            run_stages_on(where, [attach_demos(throws, store, demos)], run_job, store,
-                          workers=workers, progress=progress, initializer=init_worker,
-                          initargs=(settings,))
-        except (CodeMismatchError, EngineError, PoolError) as exc:
-            progress.finish()
-            print(f'suture-lfd sweep: error: {exc}', file=sys.stderr, flush=True)
-            status = 1
-        except KeyboardInterrupt as exc:
-            interrupted = signal_of(exc)
-        finally:
-            if session is not None:
-                session.close(stop=interrupted is not None)
-        if interrupted is not None:
-            return end_interrupted('sweep', progress, total, store, interrupted, stream)
+        stages = [Stage(lambda: demos, (settings,)),
+                  Stage(lambda: attach_demos(throws, store, demos), (settings,))]
+        status = run_job_stages('sweep', engine, stages, demos + throws, store, stop, progress,
+                                workers, stream)
+        if status > 128:
+            return status
         ran = progress.done - progress.resumed
         records = ordered_records(store, demos + throws)
     wall = time.monotonic() - t0
