@@ -30,7 +30,7 @@ demonstrations stay in-process. Its jobs have other ``id`` s than the in-process
 """
 
 import argparse
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 import dataclasses
 import json
 import logging
@@ -46,20 +46,15 @@ import numpy as np
 from suture_lfd.study import held_out, physical
 from suture_lfd.study.digest import code_digest, file_digest
 from suture_lfd.study.engine import (
-    CodeMismatchError,
-    EngineError,
-    EngineSpec,
-    open_session,
     parse_engine,
-    run_stages_on,
 )
-from suture_lfd.study.jobs import JobSettings, init_worker, run_job
+from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import BOOKKEEPING, demo_ids, with_ids
 from suture_lfd.study.options import QUICK_PAIRS, QUICK_SUBJECTS
-from suture_lfd.study.pool import PoolError
 from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, to_json
-from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import StopRequest, end_interrupted, signal_of, stop_on_signals
+from suture_lfd.study.runner import Progress
+from suture_lfd.study.signals import stop_on_signals
+from suture_lfd.study.stages import Stage, run_job_stages
 from suture_lfd.study.store import ResultStore, config_hash, earlier_format_files
 
 if TYPE_CHECKING:
@@ -408,90 +403,6 @@ def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
     print(f'report: {path} ({stored}/{total} jobs'
           + (f', {missing} missing' if missing else '') + f'; {ran} run, {reused} reused; '
           f'{wall:.1f} s)', file=stream, flush=True)
-    return status
-
-
-@dataclasses.dataclass(frozen=True)
-class Stage:
-    """
-    One stage of a run: jobs made when it starts (after the stages before it), run together.
-
-    Attributes
-    ----------
-    jobs : callable
-        ``() -> list of jobs``: called when the stage starts, so that a stage of throws can
-        attach the demonstrations the stages before it stored.
-    initargs : tuple
-        The arguments of :func:`suture_lfd.study.jobs.init_worker` for its processes.
-
-    """
-
-    jobs: Callable[[], Sequence[DemoJob | ThrowJob]]
-    initargs: tuple[Any, ...]
-
-
-def run_job_stages(what: str, engine: EngineSpec, stages: Sequence[Stage],
-                   jobs: Sequence[DemoJob | ThrowJob], store: ResultStore, stop: StopRequest,
-                   progress: Progress, workers: int, stream: IO[str]) -> int:
-    """
-    Run a study's or a sweep's stages on the engine, one after the other; return the status.
-
-    A Dask engine's session is opened once (when any of ``jobs`` is pending) and closed at the
-    end; an engine that cannot run jobs is one error line; SIGINT and SIGTERM end the run as
-    :func:`suture_lfd.study.signals.end_interrupted` says.
-
-    Parameters
-    ----------
-    what : str
-        ``'study'`` or ``'sweep'`` (the messages' subject).
-    engine : EngineSpec
-        Where the jobs run.
-    stages : list of Stage
-        The stages, in order.
-    jobs : list of DemoJob or ThrowJob
-        Every job of the run (whether a Dask session is needed at all).
-    store : suture_lfd.study.store.ResultStore
-        Where records go.
-    stop : suture_lfd.study.signals.StopRequest
-        The run's stop request.
-    progress : suture_lfd.study.runner.Progress
-        The run's progress.
-    workers : int
-        Worker processes.
-    stream : file-like
-        Progress output.
-
-    Returns
-    -------
-    int
-        0 done, 1 the engine failed, ``128 + signal`` interrupted.
-
-    """
-    session = None
-    interrupted = None
-    status = 0
-    try:
-        if engine.kind == 'dask' and pending(jobs, store):
-            with stop.deferred():  # a cluster is never left half started
-                session = open_session(engine, workers)
-            stop.check()
-            print(f'{what}: jobs run on the {engine.describe()} '
-                  f'({session.n_workers()} workers)', file=stream, flush=True)
-        where = session or engine
-        for stage in stages:
-            run_stages_on(where, [stage.jobs()], run_job, store, workers=workers,
-                          progress=progress, initializer=init_worker, initargs=stage.initargs)
-    except (CodeMismatchError, EngineError, PoolError) as exc:
-        progress.finish()
-        print(f'suture-lfd {what}: error: {exc}', file=sys.stderr, flush=True)
-        status = 1
-    except KeyboardInterrupt as exc:
-        interrupted = signal_of(exc)
-    finally:
-        if session is not None:
-            session.close(stop=interrupted is not None)
-    if interrupted is not None:
-        return end_interrupted(what, progress, len(jobs), store, interrupted, stream)
     return status
 
 

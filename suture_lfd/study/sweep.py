@@ -61,18 +61,17 @@ from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import demo_ids, with_ids
 from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, to_json
 from suture_lfd.study.run import (
-    Stage,
     attach_demos,
     build_config,
     hashed_config,
     job_seed,
     ordered_records,
     plan_jobs,
-    run_job_stages,
     stored_note,
 )
 from suture_lfd.study.runner import Progress
 from suture_lfd.study.signals import stop_on_signals
+from suture_lfd.study.stages import Stage, run_job_stages
 from suture_lfd.study.store import ResultStore, config_hash
 
 SWEEP_FORMAT = 1
