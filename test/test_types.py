@@ -39,7 +39,7 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/study/stages.py', 'suture_lfd/viewer/assets.py',
              'suture_lfd/viewer/show.py', 'suture_lfd/viewer/filmstrip.py',
              'suture_lfd/viewer/throw_replay.py', 'suture_lfd/viewer/perceived.py',
-             'suture_lfd/viewer/replay.py')
+             'suture_lfd/viewer/replay.py', 'suture_lfd/viewer/scene.py')
 
 
 def run_mypy(paths, cache_dir):
