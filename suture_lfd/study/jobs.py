@@ -504,7 +504,8 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
     ros = state.ros
     physical = job.physical
     # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
-    replay = replay_name(to_json(job))
+    name = replay_name(to_json(job))
+    replay: str | None = name
     if physical is not None:
         sim, own = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
         try:
@@ -514,7 +515,7 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
                                     observer=sampler, physical=True,
                                     correction=bool(physical.correction))
             markers = sim.phantom.markers
-            replay = f'{job.folder}/{replay}'
+            replay = f'{job.folder}/{name}'
             replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
                                         outcome.subtask_times)
         finally:
@@ -528,7 +529,7 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
                                 timeout=s.timeout, control_period=s.control_period,
                                 observer=sampler)
         markers = sim.phantom.markers
-        replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
+        replay_bytes = sampler.save(out / name, job.test_pair, outcome.events,
                                     outcome.subtask_times)
     else:
         outcome = ros.execute(job, skill)

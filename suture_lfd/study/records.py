@@ -438,6 +438,11 @@ def to_json(item: RunJob | RunRecord) -> dict[str, Any]:
     return dict(_finite(asdict(item)))
 
 
+def plan_json(job: Job) -> dict[str, Any]:
+    """Return a job as a plan file lists it: the fields it sets (those that are not None)."""
+    return {k: v for k, v in to_json(job).items() if v is not None}
+
+
 def stored(record: R) -> R:
     """Return ``record`` as the store keeps it: non-finite numbers None, numpy scalars Python."""
     return record_from_json(to_json(record))  # type: ignore[return-value]

@@ -51,7 +51,7 @@ from suture_lfd.study.engine import (
 from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import BOOKKEEPING, demo_ids, with_ids
 from suture_lfd.study.options import QUICK_PAIRS, QUICK_SUBJECTS
-from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, to_json
+from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, plan_json
 from suture_lfd.study.runner import Progress
 from suture_lfd.study.signals import stop_on_signals
 from suture_lfd.study.stages import Stage, run_job_stages
@@ -352,7 +352,7 @@ def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
              if phys_throws else '')
           + f'; results in {out}', file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps([to_json(job) for job in jobs], indent=1)
+        (out / 'jobs.json').write_text(json.dumps([plan_json(job) for job in jobs], indent=1)
                                        + '\n')
         return 0
     if args.workers is not None:

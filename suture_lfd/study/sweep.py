@@ -59,7 +59,7 @@ from suture_lfd.study import physical
 from suture_lfd.study.engine import parse_engine
 from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import demo_ids, with_ids
-from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, to_json
+from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, plan_json
 from suture_lfd.study.run import (
     attach_demos,
     build_config,
@@ -500,7 +500,7 @@ def run_sweep(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
           f'{len(demos)} demonstrations + {len(throws)} throws; results in {out}',
           file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps([to_json(job) for job in jobs],
+        (out / 'jobs.json').write_text(json.dumps([plan_json(job) for job in jobs],
                                                   indent=1) + '\n')
         return 0
     cohort = next(iter(config['studies'].values()))['cohort_file']

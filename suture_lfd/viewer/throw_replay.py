@@ -208,7 +208,7 @@ def world_poses(recording: Recording, t: float,
         tree.set(track.parent, track.child, transform_from_pose(track.at(t)))
     out: dict[str, np.ndarray] = {}
     for frame in frames:
-        T = tree.world(frame)
-        if T is not None:
-            out[frame] = T
+        T_world_frame = tree.world(frame)
+        if T_world_frame is not None:
+            out[frame] = T_world_frame
     return out
