@@ -37,6 +37,7 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/study/assessed.py', 'suture_lfd/study/report.py',
              'suture_lfd/study/run.py', 'suture_lfd/study/sweep.py',
              'suture_lfd/study/stages.py', 'suture_lfd/study/ros.py',
+             'suture_lfd/study/teleoperated.py',
              'suture_lfd/viewer/assets.py',
              'suture_lfd/viewer/show.py', 'suture_lfd/viewer/filmstrip.py',
              'suture_lfd/viewer/throw_replay.py', 'suture_lfd/viewer/perceived.py',
