@@ -29,7 +29,7 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/study/options.py', 'suture_lfd/study/keys.py',
              'suture_lfd/study/figures.py', 'suture_lfd/perception/arc_poses.py',
              'suture_lfd/demos/demo_bag.py', 'suture_lfd/demos/demonstrator.py',
-             'suture_lfd/study/records.py')
+             'suture_lfd/study/records.py', 'suture_lfd/study/physical.py')
 
 
 def run_mypy(paths, cache_dir):
