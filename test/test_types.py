@@ -29,7 +29,19 @@ ANNOTATED = ('sim_bridge/common', 'sim_bridge/kinematics', 'sim_bridge/robot_mod
              'suture_lfd/study/options.py', 'suture_lfd/study/keys.py',
              'suture_lfd/study/figures.py', 'suture_lfd/perception/arc_poses.py',
              'suture_lfd/demos/demo_bag.py', 'suture_lfd/demos/demonstrator.py',
-             'suture_lfd/study/records.py', 'suture_lfd/study/physical.py')
+             'suture_lfd/study/records.py', 'suture_lfd/study/store.py',
+             'suture_lfd/study/runner.py', 'suture_lfd/study/pool.py',
+             'suture_lfd/study/signals.py', 'suture_lfd/study/engine.py',
+             'suture_lfd/study/tables.py', 'suture_lfd/study/metrics.py',
+             'suture_lfd/study/jobs.py', 'suture_lfd/study/held_out.py',
+             'suture_lfd/study/assessed.py', 'suture_lfd/study/report.py',
+             'suture_lfd/study/run.py', 'suture_lfd/study/sweep.py',
+             'suture_lfd/study/stages.py', 'suture_lfd/study/ros.py',
+             'suture_lfd/study/teleoperated.py', 'suture_lfd/study/physical.py',
+             'suture_lfd/viewer/assets.py',
+             'suture_lfd/viewer/show.py', 'suture_lfd/viewer/filmstrip.py',
+             'suture_lfd/viewer/throw_replay.py', 'suture_lfd/viewer/perceived.py',
+             'suture_lfd/viewer/replay.py', 'suture_lfd/viewer/scene.py')
 
 
 def run_mypy(paths, cache_dir):

@@ -69,18 +69,48 @@ class DemoRecord(Protocol):
 
     """
 
-    t: np.ndarray
-    psm1_pose: np.ndarray
-    psm2_pose: np.ndarray
-    psm1_jaw: np.ndarray
-    psm2_jaw: np.ndarray
-    needle_pose: np.ndarray
-    psm1_holds: np.ndarray
-    psm2_holds: np.ndarray
-    entry: np.ndarray
-    normal: np.ndarray
+    # read-only members: a frozen dataclass (the Demonstration) meets them
+    @property
+    def t(self) -> np.ndarray:
+        """See the class docstring."""
 
-    def validate(self) -> None:
+    @property
+    def psm1_pose(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def psm2_pose(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def psm1_jaw(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def psm2_jaw(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def needle_pose(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def psm1_holds(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def psm2_holds(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def entry(self) -> np.ndarray:
+        """See the class docstring."""
+
+    @property
+    def normal(self) -> np.ndarray:
+        """See the class docstring."""
+
+    def validate(self) -> object:
         """Raise ``ValueError`` naming the first inconsistent field."""
 
 

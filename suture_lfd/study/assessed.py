@@ -22,21 +22,24 @@ same skill on the same pairs; the scene seed is the replacement demonstration's 
 generality with assessment costs no further throw.
 """
 
+from collections.abc import Iterable, Mapping, Sequence
 import csv
 from dataclasses import replace
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 from suture_lfd.assessment.acceptance import AcceptanceRule, assess_cohort
 from suture_lfd.study import tables
+from suture_lfd.study.records import DemoRecord, Record, ThrowRecord
 
 _LOG = logging.getLogger(__name__)
 MODES = ('subject', 'cohort', 'off')
 VERDICT_COLUMNS = ('subject', 'group', 'pair', 'combined_score', 'accepted', 'reasons')
 
 
-def _cell(value):
+def _cell(value: Any) -> str:
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, float):
@@ -44,7 +47,8 @@ def _cell(value):
     return '' if value is None else str(value)
 
 
-def score_demonstrations(folder, demo_records, rule=None):
+def score_demonstrations(folder: str | Path, demo_records: Iterable[DemoRecord],
+                         rule: AcceptanceRule | None = None) -> list[dict[str, Any]]:
     """
     Score and screen the study's usable demonstrations.
 
@@ -109,7 +113,8 @@ def score_demonstrations(folder, demo_records, rule=None):
     return rows
 
 
-def learnt_from(verdicts, mode):
+def learnt_from(verdicts: Sequence[Mapping[str, Any]], mode: str
+                ) -> dict[tuple[str, str], tuple[str, str]]:
     """
     Return which demonstration each subject's pair is learnt from under assessment.
 
@@ -130,10 +135,10 @@ def learnt_from(verdicts, mode):
         raise ValueError(f"assessment mode must be 'subject' or 'cohort', got {mode!r}")
     accepted = [v for v in verdicts if v['accepted']]
 
-    def best(candidates):
+    def best(candidates: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
         return min(candidates, key=lambda v: (v['combined_score'], v['subject'], v['pair']))
 
-    out = {}
+    out: dict[tuple[str, str], tuple[str, str]] = {}
     for v in verdicts:
         if v['accepted']:
             continue
@@ -146,7 +151,8 @@ def learnt_from(verdicts, mode):
     return out
 
 
-def assessed_generality(throw_rows, verdicts, mode):
+def assessed_generality(throw_rows: Iterable[ThrowRecord], verdicts: Sequence[Mapping[str, Any]],
+                        mode: str) -> dict[str, Any]:
     """
     Return the generality of one method's skills learnt only from accepted demonstrations.
 
@@ -166,7 +172,7 @@ def assessed_generality(throw_rows, verdicts, mode):
 
     """
     replaced = learnt_from(verdicts, mode)
-    by_row = {}
+    by_row: dict[tuple[str, str], list[ThrowRecord]] = {}
     for r in throw_rows:
         by_row.setdefault((r.subject, r.train_pair), []).append(r)
     rows = []
@@ -183,12 +189,13 @@ def assessed_generality(throw_rows, verdicts, mode):
     return out
 
 
-def _f(value, digits=3):
+def _f(value: float | None, digits: int = 3) -> str:
     return '–' if value is None or (isinstance(value, float) and math.isnan(value)) \
         else f'{value:.{digits}f}'
 
 
-def report_section(folder, records, mode='subject', rule=None):
+def report_section(folder: str | Path, records: Sequence[Record], mode: str = 'subject',
+                   rule: AcceptanceRule | None = None) -> tuple[list[str], dict[str, Any]]:
     """
     Return the report's "Skill assessment" section (markdown lines) and its numbers.
 
@@ -220,7 +227,7 @@ def report_section(folder, records, mode='subject', rule=None):
         return [], {}
     accepted = {g: [sum(1 for v in verdicts if v['group'] == g and v['accepted']),
                     sum(1 for v in verdicts if v['group'] == g)] for g in tables.GROUPS}
-    summary = {'mode': mode, 'accepted': accepted, 'methods': {}}
+    summary: dict[str, Any] = {'mode': mode, 'accepted': accepted, 'methods': {}}
     other = 'cohort' if mode == 'subject' else 'subject'
     rows_md = []
     for method in tables.methods(records):

@@ -33,15 +33,25 @@ computed by other code is refused with :class:`CodeMismatchError` and the study 
 of it stored.
 """
 
+from collections.abc import Callable, Sequence
 import contextlib
 from dataclasses import dataclass, replace
 import inspect
 import logging
 import time
+from types import TracebackType
+from typing import Any
 
 from suture_lfd.study.digest import code_digest
-from suture_lfd.study.runner import call_job, pending, run_stages
-from suture_lfd.study.signals import STOP_GRACE_S, stop_on_signals, terminate_processes
+from suture_lfd.study.records import RunJob, RunRecord
+from suture_lfd.study.runner import Progress, call_job, pending, run_stages
+from suture_lfd.study.signals import (
+    STOP_GRACE_S,
+    StopRequest,
+    stop_on_signals,
+    terminate_processes,
+)
+from suture_lfd.study.store import ResultStore
 
 _LOG = logging.getLogger(__name__)
 
@@ -83,7 +93,7 @@ class EngineSpec:
     address: str | None = None
     scheduler_file: str | None = None
 
-    def describe(self):
+    def describe(self) -> str:
         """Return a short text for progress lines and the report."""
         if self.address:
             return f'dask cluster at {self.address}'
@@ -92,7 +102,7 @@ class EngineSpec:
         return 'local dask cluster' if self.kind == 'dask' else 'local process pool'
 
 
-def parse_engine(text):
+def parse_engine(text: str | None) -> EngineSpec:
     """
     Return the :class:`EngineSpec` of an ``--engine`` value.
 
@@ -116,8 +126,11 @@ def parse_engine(text):
                      'scheduler-file:PATH')
 
 
-def run_stages_on(engine, stages, job_fn, store, workers=1, progress=None, initializer=None,
-                  initargs=()):
+def run_stages_on(engine: 'EngineSpec | DaskSession | None',
+                  stages: Sequence[Sequence[RunJob]], job_fn: Callable[[Any, Any], RunRecord],
+                  store: ResultStore, workers: int = 1, progress: Progress | None = None,
+                  initializer: Callable[..., Any] | None = None,
+                  initargs: tuple[Any, ...] = ()) -> int:
     """
     Run the pending jobs of every stage on ``engine``; the arguments of :func:`run_stages`.
 
@@ -142,7 +155,7 @@ def run_stages_on(engine, stages, job_fn, store, workers=1, progress=None, initi
         return session.run_stages(stages, job_fn, store, progress, initializer, initargs)
 
 
-def open_session(spec, workers=1):
+def open_session(spec: EngineSpec, workers: int = 1) -> 'DaskSession':
     """
     Open a :class:`DaskSession` (close it with :meth:`DaskSession.close`).
 
@@ -174,16 +187,16 @@ class DaskSession:
 
     """
 
-    def __init__(self, spec, workers=1):
+    def __init__(self, spec: EngineSpec, workers: int = 1) -> None:
         if spec.kind != 'dask':
             raise ValueError(f'DaskSession needs a dask engine, got {spec.kind!r}')
         self.spec = spec
         self.workers = max(1, int(workers))
-        self.client = None
-        self.cluster = None
+        self.client: Any = None
+        self.cluster: Any = None
         self.code = code_digest()
 
-    def __enter__(self):
+    def __enter__(self) -> 'DaskSession':
         from distributed import Client, LocalCluster
 
         # the scheduler and client log every connection at INFO: keep the terminal to progress
@@ -200,10 +213,11 @@ class DaskSession:
             self.client = Client(self.cluster)
         return self
 
-    def __exit__(self, kind, value, tb):
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 tb: TracebackType | None) -> None:
         self.close(stop=kind is not None and issubclass(kind, KeyboardInterrupt))
 
-    def close(self, stop=False):
+    def close(self, stop: bool = False) -> None:
         """
         Close the client and the local cluster it started.
 
@@ -228,16 +242,20 @@ class DaskSession:
                 self.cluster.close(timeout=STOP_GRACE_S if stop else None)
             self.cluster = None
 
-    def n_workers(self):
+    def n_workers(self) -> int:
         """Workers the scheduler knows now (at least 1)."""
         info = self.client.scheduler_info(n_workers=-1) if self._takes_n_workers() \
             else self.client.scheduler_info()
         return max(1, len(info.get('workers', {})))
 
-    def _takes_n_workers(self):
+    def _takes_n_workers(self) -> bool:
         return 'n_workers' in inspect.signature(self.client.scheduler_info).parameters
 
-    def run_stages(self, stages, job_fn, store, progress=None, initializer=None, initargs=()):
+    def run_stages(self, stages: Sequence[Sequence[RunJob]],
+                   job_fn: Callable[[Any, Any], RunRecord], store: ResultStore,
+                   progress: Progress | None = None,
+                   initializer: Callable[..., Any] | None = None,
+                   initargs: tuple[Any, ...] = ()) -> int:
         """Run the pending jobs of every stage, stage after stage; return how many ran."""
         ran = 0
         todo = [pending(stage, store) for stage in stages]
@@ -248,19 +266,23 @@ class DaskSession:
                                            initargs, stop)
         return ran
 
-    def _submit(self, job, job_fn, initializer, initargs):
+    def _submit(self, job: RunJob, job_fn: Callable[[Any, Any], RunRecord],
+                initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]) -> Any:
         return self.client.submit(
             dask_job, job_fn, job, initializer, initargs, self.code,
             key=f'suture-lfd-{job.id}-{time.monotonic_ns()}', pure=False,
             retries=RETRIES)
 
-    def _run_stage(self, stage, job_fn, store, progress, initializer, initargs, stop):
+    def _run_stage(self, stage: Sequence[RunJob], job_fn: Callable[[Any, Any], RunRecord],
+                   store: ResultStore, progress: Progress | None,
+                   initializer: Callable[..., Any] | None, initargs: tuple[Any, ...],
+                   stop: StopRequest) -> int:
         """Keep a bounded window of the stage's jobs in flight; store records as they come."""
         from distributed import as_completed
 
         window = IN_FLIGHT_PER_WORKER * self.n_workers()
         jobs = iter(stage)
-        in_flight = {}
+        in_flight: dict[Any, str] = {}
         for _, job in zip(range(window), jobs):
             in_flight[self._submit(job, job_fn, initializer, initargs)] = job.key
         running = as_completed(list(in_flight))
@@ -284,10 +306,10 @@ class DaskSession:
                     ran += 1
                     if progress is not None:
                         progress.advance(record.key)
-                    job = next(jobs, None)
-                    if job is not None:
-                        future = self._submit(job, job_fn, initializer, initargs)
-                        in_flight[future] = job.key
+                    following = next(jobs, None)
+                    if following is not None:
+                        future = self._submit(following, job_fn, initializer, initargs)
+                        in_flight[future] = following.key
                         running.add(future)
         except BaseException:
             self.client.cancel(list(in_flight), force=True)
@@ -295,7 +317,7 @@ class DaskSession:
         return ran
 
 
-def check_code(record, code):
+def check_code(record: RunRecord, code: str) -> None:
     """
     Refuse a record computed by other code.
 
@@ -315,10 +337,12 @@ def check_code(record, code):
 
 
 # ---------------------------------------------------------------------- worker side
-_WORKER = {}
+_WORKER: dict[str, Any] = {}
 
 
-def dask_job(job_fn, job, initializer, initargs, code):
+def dask_job(job_fn: Callable[[Any, Any], RunRecord], job: RunJob,
+             initializer: Callable[..., Any] | None, initargs: tuple[Any, ...],
+             code: str) -> RunRecord:
     """
     Run one job in a Dask worker (module-level, so workers import it by reference).
 
@@ -341,10 +365,10 @@ def dask_job(job_fn, job, initializer, initargs, code):
     return replace(record, code=mine)
 
 
-def _worker_address():
+def _worker_address() -> str:
     try:
         from distributed import get_worker
 
-        return get_worker().address
+        return str(get_worker().address)
     except (ImportError, ValueError):
         return 'not a dask worker'

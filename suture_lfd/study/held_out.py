@@ -20,14 +20,20 @@ Frames: held-out pairs are stored in the mesh file's frame (metres, after the me
 the generated pads that is the phantom frame.
 """
 
+import argparse
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict
 import hashlib
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 import zlib
 
 import numpy as np
-from suture_lfd.study.records import ThrowJob, ThrowRecord
+from suture_lfd.study.records import Record, ThrowJob, ThrowRecord
+
+if TYPE_CHECKING:
+    from sim_bridge.scene.phantom import Phantom, PhantomConfig
 
 HELD_OUT_COLUMNS = (
     'subject', 'group', 'method', 'train_phantom', 'train_pair', 'test_phantom', 'test_pair',
@@ -35,7 +41,7 @@ HELD_OUT_COLUMNS = (
     'iv', 'v', 'failure', 'time_s', 'entry_error_mm', 'exit_error_mm')
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the held-out geometry options to the study's argparse parser."""
     parser.add_argument('--held-out', type=int, default=0, metavar='N',
                         help='also execute every skill on N random pairs per phantom drawn on '
@@ -48,11 +54,11 @@ def add_arguments(parser):
                              'its wound line) that also gets N random pairs (needs --held-out)')
 
 
-def _digest(path):
+def _digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-def random_pairs(phantom, count, seed):
+def random_pairs(phantom: 'Phantom', count: int, seed: int) -> dict[str, dict[str, Any]]:
     """
     Draw random entry/exit pairs on a phantom's wound line within its markers' spacing range.
 
@@ -84,7 +90,7 @@ def random_pairs(phantom, count, seed):
     rng = np.random.default_rng([int(seed), zlib.crc32(phantom.name.encode())])
     s = rng.uniform(centre - half_span, centre + half_span, count)
     T_file_phantom = np.linalg.inv(phantom.T_phantom_file)
-    pairs = {}
+    pairs: dict[str, dict[str, Any]] = {}
     for k, sk in enumerate(s, start=1):
         c = wound.point(sk)
         left = wound.left(sk) * w.half_width * w.entry_side
@@ -94,7 +100,8 @@ def random_pairs(phantom, count, seed):
     return pairs
 
 
-def _phantom_spec(config, pairs, phantom):
+def _phantom_spec(config: 'PhantomConfig', pairs: dict[str, dict[str, Any]],
+                  phantom: 'Phantom') -> dict[str, Any]:
     """Return the JSON-serialisable phantom configuration of a held-out simulation."""
     import dataclasses
 
@@ -109,7 +116,8 @@ def _phantom_spec(config, pairs, phantom):
     return d
 
 
-def held_out_config(args, phantoms, seed):
+def held_out_config(args: argparse.Namespace, phantoms: dict[str, Any], seed: int
+                    ) -> dict[str, Any] | None:
     """
     Return the held-out part of the study's configuration (None when off).
 
@@ -151,14 +159,15 @@ def held_out_config(args, phantoms, seed):
     if hseed < 0:
         raise ValueError(f'--held-out-seed must be >= 0, got {hseed}')
     scene = load_scene_config()
-    out = {}
-    sources = [(name, scene.phantom_config(name), None) for name in phantoms]
+    out: dict[str, Any] = {}
+    sources: list[tuple[str, Any, str | None]] = [
+        (name, scene.phantom_config(name), None) for name in phantoms]
     if mesh:
         path = Path(mesh).resolve()
         name, config = phantom_from_argument(scene, path)
-        digest = _digest(path) + (_digest(config.mesh) if path.suffix.lower() in ('.yaml', '.yml')
-                                  else '')
-        sources.append((name, config, digest))
+        mesh_digest = _digest(path) + (_digest(str(config.mesh))
+                                       if path.suffix.lower() in ('.yaml', '.yml') else '')
+        sources.append((name, config, mesh_digest))
     for name, config, digest in sources:
         if name in out:
             raise ValueError(f'--held-out-mesh {mesh}: its name {name!r} is a phantom of the '
@@ -172,7 +181,8 @@ def held_out_config(args, phantoms, seed):
     return {'seed': int(hseed), 'count': int(count), 'phantoms': out}
 
 
-def plan_held_out(config, job_seed):
+def plan_held_out(config: dict[str, Any], job_seed: Callable[[int, str], int]
+                  ) -> list[ThrowJob]:
     """
     Return the held-out throw jobs of a study configuration.
 
@@ -214,7 +224,7 @@ def plan_held_out(config, job_seed):
     return jobs
 
 
-def phantom_config(spec):
+def phantom_config(spec: Mapping[str, Any]) -> 'PhantomConfig':
     """Rebuild a held-out simulation's PhantomConfig from its JSON-serialisable form."""
     from sim_bridge.common.configfile import dataclass_from_mapping
     from sim_bridge.scene.phantom import PhantomConfig
@@ -222,16 +232,17 @@ def phantom_config(spec):
     return dataclass_from_mapping(PhantomConfig, spec, source='held-out phantom')
 
 
-def _mean(values):
-    values = [v for v in values if v is not None and not math.isnan(v)]
-    return float(np.mean(values)) if values else float('nan')
+def _mean(values: Iterable[float | None]) -> float:
+    kept = [v for v in values if v is not None and not math.isnan(v)]
+    return float(np.mean(kept)) if kept else float('nan')
 
 
-def _f(x, digits=3):
+def _f(x: float | None, digits: int = 3) -> str:
     return '–' if x is None or (isinstance(x, float) and math.isnan(x)) else f'{x:.{digits}f}'
 
 
-def summarise(records, held_records):
+def summarise(records: Sequence[Record], held_records: Sequence[ThrowRecord]
+              ) -> dict[str, dict[str, Any]]:
     """
     Generality on the fixed and on the held-out pairs, per method, group and phantom.
 
@@ -249,8 +260,8 @@ def summarise(records, held_records):
         'n_held_out': int, 'phantoms': {phantom: {group: mean, 'n': int}}}``.
 
     """
-    out = {}
-    methods = []
+    out: dict[str, dict[str, Any]] = {}
+    methods: list[str] = []
     for r in held_records:
         if r.method not in methods:
             methods.append(r.method)
@@ -258,15 +269,15 @@ def summarise(records, held_records):
         fixed = [r for r in records if isinstance(r, ThrowRecord) and r.kind == 'throw'
                  and not r.error and r.method == method]
         held = [r for r in held_records if r.method == method and not r.error]
-        entry = {'n_fixed': len(fixed), 'n_held_out': len(held), 'fixed': {}, 'held_out': {},
-                 'phantoms': {}}
+        entry: dict[str, Any] = {'n_fixed': len(fixed), 'n_held_out': len(held), 'fixed': {},
+                                 'held_out': {}, 'phantoms': {}}
         for label, rows in (('fixed', fixed), ('held_out', held)):
             for group in ('experienced', 'naive'):
                 entry[label][group] = _mean([r.score for r in rows if r.group == group])
             entry[label]['overall'] = _mean([r.score for r in rows])
         for phantom in dict.fromkeys(r.test_phantom for r in held):
             rows = [r for r in held if r.test_phantom == phantom]
-            ph = {g: _mean([r.score for r in rows if r.group == g])
+            ph: dict[str, Any] = {g: _mean([r.score for r in rows if r.group == g])
                   for g in ('experienced', 'naive')}
             ph['overall'] = _mean([r.score for r in rows])
             ph['n'] = len(rows)
@@ -276,7 +287,8 @@ def summarise(records, held_records):
     return out
 
 
-def report_section(records, held_records, config):
+def report_section(records: Sequence[Record], held_records: Sequence[ThrowRecord],
+                   config: dict[str, Any]) -> list[str]:
     """
     Markdown section of the report: generality on held-out pairs beside the fixed pairs.
 
@@ -324,7 +336,8 @@ def report_section(records, held_records, config):
     return md
 
 
-def held_out_rows(held_records, config):
+def held_out_rows(held_records: Iterable[ThrowRecord], config: dict[str, Any]
+                  ) -> list[dict[str, Any]]:
     """Return the held-out records as CSV rows, with the pairs' marker positions (file, mm)."""
     specs = config['held_out']['phantoms']
     rows = []

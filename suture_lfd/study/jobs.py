@@ -33,6 +33,7 @@ Size: the two job kinds share the per-process simulations, the code digest and t
 demonstrations; they stay together while the per-job code is being made faster.
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 import logging
 import math
@@ -40,35 +41,39 @@ import multiprocessing
 import os
 from pathlib import Path
 import shutil
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
 from sim_bridge.common.vocabulary import PSMS, SUBTASKS, TASKS
 from sim_bridge.simulation import Simulation, load_simulation_config
-from suture_lfd.demos.cohort import load_cohort
+from suture_lfd.demos.cohort import Subject, load_cohort
 from suture_lfd.demos.demo_bag import (
     default_base_frames,
     demonstration_from_bag,
     write_demonstration_bag,
 )
+from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.demonstrator import run_demonstration
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.demos.segment_file import make_segment_file
-from suture_lfd.dmp import load_dmp_params
-from suture_lfd.segmentation import segment_demonstration
-from suture_lfd.skill import learn_skill, training_data
+from suture_lfd.dmp import DmpParams, load_dmp_params
+from suture_lfd.segmentation import Segmentation, segment_demonstration
+from suture_lfd.skill import ThrowSkill, learn_skill, training_data
 from suture_lfd.skill.executor import execute_throw
 from suture_lfd.study.held_out import phantom_config
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
 from suture_lfd.study.records import (
     DemoJob,
     DemoRecord,
+    RobotErrors,
     ThrowJob,
     ThrowRecord,
     to_json,
 )
-from suture_lfd.study.ros import RosThrows
+from suture_lfd.study.ros import RosSettings, RosThrows
 from suture_lfd.study.teleoperated import TeleoperatedRobot
 from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
 
@@ -174,16 +179,16 @@ class WorkerState:
     """
 
     settings: JobSettings
-    sims: dict = field(default_factory=dict)
-    data: dict = field(default_factory=dict)
-    skills: dict = field(default_factory=dict)
-    subjects: dict | None = None
+    sims: dict[tuple[str, float], Simulation] = field(default_factory=dict)
+    data: dict[str, Any] = field(default_factory=dict)
+    skills: dict[tuple[str, str, tuple[Any, ...]], ThrowSkill] = field(default_factory=dict)
+    subjects: dict[int, dict[str, Subject]] | None = None
     ros: RosThrows | None = None
-    dmp_params: dict | None = None
-    base_frames: dict | None = None
-    robots: dict = field(default_factory=dict)
+    dmp_params: dict[str, DmpParams] | None = None
+    base_frames: dict[str, np.ndarray] | None = None
+    robots: dict[tuple[str, float, float, int], Simulation] = field(default_factory=dict)
 
-    def close(self):
+    def close(self) -> None:
         """Release what the state holds beyond this process's memory (node processes)."""
         while self.robots:
             self.robots.pop(next(iter(self.robots))).close()
@@ -192,7 +197,7 @@ class WorkerState:
             self.ros = None
 
 
-def init_worker(settings, ros=None):
+def init_worker(settings: JobSettings, ros: RosSettings | None = None) -> WorkerState:
     """
     Return the state of a study process (the job runner's initializer, once per process).
 
@@ -220,7 +225,8 @@ def init_worker(settings, ros=None):
     return state
 
 
-def _simulation(state, phantom, step=None, spec=None):
+def _simulation(state: WorkerState, phantom: str, step: float | None = None,
+                spec: Mapping[str, Any] | None = None) -> Simulation:
     """
     Return the worker's simulation of a phantom at ``step`` (default: the throws' step).
 
@@ -228,20 +234,20 @@ def _simulation(state, phantom, step=None, spec=None):
     then the key of that geometry.
     """
     s = state.settings
-    step = s.physics_step if step is None else float(step)
+    dt = s.physics_step if step is None else float(step)
     sims = state.sims
-    if (phantom, step) not in sims:
+    if (phantom, dt) not in sims:
         config = load_simulation_config()
         loop = replace(config.loop, thread_period=s.thread_period,
-                       collision_period=max(s.collision_period, step))
-        config = replace(config, world=replace(config.world, physics_step=step), loop=loop)
+                       collision_period=max(s.collision_period, dt))
+        config = replace(config, world=replace(config.world, physics_step=dt), loop=loop)
         if spec is not None:
-            sims[phantom, step] = Simulation(config, phantom=phantom_config(spec),
-                                             rng=np.random.default_rng(0))
+            sims[phantom, dt] = Simulation(config, phantom=phantom_config(spec),
+                                           rng=np.random.default_rng(0))
         else:
-            sims[phantom, step] = Simulation(config, phantom=phantom,
-                                             rng=np.random.default_rng(0))
-    return sims[phantom, step]
+            sims[phantom, dt] = Simulation(config, phantom=phantom,
+                                           rng=np.random.default_rng(0))
+    return sims[phantom, dt]
 
 
 #: Physical-mode robots a study process keeps between jobs (the jobs of one subject on one
@@ -249,7 +255,8 @@ def _simulation(state, phantom, step=None, spec=None):
 ROBOTS_KEPT = 4
 
 
-def _physical_simulation(state, phantom, step, physical):
+def _physical_simulation(state: WorkerState, phantom: str, step: float,
+                         physical: RobotErrors) -> Simulation:
     """
     Return the simulation of a phantom for a physical-mode job (the worker's: kept).
 
@@ -272,7 +279,8 @@ def _physical_simulation(state, phantom, step, physical):
     return sim
 
 
-def _robot(state, phantom, step, physical):
+def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
+           ) -> Simulation:
     """Build the simulation of a robot with the hidden kinematic errors ``physical``."""
     level = float(physical.error_level)
     s = state.settings
@@ -285,21 +293,21 @@ def _robot(state, phantom, step, physical):
     return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
 
 
-def _subject(state, name, seed=None):
+def _subject(state: WorkerState, name: str, seed: int | None = None) -> Subject:
     """Return a subject of the cohort drawn with ``seed`` (default: the settings' seed)."""
     s = state.settings
-    seed = s.cohort_seed if seed is None else int(seed)
+    drawn = s.cohort_seed if seed is None else int(seed)
     if state.subjects is None:
         state.subjects = {}
-    if seed not in state.subjects:
-        state.subjects[seed] = {x.name: x for x in load_cohort(s.cohort_path, seed=seed)}
-    subjects = state.subjects[seed]
+    if drawn not in state.subjects:
+        state.subjects[drawn] = {x.name: x for x in load_cohort(s.cohort_path, seed=drawn)}
+    subjects = state.subjects[drawn]
     if name not in subjects:
         raise ValueError(f'subject {name!r} is not in the cohort ({sorted(subjects)})')
     return subjects[name]
 
 
-def run_job(job, state):
+def run_job(job: DemoJob | ThrowJob, state: WorkerState) -> DemoRecord | ThrowRecord:
     """
     Run one study job and return its record.
 
@@ -324,7 +332,7 @@ def run_job(job, state):
 
 
 # ---------------------------------------------------------------------- demonstrations
-def demo_job(job, state):
+def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
     """
     Record, store, read back and segment one demonstration (a ``demo`` job).
 
@@ -382,12 +390,14 @@ def demo_job(job, state):
         # on what the robot saw, a demonstration the segmenter cannot read is a result (the
         # perceived grasps miss one), not a fault to run again
         return replace(record, failure=f'not segmentable from what the robot recorded: {exc}')
-    durations = {f't_{seg.name}': float(seg.duration) for seg in segmentation.subtasks}
+    durations: dict[str, Any] = {f't_{seg.name}': float(seg.duration)
+                                 for seg in segmentation.subtasks}
     os.replace(tmp, target)
     return replace(record, ok=True, **durations)
 
 
-def _through_bag(state, demo, bag, pair, base_frames=None):
+def _through_bag(state: WorkerState, demo: Demonstration, bag: Path, pair: str,
+                 base_frames: Mapping[str, ArrayLike] | None = None) -> Demonstration:
     """
     Write the demonstration as the recorder would and read it back as the segmenter does.
 
@@ -403,27 +413,29 @@ def _through_bag(state, demo, bag, pair, base_frames=None):
     return demonstration_from_bag(bag, pair=pair)
 
 
-def _save_segments(demo, segmentation, path, source='', subject=''):
+def _save_segments(demo: Demonstration, segmentation: Segmentation, path: Path,
+                   source: str = '', subject: str = '') -> None:
     """Save what the throws learn from: the demonstration's segment file."""
     make_segment_file(demo, segmentation, source=source, subject=subject).save(path)
 
 
 # ---------------------------------------------------------------------- throws
-def _training(state, path):
+def _training(state: WorkerState, path: str) -> Any:
     data = state.data
     if path not in data:  # the skill's TrainingData of the demonstration's segment file
         data[path] = training_data(path)
     return data[path]
 
 
-def _dmp_params(state):
+def _dmp_params(state: WorkerState) -> dict[str, DmpParams]:
     """Return ``config/dmp.yaml``'s parameters per task (read once per process)."""
     if state.dmp_params is None:
         state.dmp_params = {task: load_dmp_params(task=task) for task in TASKS}
     return state.dmp_params
 
 
-def _skill(state, path, method, dmp=None):
+def _skill(state: WorkerState, path: str, method: str,
+           dmp: Mapping[str, Mapping[str, Any]] | None = None) -> ThrowSkill:
     """
     Return the skill learnt from a segment file by a method (cached per process).
 
@@ -439,16 +451,17 @@ def _skill(state, path, method, dmp=None):
             skills.clear()
         params = _dmp_params(state)
         if overrides:
-            params = {task: replace(params[task], **dmp.get(task, {})) for task in TASKS}
+            params = {task: replace(params[task], **(dmp or {}).get(task, {})) for task in TASKS}
         skills[key] = learn_skill(_training(state, path), method=method, params=params)
     return skills[key]
 
 
-def _angle_deg(q1, q2):
+def _angle_deg(q1: ArrayLike, q2: ArrayLike) -> float:
     return math.degrees(float(quaternion_angle(np.asarray(q1), np.asarray(q2))))
 
 
-def regeneration_errors(reference, regenerated):
+def regeneration_errors(reference: tuple[ArrayLike, ArrayLike],
+                        regenerated: tuple[ArrayLike, ArrayLike]) -> dict[str, float]:
     """
     Return the Table II errors of a regenerated needle trajectory against the demonstrated one.
 
@@ -475,11 +488,11 @@ def regeneration_errors(reference, regenerated):
             'traj_deg': orientation_trajectory_error(Q0, Q1)['mean_deg']}
 
 
-def _nan():
+def _nan() -> float:
     return float('nan')
 
 
-def throw_job(job, state):
+def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
     """
     Learn a skill from a demonstration and execute it on a pair (a ``throw`` job).
 
@@ -516,7 +529,8 @@ def throw_job(job, state):
     ros = state.ros
     physical = job.physical
     # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
-    replay = replay_name(to_json(job))
+    name = replay_name(to_json(job))
+    replay: str | None = name
     if physical is not None:
         sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
         sampler = ThrowSampler(sim)
@@ -525,18 +539,18 @@ def throw_job(job, state):
                                 observer=sampler, physical=True,
                                 correction=bool(physical.correction))
         markers = sim.phantom.markers
-        replay = f'{job.folder}/{replay}'
+        replay = f'{job.folder}/{name}'
         replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
                                     outcome.subtask_times)
     elif ros is None:
-        sim = (_simulation(state, job.test_key, spec=job.test_config)
+        sim = (_simulation(state, job.test_key or job.test_phantom, spec=job.test_config)
                if job.test_config is not None else _simulation(state, job.test_phantom))
         sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
                                 timeout=s.timeout, control_period=s.control_period,
                                 observer=sampler)
         markers = sim.phantom.markers
-        replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
+        replay_bytes = sampler.save(out / name, job.test_pair, outcome.events,
                                     outcome.subtask_times)
     else:
         outcome = ros.execute(job, skill)
@@ -553,8 +567,8 @@ def throw_job(job, state):
         return replace(record, trajectories=None)
     data = _training(state, path)
     pair = markers[job.test_pair]
-    errors = {}
-    curves = {}
+    errors: dict[str, Any] = {}
+    curves: dict[str, np.ndarray] = {}
     for task in TASKS:
         n_pts = skill.dmps[task].params.n_pts
         T, P, Q = data.needle[task]

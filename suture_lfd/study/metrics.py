@@ -12,11 +12,16 @@ and errors are reported in degrees.
 """
 
 import math
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.distance import cdist
 from sim_bridge.common.geometry import quaternion_angle
-from sim_bridge.common.validation import check_array, check_quaternions
+from sim_bridge.common.validation import FloatArray, check_array, check_quaternions
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 DTW_DEFINITION = (
     'DTW warping path with local cost {cost}; steps (1,0), (0,1), (1,1) with unit weights; '
@@ -34,7 +39,7 @@ ENDPOINT_DEFINITION = (
     'angle in degrees between the first / last orientation and the desired one')
 
 
-def _trajectory(A, name):
+def _trajectory(A: ArrayLike, name: str) -> FloatArray:
     A = check_array(A, name)
     if A.ndim == 1:
         A = A[:, None]
@@ -43,7 +48,7 @@ def _trajectory(A, name):
     return A
 
 
-def dtw_accumulated_cost(cost):
+def dtw_accumulated_cost(cost: ArrayLike) -> FloatArray:
     """
     Return the accumulated DTW cost matrix.
 
@@ -86,10 +91,10 @@ def dtw_accumulated_cost(cost):
     return D[:, 1:]
 
 
-def _backtrack(D):
+def _backtrack(D: FloatArray) -> np.ndarray:
     """Return the optimal path (K, 2) through accumulated costs, diagonal first on ties."""
     n, m = D.shape
-    flat = memoryview(np.ascontiguousarray(D).reshape(-1))
+    flat = memoryview(cast('Buffer', np.ascontiguousarray(D).reshape(-1)))
     i, j = n - 1, m - 1
     rows, cols = [i], [j]
     while i > 0 and j > 0:
@@ -113,7 +118,7 @@ def _backtrack(D):
     return np.column_stack((rows[::-1], cols[::-1]))
 
 
-def dtw_path_from_cost(cost):
+def dtw_path_from_cost(cost: ArrayLike) -> tuple[np.ndarray, float]:
     """
     Return the DTW warping path for a matrix of local costs, and its summed cost.
 
@@ -138,7 +143,7 @@ def dtw_path_from_cost(cost):
     return _backtrack(D), float(D[-1, -1])
 
 
-def dtw_path(A, B):
+def dtw_path(A: ArrayLike, B: ArrayLike) -> tuple[np.ndarray, float]:
     """
     Return the DTW warping path between two trajectories and its summed Euclidean cost.
 
@@ -160,7 +165,7 @@ def dtw_path(A, B):
     return dtw_path_from_cost(cdist(*_pair(A, B)))
 
 
-def _pair(A, B):
+def _pair(A: ArrayLike, B: ArrayLike) -> tuple[FloatArray, FloatArray]:
     A = _trajectory(A, 'A')
     B = _trajectory(B, 'B')
     if A.shape[1] != B.shape[1]:
@@ -169,7 +174,7 @@ def _pair(A, B):
     return A, B
 
 
-def dtw_distance(A, B):
+def dtw_distance(A: ArrayLike, B: ArrayLike) -> float:
     """
     Return the DTW cost: the summed Euclidean distance along the optimal warping path.
 
@@ -190,7 +195,8 @@ def dtw_distance(A, B):
     return float(dtw_accumulated_cost(cdist(*_pair(A, B)))[-1, -1])
 
 
-def trajectory_error(A, B, path=None):
+def trajectory_error(A: ArrayLike, B: ArrayLike, path: ArrayLike | None = None
+                     ) -> dict[str, Any]:
     """
     Return the DTW position trajectory error, in mm, with its definition.
 
@@ -219,7 +225,8 @@ def trajectory_error(A, B, path=None):
             'path': path, 'definition': POSITION_DEFINITION}
 
 
-def orientation_trajectory_error(QA, QB, path=None):
+def orientation_trajectory_error(QA: ArrayLike, QB: ArrayLike, path: ArrayLike | None = None
+                                 ) -> dict[str, Any]:
     """
     Return the DTW orientation trajectory error, in degrees, with its definition.
 
@@ -255,7 +262,7 @@ def orientation_trajectory_error(QA, QB, path=None):
             'path': path, 'definition': definition}
 
 
-def _check_path(path, n, m):
+def _check_path(path: ArrayLike, n: int, m: int) -> np.ndarray:
     path = np.asarray(path)
     if (path.ndim != 2 or path.shape[1] != 2 or path.shape[0] == 0
             or not np.issubdtype(path.dtype, np.integer)):
@@ -265,7 +272,9 @@ def _check_path(path, n, m):
     return path
 
 
-def endpoint_errors(P, start, goal, Q=None, start_q=None, goal_q=None):
+def endpoint_errors(P: ArrayLike, start: ArrayLike, goal: ArrayLike, Q: ArrayLike | None = None,
+                    start_q: ArrayLike | None = None, goal_q: ArrayLike | None = None
+                    ) -> dict[str, Any]:
     """
     Return the start and goal errors of a trajectory (goal error at t = T, its last sample).
 
@@ -293,7 +302,7 @@ def endpoint_errors(P, start, goal, Q=None, start_q=None, goal_q=None):
     P = check_array(P, 'P', shape=(None, 3), min_rows=1)
     start = check_array(start, 'start', shape=(3,))
     goal = check_array(goal, 'goal', shape=(3,))
-    out = {'start_mm': float(np.linalg.norm(P[0] - start) * 1e3),
+    out: dict[str, Any] = {'start_mm': float(np.linalg.norm(P[0] - start) * 1e3),
            'goal_mm': float(np.linalg.norm(P[-1] - goal) * 1e3)}
     if Q is not None:
         if start_q is None or goal_q is None:

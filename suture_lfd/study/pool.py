@@ -20,16 +20,20 @@ what is left.
 """
 
 import collections
+from collections.abc import Callable, Iterator, Sequence
 import contextlib
 from dataclasses import replace
 import logging
 import multiprocessing
-from multiprocessing.connection import wait
+from multiprocessing.connection import Connection, wait
 import os
 import signal
 import time
+from types import TracebackType
+from typing import Any
 
-from suture_lfd.study.signals import STOP_GRACE_S, wait_gone
+from suture_lfd.study.records import RunJob, RunRecord
+from suture_lfd.study.signals import STOP_GRACE_S, StopRequest, wait_gone
 
 _LOG = logging.getLogger(__name__)
 
@@ -44,7 +48,7 @@ class PoolError(RuntimeError):
 
 
 @contextlib.contextmanager
-def _one_blas_thread():
+def _one_blas_thread() -> Iterator[None]:
     """
     Start worker processes with one BLAS thread each, as Dask starts its workers.
 
@@ -62,7 +66,8 @@ def _one_blas_thread():
             os.environ.pop(name, None)
 
 
-def _worker_main(conn, call, initializer, initargs):
+def _worker_main(conn: Connection, call: Callable[[RunJob, Any], RunRecord],
+                 initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]) -> None:
     """Run the initializer, then every job the driver sends, until None (a worker process)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -80,16 +85,17 @@ def _worker_main(conn, call, initializer, initargs):
 class _Worker:
     """One worker process, its end of the pipe and the job it runs (None: idle)."""
 
-    def __init__(self, ctx, call, initializer, initargs):
+    def __init__(self, ctx: Any, call: Callable[[RunJob, Any], RunRecord],
+                 initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]) -> None:
         self.conn, child = ctx.Pipe(duplex=True)
         self.process = ctx.Process(target=_worker_main, args=(child, call, initializer, initargs),
                                    daemon=True)
         self.process.start()
         child.close()  # only the worker holds its end: its death reads as EOF here
-        self.job = None
+        self.job: RunJob | None = None
         self.started = False  # has taken a job
 
-    def send(self, job):
+    def send(self, job: RunJob) -> None:
         self.conn.send(job)
         self.job = job
         self.started = True
@@ -113,15 +119,18 @@ class WorkerPool:
 
     """
 
-    def __init__(self, workers, call, initializer=None, initargs=()):
+    def __init__(self, workers: int, call: Callable[[RunJob, Any], RunRecord],
+                 initializer: Callable[..., Any] | None = None,
+                 initargs: tuple[Any, ...] = ()) -> None:
         self._ctx = multiprocessing.get_context('spawn')
         self._args = (call, initializer, initargs)
-        self._workers = []
+        self._workers: list[_Worker] = []
         with _one_blas_thread():
             for _ in range(max(1, int(workers))):
                 self._workers.append(_Worker(self._ctx, *self._args))
 
-    def run(self, jobs, on_record, stop):
+    def run(self, jobs: Sequence[RunJob], on_record: Callable[[RunRecord], None],
+            stop: StopRequest) -> None:
         """
         Run ``jobs`` and hand each record to ``on_record`` as it comes back.
 
@@ -162,7 +171,7 @@ class WorkerPool:
                     continue
                 self._collect(worker, on_record)
 
-    def _collect(self, worker, on_record):
+    def _collect(self, worker: _Worker, on_record: Callable[[RunRecord], None]) -> None:
         """Take a record from a worker whose pipe or sentinel is ready (or replace it)."""
         if worker.job is not None and worker.conn.poll():
             try:
@@ -187,12 +196,12 @@ class WorkerPool:
                                          f'{code})'), wall_s=float('nan')))
         self._replace(worker)
 
-    def _replace(self, worker):
+    def _replace(self, worker: _Worker) -> None:
         worker.conn.close()
         with _one_blas_thread():
             self._workers[self._workers.index(worker)] = _Worker(self._ctx, *self._args)
 
-    def close(self, stop=False):
+    def close(self, stop: bool = False) -> None:
         """
         End the workers: let them finish (``stop`` False) or stop them now (True).
 
@@ -217,8 +226,9 @@ class WorkerPool:
             worker.conn.close()
         self._workers = []
 
-    def __enter__(self):
+    def __enter__(self) -> 'WorkerPool':
         return self
 
-    def __exit__(self, kind, value, tb):
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 tb: TracebackType | None) -> None:
         self.close(stop=kind is not None)

@@ -18,7 +18,56 @@ from the store equals the one stored.
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 import math
-from typing import Any, TypeVar
+from typing import Any, ClassVar, Protocol, TypeVar
+
+
+class RunRecord(Protocol):
+    """
+    What the job runner and the store need of a record (a frozen dataclass).
+
+    :class:`DemoRecord` and :class:`ThrowRecord` are the study's; the runner's own tests use
+    records of their own kind.
+    """
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+    @property
+    def id(self) -> str:
+        """The job's ``id``."""
+
+    @property
+    def key(self) -> str:
+        """The job's name in its run."""
+
+    @property
+    def error(self) -> str:
+        """Why the job raised ('' when it did not)."""
+
+    @property
+    def code(self) -> str | None:
+        """The code digest of the Dask worker that computed it."""
+
+    @property
+    def worker(self) -> str | None:
+        """The address of that worker."""
+
+
+class RunJob(Protocol):
+    """What the job runner needs of a job (a frozen, picklable dataclass)."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+    @property
+    def id(self) -> str:
+        """What decides its result (:mod:`suture_lfd.study.keys`)."""
+
+    @property
+    def key(self) -> str:
+        """Its name in its run."""
+
+    def failed(self, error: str) -> Any:
+        """Return its record stored as an error."""
+
 
 #: Metadata of a record field that is a column of the record's CSV file.
 _COLUMN = {'column': True}
@@ -385,9 +434,14 @@ def _finite(value: Any) -> Any:
     return value
 
 
-def to_json(item: Job | Record) -> dict[str, Any]:
+def to_json(item: RunJob | RunRecord) -> dict[str, Any]:
     """Return a job or record as a JSON-serialisable dict (non-finite numbers as None)."""
     return dict(_finite(asdict(item)))
+
+
+def plan_json(job: Job) -> dict[str, Any]:
+    """Return a job as a plan file lists it: the fields it sets (those that are not None)."""
+    return {k: v for k, v in to_json(job).items() if v is not None}
 
 
 def stored(record: R) -> R:

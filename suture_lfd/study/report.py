@@ -18,17 +18,19 @@ The CSV files and every table depend only on the records (not on wall time), so 
 configuration gives byte-identical CSV files; wall times appear only in the report's run section.
 """
 
+from collections.abc import Iterable, Mapping, Sequence
 import csv
 from dataclasses import asdict
 import json
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from sim_bridge.common.archive import load_archive
 from suture_lfd.study import figures, tables
-from suture_lfd.study.records import DemoRecord, ThrowRecord, columns
+from suture_lfd.study.records import DemoRecord, Record, ThrowRecord, columns
 
 #: ``throws.csv``'s columns: the first fields of a throw's record.
 THROW_COLUMNS = columns(ThrowRecord)
@@ -36,7 +38,7 @@ THROW_COLUMNS = columns(ThrowRecord)
 DEMO_COLUMNS = columns(DemoRecord)
 
 
-def _cell(value):
+def _cell(value: Any) -> str:
     if value is None:
         return ''
     if isinstance(value, bool):
@@ -46,7 +48,8 @@ def _cell(value):
     return str(value)
 
 
-def write_csv(path, rows, columns):
+def write_csv(path: str | Path, rows: Iterable[Mapping[str, Any]], columns: Sequence[str]
+              ) -> None:
     """Write ``rows`` (dicts) as CSV with ``columns`` (missing values empty)."""
     with open(path, 'w', newline='') as f:
         writer = csv.writer(f, lineterminator='\n')
@@ -55,25 +58,25 @@ def write_csv(path, rows, columns):
             writer.writerow([_cell(r.get(c)) for c in columns])
 
 
-def read_csv(path):
+def read_csv(path: str | Path) -> list[dict[str, str]]:
     """Read a CSV written by :func:`write_csv` back into a list of dicts of strings."""
     with open(path, newline='') as f:
         return list(csv.DictReader(f))
 
 
-def _f(value, digits=2):
+def _f(value: float | np.floating[Any] | None, digits: int = 2) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return '–'
     return f'{value:.{digits}f}'
 
 
-def _table(header, rows):
+def _table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
     lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
     return '\n'.join(lines)
 
 
-def _table2(reg):
+def _table2(reg: Mapping[str, Any]) -> str:
     rows = []
     for task in tables.TASKS:
         for kind, unit in tables.ERROR_KINDS:
@@ -87,7 +90,7 @@ def _table2(reg):
     return _table(['item', 'point', 'mean', 'std', 'median', 'n', 'paper mean ± std'], rows)
 
 
-def _table3(gen):
+def _table3(gen: Mapping[str, Any]) -> str:
     rows = []
     for name in ('experienced', 'naive', 'overall'):
         ours = gen['group_mean'][name]
@@ -97,7 +100,7 @@ def _table3(gen):
     return _table(['user', 'generality', 'throws', 'paper', 'ours − paper'], rows)
 
 
-def _table4(t4):
+def _table4(t4: Mapping[str, Any]) -> str:
     rows = []
     total = t4['total']
     for task in tables.SUBTASKS:
@@ -112,7 +115,7 @@ def _table4(t4):
                    'paper overall', 'paper %'], rows)
 
 
-def _time_table(times):
+def _time_table(times: Mapping[str, Mapping[str, Any]]) -> str:
     rows = []
     for phantom, ph in times.items():
         paper = tables.PAPER['time_reduction'].get(phantom)
@@ -126,7 +129,7 @@ def _time_table(times):
                    'paper reduction'], rows)
 
 
-def _subject_table(gen, demo_rows):
+def _subject_table(gen: Mapping[str, Any], demo_rows: Sequence[DemoRecord]) -> str:
     rows = []
     for s, group in gen['subjects'].items():
         own = [d for d in demo_rows if d.subject == s]
@@ -146,21 +149,24 @@ def _subject_table(gen, demo_rows):
                    'same phantom', 'other phantom'], rows)
 
 
-def _fig7_curves(folder, rows):
+def _fig7_curves(folder: str | Path, rows: Sequence[ThrowRecord]
+                 ) -> tuple[ThrowRecord | None, dict[str, dict[str, np.ndarray]] | None]:
     """Pick the paper's Fig. 7 case (first subject at scan2, else the first regeneration)."""
     regen = [r for r in tables.regeneration_rows(rows) if r.trajectories]
     if not regen:
         return None, None
     pick = next((r for r in regen if r.test_pair == 'scan2'), regen[0])
+    if pick.trajectories is None:
+        return None, None
     path = Path(folder) / pick.trajectories
     if not path.exists():
         return None, None
     from suture_lfd.study.jobs import TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION
 
     data = load_archive(path, TRAJECTORIES_FORMAT, TRAJECTORIES_FORMAT_VERSION, 'trajectory file')
-    curves = {}
+    curves: dict[str, dict[str, np.ndarray]] = {}
     for task in tables.TASKS:
-        entry = {}
+        entry: dict[str, np.ndarray] = {}
         for label, name in (('demonstration', f'demo_{task}'), ('DMP', f'rollout_{task}'),
                             ('executed', f'exec_{task}')):
             if name in data and data[name].shape[0] > 1:
@@ -170,11 +176,12 @@ def _fig7_curves(folder, rows):
     return pick, curves
 
 
-def _goal_note(method, config):
+def _goal_note(method: str, config: Mapping[str, Any]) -> str:
     """Say how the method fits its weights, and what that does to task iv's goal error."""
     from suture_lfd.skill import METHODS
 
-    regression = getattr(METHODS.get(method), 'regression', 'lwr')
+    known = METHODS.get(method)
+    regression = known.regression if known is not None else 'lwr'
     why = ("Task iv's needle centre rests while the needle turns about it and moves only in "
            'the pull at the end of the subtask; the rollout runs over the demonstrated '
            'duration, so at t = T the phase is still exp(-alpha_x) = 0.37 (alpha_x = 1) and '
@@ -189,7 +196,8 @@ def _goal_note(method, config):
             'pull that LWR smooths away, so the rollout reaches the goal.')
 
 
-def _filmstrips(folder, rows, demo_rows, pick, method):
+def _filmstrips(folder: Path, rows: Sequence[ThrowRecord], demo_rows: Sequence[DemoRecord],
+                pick: ThrowRecord, method: str) -> list[str]:
     """
     Draw the filmstrips of the Fig. 7 subject: its demonstration and a throw on another pair.
 
@@ -214,7 +222,7 @@ def _filmstrips(folder, rows, demo_rows, pick, method):
     try:
         write_filmstrip(recording_from_bag(folder / demo.bag), folder / demo_png,
                         title=f'demonstration: {demo.subject} at {demo.pair}')
-        write_filmstrip(recording_from_file(folder / throw.replay), folder / throw_png,
+        write_filmstrip(recording_from_file(folder / (throw.replay or '')), folder / throw_png,
                         title=f'learnt at {throw.train_pair}, executed at '
                               f'{throw.test_pair} (score {_f(throw.score, 1)})')
     except (ValueError, OSError) as exc:
@@ -229,7 +237,7 @@ def _filmstrips(folder, rows, demo_rows, pick, method):
             f'![regeneration on another pair]({throw_png})', '']
 
 
-def summarise(records):
+def summarise(records: Sequence[Record]) -> dict[str, Any]:
     """
     Return the numbers of every table for every method (JSON-serialisable).
 
@@ -270,7 +278,7 @@ def summarise(records):
     return out
 
 
-def _nan_to_none(value):
+def _nan_to_none(value: Any) -> Any:
     if isinstance(value, dict):
         return {k: _nan_to_none(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -280,7 +288,8 @@ def _nan_to_none(value):
     return value
 
 
-def write_report(folder, records, config, run_info=None):
+def write_report(folder: str | Path, records: Sequence[Record], config: Mapping[str, Any],
+                 run_info: Mapping[str, Any] | None = None) -> Path:
     """
     Write the report folder of a study from its records.
 
@@ -379,7 +388,7 @@ def write_report(folder, records, config, run_info=None):
         figures.task_time_bars(times, folder / f'task_time_{method}.png',
                                title=f'task time, method {method}')
         pick, curves = _fig7_curves(folder, rows)
-        if curves:
+        if pick is not None and curves:
             figures.trajectory_figure(
                 curves, folder / f'trajectories_{method}.png',
                 title=f'{pick.subject} at {pick.test_pair}, method {method}')

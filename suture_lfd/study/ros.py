@@ -29,6 +29,7 @@ are deleted) and runs again on resume. ``ros/results/`` keeps each throw's outco
 executor wrote it (without the pose samples).
 """
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 import errno
 import fcntl
@@ -41,11 +42,18 @@ import subprocess
 import sys
 import tempfile
 import time
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sim_bridge.common.processes import follow_parent, kill_group, popen, stop_group
 from sim_bridge.common.vocabulary import SUBTASKS
 from suture_lfd.errors import RosThrowError
+
+if TYPE_CHECKING:
+    from sim_bridge.scene.phantom import MarkerPair
+    from suture_lfd.skill import ThrowSkill
+    from suture_lfd.study.records import ThrowJob
 
 MAX_DOMAIN_ID = 101   # highest ROS domain id whose ports stay clear of Linux's ephemeral range
 
@@ -94,15 +102,15 @@ class RosSettings:
     stop_timeout: float = 10.0
 
 
-def study_settings(environ=None):
+def study_settings(environ: Mapping[str, str] | None = None) -> 'RosSettings':
     """Return the :class:`RosSettings` of a study started in this process."""
     environ = os.environ if environ is None else environ
-    own = environ.get('ROS_DOMAIN_ID', '').strip()
-    own = int(own) if own.isdigit() else None
+    text = environ.get('ROS_DOMAIN_ID', '').strip()
+    own = int(text) if text.isdigit() else None
     return RosSettings(domain_base=own if own is not None else os.getpid(), avoid_domain=own)
 
 
-def executable(name):
+def executable(name: str) -> Path:
     """Return the path of a node executable installed next to ``sys.executable``."""
     path = Path(sys.executable).parent / name
     if not (path.is_file() and os.access(path, os.X_OK)):
@@ -111,7 +119,7 @@ def executable(name):
     return path
 
 
-def check_executables():
+def check_executables() -> None:
     """Raise FileNotFoundError unless both node executables are installed."""
     for name in ('simulator', 'executor'):
         executable(name)
@@ -133,11 +141,11 @@ class DomainLease:
 
     """
 
-    def __init__(self, base, avoid=None):
+    def __init__(self, base: int, avoid: int | None = None) -> None:
         folder = Path(tempfile.gettempdir()) / 'suture-lfd-ros-domains'
         folder.mkdir(exist_ok=True)
-        self.domain_id = None
-        self._fd = None
+        self.domain_id = 0  # set below to the leased id (or no lease: an error)
+        self._fd: int | None = None
         for k in range(MAX_DOMAIN_ID):
             candidate = (int(base) + k) % MAX_DOMAIN_ID + 1
             if candidate == avoid:
@@ -154,7 +162,7 @@ class DomainLease:
             return
         raise RuntimeError(f'no free ROS domain id in 1..{MAX_DOMAIN_ID} (all leased)')
 
-    def release(self):
+    def release(self) -> None:
         """Give the id back."""
         if self._fd is not None:
             os.close(self._fd)
@@ -164,7 +172,8 @@ class DomainLease:
 class NodeProcess:
     """A node executable in a process group of its own, its output in a log file."""
 
-    def __init__(self, argv, log_path, env):
+    def __init__(self, argv: Sequence[Any], log_path: str | Path, env: Mapping[str, str]
+                 ) -> None:
         self.argv = [str(a) for a in argv]
         self.log_path = Path(log_path)
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -172,11 +181,11 @@ class NodeProcess:
             self.popen = popen(self.argv, stdout=log, stderr=subprocess.STDOUT,
                                stdin=subprocess.DEVNULL, env=env)
 
-    def poll(self):
+    def poll(self) -> int | None:
         """Return the exit code, or None while it runs."""
         return self.popen.poll()
 
-    def tail(self, lines=6, width=400):
+    def tail(self, lines: int = 6, width: int = 400) -> str:
         """Return the last lines of the node's log (one string)."""
         try:
             text = self.log_path.read_text(errors='replace').strip().splitlines()
@@ -184,11 +193,11 @@ class NodeProcess:
             return ''
         return ' | '.join(line[:width] for line in text[-lines:])
 
-    def stop(self, timeout=10.0):
+    def stop(self, timeout: float = 10.0) -> int | None:
         """Stop the whole group (SIGINT, then SIGTERM, then SIGKILL); return the exit code."""
         return stop_group(self.popen, timeout)
 
-    def kill_group(self):
+    def kill_group(self) -> None:
         """SIGKILL whatever is left of the group (nothing may outlive its leader)."""
         kill_group(self.popen)
 
@@ -198,20 +207,20 @@ class RosOutcome:
     """The outcome of a throw the nodes executed (the fields a study record takes)."""
 
     score: float
-    subtasks: dict
+    subtasks: dict[str, bool]
     failure: str
     duration: float
     entry_error_mm: float
     exit_error_mm: float
-    executed: dict = field(default_factory=dict)
-    result: dict = field(default_factory=dict)
+    executed: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    result: dict[str, Any] = field(default_factory=dict)
 
 
-def _number(value):
+def _number(value: Any) -> float:
     return math.nan if value is None else float(value)
 
 
-def outcome_from_result(result):
+def outcome_from_result(result: dict[str, Any]) -> RosOutcome:
     """
     Return the :class:`RosOutcome` of the executor's ``result_file`` contents.
 
@@ -249,7 +258,7 @@ def outcome_from_result(result):
                       result=result)
 
 
-def _file_name(key):
+def _file_name(key: str) -> str:
     return key.split('/', 1)[-1].replace('/', '_')
 
 
@@ -267,31 +276,31 @@ class RosThrows:
 
     """
 
-    def __init__(self, settings, out, timeout):
+    def __init__(self, settings: RosSettings, out: str | Path, timeout: float) -> None:
         self.settings = settings
         self.folder = Path(out) / 'ros'
         self.timeout = float(timeout)
-        self._lease = None
-        self._markers = {}
-        self._skills = {}
-        self._running = []
-        self._previous_sigterm = None
+        self._lease: DomainLease | None = None
+        self._markers: dict[str, dict[str, MarkerPair]] = {}
+        self._skills: dict[Path, ThrowSkill] = {}
+        self._running: list[NodeProcess] = []
+        self._previous_sigterm: Any = None
 
     @property
-    def domain_id(self):
+    def domain_id(self) -> int:
         """This worker's ROS domain id (leased on first use)."""
         if self._lease is None:
             self._lease = DomainLease(self.settings.domain_base, self.settings.avoid_domain)
         return self._lease.domain_id
 
-    def install_sigterm(self, parent=None):
+    def install_sigterm(self, parent: int | None = None) -> None:
         """
         In a worker process: stop the running nodes, then exit, on SIGTERM.
 
         With ``parent`` (the pid of the study's process), the SIGTERM also comes when that
         process dies, even by SIGKILL.
         """
-        def handler(signum, frame):
+        def handler(signum: int, frame: FrameType | None) -> None:
             self.stop_all()
             raise SystemExit(128 + signum)
 
@@ -299,7 +308,7 @@ class RosThrows:
         if parent is not None:
             follow_parent(parent)
 
-    def environment(self):
+    def environment(self) -> dict[str, str]:
         """Return the nodes' environment: this worker's domain, DDS on this machine only."""
         env = dict(os.environ)
         env.update(ROS_DOMAIN_ID=str(self.domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
@@ -307,7 +316,7 @@ class RosThrows:
         env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
         return env
 
-    def markers(self, phantom):
+    def markers(self, phantom: str) -> dict[str, 'MarkerPair']:
         """Return the marker pairs of a phantom (what the simulator node builds)."""
         if phantom not in self._markers:
             from sim_bridge.scene.scene_config import load_scene_config
@@ -315,7 +324,7 @@ class RosThrows:
             self._markers[phantom] = load_scene_config().build_phantom(phantom).markers
         return self._markers[phantom]
 
-    def skill_file(self, skill, name):
+    def skill_file(self, skill: 'ThrowSkill', name: str) -> Path:
         """Save a learnt skill once as ``ros/skills/<name>.npz``; return its path."""
         path = self.folder / 'skills' / f'{name}.npz'
         if self._skills.get(path) is not skill or not path.exists():
@@ -326,7 +335,7 @@ class RosThrows:
             self._skills[path] = skill
         return path
 
-    def execute(self, job, skill):
+    def execute(self, job: 'ThrowJob', skill: 'ThrowSkill') -> RosOutcome:
         """
         Execute a throw job's skill on its test pair through the node processes.
 
@@ -408,11 +417,11 @@ class RosThrows:
             proc.log_path.unlink(missing_ok=True)
         return outcome
 
-    def _start(self, proc):
+    def _start(self, proc: NodeProcess) -> NodeProcess:
         self._running.append(proc)
         return proc
 
-    def stop_all(self):
+    def stop_all(self) -> None:
         """Stop every node this worker is running (hard: the worker is going away)."""
         for proc in list(self._running):
             try:
@@ -427,7 +436,7 @@ class RosThrows:
                 pass
             proc.kill_group()
 
-    def close(self):
+    def close(self) -> None:
         """Stop the nodes and give the domain id back."""
         self.stop_all()
         self._running.clear()

@@ -29,6 +29,8 @@ the study learnt, on a private ROS domain per worker (:mod:`suture_lfd.study.ros
 demonstrations stay in-process. Its jobs have other ``id`` s than the in-process ones.
 """
 
+import argparse
+from collections.abc import Sequence
 import dataclasses
 import json
 import logging
@@ -37,42 +39,42 @@ from pathlib import Path
 import shlex
 import sys
 import time
+from typing import IO, TYPE_CHECKING, Any
 import zlib
 
 import numpy as np
 from suture_lfd.study import held_out, physical
 from suture_lfd.study.digest import code_digest, file_digest
 from suture_lfd.study.engine import (
-    CodeMismatchError,
-    EngineError,
-    open_session,
     parse_engine,
-    run_stages_on,
 )
-from suture_lfd.study.jobs import JobSettings, init_worker, run_job
+from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import BOOKKEEPING, demo_ids, with_ids
 from suture_lfd.study.options import QUICK_PAIRS, QUICK_SUBJECTS
-from suture_lfd.study.pool import PoolError
-from suture_lfd.study.records import DemoJob, DemoRecord, ThrowJob, to_json
-from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
+from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, plan_json
+from suture_lfd.study.runner import Progress
+from suture_lfd.study.signals import stop_on_signals
+from suture_lfd.study.stages import Stage, run_job_stages
 from suture_lfd.study.store import ResultStore, config_hash, earlier_format_files
+
+if TYPE_CHECKING:
+    from suture_lfd.demos.cohort import Subject
 
 _LOG = logging.getLogger(__name__)
 STUDY_FORMAT = 1
 
 
 # ---------------------------------------------------------------------- configuration
-def _pick_subjects(cohort, count):
+def _pick_subjects(cohort: Sequence['Subject'], count: int | None) -> list['Subject']:
     """Return the first ``count`` subjects taken in turn from each group (all for None)."""
     if count is None or count >= len(cohort):
         return list(cohort)
     if count < 1:
         raise ValueError(f'--subjects must be >= 1, got {count}')
-    groups = {}
+    groups: dict[str, list[Subject]] = {}
     for s in cohort:
         groups.setdefault(s.group, []).append(s)
-    picked = []
+    picked: list[Subject] = []
     while len(picked) < count:
         for members in groups.values():
             if members and len(picked) < count:
@@ -80,13 +82,13 @@ def _pick_subjects(cohort, count):
     return sorted(picked, key=lambda s: s.name)
 
 
-def job_seed(study_seed, key):
+def job_seed(study_seed: int, key: str) -> int:
     """Return the scene seed of a job: the same for the same study seed and job key."""
     return int(np.random.SeedSequence([int(study_seed), zlib.crc32(key.encode())])
                .generate_state(1)[0] >> 1)
 
 
-def build_config(args):
+def build_config(args: argparse.Namespace) -> dict[str, Any]:
     """
     Return the study's exact configuration (a JSON-serialisable dict) from the options.
 
@@ -173,7 +175,7 @@ def build_config(args):
     }
 
 
-def hashed_config(config):
+def hashed_config(config: dict[str, Any]) -> dict[str, Any]:
     """Return the configuration that decides the results (not paths or descriptions)."""
     # held-out throws are keyed by their geometry: the fixed-pair results stay shared
     return {k: v for k, v in config.items()
@@ -181,7 +183,7 @@ def hashed_config(config):
                          'assessment', 'physical')}
 
 
-def plan_jobs(config):
+def plan_jobs(config: dict[str, Any]) -> tuple[list[DemoJob], list[ThrowJob]]:
     """
     Return the study's jobs: stage 1 the demonstrations, stage 2 the throws.
 
@@ -232,7 +234,8 @@ def plan_jobs(config):
     return demos, with_ids(throws, config, demo_ids(demos))
 
 
-def attach_demos(throws, store, demos):
+def attach_demos(throws: Sequence[ThrowJob], store: ResultStore, demos: Sequence[DemoJob]
+                 ) -> list[ThrowJob]:
     """
     Fill each throw job with its training demonstration's segment file and time.
 
@@ -269,7 +272,7 @@ def attach_demos(throws, store, demos):
     return out
 
 
-def ordered_records(store, jobs):
+def ordered_records(store: ResultStore, jobs: Sequence[DemoJob | ThrowJob]) -> list[Record]:
     """
     Return the stored records of ``jobs``, in the jobs' order, placed as in this run.
 
@@ -289,7 +292,7 @@ def ordered_records(store, jobs):
 
 
 # ---------------------------------------------------------------------- main
-def run_study(args, stream=None):
+def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
     """
     Run (or resume) the study of the options and write its report.
 
@@ -338,7 +341,7 @@ def run_study(args, stream=None):
         phys_demos = with_ids(phys_demos, config)
         phys_throws = with_ids(phys_throws, config, demo_ids(demos + phys_demos))
     (out / 'config.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
-    jobs = demos + throws + held_jobs + phys_demos + phys_throws
+    jobs: list[DemoJob | ThrowJob] = [*demos, *throws, *held_jobs, *phys_demos, *phys_throws]
     total = len(jobs)
     print(f'study {digest}: {len(config["subjects"])} subjects, '
           f'{sum(len(p) for p in config["phantoms"].values())} pairs, methods '
@@ -349,7 +352,7 @@ def run_study(args, stream=None):
              if phys_throws else '')
           + f'; results in {out}', file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps([to_json(job) for job in jobs], indent=1)
+        (out / 'jobs.json').write_text(json.dumps([plan_json(job) for job in jobs], indent=1)
                                        + '\n')
         return 0
     if args.workers is not None:
@@ -363,49 +366,26 @@ def run_study(args, stream=None):
         return 2
     settings = JobSettings(out=str(out), cohort_path=config['cohort_file'],
                            cohort_seed=config['seed'])
-    status, interrupted = 0, None
+    status = 0
     with stop_on_signals('study') as stop, ResultStore(out) as store:
         reused = stored_note('study', store, jobs, stream)
         progress = Progress(total, done=reused, stream=stream)
         if not args.report_only:
-            session = None
-            try:
-                if engine.kind == 'dask' and pending(jobs, store):
-                    with stop.deferred():  # a cluster is never left half started
-                        session = open_session(engine, workers)
-                    stop.check()
-                    print(f'study: jobs run on the {engine.describe()} '
-                          f'({session.n_workers()} workers)', file=stream, flush=True)
-                where = session or engine
-                run_stages_on(where, [demos + phys_demos], run_job, store, workers=workers,
-                              progress=progress, initializer=init_worker,
-                              initargs=(settings,))
-                if held_jobs:  # fewer than the matrix's throws: their figure comes first
-                    run_stages_on(where, [attach_demos(held_jobs, store, demos)], run_job,
-                                  store, workers=workers, progress=progress,
-                                  initializer=init_worker, initargs=(settings,))
-                run_stages_on(where, [attach_demos(throws, store, demos)], run_job, store,
-                              workers=workers, progress=progress, initializer=init_worker,
-                              initargs=(settings, ros))
-                if phys_throws:  # in-process, whatever --via-ros says
-                    run_stages_on(where, [attach_demos(phys_throws, store, demos + phys_demos)],
-                                  run_job, store, workers=workers, progress=progress,
-                                  initializer=init_worker, initargs=(settings,))
-            except (CodeMismatchError, EngineError, PoolError) as exc:
-                progress.finish()
-                print(f'suture-lfd study: error: {exc}', file=sys.stderr, flush=True)
-                status = 1
-            except KeyboardInterrupt as exc:
-                interrupted = signal_of(exc)
-            finally:
-                if session is not None:
-                    session.close(stop=interrupted is not None)
-            if interrupted is not None:
-                return end_interrupted('study', progress, total, store, interrupted, stream)
+            stages = [Stage(lambda: demos + phys_demos, (settings,))]
+            if held_jobs:  # fewer than the matrix's throws: their figure comes first
+                stages.append(Stage(lambda: attach_demos(held_jobs, store, demos), (settings,)))
+            stages.append(Stage(lambda: attach_demos(throws, store, demos), (settings, ros)))
+            if phys_throws:  # in-process, whatever --via-ros says
+                stages.append(Stage(lambda: attach_demos(phys_throws, store, demos + phys_demos),
+                                    (settings,)))
+            status = run_job_stages('study', engine, stages, jobs, store, stop, progress,
+                                    workers, stream)
+            if status > 128:
+                return status
         ran = progress.done - progress.resumed
         wall = time.monotonic() - t0
-        records = ordered_records(store, demos + throws)
-        held_records = ordered_records(store, held_jobs)
+        records = ordered_records(store, [*demos, *throws])
+        held_records = [r for r in ordered_records(store, held_jobs) if isinstance(r, ThrowRecord)]
         phys_records = ordered_records(store, phys_demos + phys_throws)
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())
     run_info = {'command': command.strip(), 'workers': workers, 'engine': engine.describe(),
@@ -426,7 +406,8 @@ def run_study(args, stream=None):
     return status
 
 
-def stored_note(what, store, jobs, stream):
+def stored_note(what: str, store: ResultStore, jobs: Sequence[DemoJob | ThrowJob],
+                stream: IO[str]) -> int:
     """
     Say what the folder already holds for a run's jobs; return how many of them are reused.
 
@@ -452,7 +433,8 @@ def stored_note(what, store, jobs, stream):
     return reused
 
 
-def _write_held_out(out, report, records, held_records, config):
+def _write_held_out(out: Path, report: Path, records: Sequence[Record],
+                    held_records: Sequence[ThrowRecord], config: dict[str, Any]) -> None:
     """Add the held-out geometry section to the report, and ``held_out.csv``."""
     from suture_lfd.study.report import write_csv
 
@@ -464,7 +446,9 @@ def _write_held_out(out, report, records, held_records, config):
         f.write('\n' + '\n'.join(held_out.report_section(records, ok, config)) + '\n')
 
 
-def _write_physical(out, report, ground_records, records, config, run_info):
+def _write_physical(out: Path, report: Path, ground_records: Sequence[Record],
+                    records: Sequence[Record], config: dict[str, Any],
+                    run_info: dict[str, Any]) -> None:
     """Write a report per physical-mode variant and the main report's physical section."""
     from suture_lfd.study.report import summarise, write_csv, write_report
 
@@ -489,11 +473,11 @@ def _write_physical(out, report, ground_records, records, config, run_info):
         f.write('\n' + '\n'.join(lines) + '\n')
 
 
-def _study_argv():
+def _study_argv() -> list[str]:
     argv = sys.argv[1:]
     return argv[argv.index('study') + 1:] if 'study' in argv else argv
 
 
-def main(args):
+def main(args: argparse.Namespace) -> int:
     """Entry point of ``suture-lfd study`` (called by :mod:`suture_lfd.cli`)."""
     return run_study(args)

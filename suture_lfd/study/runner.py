@@ -18,20 +18,24 @@ handed out, the records stored stay, the workers are stopped and
 :class:`~suture_lfd.study.signals.Interrupted` is raised.
 """
 
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 import logging
 import shutil
 import sys
 import time
 import traceback
+from typing import IO, Any
 
 from suture_lfd.study.pool import WorkerPool
+from suture_lfd.study.records import RunJob, RunRecord
 from suture_lfd.study.signals import stop_on_signals
+from suture_lfd.study.store import ResultStore
 
 _LOG = logging.getLogger(__name__)
 
 
-def _format_duration(seconds):
+def _format_duration(seconds: float) -> str:
     seconds = int(round(max(seconds, 0.0)))
     h, rest = divmod(seconds, 3600)
     m, s = divmod(rest, 60)
@@ -61,7 +65,8 @@ class Progress:
 
     """
 
-    def __init__(self, total, done=0, stream=None, every=None, clock=time.monotonic):
+    def __init__(self, total: int, done: int = 0, stream: IO[str] | None = None,
+                 every: float | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.total = int(total)
         self.done = int(done)
         self.resumed = int(done)
@@ -74,17 +79,17 @@ class Progress:
         self._last = -1e30
 
     @property
-    def elapsed(self):
+    def elapsed(self) -> float:
         """Wall time (s) since this run started."""
         return self.clock() - self.start
 
     @property
-    def rate(self):
+    def rate(self) -> float:
         """Jobs per second finished by this run (0 before the first)."""
         ran = self.done - self.resumed
         return ran / self.elapsed if ran > 0 and self.elapsed > 0 else 0.0
 
-    def line(self, label=''):
+    def line(self, label: str = '') -> str:
         """Return the current progress line."""
         pct = 100.0 * self.done / self.total if self.total else 100.0
         rate = self.rate
@@ -97,7 +102,7 @@ class Progress:
             text += f' ({self.resumed} resumed)'
         return text + (f' [{label}]' if label else '')
 
-    def advance(self, label='', n=1):
+    def advance(self, label: str = '', n: int = 1) -> None:
         """Count ``n`` finished jobs and print a line if it is time to."""
         self.done += n
         now = self.clock()
@@ -108,7 +113,7 @@ class Progress:
             else:
                 print(self.line(label), file=self.stream, flush=True)
 
-    def _redraw(self, label):
+    def _redraw(self, label: str) -> None:
         """Draw the progress bar over the previous one (a new line when the run is done)."""
         width = 20
         filled = int(width * self.done / self.total) if self.total else width
@@ -119,14 +124,15 @@ class Progress:
         self.stream.write('\r\033[K' + text[:columns - 1] + end)
         self.stream.flush()
 
-    def finish(self):
+    def finish(self) -> None:
         """End the bar's line on a terminal (before other output follows it)."""
         if self.terminal and self.done < self.total:
             self.stream.write('\n')
             self.stream.flush()
 
 
-def call_job(job_fn, job, state=None):
+def call_job(job_fn: Callable[[Any, Any], RunRecord], job: RunJob, state: Any = None
+             ) -> RunRecord:
     """
     Run ``job_fn(job, state)``; an exception becomes an ``error`` record (its last line).
 
@@ -142,7 +148,7 @@ def call_job(job_fn, job, state=None):
     return replace(record, wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)
 
 
-def pending(jobs, store):
+def pending(jobs: Sequence[RunJob], store: ResultStore) -> list[RunJob]:
     """Return the jobs whose result is not stored yet (or stored with an error), in order."""
     out = []
     for job in jobs:
@@ -152,7 +158,10 @@ def pending(jobs, store):
     return out
 
 
-def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None, initargs=()):
+def run_stages(stages: Sequence[Sequence[RunJob]], job_fn: Callable[[Any, Any], RunRecord],
+               store: ResultStore, workers: int = 1, progress: Progress | None = None,
+               initializer: Callable[..., Any] | None = None, initargs: tuple[Any, ...] = ()
+               ) -> int:
     """
     Run the pending jobs of every stage, stage after stage, and store their records.
 
@@ -194,7 +203,7 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
         return 0
     ran = 0
 
-    def keep(record):
+    def keep(record: RunRecord) -> None:
         nonlocal ran
         store.add(record)
         ran += 1
@@ -227,8 +236,8 @@ def run_stages(stages, job_fn, store, workers=1, progress=None, initializer=None
 class _JobCall:
     """Picklable ``(job, state) -> call_job(job_fn, job, state)``."""
 
-    def __init__(self, job_fn):
+    def __init__(self, job_fn: Callable[[Any, Any], RunRecord]) -> None:
         self.job_fn = job_fn
 
-    def __call__(self, job, state=None):
+    def __call__(self, job: RunJob, state: Any = None) -> RunRecord:
         return call_job(self.job_fn, job, state)

@@ -21,14 +21,22 @@ Signals are per process, so the request is too: :func:`stop_on_signals` installs
 in the main thread and returns the process's :class:`StopRequest`.
 """
 
+from collections.abc import Iterable, Iterator
 import contextlib
 import logging
 from multiprocessing import resource_tracker
+from multiprocessing.process import BaseProcess
 import os
 import signal
 import time
+from types import FrameType
+from typing import IO, TYPE_CHECKING
 
 import psutil
+
+if TYPE_CHECKING:
+    from suture_lfd.study.runner import Progress
+    from suture_lfd.study.store import ResultStore
 
 _LOG = logging.getLogger(__name__)
 
@@ -47,7 +55,7 @@ class Interrupted(KeyboardInterrupt):
 
     """
 
-    def __init__(self, signum=signal.SIGINT):
+    def __init__(self, signum: int = signal.SIGINT) -> None:
         super().__init__(f'stopped by {signal.Signals(signum).name}')
         self.signum = int(signum)
 
@@ -65,17 +73,17 @@ class StopRequest:
 
     """
 
-    def __init__(self):
-        self.signum = None
+    def __init__(self) -> None:
+        self.signum: int | None = None
         self.label = 'study'
         self._deferred = 0
 
     @property
-    def requested(self):
+    def requested(self) -> bool:
         """True once a stop signal arrived."""
         return self.signum is not None
 
-    def check(self):
+    def check(self) -> None:
         """
         Raise :class:`Interrupted` if a stop was asked for (call at a safe point of a loop).
 
@@ -89,7 +97,7 @@ class StopRequest:
             raise Interrupted(self.signum)
 
     @contextlib.contextmanager
-    def deferred(self):
+    def deferred(self) -> Iterator['StopRequest']:
         """Within the block a first signal only marks the request; :meth:`check` acts on it."""
         self._deferred += 1
         try:
@@ -97,12 +105,12 @@ class StopRequest:
         finally:
             self._deferred -= 1
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget a request (a new run in the same process)."""
         self.signum = None
         self._deferred = 0
 
-    def _handle(self, signum, frame):
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
         if self.signum is not None:
             _exit_at_once(signum, self.label)
         self.signum = signum
@@ -114,7 +122,7 @@ STOP = StopRequest()  # signals are per process: so is the request they make
 
 
 @contextlib.contextmanager
-def stop_on_signals(label='study'):
+def stop_on_signals(label: str = 'study') -> Iterator[StopRequest]:
     """
     Install the SIGINT and SIGTERM handlers of a run while the block runs.
 
@@ -149,7 +157,7 @@ def stop_on_signals(label='study'):
             signal.signal(s, handler)
 
 
-def _exit_at_once(signum, label):
+def _exit_at_once(signum: int, label: str) -> None:
     """Kill every process started here and exit without cleaning up (a second signal)."""
     os.write(2, f'\n{label} stopped at once by a second {signal.Signals(signum).name}; the '
                 'results stored so far are kept: run the same command again to resume\n'
@@ -160,19 +168,20 @@ def _exit_at_once(signum, label):
     os._exit(128 + signum)
 
 
-def _children():
+def _children() -> list[psutil.Process]:
     try:
         return psutil.Process().children(recursive=True)
     except psutil.Error:
         return []
 
 
-def _tracker_pid():
+def _tracker_pid() -> int | None:
     """Process id of multiprocessing's resource tracker (started with spawned workers)."""
-    return getattr(resource_tracker._resource_tracker, '_pid', None)
+    pid: int | None = getattr(resource_tracker._resource_tracker, '_pid', None)
+    return pid
 
 
-def terminate_processes(pids):
+def terminate_processes(pids: Iterable[int]) -> None:
     """
     Send SIGTERM to those of ``pids`` that this process started (no waiting: their owner reaps).
 
@@ -190,7 +199,7 @@ def terminate_processes(pids):
                 child.terminate()
 
 
-def stop_children(grace=STOP_GRACE_S):
+def stop_children(grace: float = STOP_GRACE_S) -> int:
     """
     Stop every process this one started that is still running: SIGTERM, then SIGKILL.
 
@@ -228,7 +237,7 @@ def stop_children(grace=STOP_GRACE_S):
     return len(others)
 
 
-def signal_of(exc):
+def signal_of(exc: BaseException) -> int:
     """
     Return the signal that stopped a run, from the :class:`KeyboardInterrupt` it raised.
 
@@ -238,7 +247,8 @@ def signal_of(exc):
     return int(getattr(exc, 'signum', signal.SIGINT))
 
 
-def end_interrupted(what, progress, total, store, signum, stream):
+def end_interrupted(what: str, progress: 'Progress', total: int, store: 'ResultStore',
+                    signum: int, stream: IO[str]) -> int:
     """
     End a run stopped by a signal: stop what is left of it, say so, return the exit status.
 
@@ -270,7 +280,7 @@ def end_interrupted(what, progress, total, store, signum, stream):
     return 128 + int(signum)
 
 
-def wait_gone(processes, deadline):
+def wait_gone(processes: Iterable[BaseProcess], deadline: float) -> None:
     """Wait until every ``multiprocessing.Process`` has exited or ``deadline`` (monotonic)."""
     for process in processes:
         process.join(max(0.0, deadline - time.monotonic()))

@@ -21,18 +21,21 @@ Records are typed (:mod:`suture_lfd.study.records`): each line is a record's fie
 damaged. A record has at least ``id``, ``key`` (the job's name in its run) and ``error``.
 """
 
+from collections.abc import Callable, Mapping
 import hashlib
 import json
 import logging
 import os
 from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
 
-from suture_lfd.study.records import record_from_json, to_json
+from suture_lfd.study.records import RunJob, RunRecord, record_from_json, to_json
 
 _LOG = logging.getLogger(__name__)
 
 
-def config_hash(config, length=12):
+def config_hash(config: Any, length: int = 12) -> str:
     """
     Return a short, stable hash of a JSON-serialisable configuration.
 
@@ -56,7 +59,7 @@ def config_hash(config, length=12):
 RESULTS_NAME = 'results'
 
 
-def earlier_format_files(folder):
+def earlier_format_files(folder: str | Path) -> list[Path]:
     """
     Return the result files of the earlier format in ``folder`` (not read by this version).
 
@@ -93,17 +96,18 @@ class ResultStore:
 
     """
 
-    def __init__(self, folder, name=RESULTS_NAME, parse=record_from_json):
+    def __init__(self, folder: str | Path, name: str = RESULTS_NAME,
+                 parse: Callable[[Mapping[str, Any]], Any] = record_from_json) -> None:
         self.parse = parse
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.path = self.folder / f'{name}.jsonl'
-        self.records = {}
+        self.records: dict[str, Any] = {}
         self.dropped = 0
         self._read()
-        self._file = None
+        self._file: IO[str] | None = None
 
-    def _read(self):
+    def _read(self) -> None:
         if not self.path.exists():
             return
         lines = self.path.read_bytes().split(b'\n')
@@ -132,18 +136,18 @@ class ResultStore:
                 f.writelines(line + b'\n' for line in kept)
             os.replace(tmp, self.path)
 
-    def __contains__(self, job_id):
+    def __contains__(self, job_id: object) -> bool:
         return job_id in self.records
 
-    def done(self, job):
+    def done(self, job: RunJob) -> Any:
         """Return the record of ``job`` (by its ``id``) if stored without an error, else None."""
         record = self.records.get(job.id)
         return None if record is None or record.error else record
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.records)
 
-    def add(self, record):
+    def add(self, record: RunRecord) -> None:
         """
         Append one finished job's record and flush it to disk.
 
@@ -170,14 +174,15 @@ class ResultStore:
         os.fsync(self._file.fileno())
         self.records[kept.id] = kept
 
-    def close(self):
+    def close(self) -> None:
         """Close the file (records stay readable in :attr:`records`)."""
         if self._file is not None:
             self._file.close()
             self._file = None
 
-    def __enter__(self):
+    def __enter__(self) -> 'ResultStore':
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 tb: TracebackType | None) -> None:
         self.close()

@@ -39,6 +39,7 @@ cell comes.
 """
 
 import argparse
+from collections.abc import Mapping, Sequence
 import copy
 import csv
 import dataclasses
@@ -49,22 +50,16 @@ import os
 from pathlib import Path
 import sys
 import time
+from typing import IO, Any
 
 import numpy as np
 from sim_bridge.common.configfile import ConfigError, load_yaml
 from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.study import physical
-from suture_lfd.study.engine import (
-    CodeMismatchError,
-    EngineError,
-    open_session,
-    parse_engine,
-    run_stages_on,
-)
-from suture_lfd.study.jobs import JobSettings, init_worker, run_job
+from suture_lfd.study.engine import parse_engine
+from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import demo_ids, with_ids
-from suture_lfd.study.pool import PoolError
-from suture_lfd.study.records import DemoRecord, ThrowRecord, to_json
+from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, plan_json
 from suture_lfd.study.run import (
     attach_demos,
     build_config,
@@ -74,8 +69,9 @@ from suture_lfd.study.run import (
     plan_jobs,
     stored_note,
 )
-from suture_lfd.study.runner import Progress, pending
-from suture_lfd.study.signals import end_interrupted, signal_of, stop_on_signals
+from suture_lfd.study.runner import Progress
+from suture_lfd.study.signals import stop_on_signals
+from suture_lfd.study.stages import Stage, run_job_stages
 from suture_lfd.study.store import ResultStore, config_hash
 
 SWEEP_FORMAT = 1
@@ -118,12 +114,12 @@ class Sweep:
 
     """
 
-    design: dict
-    seeds: tuple
-    methods: tuple
-    axes: tuple
+    design: dict[str, Any]
+    seeds: tuple[int, ...]
+    methods: tuple[str, ...]
+    axes: tuple[tuple[str, tuple[Any, ...]], ...]
 
-    def cells(self):
+    def cells(self) -> list[tuple[str, dict[str, Any]]]:
         """Return every cell as ``(name, {parameter: value})``, in grid order."""
         names = [a for a, _ in self.axes]
         out = []
@@ -134,13 +130,13 @@ class Sweep:
         return out
 
 
-def _text(value):
+def _text(value: Any) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
-def dmp_overrides(point):
+def dmp_overrides(point: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """Return a cell's DMP values as ``{task: {key: value}}`` (what a throw job carries)."""
-    out = {task: {} for task in TASKS}
+    out: dict[str, dict[str, Any]] = {task: {} for task in TASKS}
     for name, value in point.items():
         if name in PHYSICAL_AXES:
             continue
@@ -150,7 +146,7 @@ def dmp_overrides(point):
     return {t: v for t, v in out.items() if v}
 
 
-def load_sweep(path):
+def load_sweep(path: str | Path) -> Sweep:
     """
     Read and check a sweep file.
 
@@ -209,7 +205,7 @@ def load_sweep(path):
     return sweep
 
 
-def _physical_axes(path, section):
+def _physical_axes(path: str | Path, section: Any) -> list[tuple[str, tuple[Any, ...]]]:
     """Return the swept physical-mode axes of a sweep file's ``physical`` section."""
     if section is None:
         return []
@@ -236,7 +232,7 @@ def _physical_axes(path, section):
     return axes
 
 
-def physical_point(point):
+def physical_point(point: Mapping[str, Any]) -> tuple[float, bool] | None:
     """Return a cell's physical mode as ``(level, correction)``, or None for ground truth."""
     if not any(k in point for k in PHYSICAL_AXES):
         return None
@@ -244,14 +240,14 @@ def physical_point(point):
             bool(point.get('correction', PHYSICAL_AXES['correction'])))
 
 
-def _check_point(point):
+def _check_point(point: Mapping[str, Any]) -> None:
     from suture_lfd.dmp import load_dmp_params
 
     for task, values in dmp_overrides(point).items():
         dataclasses.replace(load_dmp_params(task=task), **values)
 
 
-def _study_args(sweep, seed):
+def _study_args(sweep: Sweep, seed: int) -> argparse.Namespace:
     d = sweep.design
     phantoms = d.get('phantoms')
     return argparse.Namespace(
@@ -261,7 +257,7 @@ def _study_args(sweep, seed):
         methods=','.join(sweep.methods) if sweep.methods else None)
 
 
-def plan_sweep(sweep):
+def plan_sweep(sweep: Sweep) -> tuple[dict[str, Any], list[DemoJob], list[ThrowJob]]:
     """
     Return the sweep's configuration and jobs.
 
@@ -298,8 +294,9 @@ def plan_sweep(sweep):
         for name, point in cells:
             where = f'cells/{name}/{prefix}'
             cell_throws = seed_throws
-            if modes[name] is not None:
-                level, correction = modes[name]
+            mode = modes[name]
+            if mode is not None:
+                level, correction = mode
                 _, cell_throws = physical.plan_physical(
                     {'levels': [level], 'corrections': [correction]}, [], seed_throws,
                     job_seed, seed)
@@ -313,11 +310,12 @@ def plan_sweep(sweep):
     return config, demos, throws
 
 
-def _hashed_sweep(config):
+def _hashed_sweep(config: dict[str, Any]) -> dict[str, Any]:
     return {**config, 'studies': {s: hashed_config(c) for s, c in config['studies'].items()}}
 
 
-def _cell_records(records, name, seed, mode=None):
+def _cell_records(records: Sequence[Record], name: str, seed: int,
+                  mode: tuple[float, bool] | None = None) -> list[Record]:
     """
     Return the records of one cell and seed, keyed and pathed as a study's own.
 
@@ -329,7 +327,7 @@ def _cell_records(records, name, seed, mode=None):
     if mode is not None:
         variant = f'physical/{physical.variant_name(*mode)}/'
         prefix += f'physical/{physical.variant_name(mode[0], True)}/'
-    out = []
+    out: list[Record] = []
     for r in records:
         if isinstance(r, DemoRecord) and r.key.startswith(prefix + 'demo/'):
             out.append(dataclasses.replace(r, key=r.key[len(prefix):]))
@@ -343,8 +341,8 @@ def _cell_records(records, name, seed, mode=None):
     return out
 
 
-def _lookup(summary, path):
-    value = summary
+def _lookup(summary: Mapping[str, Any], path: Sequence[str]) -> float:
+    value: Any = summary
     for part in path:
         if not isinstance(value, dict) or part not in value:
             return float('nan')
@@ -352,7 +350,8 @@ def _lookup(summary, path):
     return float(value) if isinstance(value, (int, float)) else float('nan')
 
 
-def sweep_rows(config, summaries):
+def sweep_rows(config: dict[str, Any], summaries: Mapping[tuple[str, int], Any]
+               ) -> list[dict[str, Any]]:
     """
     Return one row per cell, seed and method: the cell's parameters and its metrics.
 
@@ -371,7 +370,8 @@ def sweep_rows(config, summaries):
     return rows
 
 
-def spread_table(rows, axis, metric):
+def spread_table(rows: Sequence[Mapping[str, Any]], axis: str, metric: str
+                 ) -> dict[str, list[tuple[Any, float, float, int]]]:
     """
     Return ``{method: [(value, mean, std, n)]}``: a metric against one swept parameter.
 
@@ -383,7 +383,7 @@ def spread_table(rows, axis, metric):
         series = []
         values = sorted({r[axis] for r in rows if r['method'] == method})
         for v in values:
-            per_seed = {}
+            per_seed: dict[int, list[float]] = {}
             for r in rows:
                 if r['method'] == method and r[axis] == v and not math.isnan(r[metric]):
                     per_seed.setdefault(r['seed'], []).append(r[metric])
@@ -394,7 +394,8 @@ def spread_table(rows, axis, metric):
     return out
 
 
-def write_sweep_report(folder, config, rows, run_info):
+def write_sweep_report(folder: str | Path, config: dict[str, Any],
+                       rows: Sequence[dict[str, Any]], run_info: Mapping[str, Any]) -> Path:
     """Write ``sweep.csv``, ``sweep.md`` and one plot per swept parameter; return sweep.md."""
     folder = Path(folder)
     axes = [a for a, _ in config['axes']]
@@ -443,7 +444,7 @@ def write_sweep_report(folder, config, rows, run_info):
     return path
 
 
-def _plot_axis(folder, axis, tables):
+def _plot_axis(folder: str | Path, axis: str, tables: Mapping[str, Any]) -> Path:
     import matplotlib
 
     matplotlib.use('Agg')
@@ -468,7 +469,7 @@ def _plot_axis(folder, axis, tables):
     return path
 
 
-def run_sweep(args, stream=None):
+def run_sweep(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
     """
     Run (or resume) a sweep and write its reports; return the exit status.
 
@@ -493,45 +494,28 @@ def run_sweep(args, stream=None):
     digest = config_hash(_hashed_sweep(config))
     config['hash'] = digest
     (out / 'sweep.json').write_text(json.dumps(config, indent=1, sort_keys=True) + '\n')
-    total = len(demos) + len(throws)
+    jobs: list[DemoJob | ThrowJob] = [*demos, *throws]
+    total = len(jobs)
     print(f'sweep {digest}: {len(config["cells"])} cells x {len(sweep.seeds)} seeds: '
           f'{len(demos)} demonstrations + {len(throws)} throws; results in {out}',
           file=stream, flush=True)
     if args.plan:
-        (out / 'jobs.json').write_text(json.dumps([to_json(job) for job in demos + throws],
+        (out / 'jobs.json').write_text(json.dumps([plan_json(job) for job in jobs],
                                                   indent=1) + '\n')
         return 0
     cohort = next(iter(config['studies'].values()))['cohort_file']
     settings = JobSettings(out=str(out), cohort_path=cohort, cohort_seed=sweep.seeds[0])
-    status, interrupted = 0, None
     with stop_on_signals('sweep') as stop, ResultStore(out) as store:
-        reused = stored_note('sweep', store, demos + throws, stream)
+        reused = stored_note('sweep', store, jobs, stream)
         progress = Progress(total, done=reused, stream=stream)
-        session = None
-        try:
-            if engine.kind == 'dask' and pending(demos + throws, store):
-                with stop.deferred():  # a cluster is never left half started
-                    session = open_session(engine, workers)
-                stop.check()
-            where = session or engine
-            run_stages_on(where, [demos], run_job, store, workers=workers, progress=progress,
-                          initializer=init_worker, initargs=(settings,))
-            run_stages_on(where, [attach_demos(throws, store, demos)], run_job, store,
-                          workers=workers, progress=progress, initializer=init_worker,
-                          initargs=(settings,))
-        except (CodeMismatchError, EngineError, PoolError) as exc:
-            progress.finish()
-            print(f'suture-lfd sweep: error: {exc}', file=sys.stderr, flush=True)
-            status = 1
-        except KeyboardInterrupt as exc:
-            interrupted = signal_of(exc)
-        finally:
-            if session is not None:
-                session.close(stop=interrupted is not None)
-        if interrupted is not None:
-            return end_interrupted('sweep', progress, total, store, interrupted, stream)
+        stages = [Stage(lambda: demos, (settings,)),
+                  Stage(lambda: attach_demos(throws, store, demos), (settings,))]
+        status = run_job_stages('sweep', engine, stages, jobs, store, stop, progress,
+                                workers, stream)
+        if status > 128:
+            return status
         ran = progress.done - progress.resumed
-        records = ordered_records(store, demos + throws)
+        records = ordered_records(store, jobs)
     wall = time.monotonic() - t0
     run_info = {'engine': engine.describe(), 'jobs_run': ran, 'resumed': reused, 'wall_s': wall,
                 'workers': workers}
@@ -553,6 +537,6 @@ def run_sweep(args, stream=None):
     return status
 
 
-def main(args):
+def main(args: argparse.Namespace) -> int:
     """Entry point of ``suture-lfd sweep`` (called by :mod:`suture_lfd.cli`)."""
     return run_sweep(args)

@@ -13,12 +13,14 @@ Every function here is a pure function of the records, so the report's tables ca
 against its CSV.
 """
 
+from collections.abc import Iterable, Sequence
 import math
+from typing import Any
 import warnings
 
 import numpy as np
 from sim_bridge.common.vocabulary import SUBTASKS, TASKS
-from suture_lfd.study.records import DemoRecord, ThrowRecord
+from suture_lfd.study.records import DemoRecord, Record, ThrowRecord
 
 GROUPS = ('experienced', 'naive')
 ERROR_KINDS = (('pos', 'mm'), ('ori', 'deg'))
@@ -26,7 +28,7 @@ ERROR_POINTS = ('start', 'goal', 'traj')
 
 # The seed paper's figures (Zhou et al., ISMR 2024): Table II (mean, std, median or None),
 # Table III, Table IV, regeneration success and task time.
-PAPER = {
+PAPER: dict[str, Any] = {
     'table2': {
         ('ii', 'pos', 'start'): (0.0, 0.0, None), ('ii', 'pos', 'goal'): (0.05, 0.06, None),
         ('ii', 'pos', 'traj'): (0.17, 0.07, None),
@@ -47,13 +49,13 @@ PAPER = {
 }
 
 
-def demos(records):
+def demos(records: Iterable[Record]) -> list[DemoRecord]:
     """Return the demonstration records, sorted by subject and pair order of appearance."""
     rows = [r for r in records if isinstance(r, DemoRecord) and not r.error]
     return sorted(rows, key=lambda r: (r.subject, r.order, r.pair))
 
 
-def throws(records, method=None):
+def throws(records: Iterable[Record], method: str | None = None) -> list[ThrowRecord]:
     """Return the throw records (of one method), sorted by method, subject, train, test."""
     rows = [r for r in records if isinstance(r, ThrowRecord) and r.kind == 'throw'
             and not r.error and (method is None or r.method == method)]
@@ -61,30 +63,30 @@ def throws(records, method=None):
                                        r.train_pair, r.test_order, r.test_pair))
 
 
-def methods(records):
+def methods(records: Iterable[Record]) -> list[str]:
     """Return the methods present, in first-seen order."""
-    seen = []
+    seen: list[str] = []
     for r in records:
         if isinstance(r, ThrowRecord) and r.kind == 'throw' and r.method not in seen:
             seen.append(r.method)
     return seen
 
 
-def _mean(values):
-    values = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
-    return float(np.mean(values)) if values else float('nan')
+def _mean(values: Iterable[float | None]) -> float:
+    kept = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    return float(np.mean(kept)) if kept else float('nan')
 
 
-def pair_order(rows):
+def pair_order(rows: Iterable[ThrowRecord]) -> list[str]:
     """Return the marker pairs in the order of the study (train then test appearance)."""
-    keyed = {}
+    keyed: dict[str, int] = {}
     for r in rows:
         keyed.setdefault(r.train_pair, r.train_order)
         keyed.setdefault(r.test_pair, r.test_order)
     return sorted(keyed, key=lambda p: (keyed[p], p))
 
 
-def generality(rows):
+def generality(rows: Sequence[ThrowRecord]) -> dict[str, Any]:
     """
     Return the generality of one method's throws: heat maps and mean scores.
 
@@ -105,14 +107,15 @@ def generality(rows):
     """
     pairs = pair_order(rows)
     index = {p: k for k, p in enumerate(pairs)}
-    subjects = {}
-    matrix = {}
+    subjects: dict[str, str] = {}
+    matrix: dict[str, np.ndarray] = {}
     for r in rows:
         subjects.setdefault(r.subject, r.group)
         m = matrix.setdefault(r.subject, np.full((len(pairs), len(pairs)), np.nan))
         m[index[r.train_pair], index[r.test_pair]] = r.score
     subject_mean = {s: _mean([r.score for r in rows if r.subject == s]) for s in subjects}
-    group_mean, n = {}, {}
+    group_mean: dict[str, float] = {}
+    n: dict[str, int] = {}
     for group in GROUPS:
         scores = [r.score for r in rows if r.group == group]
         group_mean[group], n[group] = _mean(scores), len(scores)
@@ -127,18 +130,19 @@ def generality(rows):
             'subject_mean': subject_mean, 'group_mean': group_mean, 'n': n}
 
 
-def score_counts(rows):
+def score_counts(rows: Iterable[ThrowRecord]) -> dict[float, int]:
     """Return ``{score level: count}`` for the levels 1.0, 0.8, 0.4, 0.0."""
-    return {level: sum(1 for r in rows if abs(r.score - level) < 1e-9)
+    rows = list(rows)
+    return {level: sum(1 for r in rows if r.score is not None and abs(r.score - level) < 1e-9)
             for level in (1.0, 0.8, 0.4, 0.0)}
 
 
-def regeneration_rows(rows):
+def regeneration_rows(rows: Iterable[ThrowRecord]) -> list[ThrowRecord]:
     """Return the regeneration throws (learnt and executed on the same pair)."""
     return [r for r in rows if r.train_pair == r.test_pair]
 
 
-def regeneration(rows):
+def regeneration(rows: Iterable[ThrowRecord]) -> dict[str, Any]:
     """
     Return Table II and the regeneration success of one method's throws.
 
@@ -156,7 +160,7 @@ def regeneration(rows):
 
     """
     regen = regeneration_rows(rows)
-    errors = {}
+    errors: dict[tuple[str, str, str], dict[str, Any]] = {}
     for task in TASKS:
         for kind, unit in ERROR_KINDS:
             for point in ERROR_POINTS:
@@ -175,7 +179,8 @@ def regeneration(rows):
             'rate': success / total if total else float('nan')}
 
 
-def subtask_success(rows, group='experienced'):
+def subtask_success(rows: Iterable[ThrowRecord], group: str | None = 'experienced'
+                    ) -> dict[str, Any]:
     """
     Return Table IV: per-subtask success, individual and cumulative, of one group's throws.
 
@@ -191,7 +196,7 @@ def subtask_success(rows, group='experienced'):
 
     """
     rows = [r for r in rows if group is None or r.group == group]
-    out = {'total': len(rows)}
+    out: dict[str, Any] = {'total': len(rows)}
     alive = rows
     for task in SUBTASKS:
         ok = [r for r in alive if getattr(r, task)]
@@ -200,7 +205,8 @@ def subtask_success(rows, group='experienced'):
     return out
 
 
-def task_times(rows, demo_rows):
+def task_times(rows: Iterable[ThrowRecord], demo_rows: Iterable[DemoRecord]
+               ) -> dict[str, dict[str, Any]]:
     """
     Return the full-throw times of demonstrations and LfD executions per phantom and pair.
 
@@ -215,7 +221,7 @@ def task_times(rows, demo_rows):
         ``demo_mean``, ``lfd_mean``, ``reduction`` (1 - lfd_mean / demo_mean)}.
 
     """
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     for d in demo_rows:
         if not d.ok:
             continue
@@ -238,7 +244,7 @@ def task_times(rows, demo_rows):
     return out
 
 
-def calibration(rows):
+def calibration(rows: Sequence[ThrowRecord]) -> list[tuple[str, float, float, float]]:
     """
     Return the calibration targets of the paper method, ours and the residuals.
 

@@ -22,11 +22,16 @@ Frames: ``world`` (the robot's believed one for what is recorded); poses 4x4; me
 """
 
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.observers import PhysicalObserver
 from suture_lfd.skill.perceived import PerceivedScene
+
+if TYPE_CHECKING:
+    from sim_bridge.control import Command, Observation
+    from sim_bridge.simulation import Simulation
 
 
 class TeleoperatedRobot:
@@ -47,18 +52,18 @@ class TeleoperatedRobot:
 
     """
 
-    def __init__(self, sim, pair_name):
+    def __init__(self, sim: 'Simulation', pair_name: str) -> None:
         if pair_name not in sim.phantom.markers:
             raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                              f'{sorted(sim.phantom.markers)}')
         self._sim = sim
         self._pair_name = str(pair_name)
         self._index = int(sim.phantom.markers[pair_name].index)
-        self._observer = None
-        self._perception = None
+        self._observer: PhysicalObserver | None = None
+        self._perception: PerceivedScene | None = None
         self.renders = 0
 
-    def start(self):
+    def start(self) -> None:
         """Begin an attempt: the recorder's perception forgets the needle and its grasps."""
         if self._perception is not None:
             self.renders += self._perception.renders
@@ -66,7 +71,7 @@ class TeleoperatedRobot:
                                           self._sim.needle_geometry)
         self._observer = PhysicalObserver(self._sim, self._perception)
 
-    def command(self, cmd):
+    def command(self, cmd: 'Command') -> 'Command':
         """
         Return the subject's command as the arms get it through a teleoperation.
 
@@ -85,7 +90,7 @@ class TeleoperatedRobot:
         if not targets:
             return cmd
         sim = self._sim
-        out = {}
+        out: dict[str, Any] = {}
         for arm, T in targets.items():
             if T is None or arm not in PSMS:
                 out[arm] = T
@@ -95,7 +100,7 @@ class TeleoperatedRobot:
             out[arm] = T_reported @ np.linalg.solve(T_seen, np.asarray(T, dtype=float))
         return replace(cmd, T_world_tool=out)
 
-    def record(self):
+    def record(self) -> 'Observation':
         """
         Return what the recorder gets now.
 
@@ -111,7 +116,7 @@ class TeleoperatedRobot:
         return self._observer.observe()
 
     @property
-    def images_seen(self):
+    def images_seen(self) -> int:
         """Stereo pairs looked at by the recorder's perception, over every attempt so far."""
         current = self._perception.renders if self._perception is not None else 0
         return self.renders + current

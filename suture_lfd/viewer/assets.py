@@ -8,12 +8,19 @@ so a viewer started with the simulator's ``phantom`` parameter draws the same pa
 from dataclasses import replace
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sim_bridge.scene.phantom import build_phantom
 from sim_bridge.simulation import load_simulation_config
 
+if TYPE_CHECKING:
+    import numpy as np
+    from sim_bridge.scene.phantom import Phantom
+    from sim_bridge.simulation_config import SimulationConfig
 
-def load_phantom(phantom='synthetic', config=None):
+
+def load_phantom(phantom: str = 'synthetic', config: 'SimulationConfig | None' = None
+                 ) -> 'Phantom':
     """
     Build the phantom the simulator builds for its ``phantom`` parameter.
 
@@ -42,12 +49,13 @@ def load_phantom(phantom='synthetic', config=None):
                          name=path.stem)
 
 
-def phantom_of_pair(pair):
+def phantom_of_pair(pair: str) -> str:
     """Return the phantom a marker pair belongs to, from its name (``scan2``: ``scanned``)."""
     return 'scanned' if str(pair).startswith('scan') else 'synthetic'
 
 
-def needle_arc(config=None, n=32):
+def needle_arc(config: 'SimulationConfig | None' = None, n: int = 32
+               ) -> 'tuple[np.ndarray, float]':
     """
     Return the needle's wire centre line in the ``needle`` frame and its diameter.
 
@@ -63,7 +71,7 @@ def needle_arc(config=None, n=32):
     return needle.arc_points(n), needle.wire_diameter
 
 
-def endoscope_fov(config=None):
+def endoscope_fov(config: 'SimulationConfig | None' = None) -> float:
     """
     Return the vertical field of view (rad) of the ECM's cameras, from the camera model.
 

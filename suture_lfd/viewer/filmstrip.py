@@ -10,16 +10,22 @@ The frames go side by side, each labelled with its time, into one PNG.
 """
 
 import logging
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import PSMS
 from suture_lfd.viewer.throw_replay import world_poses
 
+if TYPE_CHECKING:
+    from sim_bridge.simulation import Simulation
+    from suture_lfd.viewer.replay import Recording
+
 LOG = logging.getLogger(__name__)
 
 
-def frame_times(recording, n_frames=5):
+def frame_times(recording: 'Recording', n_frames: int = 5) -> list[float]:
     """``n_frames`` times (s) spread over the recording, at its subtask starts when it has them."""
     marks = sorted(t for t, label in recording.marks if 0.0 <= t <= recording.duration)
     if len(marks) >= n_frames - 1:
@@ -29,7 +35,8 @@ def frame_times(recording, n_frames=5):
     return [float(t) for t in times]
 
 
-def render_frames(recording, times, sim=None):
+def render_frames(recording: 'Recording', times: list[float], sim: 'Simulation | None' = None
+                  ) -> list[Any]:
     """
     Render the ECM's left image of a recording at ``times``.
 
@@ -50,7 +57,7 @@ def render_frames(recording, times, sim=None):
     from sim_bridge.simulation import Simulation
 
     own = sim is None
-    if own:
+    if sim is None:
         sim = Simulation(phantom=recording.phantom)
     try:
         sim.reset(0)
@@ -85,7 +92,8 @@ def render_frames(recording, times, sim=None):
             sim.close()
 
 
-def write_filmstrip(recording, path, title='', n_frames=5, sim=None):
+def write_filmstrip(recording: 'Recording', path: str | Path, title: str = '', n_frames: int = 5,
+                    sim: 'Simulation | None' = None) -> list[float]:
     """
     Write a filmstrip PNG of a recording (``n_frames`` ECM frames side by side).
 

@@ -12,9 +12,14 @@ both show where they coincide.
 """
 
 import threading
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from suture_lfd.viewer.scene import segments_from_strip, wxyz_from_matrix
+
+if TYPE_CHECKING:
+    from suture_lfd.viewer.scene import TransformTree
 
 NEEDLE_COLOR = (255, 140, 0)
 LOST_COLOR = (140, 140, 140)
@@ -39,45 +44,47 @@ class PerceivedLayer:
 
     """
 
-    def __init__(self, scene, tf, needle_points, needle_diameter=0.001):
+    def __init__(self, scene: Any, tf: 'TransformTree', needle_points: ArrayLike,
+                 needle_diameter: float = 0.001) -> None:
         self.scene = scene
         self.tf = tf
         self._lock = threading.Lock()
-        self._needle = None         # (frame, T_frame_needle) of the last pose found
+        # (frame, T_frame_needle) of the last pose found
+        self._needle: tuple[str, np.ndarray] | None = None
         self._found = False
-        self._residual = None
-        self._markers = None        # (frame, points (n, 3)) in that frame
-        self._drawn = {}
+        self._residual: float | None = None
+        self._markers: tuple[str, np.ndarray] | None = None  # (frame, points (n, 3)) in it
+        self._drawn: dict[str, Any] = {}
         self.needle = scene.add_line_segments(
             '/perception/needle', segments_from_strip(needle_points), NEEDLE_COLOR,
             thickness=max(2.0 * needle_diameter, 0.0015), visible=False)
         self._n_segments = len(self.needle.points)
-        self._marker_cloud = None
+        self._marker_cloud: Any = None
         self._marker_world = np.zeros((0, 3))
 
     # --- inputs (any thread) -------------------------------------------------------------------
 
-    def set_needle(self, frame, T_frame_needle):
+    def set_needle(self, frame: str, T_frame_needle: ArrayLike) -> None:
         """Take a needle pose found by perception (4x4, m, in ``frame``)."""
         with self._lock:
             self._needle = (frame, np.asarray(T_frame_needle, float))
             self._found = True
 
-    def set_status(self, found, residual_px=None):
+    def set_status(self, found: bool, residual_px: float | None = None) -> None:
         """Take perception's verdict: ``found`` and the fit's residual (px, None: unknown)."""
         with self._lock:
             self._found = bool(found)
             self._residual = None if residual_px is None else float(residual_px)
 
-    def set_markers(self, frame, points):
+    def set_markers(self, frame: str, points: ArrayLike) -> None:
         """Take the perceived markers ``(n, 3)`` (m, in ``frame``; NaN rows: not seen)."""
-        points = np.asarray(points, float).reshape(-1, 3)
+        rows = np.asarray(points, float).reshape(-1, 3)
         with self._lock:
-            self._markers = (frame, points[np.isfinite(points).all(axis=1)])
+            self._markers = (frame, rows[np.isfinite(rows).all(axis=1)])
 
     # --- drawing (one thread) ------------------------------------------------------------------
 
-    def status_text(self):
+    def status_text(self) -> str:
         """One markdown line for the page: found or not, and the residual."""
         with self._lock:
             found, residual, seen = self._found, self._residual, self._needle is not None
@@ -88,7 +95,7 @@ class PerceivedLayer:
             text += f', residual {residual:.2f} px'
         return text
 
-    def render(self):
+    def render(self) -> bool:
         """Send the perceived needle and markers where they moved; returns whether it sent."""
         with self._lock:
             needle, found, markers = self._needle, self._found, self._markers
@@ -104,7 +111,7 @@ class PerceivedLayer:
                 sent |= self._draw_markers(world)
         return sent
 
-    def _draw_needle(self, T, found):
+    def _draw_needle(self, T: np.ndarray, found: bool) -> bool:
         key = (T.round(7).tobytes(), found)
         if self._drawn.get('needle') == key:
             return False
@@ -119,7 +126,7 @@ class PerceivedLayer:
             handle.visible = True
         return True
 
-    def _draw_markers(self, world):
+    def _draw_markers(self, world: np.ndarray) -> bool:
         key = world.round(7).tobytes()
         if self._drawn.get('markers') == key:
             return False
@@ -135,7 +142,7 @@ class PerceivedLayer:
             point_size=MARKER_SIZE, point_shape='circle', precision='float32')
         return True
 
-    def summary(self):
+    def summary(self) -> dict[str, Any]:
         """
         Return what the page shows of perception (for ``viewer/stats``).
 

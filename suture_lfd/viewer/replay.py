@@ -15,6 +15,7 @@ import json
 from pathlib import Path
 import threading
 import time
+from typing import Any
 
 import numpy as np
 from sim_bridge.common import cdr
@@ -50,11 +51,11 @@ class Track:
     t: np.ndarray
     poses: np.ndarray
 
-    def index(self, t):
+    def index(self, t: float) -> int:
         """Index of the latest sample at or before ``t`` (the first one before the start)."""
         return max(int(np.searchsorted(self.t, t, side='right')) - 1, 0)
 
-    def at(self, t):
+    def at(self, t: float) -> np.ndarray:
         """Pose ``(7,)`` recorded at time ``t`` (latest sample at or before it)."""
         return self.poses[self.index(t)]
 
@@ -82,15 +83,15 @@ class Recording:
 
     """
 
-    tracks: list
-    statics: list
-    events: list = field(default_factory=list)
+    tracks: list[Track]
+    statics: list[tuple[str, str, np.ndarray]]
+    events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)
     duration: float = 0.0
     phantom: str = 'synthetic'
-    marks: list = field(default_factory=list)
+    marks: list[tuple[float, str]] = field(default_factory=list)
     source: str = ''
 
-    def track(self, child):
+    def track(self, child: str) -> Track:
         """Return the track of frame ``child``."""
         for track in self.tracks:
             if track.child == child:
@@ -98,7 +99,7 @@ class Recording:
         raise KeyError(f'{self.source}: no track of frame {child!r}; tracks: '
                        f'{[t.child for t in self.tracks]}')
 
-    def apply(self, scene, t, statics=True):
+    def apply(self, scene: Any, t: float, statics: bool = True) -> None:
         """Pose ``scene`` (a SceneView) as recorded at time ``t`` (s)."""
         if statics:
             for parent, child, T in self.statics:
@@ -106,14 +107,14 @@ class Recording:
         for track in self.tracks:
             scene.set_transform(track.parent, track.child, transform_from_pose(track.at(t)))
 
-    def events_until(self, t):
+    def events_until(self, t: float) -> list[tuple[float, dict[str, Any]]]:
         """Events at or before ``t``."""
         return [(s, e) for s, e in self.events if s <= t + 1e-9]
 
 
-def _pose_topics(topics):
+def _pose_topics(topics: Any) -> dict[str, tuple[str, str, str]]:
     """Map a bag's pose topics to ``(kind, parent default, child)``."""
-    out = {}
+    out: dict[str, tuple[str, str, str]] = {}
     for topic in topics:
         parts = topic.strip('/').split('/')
         if topic == '/sim/needle/measured_cp':
@@ -129,17 +130,17 @@ def _pose_topics(topics):
     return out
 
 
-def default_segments(bag):
+def default_segments(bag: str | Path) -> Path | None:
     """Return the segment file of a bag where the package puts it, or None."""
-    bag = Path(bag)
-    for candidate in (bag.parent / f'{bag.name}.segments.npz',
-                      bag.parent.parent / 'segments' / f'{bag.name}.npz'):
+    folder = Path(bag)
+    for candidate in (folder.parent / f'{folder.name}.segments.npz',
+                      folder.parent.parent / 'segments' / f'{folder.name}.npz'):
         if candidate.is_file():
             return candidate
     return None
 
 
-def recording_from_bag(path, segments=None):
+def recording_from_bag(path: str | Path, segments: str | Path | None = None) -> Recording:
     """
     Read a bag into a :class:`Recording`.
 
@@ -157,9 +158,9 @@ def recording_from_bag(path, segments=None):
 
     """
     path = Path(path)
-    samples = {}
-    statics = {}
-    events = []
+    samples: dict[tuple[str, str], list[tuple[float, Any]]] = {}
+    statics: dict[str, tuple[str, np.ndarray]] = {}
+    events: list[tuple[float, dict[str, Any]]] = []
     with bags.open_bag(path, required=('/sim/needle/measured_cp',)) as reader:
         topics = _pose_topics(reader.topics)
         wanted = [*topics, '/sim/events', '/tf_static']
@@ -195,16 +196,16 @@ def recording_from_bag(path, segments=None):
                         transform_from_pose((t.x, t.y, t.z, q.x, q.y, q.z, q.w))))
     t0 = min(s[0][0] for s in samples.values())
     t1 = max(s[-1][0] for s in samples.values())
-    tracks = []
+    tracks: list[Track] = []
     for (parent, child), rows in sorted(samples.items()):
         rows.sort(key=lambda r: r[0])
         tracks.append(Track(parent, child, np.array([r[0] for r in rows]) - t0,
                             np.array([r[1] for r in rows], dtype=float)))
     pairs = sorted(c.rsplit('_', 1)[0] for c in statics if c.endswith('_entry'))
-    marks = []
-    segments = default_segments(path) if segments is None else Path(segments)
-    if segments is not None:
-        seg = SegmentFile.load(segments)
+    marks: list[tuple[float, str]] = []
+    segment_file = default_segments(path) if segments is None else Path(segments)
+    if segment_file is not None:
+        seg = SegmentFile.load(segment_file)
         marks = [(float(start) - t0, name) for name, (start, _) in
                  zip(SUBTASKS, seg.subtask_times)]
         marks.append((float(seg.subtask_times[-1, 1]) - t0, 'end'))
@@ -236,19 +237,26 @@ class ReplayPanel:
 
     """
 
-    def __init__(self, recording):
+    def __init__(self, recording: Recording) -> None:
         self.recording = recording
         self.time = 0.0
         self.playing = False
         self.speed = 1.0
         self.finished = threading.Event()
         self._lock = threading.RLock()
-        self._page = None
+        self._page: Any = None
         self._events_shown = 0
-        self._thread = None
+        self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._setting = False  # the slider is being moved by seek(), not by a person
+        self._t_wall = 0.0
+        self._t_start = 0.0
+        self.marks: tuple[tuple[float, str], ...] = ()
+        self.slider: Any = None
+        self.play_button: Any = None
+        self.speed_menu: Any = None
 
-    def attach(self, page):
+    def attach(self, page: Any) -> None:
         """Build the controls on ``page`` and show time 0."""
         self._page = page
         gui = page.server.gui
@@ -271,7 +279,7 @@ class ReplayPanel:
 
     # --- controls ------------------------------------------------------------------------------
 
-    def seek(self, t):
+    def seek(self, t: float) -> None:
         """Show time ``t`` (s, clipped to the recording)."""
         t = min(max(float(t), 0.0), self.recording.duration)
         with self._lock:
@@ -280,7 +288,7 @@ class ReplayPanel:
                 self._setting = True
                 self.slider.value = round(t, 2)
 
-    def play(self, speed=None):
+    def play(self, speed: float | None = None) -> None:
         """Play from the current time (from the start if at the end)."""
         with self._lock:
             if speed is not None:
@@ -293,40 +301,40 @@ class ReplayPanel:
             self.playing = True
             self.play_button.label = 'Pause'
 
-    def pause(self):
+    def pause(self) -> None:
         with self._lock:
             self.playing = False
             self.play_button.label = 'Play'
 
-    def toggle(self):
+    def toggle(self) -> None:
         """Play or pause (the button)."""
         if self.playing:
             self.pause()
         else:
             self.play()
 
-    def set_speed(self, speed):
+    def set_speed(self, speed: float) -> None:
         """Replay speed (recorded seconds per wall second, > 0)."""
-        speed = check_positive(speed, 'replay speed')
+        value = check_positive(speed, 'replay speed')
         with self._lock:
             if self.playing:
                 self._t_wall = time.monotonic()
                 self._t_start = self.time
-            self.speed = speed
-            label = f'{speed:g}'
+            self.speed = value
+            label = f'{value:g}'
             if label in SPEEDS and self.speed_menu.value != label:
                 self.speed_menu.value = label
 
-    def close(self):
+    def close(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(2.0)
 
     # --- internals -----------------------------------------------------------------------------
 
-    def _on_slider(self):
+    def _on_slider(self) -> None:
         with self._lock:
-            if getattr(self, '_setting', False):
+            if self._setting:
                 self._setting = False
                 return
             if self.playing:
@@ -334,7 +342,7 @@ class ReplayPanel:
                 self._t_start = float(self.slider.value)
             self._show(float(self.slider.value))
 
-    def _show(self, t):
+    def _show(self, t: float) -> None:
         rec = self.recording
         page = self._page
         rec.apply(page.scene, t, statics=False)
@@ -348,7 +356,7 @@ class ReplayPanel:
         self.time = t
         page.render()
 
-    def _run(self):
+    def _run(self) -> None:
         while not self._stop.wait(PLAY_PERIOD):
             with self._lock:
                 if not self.playing:

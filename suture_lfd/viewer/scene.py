@@ -12,8 +12,10 @@ its camera frustum (with the left image when one arrives).
 """
 
 import threading
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import quaternion_from_matrix
 from sim_bridge.common.vocabulary import ARMS
 
@@ -26,22 +28,22 @@ MARKER_COLOR = (220, 15, 15)
 PHANTOM_COLOR = (230, 170, 160)
 
 
-def wxyz_from_matrix(T):
+def wxyz_from_matrix(T: ArrayLike) -> tuple[float, float, float, float]:
     """Return the viser quaternion ``(w, x, y, z)`` of a 4x4 or 3x3 matrix."""
     x, y, z, w = quaternion_from_matrix(np.asarray(T, dtype=float)[:3, :3])
-    return (w, x, y, z)
+    return (float(w), float(x), float(y), float(z))
 
 
-def rotation_with_z(z):
+def rotation_with_z(z: ArrayLike) -> np.ndarray:
     """Return a rotation (3x3) whose third column is the unit vector ``z``."""
-    z = np.asarray(z, dtype=float)
-    helper = (1.0, 0.0, 0.0) if abs(z[0]) < 0.9 else (0.0, 1.0, 0.0)
-    x = np.cross(helper, z)
+    axis = np.asarray(z, dtype=float)
+    helper = (1.0, 0.0, 0.0) if abs(axis[0]) < 0.9 else (0.0, 1.0, 0.0)
+    x = np.cross(helper, axis)
     x /= np.linalg.norm(x)
-    return np.column_stack((x, np.cross(z, x), z))
+    return np.column_stack((x, np.cross(axis, x), axis))
 
 
-def segments_from_strip(points):
+def segments_from_strip(points: ArrayLike) -> np.ndarray:
     """Return line segments ``(n - 1, 2, 3)`` joining consecutive points ``(n, 3)``."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     if len(points) < 2:
@@ -49,32 +51,32 @@ def segments_from_strip(points):
     return np.stack((points[:-1], points[1:]), axis=1)
 
 
-def clip_segments(segments, plane):
+def clip_segments(segments: ArrayLike, plane: tuple[ArrayLike, ArrayLike] | None) -> np.ndarray:
     """
     Return the parts of line segments ``(n, 2, 3)`` in front of a plane ``(point, normal)``.
 
     A segment wholly behind the plane is dropped; one that crosses it is cut at it. ``plane``
     None keeps every segment.
     """
-    segments = np.asarray(segments, dtype=float).reshape(-1, 2, 3)
-    if plane is None or not len(segments):
-        return segments
+    segs = np.asarray(segments, dtype=float).reshape(-1, 2, 3)
+    if plane is None or not len(segs):
+        return segs
     point, normal = (np.asarray(v, dtype=float) for v in plane)
-    d = (segments - point) @ normal                       # (n, 2) signed distances
+    d = (segs - point) @ normal                           # (n, 2) signed distances
     keep = (d > 0.0).any(axis=1)
-    segments, d = segments[keep].copy(), d[keep]
+    segs, d = segs[keep].copy(), d[keep]
     for end in (0, 1):
         behind = d[:, end] <= 0.0
         if behind.any():
             other = 1 - end
             s = (d[behind, other] / (d[behind, other] - d[behind, end]))[:, None]
-            a, b = segments[behind, other], segments[behind, end]
-            segments[behind, end] = a + s * (b - a)
-    return segments
+            a, b = segs[behind, other], segs[behind, end]
+            segs[behind, end] = a + s * (b - a)
+    return segs
 
 
-def _rgb255(rgba):
-    return tuple(int(round(255 * min(max(float(c), 0.0), 1.0))) for c in rgba[:3])
+def _rgb255(rgba: ArrayLike) -> tuple[int, ...]:
+    return tuple(int(round(255 * min(max(float(c), 0.0), 1.0))) for c in np.asarray(rgba)[:3])
 
 
 class TransformTree:
@@ -84,22 +86,22 @@ class TransformTree:
     Thread-safe: subscriptions write, the render loop reads.
     """
 
-    def __init__(self):
-        self._parent = {}
+    def __init__(self) -> None:
+        self._parent: dict[str, tuple[str, np.ndarray]] = {}
         self._lock = threading.Lock()
         self.version = 0
 
-    def set(self, parent, child, T):
+    def set(self, parent: str, child: str, T: ArrayLike) -> None:
         """Store ``T_parent_child`` (4x4, m)."""
         with self._lock:
             self._parent[child] = (parent, np.asarray(T, dtype=float))
             self.version += 1
 
-    def has(self, frame):
+    def has(self, frame: str) -> bool:
         """Whether ``frame`` reaches ``world``."""
         return self.world(frame) is not None
 
-    def world(self, frame):
+    def world(self, frame: str) -> np.ndarray | None:
         """``T_world_frame`` (4x4) or None when the chain to ``world`` is incomplete."""
         T = np.eye(4)
         seen = 0
@@ -113,7 +115,7 @@ class TransformTree:
                 seen += 1
         return T
 
-    def frames(self):
+    def frames(self) -> list[str]:
         """Names of the frames stored."""
         with self._lock:
             return list(self._parent)
@@ -141,27 +143,30 @@ class SceneView:
 
     """
 
-    def __init__(self, scene, needle_points, needle_diameter=0.001):
+    def __init__(self, scene: Any, needle_points: ArrayLike, needle_diameter: float = 0.001
+                 ) -> None:
         self.scene = scene
         self.tf = TransformTree()
         self.frames_rendered = 0
         self._lock = threading.Lock()
         self._drawn_version = -1
-        self._markers = {}
-        self._lines = {}
-        self._line_data = {}            # key -> (points, colour, width): redrawn on a new clip
-        self._clip = None               # (point, normal): lines behind this plane are cut
+        self._markers: dict[str, Any] = {}
+        self._lines: dict[str, Any] = {}
+        # key -> (points, colour, width): redrawn on a new clip
+        self._line_data: dict[str, tuple[Any, Any, float]] = {}
+        # (point, normal): lines behind this plane are cut
+        self._clip: tuple[np.ndarray, np.ndarray] | None = None
         self._show_ecm = True           # False when the page looks through the ECM's camera
         self._reclip = False
-        self._spheres = {}
-        self._phantom = None
-        self._image = None
+        self._spheres: dict[str, Any] = {}
+        self._phantom: Any = None
+        self._image: Any = None
         self._image_version = 0
         self._image_drawn = 0
-        self._pending_lines = {}
-        self._pending_spheres = {}
-        self._handles = {}
-        self._sent = {}
+        self._pending_lines: dict[str, Any] = {}
+        self._pending_spheres: dict[str, Any] = {}
+        self._handles: dict[str, Any] = {}
+        self._sent: dict[Any, Any] = {}
         scene.set_up_direction('+z')
         self.needle = scene.add_line_segments(
             '/needle', segments_from_strip(needle_points), NEEDLE_COLOR,
@@ -177,15 +182,17 @@ class SceneView:
             self._handles[arm + '/tool'] = scene.add_frame(
                 f'/arms/{arm}/tool', axes_length=0.012, axes_radius=0.0012, origin_radius=0.0025,
                 origin_color=color, visible=False)
-        self._frustum = None
+        self._frustum: Any = None
 
     # --- inputs (any thread) -------------------------------------------------------------------
 
-    def set_transform(self, parent, child, T):
+    def set_transform(self, parent: str, child: str, T: ArrayLike) -> None:
         """Store ``T_parent_child`` (4x4, m); drawn at the next :meth:`render`."""
         self.tf.set(parent, child, T)
 
-    def set_phantom(self, vertices, faces, T_world_phantom=None, rgba=None):
+    def set_phantom(self, vertices: ArrayLike, faces: ArrayLike,
+                    T_world_phantom: ArrayLike | None = None, rgba: ArrayLike | None = None
+                    ) -> None:
         """
         Draw the phantom mesh (vertices ``(n, 3)`` in the ``phantom`` frame, faces ``(m, 3)``).
 
@@ -199,22 +206,23 @@ class SceneView:
             color=color, flat_shading=False, side='double', visible=False)
         self._drawn_version = -1
 
-    def set_marker_radius(self, radius):
+    def set_marker_radius(self, radius: float) -> None:
         """Radius (m) of the entry/exit marker spheres (from the phantom configuration)."""
         self._marker_radius = float(radius)
 
-    def set_line_strip(self, key, points, rgba, width):
+    def set_line_strip(self, key: str, points: ArrayLike, rgba: ArrayLike, width: float) -> None:
         """Draw (or replace) a line strip ``(n, 3)`` in ``world`` (a visualization marker)."""
         with self._lock:
             self._pending_lines[key] = (np.asarray(points, float), _rgb255(rgba), float(width))
 
-    def set_spheres(self, key, points, rgba, diameter):
+    def set_spheres(self, key: str, points: ArrayLike, rgba: ArrayLike, diameter: float) -> None:
         """Draw (or replace) spheres at points ``(n, 3)`` in ``world`` (a visualization marker)."""
         with self._lock:
             self._pending_spheres[key] = (np.asarray(points, float), _rgb255(rgba),
                                           float(diameter))
 
-    def set_clip_plane(self, point=None, normal=None):
+    def set_clip_plane(self, point: ArrayLike | None = None, normal: ArrayLike | None = None
+                       ) -> None:
         """
         Cut the line markers behind a plane (``world``, m; None: no plane).
 
@@ -230,7 +238,7 @@ class SceneView:
                 self._clip = plane
                 self._reclip = True
 
-    def show_ecm(self, shown):
+    def show_ecm(self, shown: bool) -> None:
         """Draw the ECM (its shaft, tip axes and frustum) or not (in the endoscope view)."""
         shown = bool(shown)
         if shown != self._show_ecm:
@@ -238,7 +246,7 @@ class SceneView:
             self._drawn_version = -1
             self._sent.clear()
 
-    def set_image(self, rgb):
+    def set_image(self, rgb: ArrayLike | None) -> None:
         """Show an ECM image ``(h, w, 3)`` uint8 in the ECM's camera frustum."""
         with self._lock:
             self._image = np.asarray(rgb, np.uint8)
@@ -246,7 +254,7 @@ class SceneView:
 
     # --- drawing (one thread) ------------------------------------------------------------------
 
-    def render(self):
+    def render(self) -> bool:
         """
         Send the poses and shapes that changed since the last call to the page.
 
@@ -283,7 +291,7 @@ class SceneView:
         self.frames_rendered += 1
         return True
 
-    def _set_pose(self, handle, T):
+    def _set_pose(self, handle: Any, T: np.ndarray) -> None:
         """Pose a node (only what changed is sent)."""
         last = self._sent.get(id(handle))
         if last is not None and np.array_equal(last, T):
@@ -298,14 +306,14 @@ class SceneView:
         if not handle.visible:
             handle.visible = True
 
-    def _pose(self, frame, handle):
+    def _pose(self, frame: str, handle: Any) -> None:
         if handle is None:
             return
         T = self.tf.world(frame)
         if T is not None:
             self._set_pose(handle, T)
 
-    def _draw_markers(self):
+    def _draw_markers(self) -> None:
         for frame in self.tf.frames():
             if not (frame.endswith('_entry') or frame.endswith('_exit')):
                 continue
@@ -322,7 +330,7 @@ class SceneView:
             if tuple(handle.position) != position:
                 handle.position = position
 
-    def _draw_arm(self, arm):
+    def _draw_arm(self, arm: str) -> None:
         if arm == 'ECM' and not self._show_ecm:
             for part in ('/tool', '/shaft'):
                 if self._handles[arm + part].visible:
@@ -350,7 +358,7 @@ class SceneView:
         T[:3, 3] = tip - 0.5 * height * axis / length
         self._set_pose(shaft, T)
 
-    def _draw_camera(self, image):
+    def _draw_camera(self, image: Any) -> None:
         T = self.tf.world('ECM_left_optical')
         if T is None:
             return
@@ -368,7 +376,8 @@ class SceneView:
                 color=ARM_COLORS['ECM'], thickness=0.0006, image=image, format='jpeg')
         self._set_pose(self._frustum, T)
 
-    def _draw_lines(self, key, points, color, width, clip=None):
+    def _draw_lines(self, key: str, points: Any, color: Any, width: float,
+                    clip: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         handle = self._lines.get(key)
         segments = clip_segments(segments_from_strip(points), clip)
         # a segment of no length has no direction: the page would draw it as a wedge
@@ -389,7 +398,7 @@ class SceneView:
             handle.points = segments
             handle.colors = np.broadcast_to(np.array(color, np.uint8), segments.shape).copy()
 
-    def _draw_spheres(self, key, points, color, diameter):
+    def _draw_spheres(self, key: str, points: Any, color: Any, diameter: float) -> None:
         handle = self._spheres.get(key)
         if handle is not None and len(handle.points) == len(points):
             handle.points = points.astype(np.float32)

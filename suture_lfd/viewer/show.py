@@ -1,5 +1,6 @@
 """``suture-lfd view``: serve a recording (a bag, or a study's throw) in the viewer's page."""
 
+from pathlib import Path
 import time
 
 from suture_lfd.viewer.assets import load_phantom, needle_arc
@@ -8,7 +9,9 @@ from suture_lfd.viewer.replay import ReplayPanel, recording_from_bag
 from suture_lfd.viewer.throw_replay import recording_from_throw
 
 
-def open_replay(path, throw=None, segments=None, host=DEFAULT_HOST, port=DEFAULT_PORT):
+def open_replay(path: str | Path, throw: str | None = None, segments: str | Path | None = None,
+                host: str = DEFAULT_HOST, port: int = DEFAULT_PORT
+                ) -> tuple[ViewerPage, ReplayPanel]:
     """
     Build the page of a recording.
 
@@ -41,8 +44,10 @@ def open_replay(path, throw=None, segments=None, host=DEFAULT_HOST, port=DEFAULT
     return page, panel
 
 
-def serve_recording(path, throw=None, segments=None, host=DEFAULT_HOST, port=DEFAULT_PORT,
-                    speed=1.0, play=False, seconds=None):
+def serve_recording(path: str | Path, throw: str | None = None,
+                    segments: str | Path | None = None, host: str = DEFAULT_HOST,
+                    port: int = DEFAULT_PORT, speed: float = 1.0, play: bool = False,
+                    seconds: float | None = None) -> int:
     """Serve a recording's page until Ctrl-C (or ``seconds``); return the exit code."""
     page, panel = open_replay(path, throw=throw, segments=segments, host=host, port=port)
     panel.set_speed(speed)

@@ -9,9 +9,11 @@ folder (compressed; format tag :data:`FORMAT`). :func:`recording_from_throw` rea
 :class:`~suture_lfd.viewer.replay.Recording`.
 """
 
+from collections.abc import Mapping, Sequence
 import csv
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sim_bridge.common.archive import load_archive, save_archive
@@ -19,12 +21,15 @@ from sim_bridge.common.geometry import pose_from_transform, transform_from_pose
 from sim_bridge.common.vocabulary import PSMS
 from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
 
+if TYPE_CHECKING:
+    from sim_bridge.simulation import Simulation
+
 FORMAT = 'suture_lfd.throw_replay'
 FORMAT_VERSION = 2  # 2: the version under the key 'format_version' of every archive
 SAMPLE_RATE = 20.0  # Hz of simulated time
 
 
-def replay_name(job):
+def replay_name(job: Mapping[str, Any]) -> str:
     """File name (relative to the study folder) of a throw job's replay."""
     return (f'replays/{job["method"]}_{job["subject"]}_{job["train_pair"]}_'
             f'{job["test_pair"]}.npz')
@@ -42,14 +47,17 @@ class ThrowSampler:
 
     """
 
-    def __init__(self, sim, rate=SAMPLE_RATE):
+    def __init__(self, sim: 'Simulation', rate: float = SAMPLE_RATE) -> None:
         self.sim = sim
         self.period = 1.0 / rate
-        self._times, self._poses, self._jaws = [], [], []
+        self._times: list[float] = []
+        self._poses: list[tuple[np.ndarray, ...]] = []
+        self._jaws: list[list[float]] = []
         self._next = -np.inf
 
-    def __call__(self, sim=None):
-        sim = self.sim if sim is None else sim
+    def __call__(self, sim: 'Simulation | None' = None) -> None:
+        if sim is None:
+            sim = self.sim
         t = sim.time
         if t + 1e-9 < self._next:
             return
@@ -60,7 +68,7 @@ class ThrowSampler:
         self._jaws.append([float(sim.arms[arm].jaw_measured_jp) for arm in PSMS])
 
     @property
-    def rows(self):
+    def rows(self) -> np.ndarray:
         """
         The samples so far, shape (n, 24).
 
@@ -79,7 +87,8 @@ class ThrowSampler:
                 rows[:, col + 7] = [jaw[k] for jaw in self._jaws]
         return rows
 
-    def save(self, path, pair, events=(), subtask_times=None):
+    def save(self, path: str | Path, pair: str, events: Sequence[Mapping[str, Any]] = (),
+             subtask_times: Mapping[str, tuple[float, float]] | None = None) -> int:
         """
         Write the replay file (atomically) and return its size in bytes.
 
@@ -115,7 +124,7 @@ class ThrowSampler:
         return path.stat().st_size
 
 
-def _find_row(study, throw):
+def _find_row(study: str | Path, throw: str) -> dict[str, str]:
     path = Path(study) / 'throws.csv'
     if not path.is_file():
         raise ValueError(f'{path} does not exist: give the folder of a study (its report)')
@@ -135,7 +144,7 @@ def _find_row(study, throw):
                      f'throw/<method>/<subject>/<train>/<test>, got {throw!r}')
 
 
-def recording_from_throw(study, throw):
+def recording_from_throw(study: str | Path, throw: str) -> Recording:
     """
     Read the replay of a study's throw.
 
@@ -159,7 +168,7 @@ def recording_from_throw(study, throw):
     return recording_from_file(path)
 
 
-def recording_from_file(path):
+def recording_from_file(path: str | Path) -> Recording:
     """Read a throw replay file (see :class:`ThrowSampler`) into a Recording."""
     data = load_archive(path, FORMAT, FORMAT_VERSION, 'throw replay')
     rows = np.asarray(data['samples'], float)
@@ -186,7 +195,9 @@ def recording_from_file(path):
                      phantom=str(data['phantom']), marks=marks, source=str(path))
 
 
-def world_poses(recording, t, frames=('needle', 'PSM1', 'PSM2', 'ECM')):
+def world_poses(recording: Recording, t: float,
+                frames: Sequence[str] = ('needle', 'PSM1', 'PSM2', 'ECM')
+                ) -> dict[str, np.ndarray]:
     """World poses (4x4) of ``frames`` in a recording at time ``t`` (missing ones left out)."""
     from suture_lfd.viewer.scene import TransformTree
 
@@ -195,9 +206,9 @@ def world_poses(recording, t, frames=('needle', 'PSM1', 'PSM2', 'ECM')):
         tree.set(parent, child, T)
     for track in recording.tracks:
         tree.set(track.parent, track.child, transform_from_pose(track.at(t)))
-    out = {}
+    out: dict[str, np.ndarray] = {}
     for frame in frames:
-        T = tree.world(frame)
-        if T is not None:
-            out[frame] = T
+        T_world_frame = tree.world(frame)
+        if T_world_frame is not None:
+            out[frame] = T_world_frame
     return out

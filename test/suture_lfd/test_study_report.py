@@ -1,8 +1,8 @@
 """The study's tables, report, CSV, result store and progress, on hand-made records."""
 
+from dataclasses import replace
 import io
 import json
-from dataclasses import replace
 import math
 
 import numpy as np

@@ -17,6 +17,7 @@ import time
 
 import pytest
 from suture_lfd.study import report
+from suture_lfd.study.records import ThrowJob
 from suture_lfd.study.ros import (
     DomainLease,
     RosSettings,
@@ -137,8 +138,9 @@ def test_a_throw_the_nodes_do_not_finish_in_time_fails_with_the_reason(via_ros, 
     from suture_lfd.skill import ThrowSkill
 
     skill = ThrowSkill.load(out / 'ros' / 'skills' / 'paper_S01_synth1.npz')
-    job = {'key': THROW_KEY, 'method': 'paper', 'subject': 'S01', 'train_pair': 'synth1',
-           'test_phantom': 'synthetic', 'test_pair': 'synth1', 'seed': 3}
+    job = ThrowJob(key=THROW_KEY, subject='S01', group='experienced', method='paper',
+                   train_phantom='synthetic', train_pair='synth1', test_phantom='synthetic',
+                   test_pair='synth1', seed=3, demo_key='demo/S01/synth1')
     runner = RosThrows(RosSettings(domain_base=os.getpid(), wall_timeout=4.0), tmp_path, 60.0)
     try:
         with pytest.raises(RosThrowError, match='no outcome after 4 s of wall time') as info:
