@@ -121,7 +121,7 @@ def physical_rows(design, workers, level):
         records = [json.loads(line)
                    for line in (Path(tmp) / 'results.jsonl').read_text().splitlines()]
     for row, phys in ((ground, False), (physical, True)):
-        cpu = [r['cpu_s'] for r in records if r['kind'] == 'throw' and 'cpu_s' in r
+        cpu = [r['cpu_s'] for r in records if r['kind'] == 'throw' and r.get('cpu_s') is not None
                and bool(r.get('physical')) == phys and r.get('segments')]
         row['throw_cpu_s'] = sum(cpu) / len(cpu) if cpu else float('nan')
         row['throws'] = len(cpu)

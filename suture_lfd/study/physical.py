@@ -28,11 +28,17 @@ variant beside ground-truth mode and the paper, and, with more than one level or
 curve of generality against the error level (``physical_curve.png``, ``physical_curve.csv``).
 """
 
+import argparse
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 import math
+from typing import Any
 
 from suture_lfd.study import tables
-from suture_lfd.study.records import DemoRecord, RobotErrors, ThrowRecord
+from suture_lfd.study.records import DemoJob, DemoRecord, RobotErrors, ThrowJob, ThrowRecord
+
+# the paper's figures (tables.PAPER), read as nested mappings
+_PAPER: dict[str, Any] = tables.PAPER
 
 #: The levels of the issue's curve (mm class).
 CURVE_LEVELS = (0.0, 1.0, 3.0, 5.0)
@@ -41,7 +47,7 @@ CURVE_COLUMNS = ('method', 'correction', 'error_level', 'generality_experienced'
                  'regeneration_success', 'throws')
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the physical-mode options to the study's argparse parser."""
     parser.add_argument('--physical', action='store_true',
                         help='also run the study in physical mode: hidden kinematic errors, '
@@ -63,11 +69,11 @@ def add_arguments(parser):
                              'execution alone')
 
 
-def _text(value):
+def _text(value: float) -> str:
     return f'{value:g}'
 
 
-def physical_config(args):
+def physical_config(args: argparse.Namespace) -> dict[str, Any] | None:
     """
     Return the physical-mode part of a study configuration, or None without ``--physical``.
 
@@ -109,18 +115,18 @@ def physical_config(args):
             **({'demos': demos} if demos != 'recorded' else {})}
 
 
-def variant_name(level, correction):
+def variant_name(level: float, correction: bool) -> str:
     """Return the folder name of a variant: ``level-3`` (corrected) or ``level-3-open``."""
     return f'level-{_text(level)}' + ('' if correction else '-open')
 
 
-def variants(physical):
+def variants(physical: dict[str, Any]) -> list[tuple[str, float, bool]]:
     """Return ``[(name, level, correction)]`` of a physical configuration, in order."""
     return [(variant_name(level, c), level, c)
             for level in physical['levels'] for c in physical['corrections']]
 
 
-def robot_key(subject, phantom):
+def robot_key(subject: str, phantom: str) -> str:
     """
     Return the name the errors' seed of a subject's robot on a phantom is drawn from.
 
@@ -141,7 +147,9 @@ def robot_key(subject, phantom):
     return f'robot/{subject}/{phantom}'
 
 
-def plan_physical(physical, demos, throws, job_seed, seed):
+def plan_physical(physical: dict[str, Any], demos: Sequence[DemoJob],
+                  throws: Sequence[ThrowJob], job_seed: Callable[[int, str], int],
+                  seed: int) -> tuple[list[DemoJob], list[ThrowJob]]:
     """
     Return the physical-mode jobs made from the ground-truth ones (without ``id``).
 
@@ -193,7 +201,9 @@ def plan_physical(physical, demos, throws, job_seed, seed):
     return out_demos, out_throws
 
 
-def variant_records(records, name, level, ground_demos=None):
+def variant_records(records: Sequence[DemoRecord | ThrowRecord], name: str, level: float,
+                    ground_demos: Sequence[DemoRecord] | None = None
+                    ) -> list[DemoRecord | ThrowRecord]:
     """
     Return the records of one variant, keyed and pathed as a ground-truth study's own.
 
@@ -215,7 +225,7 @@ def variant_records(records, name, level, ground_demos=None):
     """
     demo_prefix = f'physical/{variant_name(level, True)}/'
     throw_prefix = f'physical/{name}/'
-    out = list(ground_demos or [])
+    out: list[DemoRecord | ThrowRecord] = list(ground_demos or [])
     for r in records:
         if isinstance(r, DemoRecord) and r.key.startswith(demo_prefix):
             out.append(replace(r, key=r.key[len(demo_prefix):]))
@@ -227,28 +237,29 @@ def variant_records(records, name, level, ground_demos=None):
     return out
 
 
-def _f(value, digits=3):
+def _f(value: float | None, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return '–'
     return f'{value:.{digits}f}'
 
 
-def _table(header, rows):
+def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
     lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
     lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
     return lines
 
 
-def _cumulative(t4, task):
+def _cumulative(t4: dict[str, Any], task: str) -> str:
     """Table IV's overall success of a subtask, in %."""
     return (_f(100.0 * t4[task][2] / t4['total'], 1) + ' %') if t4['total'] else '–'
 
 
-def _variant_label(level, correction):
+def _variant_label(level: float, correction: bool) -> str:
     return f'L{_text(level)} ' + ('corrected' if correction else 'open loop')
 
 
-def curve_rows(summaries, ground_truth):
+def curve_rows(summaries: dict[tuple[float, bool], dict[str, Any]],
+               ground_truth: dict[str, Any]) -> list[dict[str, Any]]:
     """
     Return one row per method, correction and level: generality in physical mode.
 
@@ -283,7 +294,9 @@ def curve_rows(summaries, ground_truth):
     return sorted(rows, key=lambda r: (r['method'], not r['correction'], r['error_level']))
 
 
-def report_section(summaries, ground_truth, physical, curve_png=None):
+def report_section(summaries: dict[tuple[float, bool], dict[str, Any]],
+                   ground_truth: dict[str, Any], physical: dict[str, Any],
+                   curve_png: str | None = None) -> list[str]:
     """
     Return the lines of the report's "Physical mode" section.
 
@@ -329,7 +342,7 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
             for kind, unit in tables.ERROR_KINDS:
                 for point in tables.ERROR_POINTS:
                     name = f'{task}/{kind}/{point}'
-                    paper = tables.PAPER['table2'][(task, kind, point)][0]
+                    paper = _PAPER['table2'][(task, kind, point)][0]
                     rows.append([f'task {task} {point} ({unit})',
                                  _f(gt['regeneration']['errors'][name]['mean'], 2)]
                                 + [_f(s['regeneration']['errors'][name]['mean'], 2)
@@ -342,7 +355,7 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
         for group in ('experienced', 'naive', 'overall'):
             rows.append([group, _f(gt['generality']['group_mean'][group])]
                         + [_f(s['generality']['group_mean'][group]) for _, s in shown]
-                        + [f'{tables.PAPER["generality"][group]:.3f}'])
+                        + [f'{_PAPER["generality"][group]:.3f}'])
         gt_overall = gt['generality']['group_mean']['overall']
         rows.append(['overall / ground truth', '1.000']
                     + [_f(s['generality']['group_mean']['overall'] / gt_overall
@@ -351,13 +364,13 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
         md += ['', "#### Table IV: experienced users' success, overall (cumulative) %", '']
         rows = []
         for task in tables.SUBTASKS:
-            paper = tables.PAPER['table4'][task][2] / tables.PAPER['table4_total']
+            paper = _PAPER['table4'][task][2] / _PAPER['table4_total']
             rows.append([task, _cumulative(gt['table4'], task)]
                         + [_cumulative(s['table4'], task) for _, s in shown]
                         + [f'{100.0 * paper:.1f} %'])
         md += _table(header, rows) + ['']
     if len(keys) > 1:
-        rows = curve_rows(summaries, ground_truth)
+        curve = curve_rows(summaries, ground_truth)
         md += ['### Generality against the error level', '',
                'Overall generality in physical mode per error level (mm class), with the '
                "executor's correction and open loop on the arms' own kinematics, beside "
@@ -368,14 +381,14 @@ def report_section(summaries, ground_truth, physical, curve_png=None):
                        _f(r['generality_experienced']), _f(r['generality_naive']),
                        _f(r['generality_overall']), _f(r['ground_truth_overall']),
                        _f(r['ratio']), _f(100.0 * r['regeneration_success'], 1) + ' %',
-                       r['throws']] for r in rows])
+                       r['throws']] for r in curve])
         md += ['']
         if curve_png:
             md += [f'![generality against the error level]({curve_png})', '']
     return md
 
 
-def curve_figure(rows, path):
+def curve_figure(rows: Sequence[dict[str, Any]], path: Any) -> Any:
     """Plot overall generality against the error level, one line per method and correction."""
     import matplotlib
 
@@ -383,7 +396,7 @@ def curve_figure(rows, path):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.0, 3.4))
-    lines = {}
+    lines: dict[tuple[str, bool], list[dict[str, Any]]] = {}
     for r in rows:
         lines.setdefault((r['method'], r['correction']), []).append(r)
     for (method, correction), series in sorted(lines.items()):

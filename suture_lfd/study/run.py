@@ -334,7 +334,8 @@ def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
     config['hash'] = digest
     demos, throws = plan_jobs(config)
     held_jobs = with_ids(held_out.plan_held_out(config, job_seed), config, demo_ids(demos))
-    phys_demos, phys_throws = [], []
+    phys_demos: list[DemoJob] = []
+    phys_throws: list[ThrowJob] = []
     if config.get('physical'):
         phys_demos, phys_throws = physical.plan_physical(config['physical'], demos, throws,
                                                          job_seed, config['seed'])
@@ -386,7 +387,7 @@ def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
         wall = time.monotonic() - t0
         records = ordered_records(store, [*demos, *throws])
         held_records = [r for r in ordered_records(store, held_jobs) if isinstance(r, ThrowRecord)]
-        phys_records = ordered_records(store, phys_demos + phys_throws)
+        phys_records = ordered_records(store, [*phys_demos, *phys_throws])
     command = 'suture-lfd study ' + ' '.join(shlex.quote(a) for a in _study_argv())
     run_info = {'command': command.strip(), 'workers': workers, 'engine': engine.describe(),
                 'jobs_run': ran, 'resumed': reused, 'results_file': store.path.name,

@@ -121,3 +121,35 @@ def test_physical_throws_may_learn_from_the_ground_truth_demonstrations(tmp_path
     ground_demos = {j['key'] for j in ground if j['kind'] == 'demo'}
     assert {j['demo_key'] for j in extra} == ground_demos
     assert len(extra) == 2 * sum(j['kind'] == 'throw' for j in ground)
+
+
+def test_a_study_process_builds_and_registers_each_robot_once(tmp_path):
+    from suture_lfd.skill.arm_registration import register_arms
+    from suture_lfd.study import jobs
+    from suture_lfd.study.records import RobotErrors
+
+    state = jobs.init_worker(jobs.JobSettings(out=str(tmp_path)))
+    try:
+        robot = RobotErrors(error_level=3.0, error_seed=7, correction=True)
+        sim = jobs._physical_simulation(state, 'synthetic', 0.01, robot)
+        correction = register_arms(sim)
+        # the open-loop variant and the next job of the same subject and phantom: the same
+        # robot, its registration kept
+        again = jobs._physical_simulation(state, 'synthetic', 0.01,
+                                          RobotErrors(error_level=3.0, error_seed=7))
+        assert again is sim
+        assert register_arms(again) is correction
+        # other robots: a process keeps a few, the least recently used closed first
+        others = [jobs._physical_simulation(state, 'synthetic', 0.01,
+                                            RobotErrors(error_level=3.0, error_seed=s))
+                  for s in range(100, 100 + jobs.ROBOTS_KEPT)]
+        assert len(state.robots) == jobs.ROBOTS_KEPT
+        assert sim not in state.robots.values()
+        assert all(o in state.robots.values() for o in others)
+        # level 0 is the process's shared ground-truth simulation (nothing to draw)
+        plain = jobs._physical_simulation(state, 'synthetic', 0.01,
+                                          RobotErrors(error_level=0.0, error_seed=7))
+        assert plain is jobs._simulation(state, 'synthetic', 0.01)
+    finally:
+        state.close()
+    assert not state.robots
