@@ -17,6 +17,7 @@ import logging
 import sys
 
 import numpy as np
+from sim_bridge.common.vocabulary import ARMS
 from suture_lfd.study.options import add_study_arguments, add_sweep_arguments
 
 
@@ -214,7 +215,7 @@ def build_parser():
         'shapes of config/world.yaml as the simulator builds the arm: the model it publishes '
         'on /<ARM>/robot_description. Joint names are those of measured_js and '
         'jaw/measured_js; the root link is the RCM frame <ARM>_base.')
-    urdf.add_argument('--arm', required=True, choices=['PSM1', 'PSM2', 'ECM', 'all'],
+    urdf.add_argument('--arm', required=True, choices=[*ARMS, 'all'],
                       help='arm to write (all: PSM1.urdf, PSM2.urdf, ECM.urdf into --out)')
     urdf.add_argument('--out', default=None,
                       help='file to write (a folder with --arm all; default: standard output)')

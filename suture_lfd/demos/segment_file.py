@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from sim_bridge.common.archive import load_archive, save_archive
 from sim_bridge.common.validation import check_array, check_quaternions
+from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.dmp import load_dmp_params
@@ -92,7 +93,7 @@ class SegmentFile:
         times = check_array(self.subtask_times, 'subtask_times', shape=(5, 2))
         if np.any(times[:, 1] < times[:, 0]):
             raise ValueError('subtask_times: every subtask must end after it starts')
-        for task in ('ii', 'iv'):
+        for task in TASKS:
             t = check_array(getattr(self, f'{task}_t'), f'{task}_t', shape=(None,))
             if t.size < 2 or np.any(np.diff(t) <= 0.0):
                 raise ValueError(f'{task}_t must hold at least two increasing times')
@@ -113,13 +114,13 @@ class SegmentFile:
 
     def needle(self, task: str) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(t (n,), poses (n, 7))`` of the needle in task ``'ii'`` or ``'iv'``."""
-        if task not in ('ii', 'iv'):
+        if task not in TASKS:
             raise KeyError(f"needle trajectories exist for tasks 'ii' and 'iv', not {task!r}")
         return getattr(self, f'{task}_t'), getattr(self, f'{task}_needle')
 
     def grasp(self, task: str) -> np.ndarray:
         """Return the grasp ``T_tool_needle`` (4, 4) measured in task ``'ii'`` or ``'iv'``."""
-        if task not in ('ii', 'iv'):
+        if task not in TASKS:
             raise KeyError(f"grasps exist for tasks 'ii' and 'iv', not {task!r}")
         return getattr(self, f'{task}_grasp')
 

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.common.paths import config_path
 from sim_bridge.common.validation import FloatArray, check_array
+from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.dmp.base import (
     DmpParams,
     PathLike,
@@ -52,7 +53,7 @@ def load_dmp_params(path: PathLike | None = None, task: str = 'ii') -> DmpParams
         ``ConfigError`` naming the file and key).
 
     """
-    if task not in ('ii', 'iv'):
+    if task not in TASKS:
         raise ValueError(f"task must be 'ii' or 'iv', got {task!r}")
     path = config_path('dmp.yaml') if path is None else path
     data = load_yaml(path)

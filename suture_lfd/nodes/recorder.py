@@ -49,6 +49,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
+from sim_bridge.common.vocabulary import ARMS
 from sim_bridge.ros import qos
 from sim_bridge.ros.conversions import message_class
 from sim_bridge.ros.entry import NodeHooks
@@ -69,7 +70,7 @@ class RecorderConfig:
 
     output_dir: str = 'demonstrations'
     prefix: str = 'demo'
-    arms: tuple[str, ...] = ('PSM1', 'PSM2', 'ECM')
+    arms: tuple[str, ...] = ARMS
     arm_topics: tuple[str, ...] = ()
     topics: tuple[str, ...] = ()
     patterns: tuple[str, ...] = ()

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 from sim_bridge.common.geometry import matrix_from_quaternion, pose_from_transform
-from sim_bridge.common.vocabulary import SUBTASKS
+from sim_bridge.common.vocabulary import SUBTASKS, TASKS
 from sim_bridge.control import ExpertConfig
 from sim_bridge.observers import PhysicalObserver
 from suture_lfd.planning.episode import run_episode, start_episode
@@ -415,7 +415,7 @@ class ThrowExecutor:
         if cfg.phase_stopping and dt > 0.0:
             tau = follower.tau(obs.t)
             label = self.plan_.label(tau)
-            if label in ('ii', 'iv'):
+            if label in TASKS:
                 arm = 'PSM2' if label == 'ii' else 'PSM1'
                 seg = self.plan_.segment_at(arm, tau)
                 if isinstance(seg, DmpMove) and arm in obs.holders:
@@ -516,7 +516,7 @@ class _Recorder:
         label = cmd.subtask
         span = self.spans.get(label)
         self.spans[label] = (t, t) if span is None else (span[0], t)
-        if label in ('ii', 'iv'):
+        if label in TASKS:
             self.samples.setdefault(label, []).append((t, np.asarray(obs.T_world_needle)))
         return cmd
 

@@ -43,7 +43,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from sim_bridge.common.geometry import pose_from_transform
-from sim_bridge.common.vocabulary import PSMS
+from sim_bridge.common.vocabulary import PSMS, TASKS
 from sim_bridge.control import Command, Observation
 from sim_bridge.scene.world import InstrumentShape
 from suture_lfd.skill.arm_registration import CorrectedController, KinematicCorrection
@@ -378,7 +378,7 @@ class ExecutorMachine:
         assert self._executor is not None and self._t_start is not None  # running
         command = self._controller.step(obs)
         self._sent += self._send_cb(command, obs.t)
-        if command.subtask in ('ii', 'iv') and obs.T_world_needle is not None:
+        if command.subtask in TASKS and obs.T_world_needle is not None:
             self._executed.setdefault(command.subtask, []).append(
                 (obs.t, pose_from_transform(obs.T_world_needle)))
         if command.subtask != self._subtask:

@@ -40,6 +40,7 @@ from sim_bridge.common.geometry import (
     pose_from_transform,
     transform_from_pose,
 )
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
 from suture_lfd import bags
 from suture_lfd.demos.demonstration import Demonstration
@@ -54,7 +55,6 @@ from suture_lfd.skill.perceived_feed import (
     pair_index_from_name,
 )
 
-PSMS = ('PSM1', 'PSM2')
 POSE = 'geometry_msgs/msg/PoseStamped'
 POSES = 'geometry_msgs/msg/PoseArray'
 JOINTS = 'sensor_msgs/msg/JointState'

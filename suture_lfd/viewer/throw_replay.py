@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from sim_bridge.common.archive import load_archive, save_archive
 from sim_bridge.common.geometry import pose_from_transform, transform_from_pose
-from sim_bridge.common.vocabulary import PSMS
+from sim_bridge.common.vocabulary import ARMS, PSMS
 from suture_lfd.viewer.replay import SUBTASKS, Recording, Track
 
 if TYPE_CHECKING:
@@ -105,7 +105,7 @@ class ThrowSampler:
         """
         sim = self.sim
         rows = self.rows
-        bases = np.stack([sim.T_world_base(a) for a in ('PSM1', 'PSM2', 'ECM')])
+        bases = np.stack([sim.T_world_base(a) for a in ARMS])
         markers = dict(sim.marker_poses())
         spans = np.full((len(SUBTASKS), 2), np.nan)
         for k, name in enumerate(SUBTASKS):
@@ -180,7 +180,7 @@ def recording_from_file(path: str | Path) -> Recording:
         tracks.append(Track('world', arm, t - t0, rows[:, col:col + 7]))
     bases = data['bases']
     statics = [('world', f'{arm}_base', bases[k]) for k, arm in
-               enumerate(('PSM1', 'PSM2', 'ECM'))]
+               enumerate(ARMS)]
     statics += [('world', 'ECM', data['ecm']), ('ECM', 'ECM_left_optical', data['ecm_left']),
                 ('world', 'phantom', data['phantom_pose'])]
     statics += [('world', name.replace('.', '_'), T)
@@ -196,7 +196,7 @@ def recording_from_file(path: str | Path) -> Recording:
 
 
 def world_poses(recording: Recording, t: float,
-                frames: Sequence[str] = ('needle', 'PSM1', 'PSM2', 'ECM')
+                frames: Sequence[str] = ('needle', *ARMS)
                 ) -> dict[str, np.ndarray]:
     """World poses (4x4) of ``frames`` in a recording at time ``t`` (missing ones left out)."""
     from suture_lfd.viewer.scene import TransformTree
