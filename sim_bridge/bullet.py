@@ -9,14 +9,16 @@ lines go to ``/dev/null`` at the file-descriptor level, which Python's ``sys.std
 ``sys.stderr`` cannot reach.
 """
 
+from collections.abc import Iterator
 from contextlib import contextmanager
 import ctypes
 import os
 import sys
+from typing import Any
 
 
 @contextmanager
-def c_output_silenced():
+def c_output_silenced() -> Iterator[None]:
     """
     Context manager: send what the C library writes to standard output and error to /dev/null.
 
@@ -47,7 +49,7 @@ with c_output_silenced():
     from pybullet_utils import bullet_client  # noqa: E402
 
 
-def connect(gui=False):
+def connect(gui: bool = False) -> Any:
     """
     Connect a new PyBullet client without its banner.
 

@@ -4,6 +4,8 @@ The exceptions of the learning-from-demonstration package, in one place.
 Configuration errors are :class:`sim_bridge.common.errors.ConfigError` (shared by both packages).
 """
 
+from collections.abc import Iterable
+
 
 class BagError(ValueError):
     """A bag is missing, unreadable, truncated, corrupt or lacks what the caller needs."""
@@ -12,7 +14,7 @@ class BagError(ValueError):
 class McapDamageError(ValueError):
     """A part of an MCAP file fails its check; ``offset`` (bytes) and ``topics`` say where."""
 
-    def __init__(self, what, offset, topics=()):
+    def __init__(self, what: str, offset: int, topics: Iterable[str] = ()) -> None:
         self.what, self.offset, self.topics = what, int(offset), tuple(topics)
         where = f' (topic {", ".join(self.topics)})' if self.topics else ''
         super().__init__(f'{what} at byte {self.offset}{where}')

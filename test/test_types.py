@@ -76,6 +76,10 @@ ANNOTATED = ('sim_bridge/common',
              'suture_lfd/skill/registration_run.py',
              'suture_lfd/skill/perceived_feed.py',
              'suture_lfd/viewer/controls.py',
+             'suture_lfd/skill/training.py',
+             'suture_lfd/skill/watchdog.py',
+             'suture_lfd/errors.py',
+             'sim_bridge/bullet.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',
                  'pipeline', 'reacquire', 'stereo', 'wire_images')))

@@ -6,12 +6,20 @@ Frames: ``world``; metres, seconds, quaternions (x, y, z, w).
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from sim_bridge.common.validation import check_array
 from sim_bridge.common.vocabulary import TASKS
 from suture_lfd.planning.suturing_frames import suture_frame
 from suture_lfd.planning.throw_geometry import ThrowArc
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.scene.markers import MarkerPair
+    from suture_lfd.demos.demonstration import Demonstration
+    from suture_lfd.demos.segment_file import SegmentFile
+    from suture_lfd.segmentation import Segmentation
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,7 +44,7 @@ class PairGeometry:
     normal: np.ndarray
 
     @classmethod
-    def of(cls, pair):
+    def of(cls, pair: Any) -> 'PairGeometry':
         """Return the geometry of anything with ``name``, ``entry``, ``exit``, ``normal``."""
         if isinstance(pair, cls):
             return pair
@@ -46,18 +54,18 @@ class PairGeometry:
                    check_array(pair.normal, 'pair normal', shape=(3,)).copy())
 
     @property
-    def frame(self):
+    def frame(self) -> np.ndarray:
         """Suture frame ``T_world_suture`` (4, 4)."""
         return suture_frame(self.entry, self.exit, self.normal)
 
-    def anchor(self, which):
+    def anchor(self, which: str) -> np.ndarray:
         """Suture-frame axes with the origin at ``'midpoint'``, ``'entry'`` or ``'exit'``."""
         T = self.frame
         if which != 'midpoint':
             T[:3, 3] = getattr(self, which)
         return T
 
-    def arc_anchor(self, which, needle):
+    def arc_anchor(self, which: str, needle: 'NeedleGeometry') -> np.ndarray:
         """
         Needle pose ``T_world_needle`` (4, 4) with the tip at the ``'entry'`` or ``'exit'`` marker.
 
@@ -79,7 +87,7 @@ class PairGeometry:
             If the markers are not closer than the needle's diameter.
 
         """
-        arc = ThrowArc(self, needle)
+        arc = ThrowArc(cast('MarkerPair', self), needle)
         alpha = {'entry': arc.alpha_entry, 'exit': arc.alpha_exit}[which]
         return arc.T_world_needle(alpha)
 
@@ -109,7 +117,8 @@ class TrainingData:
     source: str = ''
 
 
-def training_data_from_demonstration(demo, segmentation, source=''):
+def training_data_from_demonstration(demo: 'Demonstration', segmentation: 'Segmentation',
+                                     source: str = '') -> TrainingData:
     """
     Cut the needle trajectories of ii and iv out of a segmented demonstration.
 
@@ -142,7 +151,7 @@ def training_data_from_demonstration(demo, segmentation, source=''):
     return TrainingData(pair, needle, timing, source)
 
 
-def training_data(source):
+def training_data(source: 'TrainingData | SegmentFile | str | Path') -> TrainingData:
     """
     Return the :class:`TrainingData` held by a segment file (or pass TrainingData through).
 

@@ -24,6 +24,7 @@ unit test. Units: seconds.
 """
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 import math
 from typing import Protocol
@@ -75,7 +76,8 @@ class ArmWatchdog:
 
     """
 
-    def __init__(self, arms, rate, stale_timeout, clock_timeout, starved_timeout):
+    def __init__(self, arms: Sequence[str], rate: float, stale_timeout: float,
+                 clock_timeout: float, starved_timeout: float) -> None:
         for name, value in (('rate', rate), ('stale_timeout', stale_timeout),
                             ('clock_timeout', clock_timeout),
                             ('starved_timeout', starved_timeout)):
@@ -86,19 +88,20 @@ class ArmWatchdog:
         self.stale_timeout = stale_timeout
         self.clock_timeout = clock_timeout
         self.starved_timeout = starved_timeout
-        self._arrival = {}       # arm -> wall time of the last measured_cp
+        self._arrival: dict[str, float] = {}  # arm -> wall time of the last measured_cp
         self._sim_rate = 1.0     # simulation s per wall s, from measured_cp stamps
-        self._window = deque()
-        self._clock_t = None     # newest clock (simulation s)
-        self._clock_wall = None  # wall time the clock last advanced
+        self._window: deque[tuple[float, float]] = deque()
+        self._clock_t: float | None = None  # newest clock (simulation s)
+        self._clock_wall: float | None = None  # wall time the clock last advanced
         self._clock_handled = -math.inf
-        self._heard = {}         # arm -> clock (s) when its last measured_cp was handled
-        self._last_check = None
+        # arm -> clock (s) when its last measured_cp was handled
+        self._heard: dict[str, float] = {}
+        self._last_check: float | None = None
         self._starved_said = False
 
     # --- inputs -------------------------------------------------------------------------------
 
-    def measured(self, arm, stamp, now):
+    def measured(self, arm: str, stamp: float, now: float) -> None:
         """Take an arm's ``measured_cp`` stamped ``stamp``, handled at wall time ``now``."""
         if arm == self.arms[0]:
             # simulation seconds per wall second over the last second of arrivals (bursts of
@@ -113,7 +116,7 @@ class ArmWatchdog:
         self._arrival[arm] = now
         self._heard[arm] = stamp if self._clock_t is None else max(stamp, self._clock_t)
 
-    def clock(self, t, now):
+    def clock(self, t: float, now: float) -> None:
         """Take a clock message (simulation s ``t``), handled at wall time ``now``."""
         if self._clock_t is not None and t > self._clock_t \
                 and now - self._clock_handled > 5.0 * self.period:
@@ -129,7 +132,7 @@ class ArmWatchdog:
 
     # --- judgement ----------------------------------------------------------------------------
 
-    def silence(self, now):
+    def silence(self, now: float) -> tuple[float, float | None]:
         """
         Return ``(simulation s, wall s or None)`` of silence at wall time ``now``.
 
@@ -149,11 +152,13 @@ class ArmWatchdog:
         if self._clock_t is None:
             return max((now - self._arrival.get(a, -math.inf)) * self._sim_rate
                        for a in self.arms), None
+        assert self._clock_wall is not None  # set with the clock
         silence = max(self._clock_t - self._heard.get(a, -math.inf) for a in self.arms)
         heard = max([self._clock_wall] + [self._arrival.get(a, -math.inf) for a in self.arms])
         return max(silence, 0.0), now - heard
 
-    def check(self, now, last_measured_t, settling=False, process=None):
+    def check(self, now: float, last_measured_t: float, settling: bool = False,
+              process: WatchedProcess | None = None) -> Verdict | None:
         """
         Judge the silence at wall time ``now``.
 
@@ -191,6 +196,7 @@ class ArmWatchdog:
         details = {'silence_s': silence, 'wall_silence_s': quiet,
                    'last_measured_t': last_measured_t}
         if quiet > self.clock_timeout and alive and quiet <= self.starved_timeout:
+            assert process is not None  # alive is set only with a process
             if self._starved_said:
                 return None
             self._starved_said = True  # its process runs: starved of CPU, not dead
@@ -198,6 +204,7 @@ class ArmWatchdog:
                                   f'simulator process {process.pid} runs: waiting for it '
                                   f'(starved_timeout {self.starved_timeout:g} s)', details)
         if alive is False:
+            assert process is not None
             return Verdict(True, f'the simulator process {process.pid} exited: no /clock and '
                                  f'no measured_cp for {quiet:.2f} s of wall time (last '
                                  f'measured_cp at t = {last_measured_t:.3f} s)', details)
