@@ -80,6 +80,8 @@ ANNOTATED = ('sim_bridge/common',
              'suture_lfd/skill/watchdog.py',
              'suture_lfd/errors.py',
              'sim_bridge/bullet.py',
+             'suture_lfd/skill/throw_skill.py',
+             'suture_lfd/perception/instrument.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',
                  'pipeline', 'reacquire', 'stereo', 'wire_images')))

@@ -18,9 +18,11 @@ top-left pixel.
 """
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from suture_lfd.perception.images import metal_mask
 
 # Shaft pixels: dark (brightest channel below this) and grey (spread at most this share of it,
@@ -59,17 +61,17 @@ class InstrumentView:
     end: np.ndarray
     shaft_pixels: int
 
-    def distance(self, uv):
+    def distance(self, uv: ArrayLike) -> np.ndarray:
         """Signed distances (pixels) of points ``uv`` (n, 2) from the axis."""
         d = np.asarray(uv, dtype=float) - self.point
         return d[:, 0] * self.direction[1] - d[:, 1] * self.direction[0]
 
-    def along(self, uv):
+    def along(self, uv: ArrayLike) -> np.ndarray:
         """Positions (pixels) of points ``uv`` (n, 2) along the axis, from the distal end."""
         return (np.asarray(uv, dtype=float) - self.end) @ self.direction
 
 
-def dark_mask(rgb):
+def dark_mask(rgb: np.ndarray) -> np.ndarray:
     """
     Shaft-coloured pixels: dark and grey.
 
@@ -86,13 +88,13 @@ def dark_mask(rgb):
     r, g, b = cv2.split(rgb)
     hi = cv2.max(cv2.max(r, g), b)
     spread = cv2.subtract(hi, cv2.min(cv2.min(r, g), b))
-    dark = cv2.compare(hi, _DARK_MAX, cv2.CMP_LT)
-    limit = cv2.add(cv2.multiply(hi, _DARK_SPREAD), 2)
+    dark = cv2.compare(hi, _DARK_MAX, cv2.CMP_LT)  # type: ignore[call-overload]
+    limit = cv2.add(cv2.multiply(hi, _DARK_SPREAD), 2)  # type: ignore[call-overload]
     grey = cv2.compare(spread, limit, cv2.CMP_LE)
     return cv2.bitwise_and(dark, grey)
 
 
-def _chord_midpoints(region, end_uv, axis):
+def _chord_midpoints(region: np.ndarray, end_uv: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """
     Midpoints of the shaft region's chords across the expected axis, every few pixels along it.
 
@@ -103,7 +105,8 @@ def _chord_midpoints(region, end_uv, axis):
     h, w = region.shape
     normal = np.array([axis[1], -axis[0]])
     s = np.arange(-_CHORD, _CHORD + 0.5, 1.0)
-    out, widths = [], []
+    out: list[np.ndarray] = []
+    widths: Any = []  # a list, then its array
     for t in np.arange(0.0, 2.0 * (w + h), _CHORD_STEP):
         line = end_uv - t * axis + s[:, None] * normal
         u = np.rint(line[:, 0]).astype(int)
@@ -130,7 +133,8 @@ def _chord_midpoints(region, end_uv, axis):
     return np.asarray(out)[keep]
 
 
-def find_instrument(rgb, shaft_uv, end_uv, corridor=150.0, min_pixels=300):
+def find_instrument(rgb: np.ndarray, shaft_uv: ArrayLike, end_uv: ArrayLike,
+                    corridor: float = 150.0, min_pixels: int = 300) -> 'InstrumentView | None':
     """
     Find a straight instrument near its expected projection in one image.
 

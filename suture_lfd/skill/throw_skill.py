@@ -39,11 +39,15 @@ The methods are defined in :mod:`suture_lfd.skill.method`, what a skill is learn
 :mod:`suture_lfd.skill.training`, the executor in :mod:`suture_lfd.skill.executor`.
 """
 
+from collections.abc import Mapping
 from dataclasses import asdict, replace
 import functools
 import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.archive import load_archive, save_archive
 from sim_bridge.common.configfile import ConfigError, dataclass_from_mapping
 from sim_bridge.common.geometry import pose_from_transform, transform_from_pose
@@ -62,6 +66,9 @@ from suture_lfd.skill.training import (
     training_data,
 )
 
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+
 __all__ = ['SKILL_FORMAT', 'SKILL_FORMAT_VERSION', 'ThrowSkill', 'default_needle', 'learn_skill']
 
 # Which marker each end of a learnt subtask is anchored to with anchors 'arc': the insertion
@@ -72,7 +79,7 @@ SKILL_FORMAT = 'suture_lfd.skill'
 SKILL_FORMAT_VERSION = 1
 
 
-def _params_for(params, task):
+def _params_for(params: Any, task: str) -> DmpParams:
     if params is None:
         return load_dmp_params(task=task)
     if isinstance(params, DmpParams):
@@ -85,7 +92,8 @@ def _params_for(params, task):
                      f'got {type(params).__name__}')
 
 
-def _dmp_frame(method, pair, task, needle=None):
+def _dmp_frame(method: Method, pair: PairGeometry, task: str,
+               needle: 'NeedleGeometry | None' = None) -> np.ndarray | None:
     """``T_world_dmp`` (4, 4) of a task's DMP coordinates on a pair, or None for ``world``."""
     if method.frame == 'world':
         return None
@@ -94,7 +102,8 @@ def _dmp_frame(method, pair, task, needle=None):
     return pair.arc_anchor(_ARC_ANCHORS[task][0], default_needle() if needle is None else needle)
 
 
-def _to_frame(method, pair, P, Q, task='ii', needle=None):
+def _to_frame(method: Method, pair: PairGeometry, P: np.ndarray, Q: np.ndarray, task: str = 'ii',
+              needle: 'NeedleGeometry | None' = None) -> tuple[np.ndarray, np.ndarray]:
     """World needle positions/quaternions -> the method's DMP coordinates."""
     T = _dmp_frame(method, pair, task, needle)
     if T is None:
@@ -122,7 +131,8 @@ class ThrowSkill:
 
     """
 
-    def __init__(self, method, pair, dmps, timing=None, source=''):
+    def __init__(self, method: 'str | Method', pair: Any, dmps: Mapping[str, PoseDmp],
+                 timing: Mapping[str, Any] | None = None, source: str = '') -> None:
         self.method = get_method(method)
         self.pair = PairGeometry.of(pair)
         self.dmps = dict(dmps)
@@ -130,15 +140,18 @@ class ThrowSkill:
         self.source = str(source)
 
     @property
-    def params(self):
+    def params(self) -> dict[str, DmpParams]:
         """Dict of str to DmpParams: hyper-parameters per task."""
         return {task: dmp.params for task, dmp in self.dmps.items()}
 
-    def duration(self, task):
+    def duration(self, task: str) -> float:
         """Demonstrated duration (s) of a learnt subtask."""
-        return float(self.dmps[task].duration_)
+        duration = self.dmps[task].duration_
+        assert duration is not None  # a skill's DMPs are fitted or loaded
+        return float(duration)
 
-    def demonstrated(self, task, needle=None):
+    def demonstrated(self, task: str, needle: 'NeedleGeometry | None' = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
         """
         Return the demonstrated needle start and goal of a task in ``world``.
 
@@ -157,7 +170,8 @@ class ThrowSkill:
             start, goal = poses_from_frame(T, start), poses_from_frame(T, goal)
         return start, goal
 
-    def start_goal(self, task, pair, needle=None):
+    def start_goal(self, task: str, pair: Any, needle: 'NeedleGeometry | None' = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
         """
         Return the needle start and goal (``world``, 7-vectors) of a task on another pair.
 
@@ -181,16 +195,21 @@ class ThrowSkill:
                                             and task == 'ii'):
             needle = default_needle() if needle is None else needle
             ends = _ARC_ANCHORS[task]
-            return tuple(transfer_pose(pose, self.pair.arc_anchor(end, needle),
-                                       pair.arc_anchor(end, needle))
-                         for pose, end in zip((start, goal), ends))
+            return cast('tuple[np.ndarray, np.ndarray]', tuple(
+                transfer_pose(pose, self.pair.arc_anchor(end, needle),
+                              pair.arc_anchor(end, needle))
+                for pose, end in zip((start, goal), ends)))
         if self.method.anchors in ('midpoint', 'insertion_arc'):
             return (transfer_pose(start, self.pair.frame, pair.frame),
                     transfer_pose(goal, self.pair.frame, pair.frame))
         return (transfer_pose(start, self.pair.anchor('entry'), pair.anchor('entry')),
                 transfer_pose(goal, self.pair.anchor('exit'), pair.anchor('exit')))
 
-    def rollout(self, task, pair, start=None, goal=None, n_pts=None, needle=None, targets=None):
+    def rollout(self, task: str, pair: Any, start: ArrayLike | None = None,
+                goal: ArrayLike | None = None, n_pts: int | None = None,
+                needle: 'NeedleGeometry | None' = None,
+                targets: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
         Regenerate a task's needle trajectory on a pair (``world``).
 
@@ -240,7 +259,7 @@ class ThrowSkill:
         return T, P, Q
 
     # ------------------------------------------------------------------ files
-    def save(self, path):
+    def save(self, path: str | Path) -> None:
         """
         Write the skill (method, hyper-parameters, DMP weights, pair) to an ``.npz`` file.
 
@@ -262,7 +281,7 @@ class ThrowSkill:
         save_archive(path, arrays, SKILL_FORMAT, SKILL_FORMAT_VERSION)
 
     @classmethod
-    def load(cls, path):
+    def load(cls, path: str | Path) -> 'ThrowSkill':
         """
         Read a skill written by :meth:`save`.
 
@@ -275,7 +294,7 @@ class ThrowSkill:
         """
         arrays = load_archive(path, SKILL_FORMAT, SKILL_FORMAT_VERSION, 'skill file')
 
-        def need(key):
+        def need(key: str) -> Any:
             if key not in arrays:
                 raise ValueError(f'{path}: skill file lacks the key {key!r}')
             return arrays[key]
@@ -308,14 +327,14 @@ class ThrowSkill:
 
 
 @functools.cache
-def default_needle():
+def default_needle() -> 'NeedleGeometry':
     """Return the scene's needle geometry (``config/scene.yaml``), read once."""
     from sim_bridge.scene.scene_config import load_scene_config
 
     return load_scene_config().needle
 
 
-def _pose7(pose, name):
+def _pose7(pose: ArrayLike, name: str) -> np.ndarray:
     pose = np.asarray(pose, dtype=float)
     if pose.shape == (4, 4):
         return pose_from_transform(pose)
@@ -324,7 +343,8 @@ def _pose7(pose, name):
     return pose
 
 
-def learn_skill(segment_file, method='paper', params=None, needle=None):
+def learn_skill(segment_file: Any, method: 'str | Method' = 'paper', params: Any = None,
+                needle: 'NeedleGeometry | None' = None) -> ThrowSkill:
     """
     Learn the DMPs of subtasks ii and iv from one segmented demonstration.
 
