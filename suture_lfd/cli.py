@@ -13,19 +13,21 @@ phantoms and their entry/exit marker pairs. ``bag info PATH`` summarises a recor
 """
 
 import argparse
+from collections.abc import Sequence
 import logging
 import sys
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.vocabulary import ARMS
 from suture_lfd.study.options import add_study_arguments, add_sweep_arguments
 
 
-def _fmt(v):
+def _fmt(v: ArrayLike) -> str:
     return '(' + ', '.join(f'{x * 1000:7.2f}' for x in np.asarray(v, float)) + ') mm'
 
 
-def cmd_info(args):
+def cmd_info(args: argparse.Namespace) -> int:
     """Start the simulator in-process and report the scene."""
     from sim_bridge.simulation import Simulation
 
@@ -45,21 +47,21 @@ def cmd_info(args):
     return 0
 
 
-def cmd_study(args):
+def cmd_study(args: argparse.Namespace) -> int:
     """Run the study of the seed paper and write its report."""
     from suture_lfd.study import run
 
     return run.main(args)
 
 
-def cmd_sweep(args):
+def cmd_sweep(args: argparse.Namespace) -> int:
     """Run a grid of studies (seeds x methods x DMP hyper-parameters) and its report."""
     from suture_lfd.study import sweep
 
     return sweep.main(args)
 
 
-def cmd_bag_info(args):
+def cmd_bag_info(args: argparse.Namespace) -> int:
     """Print the topics, types, message counts and duration of a bag."""
     from suture_lfd import bags
 
@@ -72,7 +74,7 @@ def cmd_bag_info(args):
     return 0
 
 
-def cmd_bag_recover(args):
+def cmd_bag_recover(args: argparse.Namespace) -> int:
     """Rebuild a valid bag from an unfinished or truncated one."""
     from suture_lfd import bags
 
@@ -85,7 +87,7 @@ def cmd_bag_recover(args):
     return 0
 
 
-def cmd_assess(args):
+def cmd_assess(args: argparse.Namespace) -> int:
     """Score a demonstration bag and write its table of scores."""
     from pathlib import Path
 
@@ -108,7 +110,7 @@ def cmd_assess(args):
     return 0
 
 
-def cmd_view(args):
+def cmd_view(args: argparse.Namespace) -> int:
     """Open a bag or a study's throw in the viewer's page and serve it until Ctrl-C."""
     from suture_lfd.viewer.show import serve_recording
 
@@ -121,7 +123,7 @@ def cmd_view(args):
         return 1
 
 
-def cmd_urdf(args):
+def cmd_urdf(args: argparse.Namespace) -> int:
     """Write the URDF of one arm (or of every arm into a folder) as the simulator builds it."""
     from pathlib import Path
 
@@ -144,7 +146,7 @@ def cmd_urdf(args):
     return 0
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='suture-lfd', description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
     info = sub.add_parser('info', help='start the simulator in-process and report the scene')
@@ -226,7 +228,7 @@ def build_parser():
     return parser
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     args = build_parser().parse_args(argv)
     return args.func(args)

@@ -82,6 +82,9 @@ ANNOTATED = ('sim_bridge/common',
              'sim_bridge/bullet.py',
              'suture_lfd/skill/throw_skill.py',
              'suture_lfd/perception/instrument.py',
+             'suture_lfd/teleop/frames.py',
+             'suture_lfd/teleop/devices/interface.py',
+             'suture_lfd/cli.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',
                  'pipeline', 'reacquire', 'stereo', 'wire_images')))

@@ -7,8 +7,9 @@ the device's frame (:attr:`InputDevice.frame_id`), and a gripper angle; and the 
 :func:`open_device` opens a back-end by name.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -58,15 +59,15 @@ class InputDevice:
 
     frame_id = CAMERA_FRAME
 
-    def poll(self, t):
+    def poll(self, t: float) -> 'Reading':
         """Return the :class:`Reading` at time ``t`` (s)."""
         raise NotImplementedError
 
-    def close(self):
+    def close(self) -> None:
         """Release the device."""
 
 
-def open_device(kind, mtms, **options):
+def open_device(kind: str, mtms: Sequence[str], **options: Any) -> InputDevice:
     """
     Open the back-end ``kind`` (``browser``, ``gamepad`` or ``spacemouse``) for ``mtms``.
 
