@@ -188,11 +188,11 @@ class PerceivedScene:
             self.markers(sim)
         tools = arm_state.T_world_tool
         # due unless a look failed less than look_period ago (a scene reset turns time back)
-        due = not sim.time < self._next_look <= sim.time + self.look_period
+        due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
         if not self._holders and self._free_needle is None and due:
             self._free_needle = self.needle(sim, tools=list(tools.values())).T_world_needle
             if self._free_needle is None:
-                self._next_look = sim.time + self.look_period
+                self._next_look = arm_state.t + self.look_period
         for arm, jaw in arm_state.jaw.items():
             closed = jaw < self.closed_below
             was = self._closed.get(arm, closed)
