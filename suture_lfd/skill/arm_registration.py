@@ -28,12 +28,22 @@ PSM to a few poses in the endoscope's view, see the tool, fit a correction. Here
 It reads only what a physical dVRK provides: the reported joints, the believed bases, the ECM's
 reported pose, the stereo pair and its ``camera_info``.
 
+- **Kept.** A registration is saved to a JSON file and loaded for the same robot
+  (:func:`save_registration`, :func:`load_registration`), as a dVRK setup keeps its
+  registration between runs; a study registers each robot once, whatever process runs its jobs.
+
+Size: the fit, its use and its file stay together (one model of the arms' error, read and
+written in one place).
+
 Frames: ``world`` (as the robot believes it, the camera's through the ECM), the camera's left
 optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
 """
 
 from dataclasses import dataclass
+import json
 import logging
+import os
+from pathlib import Path
 import weakref
 
 import numpy as np
@@ -440,6 +450,95 @@ def register_arms(sim, seed=0):
                          fit.residual_px)
             continue
         arms[arm] = fit
+    correction = KinematicCorrection(arms)
+    _REGISTERED[sim] = correction
+    return correction
+
+
+#: Format name and version of a saved registration (:func:`save_registration`).
+REGISTRATION_FORMAT, REGISTRATION_FORMAT_VERSION = 'suture_lfd.registration', 1
+
+
+def known_registration(sim):
+    """Return the registration kept for ``sim`` (:func:`register_arms`), or None."""
+    return _REGISTERED.get(sim)
+
+
+def save_registration(path, correction, key):
+    """
+    Write a registration to a JSON file (what a dVRK setup keeps between its runs).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file (written whole or not at all: a reader never sees a partial file).
+    correction : KinematicCorrection
+        The registration: per arm its believed base (4x4, ``world``), joint offsets (rad, m),
+        base translation (m, ``world``) and residual (pixels).
+    key : dict
+        What the registration is valid for (e.g. the robot and the code digest): a load with
+        another key finds nothing.
+
+    """
+    arms = {arm: {'T_world_base': np.asarray(c.T_world_base, dtype=float).tolist(),
+                  'joint_offset': np.asarray(c.joint_offset, dtype=float).tolist(),
+                  'translation': np.asarray(c.translation, dtype=float).tolist(),
+                  'residual_px': float(c.residual_px)} for arm, c in correction.arms.items()}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
+    tmp.write_text(json.dumps({'format': REGISTRATION_FORMAT,
+                               'version': REGISTRATION_FORMAT_VERSION,
+                               'key': key, 'arms': arms}, indent=1))
+    os.replace(tmp, path)
+
+
+def load_registration(path, sim, key):
+    """
+    Read a registration saved by :func:`save_registration` and keep it for ``sim``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file.
+    sim : sim_bridge.simulation.Simulation
+        The robot it registers (its arms' kinematic models); :func:`register_arms` on it then
+        returns the loaded registration instead of running one.
+    key : dict
+        What the registration must be valid for (as saved).
+
+    Returns
+    -------
+    KinematicCorrection or None
+        None when there is no file or it was saved for another key (a registration to run).
+
+    Raises
+    ------
+    ValueError
+        If the file is not a registration (the message names the file and what is wrong).
+
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f'{path}: not a readable registration file ({exc})') from exc
+    if not isinstance(data, dict) or data.get('format') != REGISTRATION_FORMAT:
+        raise ValueError(f"{path}: 'format' must be {REGISTRATION_FORMAT!r}")
+    if data.get('version') != REGISTRATION_FORMAT_VERSION or data.get('key') != key:
+        return None
+    try:
+        arms = {arm: ArmCorrection(
+            arm=arm, kinematics=sim.kinematics[arm],
+            T_world_base=np.array(a['T_world_base'], dtype=float).reshape(4, 4),
+            joint_offset=np.array(a['joint_offset'], dtype=float).reshape(6),
+            translation=np.array(a['translation'], dtype=float).reshape(3),
+            residual_px=float(a['residual_px'])) for arm, a in data['arms'].items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: 'arms' must map PSM names to T_world_base (4x4), "
+                         f'joint_offset (6), translation (3) and residual_px ({exc!r})') from exc
     correction = KinematicCorrection(arms)
     _REGISTERED[sim] = correction
     return correction

@@ -69,6 +69,7 @@ class PerceivedScene:
         self._pair = None
         self._support_normal = None
         self.renders = 0
+        self._next_look = -np.inf  # s: when an unseen lying needle is looked for again
         self.reset()
 
     # ------------------------------------------------------------------ images
@@ -162,6 +163,7 @@ class PerceivedScene:
         self._grasps = {}
         self._closed = {}
         self._free_needle = None
+        self._next_look = -np.inf
 
     def estimate(self, sim, arm_state):
         """
@@ -169,10 +171,12 @@ class PerceivedScene:
 
         The images are looked at only when something changes: at the first call (the markers
         and the needle where it lies) and when the last holder lets go (where the needle lies
-        now). When a jaw closes near the needle's last known pose the arm holds it, its grasp
-        ``T_tool_needle`` measured against the arm's reported pose (which takes up the arm's
-        kinematic error where it works). Meanwhile a held needle is where the holder's
-        reported pose and grasp put it.
+        now). While the needle is free and not seen it is looked for again every
+        :attr:`look_period` (simulated s), not at every sample. When a jaw closes near the
+        needle's last known pose the arm holds it, its grasp ``T_tool_needle`` measured
+        against the arm's pose as observed (the reported pose, or the registered one when the
+        observer corrects it). Meanwhile a held needle is where the holder's pose and grasp
+        put it.
 
         Returns
         -------
@@ -183,8 +187,12 @@ class PerceivedScene:
         if self._pair is None:
             self.markers(sim)
         tools = arm_state.T_world_tool
-        if not self._holders and self._free_needle is None:
+        # due unless a look failed less than look_period ago (a scene reset turns time back)
+        due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
+        if not self._holders and self._free_needle is None and due:
             self._free_needle = self.needle(sim, tools=list(tools.values())).T_world_needle
+            if self._free_needle is None:
+                self._next_look = arm_state.t + self.look_period
         for arm, jaw in arm_state.jaw.items():
             closed = jaw < self.closed_below
             was = self._closed.get(arm, closed)
@@ -272,6 +280,9 @@ class PerceivedScene:
     #: A held needle facing the camera less than this (:meth:`facing`) is not looked at: edge
     #: on, 2-3 % of its wire shows, far below what the tracker needs.
     min_facing = 0.2
+    #: s (simulated): an unseen free needle is looked for again at this period -- the rate
+    #: learning needs (the recorder's perception rate, 2 Hz), not every control sample.
+    look_period = 0.5
     closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
     grasp_reach = 0.003  # m: a jaw closed with its bite this close to the wire holds it
 

@@ -115,6 +115,8 @@ class PerceptionFeed(PerceivedScene):
     #: 1-3 mm-class error (and the needle last seen lying) add theirs. In a throw the jaws
     #: close only to grasp, so the wider reach takes no closing for a grasp that is none.
     GRASP_REACH = 0.010
+    #: s: fed by messages, a look renders nothing: the newest output is taken at every sample
+    look_period = 0.0
 
     def __init__(self, pair_name: str, pair_index: int, needle_geometry: Any = None,
                  grasp_reach: float | None = None) -> None:

@@ -62,7 +62,13 @@ from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.dmp import DmpParams, load_dmp_params
 from suture_lfd.segmentation import Segmentation, segment_demonstration
 from suture_lfd.skill import ThrowSkill, learn_skill, training_data
+from suture_lfd.skill.arm_registration import (
+    known_registration,
+    load_registration,
+    save_registration,
+)
 from suture_lfd.skill.executor import execute_throw
+from suture_lfd.study.digest import code_digest
 from suture_lfd.study.held_out import phantom_config
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
 from suture_lfd.study.records import (
@@ -175,6 +181,12 @@ class WorkerState:
         the least recently used closed first; each keeps its registration
         (:func:`suture_lfd.skill.arm_registration.register_arms`), so a robot is registered
         once, not per job.
+    registered : set
+        Keys of ``robots`` whose registration is in the study folder (loaded from it or saved
+        to it: :data:`REGISTRATIONS`), so that every process uses the first one made.
+    code : str or None
+        The code digest (:func:`suture_lfd.study.digest.code_digest`) a saved registration is
+        valid for, computed on first use.
 
     """
 
@@ -187,6 +199,8 @@ class WorkerState:
     dmp_params: dict[str, DmpParams] | None = None
     base_frames: dict[str, np.ndarray] | None = None
     robots: dict[tuple[str, float, float, int], Simulation] = field(default_factory=dict)
+    registered: set[tuple[str, float, float, int]] = field(default_factory=set)
+    code: str | None = None
 
     def close(self) -> None:
         """Release what the state holds beyond this process's memory (node processes)."""
@@ -273,10 +287,48 @@ def _physical_simulation(state: WorkerState, phantom: str, step: float,
     sim = robots.pop(key, None)
     if sim is None:
         sim = _robot(state, phantom, step, physical)
+        state.registered.discard(key)
+        if load_registration(_registration_path(state, key), sim,
+                             _registration_key(state, key)) is not None:
+            state.registered.add(key)
         while len(robots) >= ROBOTS_KEPT:
             robots.pop(next(iter(robots))).close()
     robots[key] = sim  # the most recently used last
     return sim
+
+
+#: The study folder's registrations of the physical-mode robots (one JSON file per robot:
+#: :func:`suture_lfd.skill.arm_registration.save_registration`).
+REGISTRATIONS = 'physical/registrations'
+
+
+def _registration_path(state: WorkerState, key: tuple[str, float, float, int]) -> Path:
+    """Return the file of a robot's registration (``key`` as in ``state.robots``)."""
+    phantom, step, level, seed = key
+    name = f'{phantom}_{step:g}s_{level:g}mm_{seed}.json'
+    return Path(state.settings.out) / REGISTRATIONS / name
+
+
+def _registration_key(state: WorkerState, key: tuple[str, float, float, int]
+                      ) -> dict[str, Any]:
+    """Return what a robot's saved registration is valid for: the robot and the code."""
+    if state.code is None:
+        state.code = code_digest()
+    phantom, step, level, seed = key
+    return {'phantom': phantom, 'physics_step': step, 'error_level': level,
+            'error_seed': seed, 'code': state.code}
+
+
+def _save_registrations(state: WorkerState) -> None:
+    """Save the registrations of the process's robots that are not in the study folder yet."""
+    for key, sim in state.robots.items():
+        if key in state.registered:
+            continue
+        correction = known_registration(sim)
+        if correction is not None:
+            save_registration(_registration_path(state, key), correction,
+                              _registration_key(state, key))
+            state.registered.add(key)
 
 
 def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
@@ -324,11 +376,16 @@ def run_job(job: DemoJob | ThrowJob, state: WorkerState) -> DemoRecord | ThrowRe
         The job's record: its fields and its results.
 
     """
+    record: DemoRecord | ThrowRecord
     if isinstance(job, DemoJob):
-        return demo_job(job, state)
-    if isinstance(job, ThrowJob):
-        return throw_job(job, state)
-    raise TypeError(f'a study job is a DemoJob or a ThrowJob, got {type(job).__name__}')
+        record = demo_job(job, state)
+    elif isinstance(job, ThrowJob):
+        record = throw_job(job, state)
+    else:
+        raise TypeError(f'a study job is a DemoJob or a ThrowJob, got {type(job).__name__}')
+    if state.robots:
+        _save_registrations(state)
+    return record
 
 
 # ---------------------------------------------------------------------- demonstrations

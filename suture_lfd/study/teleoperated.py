@@ -18,6 +18,13 @@ command). What is recorded is what a recorder on the robot gets
 PerceivedScene`): the arms' reports, the jaws, and the needle, its holders and the markers as the
 endoscope's images give them (images are looked at only when the estimator needs them).
 
+As in a lab, the robot is registered before anything is recorded
+(:func:`suture_lfd.skill.arm_registration.register_arms`, once per simulation, before the first
+attempt resets the scene): the recorder judges each grasp against the corrected tool pose, as
+the executor does, instead of the raw report, which at the 3 mm class is 5-10 mm off -- more
+than a grasp's reach. The registration run resets the scene and moves the arms, so it must come
+before the demonstration's episode starts, never between its start and its first sample.
+
 Frames: ``world`` (the robot's believed one for what is recorded); poses 4x4; metres.
 """
 
@@ -27,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.observers import PhysicalObserver
+from suture_lfd.skill.arm_registration import KinematicCorrection, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
 
 if TYPE_CHECKING:
@@ -44,15 +52,20 @@ class TeleoperatedRobot:
         The scene (its kinematic errors hidden in it).
     pair_name : str
         The target pair (``'synth1'``); the recorder perceives its markers.
+    register : bool
+        Register the arms against the endoscope now (kept for ``sim``) and record the tool
+        poses the correction gives; False records the raw reports.
 
     Attributes
     ----------
     renders : int
         Stereo pairs the recorder's perception looked at so far.
+    correction : suture_lfd.skill.arm_registration.KinematicCorrection or None
+        The arms' registration the recorder sees the tools through (None: raw reports).
 
     """
 
-    def __init__(self, sim: 'Simulation', pair_name: str) -> None:
+    def __init__(self, sim: 'Simulation', pair_name: str, register: bool = True) -> None:
         if pair_name not in sim.phantom.markers:
             raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                              f'{sorted(sim.phantom.markers)}')
@@ -62,6 +75,8 @@ class TeleoperatedRobot:
         self._observer: PhysicalObserver | None = None
         self._perception: PerceivedScene | None = None
         self.renders = 0
+        # before any episode: the registration run resets the scene and moves the arms
+        self.correction: KinematicCorrection | None = register_arms(sim) if register else None
 
     def start(self) -> None:
         """Begin an attempt: the recorder's perception forgets the needle and its grasps."""
@@ -69,7 +84,8 @@ class TeleoperatedRobot:
             self.renders += self._perception.renders
         self._perception = PerceivedScene(self._pair_name, self._index,
                                           self._sim.needle_geometry)
-        self._observer = PhysicalObserver(self._sim, self._perception)
+        self._observer = PhysicalObserver(self._sim, self._perception,
+                                          correction=self.correction)
 
     def command(self, cmd: 'Command') -> 'Command':
         """

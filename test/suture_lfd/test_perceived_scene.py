@@ -55,3 +55,24 @@ def test_a_physical_observer_gives_the_perceived_needle_and_pair(scene):
 def test_a_pair_the_camera_does_not_show_is_not_seen(scene):
     start_episode(scene, 'synth1', seed=0)
     assert PerceivedScene('synth9', 9, scene.needle_geometry).markers(scene) is None
+
+
+def test_an_unseen_free_needle_is_looked_for_at_the_look_period_not_every_sample():
+    config = load_simulation_config()
+    start = config.loop.needle_start
+    config = replace(config, kinematic_error_level=3.0, kinematic_error_seed=1,
+                     loop=replace(config.loop, needle_start=replace(
+                         start, position=(0.11, 0.0), position_jitter=0.0)))
+    sim = Simulation(config)
+    try:
+        truth = start_episode(sim, 'synth1', seed=0)
+        seen = PerceivedScene('synth1', truth.index, sim.needle_geometry)
+        observer = PhysicalObserver(sim, seen)
+        t0 = sim.time
+        while sim.time < t0 + 2.0 - 1e-9:  # 2 s of 10 ms samples, the needle out of view
+            assert observer.observe().T_world_needle is None
+            sim.run(0.01)
+        # 2 s at one look per 0.5 s, not 200 renders (one per sample)
+        assert 2.0 / seen.look_period <= seen.renders <= 2.0 / seen.look_period + 1
+    finally:
+        sim.close()
