@@ -12,12 +12,19 @@ Frames: ``world`` (as the robot believes it), the camera's left optical frame ``
 4x4; metres.
 """
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import logging
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.scene.markers import MarkerPair
 from suture_lfd.perception import NeedleTracker, detect_markers, stereo_from_camera_info
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.control import Observation
 
 _LOG = logging.getLogger(__name__)
 
@@ -59,21 +66,23 @@ class PerceivedScene:
 
     """
 
-    def __init__(self, pair_name, pair_index, needle_geometry=None, look_again=True):
+    def __init__(self, pair_name: str, pair_index: int,
+                 needle_geometry: 'NeedleGeometry | None' = None,
+                 look_again: bool = True) -> None:
         self.pair_name = str(pair_name)
         self.pair_index = int(pair_index)
         self.look_again = bool(look_again)
         self._tracker = NeedleTracker(needle_geometry)
-        self._stereo = None
-        self._frame = None
-        self._pair = None
-        self._support_normal = None
+        self._stereo: Any = None
+        self._frame: tuple[float, Any, np.ndarray] | None = None
+        self._pair: MarkerPair | None = None
+        self._support_normal: np.ndarray | None = None
         self.renders = 0
         self._next_look = -np.inf  # s: when an unseen lying needle is looked for again
         self.reset()
 
     # ------------------------------------------------------------------ images
-    def _look(self, sim):
+    def _look(self, sim: Any) -> tuple[Any, np.ndarray]:
         """
         Render the stereo pair; return it with ``T_world_camera`` from the ECM's report.
 
@@ -93,7 +102,7 @@ class PerceivedScene:
         return frame, T_world_camera
 
     # ------------------------------------------------------------------ markers
-    def markers(self, sim):
+    def markers(self, sim: Any) -> MarkerPair | None:
         """
         Look for the target pair's markers.
 
@@ -127,7 +136,8 @@ class PerceivedScene:
         return self._pair
 
     # ------------------------------------------------------------------ needle
-    def needle(self, sim, prior=None, tools=()):
+    def needle(self, sim: Any, prior: ArrayLike | None = None,
+               tools: Sequence[ArrayLike] = ()) -> NeedleView:
         """
         Look for the needle.
 
@@ -157,15 +167,16 @@ class PerceivedScene:
         return NeedleView(T @ estimate.pose_camera, estimate)
 
     # ------------------------------------------------------------------ observer protocol
-    def reset(self):
+    def reset(self) -> None:
         """Forget the needle, its holders and their grasps (a new throw)."""
-        self._holders = []
-        self._grasps = {}
-        self._closed = {}
-        self._free_needle = None
+        self._holders: list[str] = []
+        self._grasps: dict[str, np.ndarray] = {}
+        self._closed: dict[str, bool] = {}
+        self._free_needle: np.ndarray | None = None
         self._next_look = -np.inf
 
-    def estimate(self, sim, arm_state):
+    def estimate(self, sim: Any, arm_state: 'Observation'
+                 ) -> tuple[np.ndarray | None, tuple[str, ...], MarkerPair | None]:
         """
         Needle, holders and pair for a :class:`sim_bridge.observers.PhysicalObserver`.
 
@@ -214,7 +225,8 @@ class PerceivedScene:
             needle = self._held_needle(tools, self._holders[0])
         return needle, tuple(self._holders), self._pair
 
-    def look_at_grasp(self, sim, arm, tools):
+    def look_at_grasp(self, sim: Any, arm: str,
+                      tools: Mapping[str, ArrayLike]) -> np.ndarray | None:
         """
         Look at the needle ``arm`` holds and measure its grasp again.
 
@@ -254,7 +266,7 @@ class PerceivedScene:
         self._grasps[arm] = grasp
         return grasp
 
-    def facing(self, sim, T_world_needle):
+    def facing(self, sim: Any, T_world_needle: ArrayLike) -> float:
         """
         How squarely the needle at ``T_world_needle`` faces the left camera, without a render.
 
@@ -286,11 +298,12 @@ class PerceivedScene:
     closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
     grasp_reach = 0.003  # m: a jaw closed with its bite this close to the wire holds it
 
-    def _held_needle(self, tools, arm):
+    def _held_needle(self, tools: Mapping[str, ArrayLike], arm: str) -> np.ndarray | None:
         grasp = self._grasps.get(arm)
         return None if grasp is None else np.asarray(tools[arm]) @ grasp
 
-    def _check_grasp(self, sim, arm, tools):
+    def _check_grasp(self, sim: Any, arm: str,
+                     tools: Mapping[str, ArrayLike]) -> None:
         """
         Decide whether the jaw that just closed holds the needle, and measure its grasp.
 
