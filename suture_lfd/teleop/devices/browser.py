@@ -10,7 +10,10 @@ released between two polls (a click on the page's record control) is still seen 
 one poll, then released by the next. No hardware: the page works over SSH port forwarding.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+from numpy.typing import ArrayLike
 from suture_lfd.teleop.devices import ArmReading, InputDevice, Reading
 
 PEDAL_BUTTONS = ('clutch', 'coag', 'camera')
@@ -29,24 +32,24 @@ class BrowserDevice(InputDevice):
 
     frame_id = 'world'
 
-    def __init__(self, mtms):
+    def __init__(self, mtms: Sequence[str]) -> None:
         self.mtms = tuple(mtms)
-        self._poses = {}
-        self._grippers = {}
-        self._pedals = {}
-        self._pressed = set()   # pedals pressed since the last poll
+        self._poses: dict[str, np.ndarray] = {}
+        self._grippers: dict[str, float] = {}
+        self._pedals: dict[str, bool] = {}
+        self._pressed: set[str] = set()  # pedals pressed since the last poll
 
-    def set_pose(self, mtm, T_world_handle):
+    def set_pose(self, mtm: str, T_world_handle: ArrayLike) -> None:
         """Take a handle pose (4x4, ``world``) of ``mtm``."""
         if mtm in self.mtms:
             self._poses[mtm] = np.array(T_world_handle, dtype=float)
 
-    def set_gripper(self, mtm, angle):
+    def set_gripper(self, mtm: str, angle: float) -> None:
         """Take a gripper angle (rad) of ``mtm``."""
         if mtm in self.mtms:
             self._grippers[mtm] = float(angle)
 
-    def set_pedals(self, buttons):
+    def set_pedals(self, buttons: Sequence[float]) -> None:
         """
         Take the pedal buttons ``[clutch, coag]`` or ``[clutch, coag, camera]`` (1 pressed).
 
@@ -64,7 +67,7 @@ class BrowserDevice(InputDevice):
             if b:
                 self._pressed.add(name)
 
-    def poll(self, t):
+    def poll(self, t: float) -> Reading:
         arms = {m: ArmReading(pose=self._poses.get(m), gripper=self._grippers.get(m))
                 for m in self.mtms}
         pedals = {name: pressed or name in self._pressed for name, pressed in self._pedals.items()}
