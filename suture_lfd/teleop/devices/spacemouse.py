@@ -17,7 +17,9 @@ away moves the tool deeper into the image, a press moves it down.
 On Linux the hidraw node must be readable: the README gives the udev rule.
 """
 
+from collections.abc import Sequence
 import struct
+from typing import Any
 
 import numpy as np
 from suture_lfd.teleop.devices import ArmReading, InputDevice, Reading
@@ -43,12 +45,12 @@ class SpaceMouseState:
 
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.translation = np.zeros(3)
         self.rotation = np.zeros(3)
         self.buttons = 0
 
-    def update(self, report):
+    def update(self, report: bytes | Sequence[int]) -> None:
         """
         Take one HID report (bytes or list of ints, report id first).
 
@@ -82,18 +84,19 @@ class SpaceMouseState:
         else:
             raise ValueError(f'SpaceMouse report id {kind} is not 1, 2 or 3')
 
-    def button(self, i):
+    def button(self, i: int) -> bool:
         """Whether button ``i`` is held."""
         return bool(self.buttons >> i & 1)
 
-    def twist(self, linear_speed, angular_speed, threshold):
+    def twist(self, linear_speed: float, angular_speed: float,
+              threshold: float) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(v, w)`` (m/s, rad/s) in the camera frame, after the deadband."""
         t = deadband(np.clip(self.translation / FULL_SCALE, -1, 1), threshold)
         r = deadband(np.clip(self.rotation / FULL_SCALE, -1, 1), threshold)
         return (linear_speed * (DEVICE_TO_CAMERA @ t), angular_speed * (DEVICE_TO_CAMERA @ r))
 
 
-def find_devices(hid):
+def find_devices(hid: Any) -> list[bytes]:
     """Return the hidraw paths of the 3Dconnexion devices found."""
     return [d['path'] for d in hid.enumerate()
             if d['vendor_id'] in VENDOR_IDS and d['product_id'] in PRODUCT_IDS]
@@ -120,8 +123,10 @@ class SpaceMouseDevice(InputDevice):
 
     """
 
-    def __init__(self, mtms, path='', linear_speed=0.05, angular_speed=1.0, deadband=0.03,
-                 gripper_speed=1.5, gripper_start=0.5, gripper_max=1.0471976):
+    def __init__(self, mtms: Sequence[str], path: str | bytes = '', linear_speed: float = 0.05,
+                 angular_speed: float = 1.0, deadband: float = 0.03,
+                 gripper_speed: float = 1.5, gripper_start: float = 0.5,
+                 gripper_max: float = 1.0471976) -> None:
         import hid
         paths = [path.encode() if isinstance(path, str) else path] if path \
             else find_devices(hid)
@@ -130,7 +135,7 @@ class SpaceMouseDevice(InputDevice):
                           'user read its hidraw node? see the udev rule in the README)')
         order = [m for m in ('MTMR', 'MTML') if m in mtms] + \
             [m for m in mtms if m not in ('MTMR', 'MTML')]
-        self.devices = {}
+        self.devices: dict[str, tuple[Any, SpaceMouseState]] = {}
         for mtm, p in zip(order, paths):
             dev = hid.device()
             try:
@@ -145,9 +150,9 @@ class SpaceMouseDevice(InputDevice):
         self.deadband, self.gripper_speed = float(deadband), float(gripper_speed)
         self.gripper_max = float(gripper_max)
         self.grippers = {m: float(gripper_start) for m in self.mtms}
-        self._t = None
+        self._t: float | None = None
 
-    def poll(self, t):
+    def poll(self, t: float) -> Reading:
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t
         arms, clutch, camera = {}, False, False
@@ -172,6 +177,6 @@ class SpaceMouseDevice(InputDevice):
                                    gripper=self.grippers[mtm])
         return Reading(arms=arms, pedals={'clutch': clutch, 'coag': True, 'camera': camera})
 
-    def close(self):
+    def close(self) -> None:
         for dev, _ in self.devices.values():
             dev.close()
