@@ -19,9 +19,11 @@ when there is no display. :func:`attach_virtual_controller` makes an SDL virtual
 controller (no hardware), as the tests use it.
 """
 
+from collections.abc import Sequence
 import ctypes
 import glob
 import os
+from typing import Any
 
 import numpy as np
 from suture_lfd.teleop.devices import ArmReading, InputDevice, Reading
@@ -30,7 +32,7 @@ from suture_lfd.teleop.virtual_mtm import deadband
 AXIS_MAX = 32767.0
 
 
-def _pygame():
+def _pygame() -> tuple[Any, Any]:
     """Import pygame headless: no window, no sound, no greeting."""
     os.environ.setdefault('PYGAME_HIDE_SUPPORT_PROMPT', '1')
     if not os.environ.get('DISPLAY') and not os.environ.get('WAYLAND_DISPLAY'):
@@ -70,8 +72,10 @@ class GamepadDevice(InputDevice):
 
     """
 
-    def __init__(self, mtms, index=0, linear_speed=0.05, angular_speed=1.0, deadband=0.03,
-                 gripper_speed=1.5, gripper_start=0.5, gripper_max=1.0471976):
+    def __init__(self, mtms: Sequence[str], index: int = 0, linear_speed: float = 0.05,
+                 angular_speed: float = 1.0, deadband: float = 0.03,
+                 gripper_speed: float = 1.5, gripper_start: float = 0.5,
+                 gripper_max: float = 1.0471976) -> None:
         self._pg, self._ctl = _pygame()
         self._pg.event.pump()
         count = self._ctl.get_count()
@@ -89,12 +93,12 @@ class GamepadDevice(InputDevice):
         self.grippers = {m: float(gripper_start) for m in self.mtms}
         self.coag = False
         self._b_was = False
-        self._t = None
+        self._t: float | None = None
 
-    def _axis(self, axis):
+    def _axis(self, axis: int) -> float:
         return self.pad.get_axis(axis) / AXIS_MAX
 
-    def poll(self, t):
+    def poll(self, t: float) -> Reading:
         pg = self._pg
         pg.event.pump()
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
@@ -122,7 +126,7 @@ class GamepadDevice(InputDevice):
             self._axis(pg.CONTROLLER_AXIS_TRIGGERLEFT)
         g = self.grippers[self.active] - self.gripper_speed * squeeze * dt
         self.grippers[self.active] = min(self.gripper_max, max(0.0, g))
-        arms = {}
+        arms: dict[str, ArmReading] = {}
         for m in self.mtms:
             if m == self.active:
                 arms[m] = ArmReading(twist=(v, w), gripper=self.grippers[m])
@@ -132,7 +136,7 @@ class GamepadDevice(InputDevice):
                   'camera': bool(button(pg.CONTROLLER_BUTTON_Y))}
         return Reading(arms=arms, pedals=pedals)
 
-    def close(self):
+    def close(self) -> None:
         self.pad.quit()
 
 
@@ -144,7 +148,7 @@ class VirtualController:
     a virtual joystick of the game-controller type gets SDL's standard mapping.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         pg, ctl = _pygame()
         libs = glob.glob(os.path.join(os.path.dirname(pg.__file__), '..', 'pygame.libs',
                                       'libSDL2-2*'))
@@ -165,20 +169,20 @@ class VirtualController:
         self._pg = pg
         pg.event.pump()
 
-    def set_axis(self, axis, value):
+    def set_axis(self, axis: int, value: float) -> None:
         """Set a stick axis to ``value`` in [-1, 1]."""
         raw = int(max(-32768, min(32767, round(value * AXIS_MAX))))
         self._sdl.SDL_JoystickSetVirtualAxis(self._joystick, axis, raw)
 
-    def set_trigger(self, axis, value):
+    def set_trigger(self, axis: int, value: float) -> None:
         """Pull a trigger axis by ``value`` in [0, 1] (SDL maps the raw range onto it)."""
         raw = int(max(-32768, min(32767, round(-32768 + value * 65535))))
         self._sdl.SDL_JoystickSetVirtualAxis(self._joystick, axis, raw)
 
-    def set_button(self, button, pressed):
+    def set_button(self, button: int, pressed: bool) -> None:
         """Press or release a button."""
         self._sdl.SDL_JoystickSetVirtualButton(self._joystick, button, 1 if pressed else 0)
 
-    def close(self):
+    def close(self) -> None:
         self._sdl.SDL_JoystickClose(self._joystick)
         self._sdl.SDL_JoystickDetachVirtual(self.index)
