@@ -22,9 +22,11 @@ change, as a physical MTM's motors do:
 Poses are 4x4 matrices ``T_F_x``; velocities ``(v, w)`` in m/s and rad/s, in frame F.
 """
 
+from collections.abc import Iterable
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import (
     matrix_from_quaternion,
     quaternion_from_matrix,
@@ -37,7 +39,7 @@ STATES = ('DISABLED', 'ENABLED')
 DISPLAY_FRAME = 'HRSV'
 
 
-def deadband(values, threshold):
+def deadband(values: Iterable[float], threshold: float) -> np.ndarray:
     """
     Return ``values`` with every component below ``threshold`` in magnitude set to 0.
 
@@ -53,14 +55,14 @@ def deadband(values, threshold):
     """
     if not 0.0 <= threshold < 1.0:
         raise ValueError(f'deadband threshold must be in [0, 1), got {threshold}')
-    out = []
+    out: list[float] = []
     for x in values:
         a = abs(float(x))
         out.append(0.0 if a <= threshold else math.copysign((a - threshold) / (1 - threshold), x))
     return np.array(out)
 
 
-def rotation_from_rotvec(r):
+def rotation_from_rotvec(r: ArrayLike) -> np.ndarray:
     """Return the 3x3 rotation of a rotation vector ``r`` (rad), Rodrigues' formula."""
     r = np.asarray(r, dtype=float)
     angle = float(np.linalg.norm(r))
@@ -71,7 +73,7 @@ def rotation_from_rotvec(r):
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 
-def integrate_twist(T, v, w, dt):
+def integrate_twist(T: ArrayLike, v: ArrayLike, w: ArrayLike, dt: float) -> np.ndarray:
     """
     Move the pose ``T`` (4x4, frame F) by the velocity ``(v, w)`` (frame F) for ``dt`` s.
 
@@ -99,7 +101,8 @@ class VirtualMtm:
 
     """
 
-    def __init__(self, name, T_F_dev=None, move_duration=0.5):
+    def __init__(self, name: str, T_F_dev: ArrayLike | None = None,
+                 move_duration: float = 0.5) -> None:
         self.name = name
         self.move_duration = float(move_duration)
         self.device = np.eye(4) if T_F_dev is None else np.array(T_F_dev, dtype=float)
@@ -108,14 +111,14 @@ class VirtualMtm:
         self.is_homed = False
         self._p_offset = np.zeros(3)
         self._R_offset = np.eye(3)        # measured R = R_dev @ R_offset
-        self._locked = None               # locked orientation (3x3) or None
-        self._move = None                 # (t0, T_start, T_goal)
+        self._locked: np.ndarray | None = None  # locked orientation (3x3) or None
+        self._move: tuple[float, np.ndarray, np.ndarray] | None = None  # (t0, T_start, T_goal)
         self.gravity_compensation = False
         self.moves = 0
 
     # --- operating state -------------------------------------------------------------------
 
-    def state_command(self, command):
+    def state_command(self, command: str) -> str | None:
         """
         Apply a CRTK ``state_command``; return a warning (str) if it is not valid now.
 
@@ -136,34 +139,34 @@ class VirtualMtm:
             return f'{self.name}: unknown state_command {command!r}'
         return None
 
-    def is_busy(self, t):
+    def is_busy(self, t: float) -> bool:
         """Whether a ``move_cp`` is under way at ``t``."""
         return self._move is not None and t - self._move[0] < self.move_duration
 
     # --- the device ------------------------------------------------------------------------
 
-    def set_device_pose(self, T_F_dev):
+    def set_device_pose(self, T_F_dev: ArrayLike) -> None:
         """Set the device's absolute pose (4x4, frame F)."""
         self.device = np.array(T_F_dev, dtype=float)
 
-    def apply_twist(self, v, w, dt):
+    def apply_twist(self, v: ArrayLike, w: ArrayLike, dt: float) -> None:
         """Integrate a device velocity ``(v, w)`` (m/s, rad/s, frame F) over ``dt`` s."""
         self.device = integrate_twist(self.device, v, w, dt)
 
-    def set_gripper(self, angle):
+    def set_gripper(self, angle: float) -> None:
         """Set the gripper opening angle (rad)."""
         self.gripper = float(angle)
 
     # --- MTM commands ----------------------------------------------------------------------
 
-    def _held(self):
+    def _held(self) -> np.ndarray:
         T = np.eye(4)
         T[:3, 3] = self.device[:3, 3] + self._p_offset
         T[:3, :3] = self._locked if self._locked is not None \
             else self.device[:3, :3] @ self._R_offset
         return T
 
-    def measured_cp(self, t):
+    def measured_cp(self, t: float) -> np.ndarray:
         """Return the MTM's pose (4x4, frame F) at ``t``; ends a finished ``move_cp``."""
         if self._move is not None:
             t0, T0, T1 = self._move
@@ -181,7 +184,7 @@ class VirtualMtm:
             self._hold_at(T1)
         return self._held()
 
-    def _hold_at(self, T_goal):
+    def _hold_at(self, T_goal: np.ndarray) -> None:
         """Make the measured pose ``T_goal`` with the device where it is."""
         self._p_offset = T_goal[:3, 3] - self.device[:3, 3]
         if self._locked is not None:
@@ -189,13 +192,13 @@ class VirtualMtm:
         else:
             self._R_offset = self.device[:3, :3].T @ T_goal[:3, :3]
 
-    def move_cp(self, T_goal, t):
+    def move_cp(self, T_goal: ArrayLike, t: float) -> None:
         """Start a move to ``T_goal`` (4x4, frame F) at ``t``; the MTM is busy meanwhile."""
         T_goal = np.array(T_goal, dtype=float)
         self._move = (t, self.measured_cp(t), T_goal)
         self.moves += 1
 
-    def lock_orientation(self, R, t):
+    def lock_orientation(self, R: ArrayLike, t: float) -> None:
         """Keep the orientation at ``R`` (3x3, frame F)."""
         self.measured_cp(t)               # ends a move that has finished
         self._locked = np.array(R, dtype=float)
@@ -205,7 +208,7 @@ class VirtualMtm:
             T1[:3, :3] = self._locked
             self._move = (t0, T0, T1)
 
-    def unlock_orientation(self, t):
+    def unlock_orientation(self, t: float) -> None:
         """Let the orientation follow the hand again, from where it is."""
         if self._locked is None:
             return
@@ -213,7 +216,7 @@ class VirtualMtm:
         self._locked = None
         self._R_offset = self.device[:3, :3].T @ R
 
-    def release_clutch(self, t):
+    def release_clutch(self, t: float) -> None:
         """
         Let the wrist follow the hand again, without a jump: the operator let go of the clutch.
 
