@@ -89,6 +89,7 @@ ANNOTATED = ('sim_bridge/common',
              'suture_lfd/teleop/devices/spacemouse.py',
              'suture_lfd/teleop/devices/gamepad.py',
              'suture_lfd/teleop/virtual_mtm.py',
+             'suture_lfd/teleop/mapping.py',
              'suture_lfd/cli.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.validation import check_positive
 
 DEG = math.pi / 180.0
@@ -69,7 +70,7 @@ class GripperToJaw:
     jaw_rate_back_from_clutch: float = 0.05 * math.pi
     tolerance_back_from_clutch: float = 2.0 * DEG
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.gripper_max > self.gripper_zero:
             raise ValueError(f'gripper_max ({self.gripper_max}) must be > gripper_zero '
                              f'({self.gripper_zero})')
@@ -79,16 +80,16 @@ class GripperToJaw:
             check_positive(getattr(self, name), name)
 
     @property
-    def scale(self):
+    def scale(self) -> float:
         """Jaw radians per gripper radian."""
         return (self.jaw_max - self.jaw_at_gripper_zero) / (self.gripper_max - self.gripper_zero)
 
-    def jaw_from_gripper(self, gripper):
+    def jaw_from_gripper(self, gripper: float) -> float:
         """Return the jaw angle (rad) of a gripper angle (rad), within the jaw limits."""
         jaw = self.jaw_at_gripper_zero + (gripper - self.gripper_zero) * self.scale
         return min(self.jaw_max, max(self.jaw_min, jaw))
 
-    def gripper_from_jaw(self, jaw):
+    def gripper_from_jaw(self, jaw: float) -> float:
         """Return the gripper angle (rad) that maps to a jaw angle (rad)."""
         return self.gripper_zero + (jaw - self.jaw_at_gripper_zero) / self.scale
 
@@ -103,17 +104,17 @@ class JawRamp:
 
     """
 
-    def __init__(self, mapping):
+    def __init__(self, mapping: GripperToJaw) -> None:
         self.mapping = mapping
-        self.ghost = None
+        self.ghost: float | None = None
         self.caught_up = True
 
-    def start(self, jaw, back_from_clutch=False):
+    def start(self, jaw: float, back_from_clutch: bool = False) -> None:
         """Start from the PSM's jaw setpoint ``jaw`` (rad), slowly if back from a clutch."""
         self.ghost = self.mapping.gripper_from_jaw(jaw)
         self.caught_up = not back_from_clutch
 
-    def step(self, gripper, dt):
+    def step(self, gripper: float, dt: float) -> float:
         """
         Move the ghost towards ``gripper`` (rad) for ``dt`` s; return the jaw goal (rad).
 
@@ -141,7 +142,7 @@ class JawRamp:
         return jaw
 
 
-def rotation_angle(R):
+def rotation_angle(R: np.ndarray) -> float:
     """Return the angle (rad, in [0, pi]) of a 3x3 rotation matrix."""
     c = (R[0][0] + R[1][1] + R[2][2] - 1.0) * 0.5
     return math.acos(max(-1.0, min(1.0, c)))
@@ -160,25 +161,30 @@ class CartesianMap:
 
     """
 
-    def __init__(self, scale=0.2, rotation_locked=False, translation_locked=False):
+    def __init__(self, scale: float = 0.2, rotation_locked: bool = False,
+                 translation_locked: bool = False) -> None:
         check_positive(scale, 'scale')
         self.scale = float(scale)
         self.rotation_locked = rotation_locked
         self.translation_locked = translation_locked
-        self._A = None
-        self._p_mtm0 = self._p_psm0 = self._R_psm0 = self._offset = None
+        self._A: np.ndarray | None = None
+        self._p_mtm0: np.ndarray | None = None
+        self._p_psm0: np.ndarray | None = None
+        self._R_psm0: np.ndarray | None = None
+        self._offset: np.ndarray | None = None
 
     @property
-    def anchored(self):
+    def anchored(self) -> bool:
         """Whether :meth:`anchor` was called."""
         return self._A is not None
 
     @staticmethod
-    def mtm_to_psm(R_C_M, R_C_P):
+    def mtm_to_psm(R_C_M: ArrayLike, R_C_P: ArrayLike) -> np.ndarray:
         """Return ``A = R_C_P^T R_C_M``, MTM-frame vectors in the PSM frame, shape (3, 3)."""
         return np.asarray(R_C_P, dtype=float).T @ np.asarray(R_C_M, dtype=float)
 
-    def anchor(self, T_M_mtm, T_P_psm, R_C_M, R_C_P):
+    def anchor(self, T_M_mtm: ArrayLike, T_P_psm: ArrayLike, R_C_M: ArrayLike,
+               R_C_P: ArrayLike) -> None:
         """
         Anchor the map: the MTM at ``T_M_mtm`` maps to the PSM at ``T_P_psm`` (4x4 each).
 
@@ -200,7 +206,7 @@ class CartesianMap:
         self._R_psm0 = T_P_psm[:3, :3].copy()
         self._offset = (self._A @ T_M_mtm[:3, :3]).T @ self._R_psm0
 
-    def goal(self, T_M_mtm):
+    def goal(self, T_M_mtm: ArrayLike) -> np.ndarray:
         """
         Return the PSM goal (4x4, frame P) of an MTM pose (4x4, frame M).
 
@@ -212,6 +218,9 @@ class CartesianMap:
         """
         if self._A is None:
             raise RuntimeError('CartesianMap.goal before anchor')
+        # set with _A by anchor()
+        assert self._p_mtm0 is not None and self._p_psm0 is not None
+        assert self._R_psm0 is not None and self._offset is not None
         T_M_mtm = np.asarray(T_M_mtm, dtype=float)
         T = np.eye(4)
         if self.translation_locked:
@@ -225,12 +234,14 @@ class CartesianMap:
         return T
 
     @staticmethod
-    def aligned_mtm_rotation(R_P_psm, R_C_M, R_C_P):
+    def aligned_mtm_rotation(R_P_psm: ArrayLike, R_C_M: ArrayLike,
+                             R_C_P: ArrayLike) -> np.ndarray:
         """Return the MTM orientation (frame M, 3x3) that is aligned with the PSM's."""
         return CartesianMap.mtm_to_psm(R_C_M, R_C_P).T @ np.asarray(R_P_psm, dtype=float)
 
     @staticmethod
-    def alignment_error(R_M_mtm, R_P_psm, R_C_M, R_C_P):
+    def alignment_error(R_M_mtm: ArrayLike, R_P_psm: ArrayLike, R_C_M: ArrayLike,
+                        R_C_P: ArrayLike) -> float:
         """Return the angle (rad) between the MTM's and the PSM's orientations, seen in C."""
         A = CartesianMap.mtm_to_psm(R_C_M, R_C_P)
         return rotation_angle((A @ np.asarray(R_M_mtm, dtype=float)).T
