@@ -113,7 +113,7 @@ class TeleopConfig:
     command_retry: float = 10.0
     align_period: float = 10.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('rate', 'idle_rate', 'scale', 'command_retry', 'align_period'):
             check_positive(getattr(self, name), f'parameter {name}')
         for name in ('orientation_tolerance', 'start_gripper_threshold', 'start_roll_threshold'):
@@ -127,7 +127,7 @@ class TeleopConfig:
                              f'got {list(self.mtm_rotation)}')
         self.gripper_to_jaw()   # checks the jaw parameters
 
-    def gripper_to_jaw(self):
+    def gripper_to_jaw(self) -> GripperToJaw:
         """Return the :class:`GripperToJaw` of these parameters."""
         return GripperToJaw(
             gripper_zero=self.gripper_zero, gripper_max=self.gripper_max, jaw_min=self.jaw_min,
@@ -144,12 +144,12 @@ class ArmState(NamedTuple):
     is_busy: bool
 
     @property
-    def ready(self):
+    def ready(self) -> bool:
         """ENABLED, homed and not busy (the CRTK "ready")."""
         return self.state == 'ENABLED' and self.is_homed and not self.is_busy
 
     @property
-    def operational(self):
+    def operational(self) -> bool:
         """ENABLED and homed (a move of its own may be under way)."""
         return self.state == 'ENABLED' and self.is_homed
 
@@ -215,7 +215,7 @@ class Teleoperation:
 
     """
 
-    def __init__(self, config):
+    def __init__(self, config: TeleopConfig) -> None:
         self.config = config
         self.map = CartesianMap(config.scale, config.rotation_locked,
                                 config.translation_locked)
@@ -225,24 +225,24 @@ class Teleoperation:
         self.operator_active = False
         self._back_from_clutch = False
         self._active_before_clutch = False
-        self._sent = {}                 # (arm, command) -> time sent
+        self._sent: dict[tuple[str, str], float] = {}  # (arm, command) -> time sent
         self._last_align = -math.inf
-        self._range = None              # [gripper min, max, roll min, max] since aligning
+        self._range: list[float] | None = None  # [gripper min, max, roll min, max] since aligning
         self._present = False
-        self._t = None
-        self.transitions = []           # (t, state) history, for logs and tests
+        self._t: float | None = None
+        self.transitions: list[tuple[float, str]] = []  # (t, state) history, for logs and tests
 
     # --- helpers --------------------------------------------------------------------------
 
-    def _enter(self, t, state):
+    def _enter(self, t: float, state: str) -> None:
         self.state = state
         self.transitions.append((t, state))
 
-    def _ready_inputs(self, inp):
+    def _ready_inputs(self, inp: TeleopInputs) -> bool:
         return (inp.mtm_cp is not None and inp.psm_cp is not None and inp.R_C_M is not None
                 and inp.R_C_P is not None)
 
-    def _arm_commands(self, inp, out):
+    def _arm_commands(self, inp: TeleopInputs, out: list[Command]) -> bool:
         """Send enable/home to arms that need it; return whether both are ready."""
         ready = True
         for arm, st in (('psm', inp.psm_state), ('mtm', inp.mtm_state)):
@@ -263,7 +263,7 @@ class Teleoperation:
                 out.append(Command('state_command', arm, command))
         return ready
 
-    def _track_activity(self, inp):
+    def _track_activity(self, inp: TeleopInputs) -> None:
         """Watch gripper and roll for the operator's "I am here" gesture."""
         cfg = self.config
         if self.operator_active:
@@ -285,14 +285,14 @@ class Teleoperation:
                 grip + turn > 0.8 * (cfg.start_gripper_threshold + cfg.start_roll_threshold):
             self.operator_active = True
 
-    def _enter_aligning(self, t):
+    def _enter_aligning(self, t: float) -> None:
         self._enter(t, ALIGNING)
         self._last_align = -math.inf
         self._range = None
         if self._back_from_clutch:
             self.operator_active = self._active_before_clutch
 
-    def _start_following(self, inp, out):
+    def _start_following(self, inp: TeleopInputs, out: list[Command]) -> None:
         cfg = self.config
         self.map.anchor(inp.mtm_cp, inp.psm_cp, inp.R_C_M, inp.R_C_P)
         if not cfg.ignore_jaw:
@@ -307,7 +307,7 @@ class Teleoperation:
             out.append(Command('unlock_orientation', 'mtm'))
         self._enter(inp.t, FOLLOWING)
 
-    def _clutch_in(self, inp, out):
+    def _clutch_in(self, inp: TeleopInputs, out: list[Command]) -> None:
         self._active_before_clutch = self.operator_active
         if self.config.align_mtm or self.config.rotation_locked:
             out.append(Command('lock_orientation', 'mtm', inp.mtm_cp[:3, :3].copy()))
@@ -318,7 +318,7 @@ class Teleoperation:
 
     # --- the cycle ------------------------------------------------------------------------
 
-    def set_enabled(self, enabled, t):
+    def set_enabled(self, enabled: bool, t: float) -> None:
         """Enable or disable the teleoperation (the dVRK teleop's ``state_command``)."""
         self.enabled = bool(enabled)
         if not self.enabled and self.state != DISABLED:
@@ -326,7 +326,7 @@ class Teleoperation:
         elif self.enabled and self.state == DISABLED:
             self._enter(t, SETTING_ARMS)
 
-    def step(self, inp):
+    def step(self, inp: TeleopInputs) -> list[Command]:
         """
         Run one cycle on ``inp`` (:class:`TeleopInputs`); return the commands, in order.
 
@@ -336,7 +336,7 @@ class Teleoperation:
 
         """
         cfg = self.config
-        out = []
+        out: list[Command] = []
         dt = 0.0 if self._t is None else max(0.0, inp.t - self._t)
         self._t = inp.t
         present = inp.operator_present
