@@ -23,10 +23,13 @@ Size: the executor's controller and the in-process throw it runs share one plan 
 it is on the per-throw path being made faster, so it stays one file.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import matrix_from_quaternion, pose_from_transform
 from sim_bridge.common.vocabulary import SUBTASKS, TASKS
 from sim_bridge.control import ExpertConfig
@@ -41,6 +44,14 @@ from suture_lfd.planning.waypoints import RigidPath, rotation_exp, rotation_log
 from suture_lfd.skill import PairGeometry, ThrowSkill
 from suture_lfd.skill.arm_registration import CorrectedController, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
+
+if TYPE_CHECKING:
+    from sim_bridge.common.needle import NeedleGeometry
+    from sim_bridge.control import Command, Observation
+    from sim_bridge.scene.markers import MarkerPair
+    from sim_bridge.simulation import Simulation
+    from suture_lfd.planning.plan import Plan
+    from suture_lfd.skill.arm_registration import KinematicCorrection
 
 __all__ = ['ExecutorConfig', 'ThrowExecutor', 'ThrowOutcome', 'execute_throw']
 
@@ -118,7 +129,7 @@ class SampledPath:
 
     """
 
-    def __init__(self, poses):
+    def __init__(self, poses: ArrayLike) -> None:
         poses = np.asarray(poses, dtype=float)
         if poses.ndim != 3 or poses.shape[0] < 2 or poses.shape[1:] != (4, 4):
             raise ValueError(f'a sampled path needs (n >= 2, 4, 4) poses, got {poses.shape}')
@@ -129,31 +140,31 @@ class SampledPath:
                             for k in range(len(poses) - 1)])
 
     @property
-    def A(self):  # noqa: N802 (pose names follow the project's T_a_b style)
+    def A(self) -> np.ndarray:  # noqa: N802 (pose names follow the project's T_a_b style)
         """First pose (4, 4)."""
         return self.poses[0].copy()
 
     @property
-    def B(self):  # noqa: N802
+    def B(self) -> np.ndarray:  # noqa: N802
         """Last pose (4, 4)."""
         return self.poses[-1].copy()
 
     @property
-    def angle(self):
+    def angle(self) -> float:
         """Summed rotation angle (rad)."""
         return float(np.linalg.norm(self._w, axis=1).sum())
 
     @property
-    def distance(self):
+    def distance(self) -> float:
         """Path length of the needle origin (m)."""
         return float(np.linalg.norm(np.diff(self._p, axis=0), axis=1).sum())
 
-    def pieces(self, n):
+    def pieces(self, n: int) -> list['_SubPath']:
         """Split into ``n`` consecutive paths (callables of ``sigma`` in [0, 1])."""
         edges = np.linspace(0.0, 1.0, n + 1)
         return [_SubPath(self, a, b) for a, b in zip(edges[:-1], edges[1:])]
 
-    def __call__(self, sigma):
+    def __call__(self, sigma: float) -> np.ndarray:
         """Needle pose (4, 4) at path parameter ``sigma`` in [0, 1]."""
         x = min(1.0, max(0.0, float(sigma))) * (len(self.poses) - 1)
         k = min(int(x), len(self.poses) - 2)
@@ -167,17 +178,17 @@ class SampledPath:
 class _SubPath:
     """The part ``[a, b]`` of a path, re-parametrised to [0, 1]."""
 
-    def __init__(self, path, a, b):
+    def __init__(self, path: SampledPath, a: float, b: float) -> None:
         self.path, self.a, self.b = path, float(a), float(b)
 
-    def __call__(self, sigma):
+    def __call__(self, sigma: float) -> np.ndarray:
         return self.path(self.a + sigma * (self.b - self.a))
 
 
 DmpMove = TimedNeedleMove  # a segment of a plan that follows a DMP rollout
 
 
-def _transforms(P, Q):
+def _transforms(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     T = np.zeros((len(P), 4, 4))
     T[:, :3, :3] = matrix_from_quaternion(Q)
     T[:, :3, 3] = P
@@ -185,7 +196,7 @@ def _transforms(P, Q):
     return T
 
 
-def _emerged_s(needle, N, pair):
+def _emerged_s(needle: 'NeedleGeometry', N: np.ndarray, pair: 'MarkerPair') -> float | None:
     """Smallest arc parameter of the tip part beyond the exit (outside the tissue), or None."""
     s = np.linspace(0.0, 1.0, 61)
     pts = needle.point_at(s) @ N[:3, :3].T + N[:3, 3]
@@ -236,8 +247,10 @@ class ThrowExecutor:
 
     """
 
-    def __init__(self, skill, pair, needle_geometry, kinematics=None, config=None,
-                 next_pair=None, look=None):
+    def __init__(self, skill: ThrowSkill, pair: Any, needle_geometry: 'NeedleGeometry',
+                 kinematics: Any = None, config: 'ExecutorConfig | None' = None,
+                 next_pair: 'MarkerPair | None' = None,
+                 look: 'Callable[[str, Observation], np.ndarray | None] | None' = None) -> None:
         self.executor_config = ExecutorConfig() if config is None else config
         self.config = self.executor_config.script
         if not isinstance(skill, ThrowSkill):
@@ -248,16 +261,16 @@ class ThrowExecutor:
         self.next_pair = next_pair
         self.grasps = GraspPlanner(pair, needle_geometry, self.config, kinematics)
         self.kinematics = self.grasps.kinematics
-        self.rollouts = {}
-        self.targets = {}
-        self.plan_ = None
-        self.follower = None
+        self.rollouts: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.targets: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.plan_: 'Plan | None' = None
+        self.follower: PlanFollower | None = None
         self.look = look
-        self._above = None
-        self._checks = []
+        self._above: np.ndarray | None = None
+        self._checks: list[tuple[float, str]] = []
 
     # ------------------------------------------------------------------ planning
-    def rollout_paths(self):
+    def rollout_paths(self) -> ThrowPaths:
         """
         Roll the skill's DMPs out on the target pair and return the throw's needle paths.
 
@@ -341,7 +354,7 @@ class ThrowExecutor:
             extract_s=s_1, extract_span=(lo_1, _TIP_MARGIN_S), handover_gap=_JAW_GAP_S,
             handover_fallback=True)
 
-    def plan(self, obs):
+    def plan(self, obs: 'Observation') -> 'Plan':
         """
         Plan the whole throw from an observation (DMP rollouts included).
 
@@ -365,7 +378,7 @@ class ThrowExecutor:
         return plan_throw(obs, self.grasps, ThrowArc(self.pair, self.needle), paths, self.config)
 
     # ------------------------------------------------------------------ control
-    def reset(self, obs):
+    def reset(self, obs: 'Observation') -> None:
         """
         Plan the throw from ``obs``; its clock starts at the next :meth:`step`.
 
@@ -374,11 +387,12 @@ class ThrowExecutor:
         """
         self.plan_ = self.plan(obs)
         self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
-        self._sent = {}
+        self._sent: dict[str, np.ndarray] = {}
         self._checks = [] if self.look is None else self._checkpoints()
 
-    def _checkpoints(self):
+    def _checkpoints(self) -> list[tuple[float, str]]:
         """Plan times (s) and arms at which to look at the held needle: above the insertion."""
+        assert self.plan_ is not None and self._above is not None  # set by plan()
         for seg in self.plan_.segments['PSM2']:
             if seg.carries_needle and seg.t0 > 0.0 \
                     and np.allclose(seg.needle(seg.t0), self._above, atol=1e-9):
@@ -386,11 +400,11 @@ class ThrowExecutor:
         return []
 
     @property
-    def done(self):
+    def done(self) -> bool:
         """Whether the plan has run to its end."""
         return self.follower is not None and self.follower.done
 
-    def step(self, obs):
+    def step(self, obs: 'Observation') -> 'Command':
         """
         Command for the observation (phase stopping during the DMP subtasks).
 
@@ -406,6 +420,7 @@ class ThrowExecutor:
         """
         if self.plan_ is None:
             self.reset(obs)
+        assert self.follower is not None and self.plan_ is not None  # set by reset()
         follower = self.follower
         if follower.t0 is None:
             follower.t0 = self._last_t = float(obs.t)
@@ -428,6 +443,7 @@ class ThrowExecutor:
                     follower.offset += dt * (1.0 - 1.0 / slow)
         if self._checks and follower.tau(obs.t) >= self._checks[0][0]:
             _, arm = self._checks.pop(0)
+            assert self.look is not None  # checkpoints are set only with look
             grasp = self.look(arm, obs) if arm in obs.holders else None
             if grasp is not None:
                 follower.set_grasp(arm, grasp)
@@ -499,14 +515,14 @@ class ThrowOutcome:
 class _Recorder:
     """Wraps a controller and records the needle pose per subtask label."""
 
-    def __init__(self, controller, observer=None):
+    def __init__(self, controller: Any, observer: Callable[[], object] | None = None) -> None:
         self.controller = controller
         self.observer = observer
-        self.t0 = None
-        self.samples = {}
-        self.spans = {}
+        self.t0: float | None = None
+        self.samples: dict[str, list[tuple[float, np.ndarray]]] = {}
+        self.spans: dict[str, tuple[float, float]] = {}
 
-    def step(self, obs):
+    def step(self, obs: 'Observation') -> 'Command':
         cmd = self.controller.step(obs)
         if self.observer is not None:
             self.observer()
@@ -520,7 +536,7 @@ class _Recorder:
             self.samples.setdefault(label, []).append((t, np.asarray(obs.T_world_needle)))
         return cmd
 
-    def executed(self):
+    def executed(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         out = {}
         for label, rows in self.samples.items():
             t0 = self.spans[label][0]
@@ -530,7 +546,7 @@ class _Recorder:
         return out
 
 
-def _event_dict(ev):
+def _event_dict(ev: Any) -> dict[str, Any]:
     data = {}
     for key, value in ev.data.items():
         if isinstance(value, np.ndarray):
@@ -542,8 +558,11 @@ def _event_dict(ev):
     return {'t': float(ev.t), 'kind': ev.kind, **data}
 
 
-def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, control_period=0.01,
-                  next_pair=None, observer=None, physical=False, correction=True):
+def execute_throw(sim: 'Simulation', skill: ThrowSkill, pair_name: str, seed: int = 0,
+                  timeout: float = 60.0, config: 'ExecutorConfig | None' = None,
+                  control_period: float = 0.01, next_pair: str | None = None,
+                  observer: Callable[[], object] | None = None, physical: bool = False,
+                  correction: bool = True) -> 'ThrowOutcome':
     """
     Execute one throw of a skill on a marker pair of an in-process simulation.
 
@@ -615,7 +634,8 @@ def execute_throw(sim, skill, pair_name, seed=0, timeout=60.0, config=None, cont
                     observer)
 
 
-def _not_executed(pair_name, failure, executor=None):
+def _not_executed(pair_name: str, failure: str,
+                  executor: ThrowExecutor | None = None) -> 'ThrowOutcome':
     """Outcome of a throw that could not start (score 0, the reason kept)."""
     return ThrowOutcome(pair=pair_name, score=0.0, subtasks=dict.fromkeys(SUBTASKS, False),
                         duration=0.0, failure=failure, entry_error_mm=math.nan,
@@ -625,8 +645,11 @@ def _not_executed(pair_name, failure, executor=None):
                         subtask_times={}, events=[], score_detail=None)
 
 
-def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config, control_period,
-                             next_pair, observer, kinematic):
+def _execute_on_what_is_seen(sim: 'Simulation', skill: ThrowSkill, pair_name: str,
+                             perception: PerceivedScene, timeout: float,
+                             config: 'ExecutorConfig | None', control_period: float,
+                             next_pair: str | None, observer: Callable[[], object] | None,
+                             kinematic: 'KinematicCorrection | None') -> 'ThrowOutcome':
     """Check that the markers and the needle are seen, then execute on the perceived pair."""
     seen = perception.markers(sim)
     if seen is None:
@@ -638,8 +661,12 @@ def _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
                     physical=True)
 
 
-def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair, observer,
-             kinematic=None, perception=None, physical=False):
+def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'MarkerPair',
+             timeout: float, config: 'ExecutorConfig | None', control_period: float,
+             next_pair: str | None, observer: Callable[[], object] | None,
+             kinematic: 'KinematicCorrection | None' = None,
+             perception: PerceivedScene | None = None,
+             physical: bool = False) -> 'ThrowOutcome':
     """Execute a throw on ``pair`` (as the controller sees it) from the started episode."""
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
@@ -648,7 +675,7 @@ def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     look = None
     if perception is not None:
-        def look(arm, obs):
+        def look(arm: str, obs: 'Observation') -> np.ndarray | None:
             return perception.look_at_grasp(sim, arm, obs.T_world_tool)
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
                              config=config, next_pair=nxt, look=look)
@@ -676,6 +703,6 @@ def _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_
                         score_detail=result)
 
 
-def replace_script(config, **changes):
+def replace_script(config: 'ExecutorConfig', **changes: Any) -> 'ExecutorConfig':
     """Return ``config`` (ExecutorConfig) with its script settings changed."""
     return replace(config, script=replace(config.script, **changes))

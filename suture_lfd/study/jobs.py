@@ -67,7 +67,7 @@ from suture_lfd.skill.arm_registration import (
     load_registration,
     save_registration,
 )
-from suture_lfd.skill.executor import execute_throw
+from suture_lfd.skill.executor import ThrowOutcome, execute_throw
 from suture_lfd.study.digest import code_digest
 from suture_lfd.study.held_out import phantom_config
 from suture_lfd.study.metrics import orientation_trajectory_error, trajectory_error
@@ -79,7 +79,7 @@ from suture_lfd.study.records import (
     ThrowRecord,
     to_json,
 )
-from suture_lfd.study.ros import RosSettings, RosThrows
+from suture_lfd.study.ros import RosOutcome, RosSettings, RosThrows
 from suture_lfd.study.teleoperated import TeleoperatedRobot
 from suture_lfd.viewer.throw_replay import ThrowSampler, replay_name
 
@@ -588,6 +588,7 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
     # what the viewer needs to replay the throw (suture-lfd view STUDY --throw ROW)
     name = replay_name(to_json(job))
     replay: str | None = name
+    outcome: ThrowOutcome | RosOutcome
     if physical is not None:
         sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
         sampler = ThrowSampler(sim)
