@@ -57,6 +57,16 @@ def test_the_physical_study_leaves_the_ground_truth_results_unchanged(studies):
         assert r['error'] == '', r['error']
 
 
+def test_the_physical_study_keeps_one_registration_per_robot(studies):
+    _, both, _ = studies
+    # one robot at level 3 (one subject, one phantom), registered for its corrected throw;
+    # level 0 is perfect kinematics (nothing to register); no claim left behind
+    files = sorted(p.name for p in (both / 'physical' / 'registrations').iterdir())
+    assert len(files) == 1 and files[0].startswith('synthetic_0.01s_3mm_'), files
+    saved = json.loads((both / 'physical' / 'registrations' / files[0]).read_text())
+    assert saved['key']['error_level'] == 3.0 and saved['arms'], saved
+
+
 def test_the_physical_study_reports_its_tables_beside_ground_truth_and_the_curve(studies):
     _, both, result = studies
     assert 'physical mode (4 variants): 2 demonstrations + 4 throws' in result.stderr
