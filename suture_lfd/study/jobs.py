@@ -465,6 +465,10 @@ def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
         link = None
     else:
         sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
+        if float(physical.error_level) != 0.0:
+            # registered before anything is recorded, as in a lab (once per study)
+            _registered(state, (job.phantom, float(s.demo_physics_step),
+                                float(physical.error_level), int(physical.error_seed)), sim)
         link = TeleoperatedRobot(sim, job.pair)
     run = run_demonstration(sim, subject, job.pair, seed=job.seed,
                             sample_rate=s.sample_rate, command_rate=s.command_rate,
