@@ -41,6 +41,7 @@ import multiprocessing
 import os
 from pathlib import Path
 import shutil
+import time
 from typing import Any
 
 import numpy as np
@@ -65,6 +66,7 @@ from suture_lfd.skill import ThrowSkill, learn_skill, training_data
 from suture_lfd.skill.arm_registration import (
     known_registration,
     load_registration,
+    register_arms,
     save_registration,
 )
 from suture_lfd.skill.executor import ThrowOutcome, execute_throw
@@ -331,6 +333,52 @@ def _save_registrations(state: WorkerState) -> None:
             state.registered.add(key)
 
 
+#: Age (s) after which another process's claim to register a robot is taken as abandoned.
+REGISTRATION_WAIT = 120.0
+
+
+def _registered(state: WorkerState, key: tuple[str, float, float, int], sim: Simulation
+                ) -> None:
+    """
+    Make sure the robot ``key`` (``sim``) has its registration, run once per study.
+
+    The study folder's file is loaded when there is one; otherwise the first process to claim
+    the robot (a ``.claim`` file beside the registration's) registers it and saves it, and the
+    others wait for its file instead of registering the robot again.
+    """
+    if known_registration(sim) is not None:
+        return
+    path = _registration_path(state, key)
+    expected = _registration_key(state, key)
+    claim = path.with_name(path.name + '.claim')
+    claim.parent.mkdir(parents=True, exist_ok=True)
+    while load_registration(path, sim, expected) is None:
+        try:
+            os.close(os.open(claim, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            try:
+                abandoned = time.time() - claim.stat().st_mtime > REGISTRATION_WAIT
+            except FileNotFoundError:
+                continue  # just released: its file is there, or the claim is free
+            if not abandoned:
+                time.sleep(0.1)
+                continue
+            _LOG.warning('%s: claimed for over %.0f s and not written; registering here',
+                         path, REGISTRATION_WAIT)
+        else:
+            try:
+                if load_registration(path, sim, expected) is None:
+                    register_arms(sim)
+                    _save_registrations(state)
+            finally:
+                claim.unlink(missing_ok=True)
+            return
+        register_arms(sim)
+        _save_registrations(state)
+        return
+    state.registered.add(key)
+
+
 def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
            ) -> Simulation:
     """Build the simulation of a robot with the hidden kinematic errors ``physical``."""
@@ -417,6 +465,10 @@ def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
         link = None
     else:
         sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
+        if float(physical.error_level) != 0.0:
+            # registered before anything is recorded, as in a lab (once per study)
+            _registered(state, (job.phantom, float(s.demo_physics_step),
+                                float(physical.error_level), int(physical.error_seed)), sim)
         link = TeleoperatedRobot(sim, job.pair)
     run = run_demonstration(sim, subject, job.pair, seed=job.seed,
                             sample_rate=s.sample_rate, command_rate=s.command_rate,
@@ -591,6 +643,9 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
     outcome: ThrowOutcome | RosOutcome
     if physical is not None:
         sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
+        if physical.correction and float(physical.error_level) != 0.0:
+            _registered(state, (job.test_phantom, float(s.physics_step),
+                                float(physical.error_level), int(physical.error_seed)), sim)
         sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
                                 timeout=s.timeout, control_period=s.control_period,

@@ -5,6 +5,9 @@ endoscope's images; a second simulation of the same robot loads the file instead
 """
 
 import json
+import os
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -106,5 +109,56 @@ def test_a_study_process_with_a_stored_registration_does_not_run_it(registered):
         fresh = jobs._physical_simulation(other, 'synthetic', 0.01,
                                           RobotErrors(error_level=3.0, error_seed=12))
         assert known_registration(fresh) is None
+    finally:
+        other.close()
+
+
+def test_a_process_waits_for_the_registration_another_has_claimed(registered):
+    out, _, _, correction = registered
+    other = jobs.init_worker(jobs.JobSettings(out=str(out)))
+    key = ('synthetic', 0.01, 3.0, 13)
+    try:
+        sim = jobs._physical_simulation(other, 'synthetic', 0.01,
+                                        RobotErrors(error_level=3.0, error_seed=13))
+        path = jobs._registration_path(other, key)
+        claim = path.with_name(path.name + '.claim')
+        claim.write_text('')
+
+        def the_other_process():
+            time.sleep(1.0)
+            save_registration(path, correction, jobs._registration_key(other, key))
+            claim.unlink()
+
+        writer = threading.Thread(target=the_other_process)
+        writer.start()
+        t = sim.time
+        jobs._registered(other, key, sim)
+        writer.join()
+        assert sim.time == t  # waited for the other's file, ran nothing
+        kept = known_registration(sim)
+        for arm, fit in correction.arms.items():
+            assert np.array_equal(kept.arms[arm].joint_offset, fit.joint_offset)
+        assert key in other.registered
+    finally:
+        other.close()
+
+
+def test_an_abandoned_claim_does_not_stop_the_registration(registered):
+    out = registered[0]
+    other = jobs.init_worker(jobs.JobSettings(out=str(out)))
+    key = ('synthetic', 0.01, 3.0, 14)
+    try:
+        sim = jobs._physical_simulation(other, 'synthetic', 0.01,
+                                        RobotErrors(error_level=3.0, error_seed=14))
+        path = jobs._registration_path(other, key)
+        claim = path.with_name(path.name + '.claim')
+        claim.write_text('')
+        old = time.time() - 2 * jobs.REGISTRATION_WAIT
+        os.utime(claim, (old, old))
+        t = sim.time
+        jobs._registered(other, key, sim)
+        assert sim.time > t  # registered here
+        assert known_registration(sim) is not None
+        assert path.is_file() and key in other.registered
     finally:
         other.close()

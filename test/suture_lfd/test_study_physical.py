@@ -57,6 +57,23 @@ def test_the_physical_study_leaves_the_ground_truth_results_unchanged(studies):
         assert r['error'] == '', r['error']
 
 
+def test_the_physical_study_keeps_one_registration_per_robot(studies):
+    _, both, _ = studies
+    # one robot at level 3 (one subject, one phantom), registered once if anything on it used
+    # its registration (a corrected throw that ran: it had a demonstration to learn from);
+    # level 0 is perfect kinematics (nothing to register); no claim left behind
+    corrected = [r for r in records(both) if r['kind'] == 'throw' and r['physical']
+                 and r['physical']['error_level'] == 3.0 and r['physical']['correction']
+                 and r['segments']]
+    folder = both / 'physical' / 'registrations'
+    files = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    assert len(corrected) <= len(files) <= 1, files
+    for name in files:
+        assert name.startswith('synthetic_0.01s_3mm_') and name.endswith('.json'), files
+        saved = json.loads((folder / name).read_text())
+        assert saved['key']['error_level'] == 3.0, saved
+
+
 def test_the_physical_study_reports_its_tables_beside_ground_truth_and_the_curve(studies):
     _, both, result = studies
     assert 'physical mode (4 variants): 2 demonstrations + 4 throws' in result.stderr
