@@ -86,6 +86,7 @@ ANNOTATED = ('sim_bridge/common',
              'suture_lfd/perception/instrument.py',
              'suture_lfd/teleop',
              'suture_lfd/cli.py',
+             'suture_lfd/viewer/page.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',
                  'pipeline', 'reacquire', 'stereo', 'wire_images')))
