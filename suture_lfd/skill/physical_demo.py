@@ -29,11 +29,14 @@ demonstrations (not the other way).
 Frames: ``world`` as the robot believes it; m, rad, s; quaternions (x, y, z, w).
 """
 
+from collections.abc import Sequence
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import (
     invert_transform,
     matrix_from_quaternion,
@@ -41,7 +44,7 @@ from sim_bridge.common.geometry import (
     transform_from_pose,
 )
 from sim_bridge.common.vocabulary import PSMS
-from sim_bridge.control import Observation
+from sim_bridge.control import Command, Observation
 from suture_lfd import bags
 from suture_lfd.demos.demonstration import Demonstration
 from suture_lfd.demos.resampling import resample_quaternions
@@ -54,6 +57,11 @@ from suture_lfd.skill.perceived_feed import (
     normal_quaternion,
     pair_index_from_name,
 )
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
+    from sim_bridge.scene.scoring import ThrowScore
+    from sim_bridge.simulation import Simulation
 
 POSE = 'geometry_msgs/msg/PoseStamped'
 POSES = 'geometry_msgs/msg/PoseArray'
@@ -72,16 +80,16 @@ _LATCHED = bags.make_qos(transient_local=True, depth=1)
 _STATE_QOS = bags.make_qos(depth=100)
 
 
-def is_physical_bag(topics):
+def is_physical_bag(topics: Any) -> bool:
     """Return True for a bag recorded in physical mode (perception outputs, no needle truth)."""
     return '/sim/needle/measured_cp' not in topics and NEEDLE in topics
 
 
-def _seconds(stamp):
+def _seconds(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-def _matrix(pose):
+def _matrix(pose: Any) -> np.ndarray:
     p, o = pose.position, pose.orientation
     return transform_from_pose([p.x, p.y, p.z, o.x, o.y, o.z, o.w])
 
@@ -89,17 +97,22 @@ def _matrix(pose):
 class _Replay:
     """The bag's messages, in the order they came, into the arms' state and a feed."""
 
-    def __init__(self, path, feed):
+    def __init__(self, path: Path, feed: PerceptionFeed) -> None:
         self.path = path
         self.feed = feed
-        self.bases, self.optical = {}, None
-        self.local, self.jaw = {}, {}
-        self._pose = None       # (stamp, T_camera_needle) waiting for its status
-        self._status = None     # (stamp, NeedleStatus) waiting for its pose
-        self._rows = {}
-        self.rows = []          # (t, T_tool1, T_tool2, jaw1, jaw2, needle, holds1, holds2)
+        self.bases: dict[str, np.ndarray] = {}
+        self.optical: np.ndarray | None = None
+        self.local: dict[str, tuple[float, np.ndarray]] = {}
+        self.jaw: dict[str, float] = {}
+        # (stamp, T_camera_needle) waiting for its status
+        self._pose: tuple[float, np.ndarray] | None = None
+        # (stamp, NeedleStatus) waiting for its pose
+        self._status: tuple[float, NeedleStatus] | None = None
+        self._rows: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+        # (t, T_tool1, T_tool2, jaw1, jaw2, needle, holds1, holds2)
+        self.rows: list[tuple[Any, ...]] = []
 
-    def take(self, topic, msg):
+    def take(self, topic: str, msg: Any) -> None:
         if topic == '/tf_static':
             for t in msg.transforms:
                 tr, rot = t.transform.translation, t.transform.rotation
@@ -133,7 +146,7 @@ class _Replay:
         elif topic in ROWS.values():
             self._markers(topic, msg)
 
-    def _match(self):
+    def _match(self) -> None:
         if self._status is None:
             return
         stamp, status = self._status
@@ -145,7 +158,7 @@ class _Replay:
             return
         self._status = None
 
-    def _markers(self, topic, msg):
+    def _markers(self, topic: str, msg: Any) -> None:
         which = 'entries' if topic == ROWS['entries'] else 'exits'
         points = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses],
                           dtype=float).reshape(-1, 3)
@@ -158,7 +171,7 @@ class _Replay:
         if e is not None and x is not None and e[0] == x[0] and len(e[1]) == len(x[1]):
             self.feed.markers_seen(e[0], e[1], x[1], e[2])
 
-    def _sample(self):
+    def _sample(self) -> None:
         """One sample per PSM2 report: the arms as reported, the needle as perceived."""
         if not all(a in self.local and a in self.bases and a in self.jaw for a in PSMS) \
                 or self.feed.T_world_camera is None:
@@ -175,8 +188,9 @@ class _Replay:
                           'PSM1' in obs.holders, 'PSM2' in obs.holders))
 
 
-def demonstration_from_physical_bag(path, pair=None, pair_index=None, sample_rate=100.0,
-                                    needle_geometry=None):
+def demonstration_from_physical_bag(path: str | Path, pair: str | None = None,
+                                    pair_index: int | None = None, sample_rate: float = 100.0,
+                                    needle_geometry: Any = None) -> Demonstration:
     """
     Read a bag recorded in physical mode into a Demonstration, from the perceived needle.
 
@@ -236,27 +250,30 @@ def demonstration_from_physical_bag(path, pair=None, pair_index=None, sample_rat
     n = int(math.floor((times[-1] - times[0]) * sample_rate + 1e-9)) + 1
     T = times[0] + np.arange(n) / float(sample_rate)
 
-    def poses(k):
+    def poses(k: int) -> np.ndarray:
         values = pose_from_transform(np.asarray(cols[k])[keep])
         P = np.column_stack([np.interp(T, times, values[:, j]) for j in range(3)])
         return np.hstack((P, resample_quaternions(times, values[:, 3:], T)))
 
-    def signal(k):
+    def signal(k: int) -> np.ndarray:
         return np.interp(T, times, np.asarray(cols[k], dtype=float)[keep])
 
-    def flags(k):
+    def flags(k: int) -> np.ndarray:
         held = np.asarray(cols[k], dtype=bool)[keep]
         return held[np.clip(np.searchsorted(times, T, side='right') - 1, 0, len(times) - 1)]
 
     seen = replay.feed._pair
+    assert seen is not None  # every row was sampled with the pair perceived
     return Demonstration(
         t=T, psm1_pose=poses(1), psm2_pose=poses(2), psm1_jaw=signal(3), psm2_jaw=signal(4),
         needle_pose=poses(5), psm1_holds=flags(6), psm2_holds=flags(7), entry=seen.entry.copy(),
         exit=seen.exit.copy(), normal=seen.normal.copy(), pair=pair)
 
 
-def record_physical_demonstration(sim, pair_name, path, seed=0, perception_rate=2.0,
-                                  pause=0.3, sample_period=0.01, timeout=60.0):
+def record_physical_demonstration(sim: 'Simulation', pair_name: str, path: str | Path,
+                                  seed: int = 0, perception_rate: float = 2.0,
+                                  pause: float = 0.3, sample_period: float = 0.01,
+                                  timeout: float = 60.0) -> tuple['ThrowScore', dict[str, int]]:
     """
     Record a scripted demonstration as a recorder on a simulator in physical mode would.
 
@@ -301,13 +318,13 @@ def record_physical_demonstration(sim, pair_name, path, seed=0, perception_rate=
     stereo = stereo_from_camera_info(camera.camera_info('left'), camera.camera_info('right'))
     perception = StereoPerception()
     believed = {a: sim.believed_base(a) for a in ('ECM',) + PSMS}
-    messages = []   # (t, topic, msgtype, message object or CDR bytes)
+    messages: list[tuple[float, str, str, Any]] = []   # (t, topic, msgtype, message or CDR)
     t0 = sim.time
 
-    def put(t, topic, msgtype, msg):
+    def put(t: float, topic: str, msgtype: str, msg: Any) -> None:
         messages.append((float(t), topic, msgtype, msg))
 
-    def transform(T, parent, child):
+    def transform(T: ArrayLike, parent: str, child: str) -> Any:
         x, y, z, qx, qy, qz, qw = (float(v) for v in pose_from_transform(T))
         return ty['geometry_msgs/msg/TransformStamped'](
             header=_header(store, t0, parent), child_frame_id=child,
@@ -321,13 +338,14 @@ def record_physical_demonstration(sim, pair_name, path, seed=0, perception_rate=
     put(t0, '/sim/target_pair', STRING, ty[STRING](data=pair_name))
     looks = {'next': t0}
 
-    def look(t):
+    def look(t: float) -> None:
         frame = sim.render()
         result = perception.process(frame.left_rgb, frame.right_rgb, stereo, t)
         est = result.needle
         if est.found:
-            put(t, NEEDLE, POSE, bags.pose_stamped_cdr(t, OPTICAL,
-                                                        pose_from_transform(est.pose_camera)))
+            assert est.pose_camera is not None  # a found estimate carries its pose
+            put(t, NEEDLE, POSE, bags.pose_stamped_cdr(t, OPTICAL, cast(
+                Sequence[float], pose_from_transform(est.pose_camera))))
         put(t, STATUS, STRING, ty[STRING](data=json.dumps(
             {'found': bool(est.found), 'reason': est.reason, 'stamp': t})))
         if result.markers is not None:
@@ -342,7 +360,7 @@ def record_physical_demonstration(sim, pair_name, path, seed=0, perception_rate=
                             x=q[0], y=q[1], z=q[2], w=q[3])) for p in points]))
 
     class _Recorder:
-        def step(self, obs):
+        def step(self, obs: Observation) -> Command:
             command = expert.step(obs)
             t = obs.t
             for a in PSMS:
@@ -350,8 +368,8 @@ def record_physical_demonstration(sim, pair_name, path, seed=0, perception_rate=
                     bags.joint_state_cdr(t, ('jaw',), (float(sim.arms[a].jaw_measured_jp),)))
             for a in ('ECM',) + PSMS:
                 local = invert_transform(believed[a]) @ sim.reported_tool_pose(a)
-                put(t, f'/{a}/local/measured_cp', POSE,
-                    bags.pose_stamped_cdr(t, f'{a}_base', pose_from_transform(local)))
+                put(t, f'/{a}/local/measured_cp', POSE, bags.pose_stamped_cdr(
+                    t, f'{a}_base', cast(Sequence[float], pose_from_transform(local))))
             if t >= looks['next'] - 1e-9:
                 looks['next'] += 1.0 / perception_rate
                 look(t)
@@ -367,12 +385,13 @@ def record_physical_demonstration(sim, pair_name, path, seed=0, perception_rate=
                 writer.add_topic(topic, msgtype, qos=[_LATCHED if topic == '/tf_static'
                                                       else _STATE_QOS])
             raw = msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype)
-            writer.write(topic, int(round(t * 1e9)), raw)
+            # rosbags' serialize_cdr gives a memoryview, which the bag writer takes as bytes
+            writer.write(topic, int(round(t * 1e9)), raw)  # type: ignore[arg-type]
         writer.set_custom_data('suture_lfd.demonstration', pair_name)
         return score, dict(writer.counts)
 
 
-def _header(store, t, frame_id=''):
+def _header(store: 'Typestore', t: float, frame_id: str = '') -> Any:
     ns = int(round(float(t) * 1e9))
     stamp = store.types['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
     return store.types['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
