@@ -88,6 +88,7 @@ ANNOTATED = ('sim_bridge/common',
              'suture_lfd/cli.py',
              'suture_lfd/viewer/page.py',
              'suture_lfd/skill/physical_demo.py',
+             'suture_lfd/skill/arm_registration.py',
              *(f'suture_lfd/perception/{name}.py' for name in (
                  '__init__', 'arc_stereo', 'evaluation', 'grasp', 'images', 'markers', 'needle',
                  'pipeline', 'reacquire', 'stereo', 'wire_images')))

@@ -39,20 +39,28 @@ Frames: ``world`` (as the robot believes it, the camera's through the ECM), the 
 optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
 """
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import json
 import logging
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 import weakref
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import PSMS
-from sim_bridge.control import Command, Observation
+from sim_bridge.control import Command, Controller, Observation
 from suture_lfd.perception import detect_markers, stereo_from_camera_info
-from suture_lfd.perception.instrument import find_instrument
+from suture_lfd.perception.instrument import InstrumentView, find_instrument
+
+if TYPE_CHECKING:
+    from sim_bridge.kinematics import SerialChain
+    from sim_bridge.simulation import Simulation
+    from suture_lfd.perception import StereoModel
 
 _LOG = logging.getLogger(__name__)
 
@@ -71,6 +79,10 @@ _X_SCALE = np.array([0.02, 0.02, 0.002, 0.002, 0.002, 0.002])
 _OUTLIER_PX = 2.0
 # A fit whose image residual (RMS, pixels) is above this is not trusted.
 MAX_RESIDUAL_PX = 3.0
+# One arm's joints (rad, m), and one registration pose as seen: reported joints, the camera's
+# pose then (T_camera_world) and the instrument in the left and right images (None: not seen).
+Joints = Sequence[float] | np.ndarray
+Sample = tuple[np.ndarray, np.ndarray, 'InstrumentView | None', 'InstrumentView | None']
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,13 +108,13 @@ class ArmCorrection:
     """
 
     arm: str
-    kinematics: object
+    kinematics: 'SerialChain'
     T_world_base: np.ndarray
     joint_offset: np.ndarray
     translation: np.ndarray
     residual_px: float = 0.0
 
-    def tool_pose(self, q):
+    def tool_pose(self, q: Joints) -> np.ndarray:
         """
         Tool-tip pose (4, 4, ``world``) where the corrected kinematics put the joints ``q``.
 
@@ -119,7 +131,7 @@ class ArmCorrection:
         T[:3, 3] += self.translation
         return T
 
-    def error(self, q):
+    def error(self, q: Joints) -> np.ndarray:
         """
         Return the world-frame error ``E`` at joints ``q``: true pose = ``E @`` reported pose.
 
@@ -148,11 +160,12 @@ class KinematicCorrection:
 
     """
 
-    def __init__(self, arms):
+    def __init__(self, arms: Mapping[str, ArmCorrection]) -> None:
         self.arms = dict(arms)
-        self._cache = {}
+        # per arm: (joints' bytes, error E) or (joints' bytes, error E, corrected tool pose)
+        self._cache: dict[str, tuple[Any, ...]] = {}
 
-    def _error(self, arm, q):
+    def _error(self, arm: str, q: Joints) -> np.ndarray:
         key = np.asarray(q, dtype=float).tobytes()
         hit = self._cache.get(arm)
         if hit is not None and hit[0] == key:
@@ -161,7 +174,7 @@ class KinematicCorrection:
         self._cache[arm] = (key, E)
         return E
 
-    def observe(self, obs):
+    def observe(self, obs: Observation) -> Observation:
         """
         Return ``obs`` with each corrected arm's tool pose where the correction puts it.
 
@@ -196,7 +209,7 @@ class KinematicCorrection:
                            T_world_needle=obs.T_world_needle, holders=obs.holders,
                            pair=obs.pair, T_world_base=obs.T_world_base, q=obs.q)
 
-    def command(self, cmd, q):
+    def command(self, cmd: Command, q: Mapping[str, Any]) -> Command:
         """
         Return ``cmd`` with each tool target turned into what to command the arm.
 
@@ -238,26 +251,27 @@ class CorrectedController:
 
     """
 
-    def __init__(self, controller, correction):
+    def __init__(self, controller: Controller, correction: KinematicCorrection) -> None:
         self.controller = controller
         self.correction = correction
 
     @property
-    def done(self):
+    def done(self) -> bool:
         """Whether the controller is done."""
         return self.controller.done
 
-    def reset(self, obs):
+    def reset(self, obs: Observation) -> None:
         """Reset the controller."""
         self.controller.reset(obs)
 
-    def step(self, obs):
+    def step(self, obs: Observation) -> Command:
         """Return the controller's command, tool targets turned into what to command."""
         cmd = self.controller.step(obs)
         return self.correction.command(cmd, obs.q or {})
 
 
-def _model_points(kinematics, T_world_base, q, x, jaw):
+def _model_points(kinematics: 'SerialChain', T_world_base: np.ndarray, q: ArrayLike,
+                  x: np.ndarray, jaw: Sequence[float]) -> np.ndarray:
     """
     World points of the straight instrument: two shaft-axis points, then the closed jaws' end.
 
@@ -278,7 +292,9 @@ def _model_points(kinematics, T_world_base, q, x, jaw):
     return pts + x[3:]
 
 
-def fit_arm_correction(arm, kinematics, T_world_base, samples, stereo, jaw):
+def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.ndarray,
+                       samples: Sequence[Sample], stereo: 'StereoModel',
+                       jaw: Sequence[float]) -> ArmCorrection:
     """
     Fit an arm's joint offsets and base translation to what the camera saw at a few poses.
 
@@ -309,13 +325,15 @@ def fit_arm_correction(arm, kinematics, T_world_base, samples, stereo, jaw):
         With fewer than three poses seen in both images.
 
     """
-    used = [s for s in samples if s[2] is not None and s[3] is not None]
+    # seen in both images: no view is None
+    used = cast(list[tuple[np.ndarray, np.ndarray, InstrumentView, InstrumentView]],
+                [s for s in samples if s[2] is not None and s[3] is not None])
     if len(used) < 3:
         raise ValueError(f'{arm}: its instrument was seen in both images at {len(used)} of '
                          f'{len(samples)} registration poses; 3 are needed')
 
-    def residuals(x):
-        out = []
+    def residuals(x: np.ndarray) -> np.ndarray:
+        out: list[float] = []
         for q, T_cw, left, right in used:
             pts = _model_points(kinematics, T_world_base, q, x, jaw)
             pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
@@ -346,7 +364,7 @@ def fit_arm_correction(arm, kinematics, T_world_base, samples, stereo, jaw):
                          joint_offset=offset, translation=fit.x[3:].copy(), residual_px=rms)
 
 
-def _straight_pose(rcm, tip, T_now):
+def _straight_pose(rcm: np.ndarray, tip: np.ndarray, T_now: np.ndarray) -> np.ndarray:
     """Tool pose at ``tip`` with its z along the shaft from the RCM ``rcm`` (wrist straight)."""
     z = tip - rcm
     z /= np.linalg.norm(z)
@@ -357,7 +375,7 @@ def _straight_pose(rcm, tip, T_now):
     return T
 
 
-def _markers_centre(sim, stereo):
+def _markers_centre(sim: 'Simulation', stereo: 'StereoModel') -> np.ndarray | None:
     """Centre (m, ``world``) of every marker seen in the stereo pair, or None."""
     frame = sim.render()
     found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
@@ -370,7 +388,8 @@ def _markers_centre(sim, stereo):
     return T[:3, :3] @ points.mean(axis=0) + T[:3, 3]
 
 
-def _look_at(sim, arm, stereo, jaw):
+def _look_at(sim: 'Simulation', arm: str, stereo: 'StereoModel',
+             jaw: Sequence[float]) -> Sample:
     """Render the stereo pair and find ``arm``'s instrument near where its kinematics put it."""
     frame = sim.render()
     T_cw = invert_transform(sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left)
@@ -382,10 +401,11 @@ def _look_at(sim, arm, stereo, jaw):
     return q, T_cw, views[0], views[1]
 
 
-_REGISTERED = weakref.WeakKeyDictionary()
+_REGISTERED: 'weakref.WeakKeyDictionary[Simulation, KinematicCorrection]' = \
+    weakref.WeakKeyDictionary()
 
 
-def register_arms(sim, seed=0):
+def register_arms(sim: 'Simulation', seed: int = 0) -> KinematicCorrection:
     """
     Register both PSMs against the endoscope in-process (once per simulation: kept for it).
 
@@ -424,7 +444,7 @@ def register_arms(sim, seed=0):
         _REGISTERED[sim] = correction
         return correction
     start = {a: sim.reported_tool_pose(a) for a in PSMS}
-    samples = {a: [] for a in PSMS}
+    samples: dict[str, list[Sample]] = {a: [] for a in PSMS}
     for arm in PSMS:
         rcm = sim.believed_base(arm)[:3, 3]
         for spot, wait in zip(_SPOTS, _REACH_TIME):
@@ -437,7 +457,7 @@ def register_arms(sim, seed=0):
         sim.apply(Command(t=sim.time, T_world_tool={arm: start[arm]}, jaw={},
                           subtask='registration'))
         sim.run(_RETURN_TIME)
-    arms = {}
+    arms: dict[str, ArmCorrection] = {}
     for arm in PSMS:
         try:
             fit = fit_arm_correction(arm, sim.kinematics[arm], sim.believed_base(arm),
@@ -459,12 +479,13 @@ def register_arms(sim, seed=0):
 REGISTRATION_FORMAT, REGISTRATION_FORMAT_VERSION = 'suture_lfd.registration', 1
 
 
-def known_registration(sim):
+def known_registration(sim: 'Simulation') -> KinematicCorrection | None:
     """Return the registration kept for ``sim`` (:func:`register_arms`), or None."""
     return _REGISTERED.get(sim)
 
 
-def save_registration(path, correction, key):
+def save_registration(path: str | Path, correction: KinematicCorrection,
+                      key: dict[str, Any]) -> None:
     """
     Write a registration to a JSON file (what a dVRK setup keeps between its runs).
 
@@ -493,7 +514,8 @@ def save_registration(path, correction, key):
     os.replace(tmp, path)
 
 
-def load_registration(path, sim, key):
+def load_registration(path: str | Path, sim: 'Simulation',
+                      key: dict[str, Any]) -> KinematicCorrection | None:
     """
     Read a registration saved by :func:`save_registration` and keep it for ``sim``.
 
