@@ -24,8 +24,13 @@ person gave in ``rotate`` mode whatever the mode shows.
 Pedals. ``Clutch`` is pressed only while held: the button held down with the mouse, or key C
 held (key repeat ignored; a page script turns key down and up into the button's press and
 release); if the page stops saying it is held for :data:`HOLD_TIMEOUT` s (a lost pointer), it
-is released. ``Coag`` (key V) toggles the operator's presence; ``Record`` (key R) presses the
-camera pedal once (the recorder starts or stops a bag).
+is released. The page sends its controls' messages at most once per 50 ms and keeps only the
+latest, so a tap (press and release within 50 ms) may arrive as its release alone: a release
+with no press before it counts as a tap, the clutch pressed and released at once. The page's
+clutch callbacks run on the page server's event loop, in the order the page sent them.
+
+``Coag`` (key V) toggles the operator's presence; ``Record`` (key R) presses the camera pedal
+once (the recorder starts or stops a bag).
 """
 
 from collections.abc import Callable, Iterable, Sequence
@@ -153,6 +158,7 @@ class MtmControls:
         self.mode = MODES[0]
         self._lock = threading.RLock()
         self._last_hold = -math.inf
+        self._hold_open = False     # a press seen and its release not yet (even if timed out)
         self.handles: dict[str, Any] = {}   # viser transform controls
         self.balls: dict[str, Any] = {}     # each handle's ball (the default mode)
         self._positions: dict[str, np.ndarray] = {}   # each handle's position (world, m)
@@ -182,8 +188,8 @@ class MtmControls:
         with server.gui.add_folder('Console'):
             clutch = server.gui.add_button(CLUTCH_LABEL, color='gray',
                                            hint='pressed while held (mouse or key C)')
-            clutch.on_hold(self.clutch_held, callback_hz=HOLD_HZ)
-            clutch.on_click(self.clutch_released)
+            clutch.on_hold(self._on_clutch_hold, callback_hz=HOLD_HZ)
+            clutch.on_click(self._on_clutch_click)
             self.buttons['clutch'] = clutch
             coag = server.gui.add_button(f'Coag ({HOTKEYS["coag"]})', color='gray',
                                          hint='operator present: press once, again to leave')
@@ -382,7 +388,7 @@ class MtmControls:
                 self._rescaled = now
                 self._rescale_balls()
         if lost:
-            self.clutch_released(None)
+            self._time_out_hold()
 
     # --- page callbacks ------------------------------------------------------------------------
 
@@ -456,10 +462,18 @@ class MtmControls:
     def _send_pedals(self, camera: int = 0) -> None:
         self._on_pedals(self.pedals['clutch'], self.pedals['coag'], camera)
 
+    async def _on_clutch_hold(self, event: Any) -> None:
+        # a coroutine: viser runs it on its event loop in the page's order (a thread would not)
+        self.clutch_held(event)
+
+    async def _on_clutch_click(self, event: Any) -> None:
+        self.clutch_released(event)
+
     def clutch_held(self, _event: Any = None) -> None:
         """Press the clutch: the page says it is held (at press, then at :data:`HOLD_HZ`)."""
         with self._lock:
             self._last_hold = self._clock()
+            self._hold_open = True
             if self.pedals['clutch']:
                 return
             self.pedals['clutch'] = 1
@@ -467,7 +481,26 @@ class MtmControls:
         self.buttons['clutch'].color = 'red'
 
     def clutch_released(self, _event: Any = None) -> None:
-        """Release the clutch: the page says it was let go (the click at pointer up)."""
+        """
+        Release the clutch: the page says it was let go (the click at pointer up).
+
+        A release with no press before it is a tap whose press the page did not send: the
+        clutch is pressed and released at once. The release that ends a hold already timed out
+        (:meth:`tick`) changes nothing.
+        """
+        with self._lock:
+            if not self.pedals['clutch']:
+                if self._hold_open:     # the hold timed out before this release
+                    self._hold_open = False
+                    return
+                self.pedals['clutch'] = 1
+                self._send_pedals()
+            self._hold_open = False
+            self.pedals['clutch'] = 0
+            self._send_pedals()
+        self.buttons['clutch'].color = 'gray'
+
+    def _time_out_hold(self) -> None:
         with self._lock:
             if not self.pedals['clutch']:
                 return

@@ -45,12 +45,27 @@ def test_the_clutch_is_pressed_while_held_and_released_once(console):
         controls.tick()
     assert sent['pedals'] == [[1, 0, 0]]
     controls.clutch_released()
-    controls.clutch_released()                  # a second release changes nothing
     assert sent['pedals'] == [[1, 0, 0], [0, 0, 0]]
     controls.clutch_held()                      # held, then the page goes quiet (lost pointer)
     clock.t += HOLD_TIMEOUT + 0.01
     controls.tick()
     assert sent['pedals'][-2:] == [[1, 0, 0], [0, 0, 0]]
+    count = len(sent['pedals'])
+    controls.clutch_released()                  # that hold's late release changes nothing
+    assert len(sent['pedals']) == count
+
+
+def test_a_tap_whose_press_the_page_coalesced_away_is_a_press_and_a_release(console):
+    # the page keeps only the latest of its messages within 50 ms: a quick key C tap (key down,
+    # key up) can arrive as the release alone
+    controls, sent, clock = console
+    controls.clutch_released()
+    assert sent['pedals'] == [[1, 0, 0], [0, 0, 0]]
+    controls.clutch_held()                      # a tap whose press did arrive: one of each
+    clock.t += 0.02
+    controls.clutch_released()
+    assert sent['pedals'][2:] == [[1, 0, 0], [0, 0, 0]]
+    assert controls.pedals['clutch'] == 0
 
 
 def test_a_handle_sits_at_its_tool_in_the_image_plane_and_keeps_the_hands_orientation(console):
