@@ -31,6 +31,9 @@ clutch callbacks run on the page server's event loop, in the order the page sent
 
 ``Coag`` (key V) toggles the operator's presence; ``Record`` (key R) presses the camera pedal
 once (the recorder starts or stops a bag).
+
+Size: the handles, the clutch and the status share one lock, the placed handles and the
+pedal state; split apart, each part would reach into the others' state.
 """
 
 from collections.abc import Callable, Iterable, Sequence
