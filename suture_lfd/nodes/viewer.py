@@ -14,7 +14,9 @@ reachable from the network unless asked) and open the URL it prints. The page dr
   entry/exit markers (``world -> <pair>_entry|exit``);
 - every ``sim/visualization`` marker (LINE_STRIP, SPHERE_LIST; the thread among them);
 - the ECM's left image in its camera frustum when the simulator renders it
-  (``ECM/left/image_raw``, ``camera_rate`` > 0);
+  (``ECM/left/image_raw``, ``camera_rate`` > 0), and with the ``Stereo pair`` button the left
+  and right images (``ECM/right/image_raw``) side by side in place of the scene, for a 3-D
+  display (:mod:`suture_lfd.viewer.stereo`);
 - ``sim/events`` as they happen, in the side panel;
 - what the ``perception`` node sees (parameter ``perception``: its namespace, ``''`` = off):
   the estimated needle (``<perception>/needle/measured_cp``, left optical frame, placed in
@@ -80,6 +82,7 @@ from suture_lfd.viewer.assets import endoscope_fov, load_phantom, needle_arc
 from suture_lfd.viewer.controls import MtmControls
 from suture_lfd.viewer.page import DEFAULT_HOST, DEFAULT_PORT, VIEWS, FrameClock, ViewerPage
 from suture_lfd.viewer.perceived import PerceivedLayer
+from suture_lfd.viewer.stereo import StereoPanel
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -102,8 +105,9 @@ class ViewerConfig:
     mtms : tuple of str
         MTMs whose browser input the page hosts (``()``: none).
     images : bool
-        Subscribe to the ECM's left image (the simulator renders only for subscribers, and
-        only with ``camera_rate`` > 0).
+        Subscribe to the ECM's left and right images (the simulator renders only for
+        subscribers, and only with ``camera_rate`` > 0); the right one is used only while the
+        page shows the stereo pair.
     stats_period : float
         Seconds between ``viewer/stats`` messages.
     view : str
@@ -203,8 +207,12 @@ class Viewer(NodeHooks, Node):
         self.create_subscription(TFMessage, '/tf_static', self._on_tf_static, qos.STATIC_TF)
         self.create_subscription(MarkerArray, 'sim/visualization', self._on_markers, qos.STREAM)
         self.create_subscription(StringStamped, 'sim/events', self._on_event, qos.SCENE_EVENTS)
+        self.stereo = None
         if self.config.images:
+            self.stereo = self.page.add_panel(StereoPanel())
             self.create_subscription(Image, 'ECM/left/image_raw', self._on_image, qos.IMAGES)
+            self.create_subscription(Image, 'ECM/right/image_raw', self._on_right_image,
+                                     qos.IMAGES)
         self.perceived = None
         if self.config.perception:
             self._subscribe_perception(self.config.perception.rstrip('/'), points, diameter)
@@ -257,6 +265,14 @@ class Viewer(NodeHooks, Node):
         rgb = rgb_from_image(msg)
         if rgb is not None:
             self.page.scene.set_image(rgb)
+            self.stereo.set_image('left', rgb)
+
+    def _on_right_image(self, msg):
+        if not self.stereo.shown:   # no work for a pair nobody looks at
+            return
+        rgb = rgb_from_image(msg)
+        if rgb is not None:
+            self.stereo.set_image('right', rgb)
 
     def _subscribe_perception(self, ns, points, diameter):
         self.perceived = PerceivedLayer(self.page.server.scene, self.page.scene.tf, points,
@@ -306,6 +322,8 @@ class Viewer(NodeHooks, Node):
 
     def _render(self):
         rendered = self.page.render()
+        if self.stereo is not None:
+            rendered = self.stereo.render() or rendered
         if self.perceived is not None:
             rendered = self.perceived.render() or rendered
             text = self.perceived.status_text()
