@@ -143,12 +143,16 @@ class SceneMaker:
     physics_step : float, optional
         Physics step (s) of the simulation (default: ``world.yaml``'s); the needle's resting
         pose after a reset depends on it (the study runs at 10 ms).
+    kinematic_errors : (float, int), optional
+        Hidden dVRK kinematic errors ``(level mm class, seed)`` of the arms
+        (:mod:`sim_bridge.kinematic_errors`): the instruments then stand elsewhere in view.
 
     """
 
     def __init__(self, phantom: str | Path = 'synthetic',
                  camera: CameraConfig | None = None,
-                 physics_step: float | None = None) -> None:
+                 physics_step: float | None = None,
+                 kinematic_errors: tuple[float, int] | None = None) -> None:
         cfg = load_simulation_config()
         camera = camera or replace(cfg.camera, depth=False)
         cfg = replace(cfg, arm=replace(cfg.arm, tracking='exact'), camera=camera)
@@ -157,6 +161,10 @@ class SceneMaker:
             cfg = replace(cfg, world=replace(cfg.world, physics_step=step),
                           loop=replace(cfg.loop, collision_period=max(cfg.loop.collision_period,
                                                                       step)))
+        if kinematic_errors is not None:
+            level, seed = kinematic_errors
+            cfg = replace(cfg, kinematic_error_level=float(level),
+                          kinematic_error_seed=int(seed))
         self.phantom = str(phantom)
         self.sim = Simulation(cfg, phantom=phantom)
         self.geometry = self.sim.needle_geometry

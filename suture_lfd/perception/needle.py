@@ -431,9 +431,9 @@ class NeedleTracker:
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         order = np.argsort(-stats[1:, cv2.CC_STAT_AREA]) + 1
         blobs = []
-        for label in order[:2]:
-            if stats[label, cv2.CC_STAT_AREA] < c.min_blob_area:
-                break
+        for label in order:
+            if stats[label, cv2.CC_STAT_AREA] < c.min_blob_area or len(blobs) == 2:
+                break  # the two largest elongated blobs (an instrument's metal is not one)
             x, y, w, h = stats[label, :4]
             sub = labels[y:y + h, x:x + w] == label
             vs, us = np.nonzero(sub)
