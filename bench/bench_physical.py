@@ -13,8 +13,12 @@ kinematics), the same skills on the same pairs. Skills: ``pair_frame`` learnt fr
 demonstration on the phantom's first pair. Printed: mean score per level and mode, its ratio to
 ground-truth mode, and CPU seconds per throw (the registration, once per simulation, apart).
 
+``--study-step``: every simulation (the demonstration, both modes) at the study's physics step
+(10 ms) and its thread and collision periods (:class:`suture_lfd.study.jobs.JobSettings`) instead
+of ``world.yaml``'s (2 ms): the needle then rests differently, as in a study.
+
 Run: ``.venv/bin/python bench/bench_physical.py [--phantom synthetic] [--levels 0,1,3,5]
-[--seeds 1,2] [--pairs synth1,synth2]``
+[--seeds 1,2] [--pairs synth1,synth2] [--corrections on,off] [--study-step]``
 """
 
 import argparse
@@ -31,12 +35,25 @@ from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.skill import learn_skill, training_data
 from suture_lfd.skill.arm_registration import register_arms
 from suture_lfd.skill.executor import execute_throw
+from suture_lfd.study.jobs import JobSettings
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 
-def _skill(phantom, first):
-    sim = Simulation(phantom=phantom)
+def _config(study_step, **errors):
+    """The simulation's configuration: world.yaml's, or at the study's step and periods."""
+    config = replace(load_simulation_config(), **errors)
+    if study_step:
+        s = JobSettings(out='')
+        config = replace(config, world=replace(config.world, physics_step=s.physics_step),
+                         loop=replace(config.loop, thread_period=s.thread_period,
+                                      collision_period=max(s.collision_period,
+                                                           s.physics_step)))
+    return config
+
+
+def _skill(phantom, first, study_step):
+    sim = Simulation(_config(study_step), phantom=phantom)
     try:
         demo, _, score = record_scripted_demonstration(sim, first)
     finally:
@@ -64,25 +81,30 @@ def main():
     parser.add_argument('--levels', default='0,1,3,5')
     parser.add_argument('--seeds', default='1,2', help='kinematic-error seeds per level')
     parser.add_argument('--pairs', default=None, help="pairs (default: the phantom's four)")
+    parser.add_argument('--corrections', default='on,off',
+                        help='the executor correcting on what it sees (on), open loop (off)')
+    parser.add_argument('--study-step', action='store_true',
+                        help="the study's 10 ms physics step instead of world.yaml's 2 ms")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     prefix = 'synth' if args.phantom == 'synthetic' else 'scan'
     pairs = args.pairs.split(',') if args.pairs else [f'{prefix}{k}' for k in range(1, 5)]
     levels = [float(x) for x in args.levels.split(',')]
     seeds = [int(x) for x in args.seeds.split(',')]
-    skill = _skill(args.phantom, f'{prefix}1')
+    corrections = [{'on': True, 'off': False}[x] for x in args.corrections.split(',')]
+    skill = _skill(args.phantom, f'{prefix}1', args.study_step)
 
-    sim = Simulation(phantom=args.phantom)
+    sim = Simulation(_config(args.study_step), phantom=args.phantom)
     print('ground-truth mode (anchor)', flush=True)
     truth, truth_cpu = _throws(sim, skill, pairs)
     sim.close()
     anchor = float(np.mean(truth))
     rows = []
     for level in levels:
-        for correction in (True, False):
+        for correction in corrections:
             scores, cpu, reg = [], [], []
             for seed in seeds:
-                config = replace(load_simulation_config(), kinematic_error_level=level,
+                config = _config(args.study_step, kinematic_error_level=level,
                                  kinematic_error_seed=seed)
                 sim = Simulation(config, phantom=args.phantom)
                 if correction:
@@ -97,7 +119,10 @@ def main():
             rows.append((level, correction, float(np.mean(scores)), float(np.mean(cpu)),
                          float(np.mean(reg)) if reg else 0.0, len(scores)))
 
-    print(f'\n{args.phantom}: pairs {",".join(pairs)}, error seeds {args.seeds}')
+    step = JobSettings(out='').physics_step if args.study_step else load_simulation_config(
+    ).world.physics_step
+    print(f'\n{args.phantom}: pairs {",".join(pairs)}, error seeds {args.seeds}, physics step '
+          f'{1e3 * step:g} ms')
     print(f'ground-truth mode: mean score {anchor:.3f} ({len(truth)} throws), '
           f'CPU {np.mean(truth_cpu):.2f} s per throw')
     print('| level | correction | mean score | ratio to ground truth | CPU s/throw | ratio | '

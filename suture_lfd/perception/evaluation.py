@@ -140,14 +140,31 @@ class SceneMaker:
         ``'synthetic'``, ``'scanned'``, or a mesh / phantom file.
     camera : sim_bridge.scene.camera.CameraConfig, optional
         Camera settings (default: ``world.yaml``'s, without depth).
+    physics_step : float, optional
+        Physics step (s) of the simulation (default: ``world.yaml``'s); the needle's resting
+        pose after a reset depends on it (the study runs at 10 ms).
+    kinematic_errors : (float, int), optional
+        Hidden dVRK kinematic errors ``(level mm class, seed)`` of the arms
+        (:mod:`sim_bridge.kinematic_errors`): the instruments then stand elsewhere in view.
 
     """
 
     def __init__(self, phantom: str | Path = 'synthetic',
-                 camera: CameraConfig | None = None) -> None:
+                 camera: CameraConfig | None = None,
+                 physics_step: float | None = None,
+                 kinematic_errors: tuple[float, int] | None = None) -> None:
         cfg = load_simulation_config()
         camera = camera or replace(cfg.camera, depth=False)
         cfg = replace(cfg, arm=replace(cfg.arm, tracking='exact'), camera=camera)
+        if physics_step is not None:
+            step = float(physics_step)
+            cfg = replace(cfg, world=replace(cfg.world, physics_step=step),
+                          loop=replace(cfg.loop, collision_period=max(cfg.loop.collision_period,
+                                                                      step)))
+        if kinematic_errors is not None:
+            level, seed = kinematic_errors
+            cfg = replace(cfg, kinematic_error_level=float(level),
+                          kinematic_error_seed=int(seed))
         self.phantom = str(phantom)
         self.sim = Simulation(cfg, phantom=phantom)
         self.geometry = self.sim.needle_geometry
@@ -292,6 +309,27 @@ class SceneMaker:
         for arm, (T_tool, G) in holders.items():
             self._hold(arm, T_tool, G)
         return replace(self._render(kind), history=history)
+
+    def resting(self, seed: int) -> 'RenderedScene':
+        """
+        Render the needle where the reset with ``seed`` leaves it on the pad (arms homed).
+
+        Parameters
+        ----------
+        seed : int
+            Scene seed of the reset (a study's throw or demonstration seed).
+
+        Returns
+        -------
+        RenderedScene
+            Of kind ``free``.
+
+        """
+        sim = self.sim
+        sim.reset(seed=int(seed))
+        sim.enable_and_home_all()
+        sim.pop_events()
+        return self._render('free')
 
     def carry(self, translation: ArrayLike, arm: str = 'PSM2') -> 'RenderedScene':
         """

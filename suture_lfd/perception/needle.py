@@ -42,6 +42,7 @@ image distances in pixels.
 from collections.abc import Sequence
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import cv2
 import numpy as np
@@ -108,6 +109,10 @@ class TrackerConfig:
     ambiguity, ambiguity_distance : float
         Another pose at least ``ambiguity_distance`` (m, mean over base, middle and tip) away
         whose cost is within ``ambiguity`` (pixels) makes a detection ambiguous.
+    ends_margin : float
+        Of poses that fit the images alike, one whose arc ends lie at least this much closer
+        (m, mean of the two) to the wire's ends triangulated from the pair than every other's
+        is taken, and the detection is not ambiguous (0: never).
     end_gate : float
         Largest offset (pixels) of a seen end of the wire from the arc's projected end.
     end_weight : float
@@ -148,6 +153,7 @@ class TrackerConfig:
     max_support_tilt: float = math.radians(35.0)
     ambiguity: float = 0.15
     ambiguity_distance: float = 0.001
+    ends_margin: float = 0.00025
     end_gate: float = 5.0
     end_weight: float = 4.0
     min_blob_area: int = 40
@@ -425,9 +431,9 @@ class NeedleTracker:
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         order = np.argsort(-stats[1:, cv2.CC_STAT_AREA]) + 1
         blobs = []
-        for label in order[:2]:
-            if stats[label, cv2.CC_STAT_AREA] < c.min_blob_area:
-                break
+        for label in order:
+            if stats[label, cv2.CC_STAT_AREA] < c.min_blob_area or len(blobs) == 2:
+                break  # the two largest elongated blobs (an instrument's metal is not one)
             x, y, w, h = stats[label, :4]
             sub = labels[y:y + h, x:x + w] == label
             vs, us = np.nonzero(sub)
@@ -568,14 +574,19 @@ class NeedleTracker:
         _, cost, T, residual, share, share_l, share_r = candidates[0]
         reason = ''
         if prior is None:
+            rivals = [k for k in candidates[1:] if k[0] and k[1] <= cost + c.ambiguity
+                      and self._distance(k[2], T) > c.ambiguity_distance]
+            if rivals and c.ends_margin > 0.0:
+                best, rivals = self._by_ends(T, rivals, stereo, fields)
+                if best is not T:
+                    _, cost, T, residual, share, share_l, share_r = next(
+                        k for k in candidates if k[2] is best)
             # the flip of the best fit fits the images as well: the thread says which end
             # is the tail
             flipped = T @ self._flip
             if self._thread_near_tail(flipped, stereo, fields) > self._thread_near_tail(
                     T, stereo, fields):
                 T = flipped
-            rivals = [k for k in candidates[1:] if k[0] and k[1] <= cost + c.ambiguity
-                      and self._distance(k[2], T) > c.ambiguity_distance]
             if rivals:
                 reason = (f'ambiguous: another pose {self._distance(rivals[0][2], T) * 1e3:.1f} '
                           f'mm away fits the images as well (cost {rivals[0][1]:.2f} against '
@@ -589,6 +600,47 @@ class NeedleTracker:
                               visible_share=float(share), visible_left=float(share_l),
                               visible_right=float(share_r),
                               partial=bool(share < c.partial_below), reason=reason)
+
+    def _seen_ends(self, stereo: StereoModel, fields: Fields) -> np.ndarray | None:
+        """Return the wire's two ends triangulated from each image's largest blob, (2, 3) m."""
+        left, right = self._blobs(fields[0], stereo), self._blobs(fields[1], stereo)
+        if not (left and right):
+            return None
+        a, b = left[0][:2], right[0][:2]
+        if np.abs(a[:, 1] - b[:, 1]).max() > np.abs(a[:, 1] - b[::-1, 1]).max():
+            b = b[::-1]  # the ends paired by their rows (rectified images)
+        if np.abs(a[:, 1] - b[:, 1]).max() > 6.0:
+            return None
+        ends = stereo.triangulate(a, b)
+        if not np.all(np.isfinite(ends)) or np.any(ends[:, 2] <= 0.0):
+            return None
+        return ends
+
+    def _by_ends(self, T: np.ndarray, rivals: list[Any], stereo: StereoModel, fields: Fields
+                 ) -> tuple[np.ndarray, list[Any]]:
+        """
+        Settle a tie of ``T`` and its ``rivals`` by the wire's triangulated ends.
+
+        Poses that fit the images within a fraction of a pixel (a lying needle's tilt either
+        way across the line of sight) put their arc's ends at different depths by a millimetre
+        or more; the ends of the wire's pixels, triangulated, say which. Returns the pose whose
+        ends lie closest, with no rivals when it is closer than every other by ``ends_margin``;
+        otherwise ``T`` and ``rivals`` unchanged.
+        """
+        seen = self._seen_ends(stereo, fields)
+        if seen is None:
+            return T, rivals
+        g = self.geometry
+        poses = [T] + [k[2] for k in rivals]
+        gaps = []
+        for P in poses:
+            ends = np.array([g.tail, g.tip]) @ P[:3, :3].T + P[:3, 3]
+            gaps.append(min(float(np.linalg.norm(ends - seen, axis=1).mean()),
+                            float(np.linalg.norm(ends - seen[::-1], axis=1).mean())))
+        order = np.argsort(gaps)
+        if gaps[order[1]] - gaps[order[0]] < self.config.ends_margin:
+            return T, rivals
+        return poses[int(order[0])], []
 
     def _distance(self, T_a: np.ndarray, T_b: np.ndarray) -> float:
         """Mean distance (m) of the arcs' base, middle and tip, tail and tip either way."""

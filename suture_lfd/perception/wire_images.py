@@ -1,12 +1,15 @@
 """
 What an image says about a thin wire: its pixels, their edges across a line, and what covers it.
 
-The needle's pixels come from :func:`suture_lfd.perception.images.metal_mask` (closed by one
-pixel: the renderer leaves cracks along a thin wire); :func:`runs` finds, on profiles sampled
-across the projected arc, the run of wire pixels through the middle and its two edges to a
-sub-pixel (0.5 crossings of the bilinear samples); :func:`hidden_in_images` says which arc points
-an instrument covers in each image (its jaws, wrist and shaft as capsules,
-:func:`tool_capsules`). Pixels: ``(u, v)``, ``(0, 0)`` the centre of the top-left pixel.
+The needle's pixels come from :func:`suture_lfd.perception.images.metal_mask`, closed across
+gaps of up to 3 pixels: a wire that touches the tissue is drawn with the tissue's pixels along
+its middle where it sinks in by a few hundredths of a millimetre (the needle at rest after the
+study's 10 ms physics steps), and would be seen as two thin lines instead of one wire.
+:func:`runs` finds, on profiles sampled across the projected arc, the run of wire pixels
+through the middle and its two edges to a sub-pixel (0.5 crossings of the bilinear samples);
+:func:`hidden_in_images` says which arc points an instrument covers in each image (its jaws,
+wrist and shaft as capsules, :func:`tool_capsules`). Pixels: ``(u, v)``, ``(0, 0)`` the centre
+of the top-left pixel.
 """
 
 from collections.abc import Sequence
@@ -22,7 +25,10 @@ if TYPE_CHECKING:
 
 Capsule = tuple[np.ndarray, np.ndarray, float]  # start (3,), end (3,) m, radius m
 
-_CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+#: The closing of the needle's pixels: fills a gap of up to 3 pixels inside the wire (the
+#: renderer's cracks, the tissue drawn along the middle of a wire resting on it: 2-3 px wide at
+#: 80 mm, the wire itself 7-8 px), too small to join two wires a wire's width apart.
+_CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 _RIDGE = np.ones((3, 3), np.uint8)
 
 
@@ -32,7 +38,7 @@ class WireImage:
     def __init__(self, rgb: np.ndarray, blur: float) -> None:
         self.rgb = rgb
         self._blur = blur
-        # a closing fills the renderer's one-pixel cracks along the thin wire
+        # a closing fills the cracks along the thin wire and the tissue seen along its middle
         self.mask = cv2.morphologyEx(metal_mask(rgb), cv2.MORPH_CLOSE, _CLOSE)
         self.soft = (self.mask > 0).astype(np.float32)
         self._cost: np.ndarray | None = None

@@ -8,6 +8,7 @@ margin (its median summed error of a found needle is about 1 mm; the largest poi
 found estimate stays under 3 mm).
 """
 
+from dataclasses import replace
 import math
 
 import cv2
@@ -111,6 +112,77 @@ def test_a_needle_lying_free_is_detected_without_a_prior_or_said_ambiguous(phant
         assert largest < 0.003 and total < 0.005, (total, largest)  # never confident and wrong
         assert est.residual_px < 1.0 and est.visible_share > 0.8
     assert found >= 1
+
+
+def test_a_needle_resting_into_the_pad_at_the_studys_physics_step_is_seen_as_one_wire(tmp_path):
+    # At the study's 10 ms step the needle of this scene seed settles a few hundredths of a
+    # millimetre into the pad, and the render shows the pad along the middle of part of the
+    # wire: two thin lines 2-3 px apart. Read as two lines, half the arc had no edges and the
+    # fit tilted 11.5 degrees and 2.6 mm off (a study's robot then scored 0).
+    maker = SceneMaker('synthetic', physics_step=0.01)
+    try:
+        scene = maker.resting(1277661016)
+        wire_radius = 0.5 * maker.geometry.wire_diameter
+        resting_z = float(maker.sim.needle_pose()[2, 3])
+    finally:
+        maker.close()
+    assert resting_z < wire_radius  # the case: the wire's centre lower than its radius
+    left, right, stereo = on_disk(scene, tmp_path)
+    markers = detect_markers(left, right, stereo)
+    tracker = NeedleTracker()
+    est = tracker.estimate(left, right, stereo, support_normal=markers.normal)
+    assert est.found, est.reason
+    total, largest, angle = needle_errors(est.pose_camera, scene.T_camera_needle,
+                                          tracker.geometry)
+    # measured: 0.62 mm, 0.7 degrees, 90 % of the arc seen (before: 2.62 mm, 11.5, 40 %)
+    assert largest < 0.0012 and math.degrees(angle) < 3.0, (largest, math.degrees(angle))
+    assert est.visible_share > 0.8
+
+
+def test_a_needle_lying_on_the_curved_pad_is_told_from_its_mirror_by_its_triangulated_ends(
+        tmp_path):
+    # On the scanned pad a lying needle and its tilt the other way across the line of sight
+    # fit the images within 0.03-0.04 px: that was "ambiguous", so every physical throw there
+    # stopped with "not seen: the needle". Their arc ends lie 1-1.5 mm apart in depth, and the
+    # ends of the wire's pixels, triangulated, tell them apart.
+    maker = SceneMaker('scanned', physics_step=0.01)
+    tracker = NeedleTracker()
+    try:
+        for seed in (0, 1):  # the physical bench's scene seed, and another
+            scene = maker.resting(seed)
+            left, right, stereo = on_disk(scene, tmp_path)
+            markers = detect_markers(left, right, stereo)
+            est = tracker.estimate(left, right, stereo, support_normal=markers.normal)
+            assert est.found, (seed, est.reason)
+            total, largest, angle = needle_errors(est.pose_camera, scene.T_camera_needle,
+                                                  tracker.geometry)
+            # measured: 0.64 and 0.56 mm (the mirror 2.55 and 2.56 mm)
+            assert largest < 0.0012, (seed, largest, math.degrees(angle))
+            # without the ends the same images stay a tie
+            off = NeedleTracker(config=replace(tracker.config, ends_margin=0.0))
+            tie = off.estimate(left, right, stereo, support_normal=markers.normal)
+            assert not tie.found and tie.reason.startswith('ambiguous'), (seed, tie.reason)
+    finally:
+        maker.close()
+
+
+def test_a_lying_needle_smaller_in_view_than_two_instruments_is_still_detected(tmp_path):
+    # A study's robot at the 3 mm class (error seed 1166009287): at home its instruments show
+    # two metal blobs larger than the needle in the right image. Only the two largest blobs
+    # were looked at, so its demonstrations failed with the needle never seen.
+    maker = SceneMaker('synthetic', physics_step=0.01, kinematic_errors=(3.0, 1166009287))
+    try:
+        scene = maker.resting(1271076244)
+    finally:
+        maker.close()
+    left, right, stereo = on_disk(scene, tmp_path)
+    markers = detect_markers(left, right, stereo)
+    tracker = NeedleTracker()
+    est = tracker.estimate(left, right, stereo, support_normal=markers.normal)
+    assert est.found, est.reason
+    total, largest, angle = needle_errors(est.pose_camera, scene.T_camera_needle,
+                                          tracker.geometry)
+    assert largest < 0.0012, (largest, math.degrees(angle))  # measured: 0.35 mm, 1.7 degrees
 
 
 @pytest.mark.parametrize('phantom', ['synthetic', 'scanned'])
