@@ -17,8 +17,8 @@ what it sends, with the profiles of :mod:`sim_bridge.ros.qos`:
   (:meth:`SimClient.select_pair`).
 
 :meth:`SimClient.observation` assembles a :class:`sim_bridge.control.Observation` from the
-newest messages, so a core controller (scripted expert, demonstrator, executor) runs the same
-way in-process and over ROS. Typical use in a node's timer::
+arms' newest consistent state, so a core controller (scripted expert, demonstrator, executor)
+runs the same way in-process and over ROS. Typical use in a node's timer::
 
     client = SimClient(node, on_event=self._on_event)
     client.watch_pairs(['synth1'])
@@ -34,6 +34,15 @@ from ``/tf_static`` as the robot's registration places them, the camera's optica
 ``ECM -> ECM_left_optical`` from there too, and the ECM's ``local/measured_cp``, so
 :meth:`SimClient.camera_pose` gives the camera in ``world``. :meth:`SimClient.observation` then
 has no needle, holders or pair: a perception estimator adds them.
+
+**The arms' state is consistent.** An arm's ``measured_cp``, ``local/measured_cp``,
+``measured_js`` and ``jaw/measured_js`` are paired by their stamp
+(:class:`sim_bridge.common.stamp_sets.StampSets`): the arm's state is the newest stamp at which
+all four have come, never the newest of each (which, when the stream lags or bursts after a
+stalled period, joins a tool pose to the joints of another instant). :meth:`SimClient.ready`
+waits for such a set of every arm, :meth:`SimClient.observation` is made of them and
+:meth:`SimClient.measured_stamps` gives their stamps, so a controller stepped once per new stamp
+steps only on consistent data.
 
 The client refuses to read the evaluation's ground truth: a topic it would subscribe to that
 resolves (after remapping) under ``/evaluation/``, where a simulator in physical mode publishes
@@ -55,6 +64,7 @@ from geometry_msgs.msg import PoseStamped
 import numpy as np
 from sensor_msgs.msg import JointState
 from sim_bridge.common.geometry import invert_transform
+from sim_bridge.common.stamp_sets import StampSets
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Observation
 from sim_bridge.ros import conversions as cv
@@ -63,6 +73,8 @@ from sim_bridge.scene.phantom import MarkerPair
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
+#: the messages of one stamp that make an arm's state
+STATE_PARTS = ('cp', 'local', 'js', 'jaw')
 EVALUATION = '/evaluation/'  # the ground truth a simulator keeps for the evaluation
 STATE_COMMAND_PERIOD = 2.0  # s of wall time between repeated enable/home commands
 
@@ -89,6 +101,10 @@ class SimClient:
     ----------
     tools : dict of str to tuple
         Per arm the newest ``measured_cp``: ``(stamp_s, frame_id, T_frame_tool)``.
+    sets : sim_bridge.common.stamp_sets.StampSets
+        Per arm the newest consistent state: ``measured_cp`` ``(frame_id, T_frame_tool)``,
+        ``local/measured_cp`` ``T_base_tool``, ``measured_js`` and ``jaw/measured_js`` messages
+        (parts ``cp``, ``local``, ``js``, ``jaw``) of one stamp.
     local : dict of str to tuple
         Per arm the newest ``local/measured_cp``: ``(stamp_s, T_base_tool)``.
     q, jaw, state : dict of str to message
@@ -113,6 +129,7 @@ class SimClient:
         self.optical = {}  # 'ECM_left_optical' -> T_ECM_optical (physical mode, /tf_static)
         self.tools, self.q, self.jaw, self.state = {}, {}, {}, {}
         self.local = {}
+        self.sets = StampSets(self.arms, STATE_PARTS)
         self._T_ref_base = {}  # arm -> (stamp_s, T_ref_base) of the newest matching pair
         self.bases, self.markers = {}, {}
         self.needle = None
@@ -136,9 +153,9 @@ class SimClient:
             sub(PoseStamped, f'{a}/measured_cp', lambda m, a=a: self._on_cp(a, m), qos.STREAM)
             sub(PoseStamped, f'{a}/local/measured_cp', lambda m, a=a: self._on_local(a, m),
                 qos.STREAM)
-            sub(JointState, f'{a}/measured_js', lambda m, a=a: self.q.__setitem__(a, m),
+            sub(JointState, f'{a}/measured_js', lambda m, a=a: self._on_js(a, 'js', m),
                 qos.STREAM)
-            sub(JointState, f'{a}/jaw/measured_js', lambda m, a=a: self.jaw.__setitem__(a, m),
+            sub(JointState, f'{a}/jaw/measured_js', lambda m, a=a: self._on_js(a, 'jaw', m),
                 qos.STREAM)
             sub(OperatingState, f'{a}/operating_state',
                 lambda m, a=a: self.state.__setitem__(a, m), qos.LATCHED)
@@ -168,6 +185,7 @@ class SimClient:
     def _on_cp(self, arm, msg):
         stamp = cv.seconds_from_stamp(msg.header.stamp)
         self.tools[arm] = (stamp, msg.header.frame_id, cv.matrix_from_pose(msg.pose))
+        self.sets.put(arm, 'cp', stamp, self.tools[arm][1:])
         self._pair_frames(arm)
         if self._on_cp_cb is not None:
             self._on_cp_cb(arm, stamp)
@@ -175,7 +193,12 @@ class SimClient:
     def _on_local(self, arm, msg):
         self.local[arm] = (cv.seconds_from_stamp(msg.header.stamp), cv.matrix_from_pose(msg.pose))
         if arm in self.arms:
+            self.sets.put(arm, 'local', *self.local[arm])
             self._pair_frames(arm)
+
+    def _on_js(self, arm, part, msg):
+        (self.q if part == 'js' else self.jaw)[arm] = msg
+        self.sets.put(arm, part, cv.seconds_from_stamp(msg.header.stamp), msg)
 
     def _on_tf_static(self, msg):
         """Keep the bases ``world -> <ARM>_base`` and the camera's ``ECM -> *_optical``."""
@@ -247,7 +270,7 @@ class SimClient:
 
     def ready(self, pairs=()):
         """
-        Return True once the arms' state, base frames, needle and pairs' markers came.
+        Return True once the arms' consistent state, base frames, needle and pairs' markers came.
 
         In physical mode: the arms' state, their bases and the camera's pose (no needle and no
         markers: those come from perception).
@@ -261,7 +284,9 @@ class SimClient:
             and self._placed(a) for a in self.arms))
 
     def _placed(self, arm):
-        """Whether the arm's tool pose can be placed in world and its goals in its frame."""
+        """Whether the arm has a consistent state, placed in world, and its goals a frame."""
+        if self.sets.newest(arm) is None:
+            return False
         frame = self.tools[arm][1]
         return frame in ('world', f'{arm}_base') or (arm in self.local
                                                      and arm in self._T_ref_base)
@@ -280,16 +305,21 @@ class SimClient:
         return None
 
     def measured_stamps(self):
-        """Return per arm the stamp (s) of its newest ``measured_cp``."""
-        return {a: self.tools[a][0] for a in self.arms if a in self.tools}
+        """Return per arm the stamp (s) of its newest consistent state (see the docstring)."""
+        return self.sets.stamps()
 
     def world_tool(self, arm):
-        """Return the arm's newest tool pose ``T_world_tool``."""
-        _, frame, T = self.tools[arm]
+        """Return the arm's tool pose ``T_world_tool`` in its newest consistent state."""
+        state = self.sets.newest(arm)
+        if state is None:  # not yet a whole set: the newest messages
+            _, frame, T = self.tools[arm]
+            local = self.local[arm][1] if arm in self.local else None
+        else:
+            (frame, T), local = state[1]['cp'], state[1]['local']
         if frame == 'world':
             return T
         if frame != f'{arm}_base':
-            T = self.local[arm][1]  # in <ARM>_base on every dVRK
+            T = local  # in <ARM>_base on every dVRK
         return self.bases[arm] @ T
 
     def camera_pose(self, optical='ECM_left_optical'):
@@ -323,17 +353,27 @@ class SimClient:
         Returns
         -------
         sim_bridge.control.Observation
-            Time is the newest ``measured_cp`` stamp of the arms. In physical mode (or with
-            ``pair`` None) without needle, holders or pair: the arms' reports only.
+            Each arm as in its newest consistent state (see the module's docstring; the newest
+            messages for an arm without one yet); time is the newest of their stamps. In
+            physical mode (or with ``pair`` None) without needle, holders or pair: the arms'
+            reports only.
 
         """
-        q = {a: np.asarray(self.q[a].position, dtype=float) for a in self.arms
-             if a in self.q and len(self.q[a].position) >= 6}
+        stamps, js, jaw = [], {}, {}
+        for a in self.arms:
+            state = self.sets.newest(a)
+            if state is None:
+                stamps.append(self.tools[a][0])
+                js[a], jaw[a] = self.q.get(a), self.jaw[a]
+            else:
+                stamps.append(state[0])
+                js[a], jaw[a] = state[1]['js'], state[1]['jaw']
+        q = {a: np.asarray(m.position, dtype=float) for a, m in js.items()
+             if m is not None and len(m.position) >= 6}
         return Observation(
-            t=max(self.tools[a][0] for a in self.arms),
+            t=max(stamps),
             T_world_tool={a: self.world_tool(a) for a in self.arms},
-            jaw={a: float(self.jaw[a].position[0]) if len(self.jaw[a].position) else 0.0
-                 for a in self.arms},
+            jaw={a: float(m.position[0]) if len(m.position) else 0.0 for a, m in jaw.items()},
             T_world_needle=self.needle, holders=tuple(sorted(self.holders)),
             pair=None if pair is None else self.marker_pair(pair),
             T_world_base={a: T for a, T in self.bases.items() if a in self.arms}, q=q or None)

@@ -30,6 +30,13 @@ image_raw`` (with their ``camera_info``), fits each arm's joint offsets and base
 runs every throw on the corrected kinematics. The score is the
 evaluation's (not read here): the outcome's ``score`` is None.
 
+The controller steps on consistent data only: once per new stamp of the arms' state, where an
+arm's state is its ``measured_cp``, ``local/measured_cp``, ``measured_js`` and
+``jaw/measured_js`` of one stamp (paired by :class:`sim_bridge.ros.client.SimClient`, never the
+newest of each), and in physical mode with the perception's looks stamped at or before that
+state (:class:`suture_lfd.skill.perceived_feed.PerceptionFeed`); each command is stamped with
+the state's stamp.
+
 It stops commanding and reports when an arm stops answering, when an arm leaves ``ENABLED``
 (a fault), on ``~/stop`` (std_msgs/Empty), or after ``timeout`` s. The watchdog
 (:class:`suture_lfd.skill.watchdog.ArmWatchdog`) tells a dead arm from a slow machine by the

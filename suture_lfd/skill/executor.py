@@ -117,6 +117,15 @@ class ExecutorConfig:
     final_approach_time: float = 1.0
     resend_unchanged: bool = False
 
+    def in_physical_mode(self) -> 'ExecutorConfig':
+        """
+        Return these settings as a controller on what a robot shows runs them.
+
+        The one place physical mode changes the executor's settings (in-process and in the
+        executor node alike): ``start_press`` becomes ``physical_start_press``.
+        """
+        return replace(self, start_press=self.physical_start_press)
+
 
 class SampledPath:
     """
@@ -671,7 +680,7 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
     if config is None:
         config = ExecutorConfig(script=sim.config.scene.expert)
     if physical:
-        config = replace(config, start_press=config.physical_start_press)
+        config = config.in_physical_mode()
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     look = None
     if perception is not None:

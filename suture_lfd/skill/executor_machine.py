@@ -439,10 +439,12 @@ class ExecutorMachine:
     def _begin(self, obs: Observation) -> None:
         """Plan the throw on what ``obs`` shows and start commanding."""
         try:
-            self._executor = ThrowExecutor(
-                self.skill, obs.pair, self.scene.needle, kinematics=self.kinematics,
-                config=ExecutorConfig(script=self.scene.expert,
-                                      phase_stopping=self.config.phase_stopping))
+            config = ExecutorConfig(script=self.scene.expert,
+                                    phase_stopping=self.config.phase_stopping)
+            if self.config.physical:
+                config = config.in_physical_mode()
+            self._executor = ThrowExecutor(self.skill, obs.pair, self.scene.needle,
+                                           kinematics=self.kinematics, config=config)
             self._controller = self._executor
             if self.correction is not None and self.correction.arms:
                 self._controller = CorrectedController(self._executor, self.correction)

@@ -11,10 +11,17 @@ target pair, where the needle lies, which arm holds it. So the one
 :meth:`PerceptionFeed.observe` from the arms' own reports. It never renders and never reads the
 simulation: a node converts the messages and hands them over.
 
+**Looks of a known stamp.** Each look is kept with the stamp of its image pair, and an
+observation of the arms at time ``t`` is made only of looks stamped at or before ``t``: a look
+taken after the arms' state (possible when the arms' messages queue behind the images' while
+the robot's loop catches up) waits until the arms' state has reached its stamp, so the controller
+never joins a tool pose to a needle seen later. The newest few looks are kept for that.
+
 Frames: ``world`` (as the robot believes it: its bases' registration), ``camera`` (the left
 optical frame, x right, y down, z forward); poses 4x4; metres, seconds (the messages' stamps).
 """
 
+from collections import deque
 from dataclasses import dataclass
 import logging
 import math
@@ -129,9 +136,31 @@ class PerceptionFeed(PerceivedScene):
             raise ValueError(f'grasp_reach must be > 0 m, got {reach}')
         self.grasp_reach = float(reach)
         self.T_world_camera: np.ndarray | None = None
-        # camera frame: (stamp, entries (n, 3), exits (n, 3), normal (3,))
-        self._markers_c: tuple | None = None
-        self._needle_c: tuple | None = None  # (stamp, T_camera_needle or None, NeedleStatus)
+        # the newest looks, oldest first; camera frame:
+        # markers (stamp, entries (n, 3), exits (n, 3), normal (3,)),
+        # needle (stamp, T_camera_needle or None, NeedleStatus)
+        self._marker_looks: deque[tuple] = deque(maxlen=self.LOOKS_KEPT)
+        self._needle_looks: deque[tuple] = deque(maxlen=self.LOOKS_KEPT)
+        self._now: float | None = None  # stamp (s) of the arms' state observed; None: any look
+
+    #: looks kept per kind for :meth:`observe` to choose one of a known stamp from
+    LOOKS_KEPT = 8
+
+    @staticmethod
+    def _at(looks: 'deque[tuple]', now: float | None) -> tuple | None:
+        """Return the newest look stamped at or before ``now`` (any when None), or None."""
+        for look in reversed(looks):
+            if now is None or look[0] <= now:
+                return look
+        return None
+
+    @property
+    def _markers_c(self) -> tuple | None:
+        return self._at(self._marker_looks, self._now)
+
+    @property
+    def _needle_c(self) -> tuple | None:
+        return self._at(self._needle_looks, self._now)
 
     # ------------------------------------------------------------------ inputs
     def camera_moved(self, T_world_camera: ArrayLike) -> None:
@@ -158,7 +187,7 @@ class PerceptionFeed(PerceivedScene):
         if entries.shape != exits.shape:
             raise ValueError(f'{len(entries)} entries but {len(exits)} exits: the marker '
                              'arrays must pair up')
-        self._markers_c = (float(stamp), entries, exits, np.asarray(normal, dtype=float))
+        self._marker_looks.append((float(stamp), entries, exits, np.asarray(normal, dtype=float)))
 
     def needle_seen(self, stamp: float, T_camera_needle: ArrayLike | None,
                     status: NeedleStatus) -> None:
@@ -175,14 +204,14 @@ class PerceptionFeed(PerceivedScene):
 
         """
         T = None if T_camera_needle is None else np.asarray(T_camera_needle, dtype=float)
-        self._needle_c = (float(stamp), T, status)
+        self._needle_looks.append((float(stamp), T, status))
 
     def seen_since(self, stamp: float) -> list[str]:
         """Return what was not seen at or after ``stamp`` (``'markers'``, ``'needle'``)."""
         missing = []
-        if self._markers_c is None or self._markers_c[0] < stamp:
+        if not self._marker_looks or self._marker_looks[-1][0] < stamp:
             missing.append('markers')
-        if self._needle_c is None or self._needle_c[0] < stamp:
+        if not self._needle_looks or self._needle_looks[-1][0] < stamp:
             missing.append('needle')
         return missing
 
@@ -272,7 +301,8 @@ class PerceptionFeed(PerceivedScene):
             joints); its needle, holders and pair are ignored.
 
         When the last holder lets go, the needle is believed where it was let go until the
-        first look stamped after the release finds it; then it is where that look saw it.
+        first look stamped after the release finds it; then it is where that look saw it. Only
+        looks stamped at or before ``arms.t`` are used (see the module's docstring).
 
         Returns
         -------
@@ -282,6 +312,7 @@ class PerceptionFeed(PerceivedScene):
 
         """
         held_before = bool(self._holders)
+        self._now = arms.t
         needle, holders, pair = self.estimate(None, arms)
         if held_before and not holders:
             self._look_after = arms.t

@@ -20,7 +20,7 @@ from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.perception import StereoPerception, stereo_from_camera_info
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.skill import learn_skill, training_data
-from suture_lfd.skill.executor import _event_dict
+from suture_lfd.skill.executor import ExecutorConfig, _event_dict
 from suture_lfd.skill.executor_machine import ExecutorMachine, MachineConfig
 from suture_lfd.skill.perceived_feed import NeedleStatus
 from suture_lfd.skill.watchdog import ArmWatchdog
@@ -295,12 +295,18 @@ def test_in_physical_mode_the_machine_registers_the_arms_and_scores_on_what_it_s
     try:
         sim.reset(seed=0)
         arms = PerceivedSceneArms(sim)
-        statuses, results = [], []
+        statuses, results, presses = [], [], []
+
+        def on_status(record):
+            statuses.append(record)
+            if record['state'] == 'running':  # the settings the throw runs with
+                presses.append(machine._executor.executor_config.start_press)
+
         watchdog = ArmWatchdog(PSMS, 1.0 / CONTROL_PERIOD, 0.1, 1.0, 30.0)
         machine = ExecutorMachine(
             pair_frame_skill, load_scene_config(), sim.kinematics['PSM1'], arms, arms.send,
             watchdog, MachineConfig(physical=True, prepare_timeout=30.0),
-            on_status=statuses.append, on_result=results.append, clock=lambda: sim.time,
+            on_status=on_status, on_result=results.append, clock=lambda: sim.time,
             images=arms.images, instrument=sim.config.world.instrument)
         assert machine.execute('synth1')
         score = run_physical(sim, arms, machine, watchdog, 150.0)
@@ -309,6 +315,8 @@ def test_in_physical_mode_the_machine_registers_the_arms_and_scores_on_what_it_s
     stages = [s['state'] for s in statuses]
     assert stages[:3] == ['preparing', 'registering', 'preparing'], statuses
     assert set(machine.correction.arms) == {'PSM1', 'PSM2'}
+    # physical mode's settings, as in-process: the start of the insertion pressed deeper
+    assert presses == [ExecutorConfig().physical_start_press], presses
     assert results and results[-1]['state'] == 'done', (results, statuses[-3:])
     assert score.score >= 0.8, (score.score, score.failure, score.entry_error_mm,
                                 score.exit_error_mm)

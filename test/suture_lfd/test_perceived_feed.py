@@ -135,3 +135,25 @@ def test_a_needle_let_go_is_where_it_was_left_until_a_look_taken_after_the_relea
     feed.needle_seen(0.6, seen, NeedleStatus(True))
     after = feed.observe(arms(0.7, 0.8, 0.8, tool2=moved)).T_world_needle
     np.testing.assert_allclose(after[:3, 3], [0.02, 0.0055, 0.0], atol=1e-12)
+
+
+def test_an_observation_takes_only_looks_stamped_at_or_before_the_arms_state():
+    feed = PerceptionFeed('synth1', 1)
+    feed.camera_moved(camera_pose())
+    feed.markers_seen(0.0, [[0, 0.004, 0.1]], [[0, -0.004, 0.1]], [0, 0, -1])
+    before, later = np.eye(4), np.eye(4)
+    before[:3, 3] = [0.02, 0.0, 0.1]            # world (0.02, 0, 0)
+    later[:3, 3] = [0.03, 0.0, 0.1]             # world (0.03, 0, 0): seen after the arms' state
+    feed.needle_seen(0.9, before, NeedleStatus(True))
+    feed.needle_seen(1.1, later, NeedleStatus(True))
+    # the arms' state of 1.0 arrives after the look of 1.1 (queued behind the images)
+    first = feed.observe(arms(1.0, 0.8, 0.8))
+    np.testing.assert_allclose(first.T_world_needle[:3, 3], [0.02, 0.0, 0.0], atol=1e-12)
+    # nothing of a known stamp yet: no needle rather than one seen later
+    empty = PerceptionFeed('synth1', 1)
+    empty.camera_moved(camera_pose())
+    empty.markers_seen(0.0, [[0, 0.004, 0.1]], [[0, -0.004, 0.1]], [0, 0, -1])
+    empty.needle_seen(1.1, later, NeedleStatus(True))
+    assert empty.observe(arms(1.0, 0.8, 0.8)).T_world_needle is None
+    seen = empty.observe(arms(1.1, 0.8, 0.8)).T_world_needle
+    np.testing.assert_allclose(seen[:3, 3], [0.03, 0.0, 0.0], atol=1e-12)
