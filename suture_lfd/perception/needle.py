@@ -430,7 +430,7 @@ class NeedleTracker:
         mask = (field.mask > 0).astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         order = np.argsort(-stats[1:, cv2.CC_STAT_AREA]) + 1
-        blobs = []
+        blobs: list[np.ndarray] = []
         for label in order:
             if stats[label, cv2.CC_STAT_AREA] < c.min_blob_area or len(blobs) == 2:
                 break  # the two largest elongated blobs (an instrument's metal is not one)

@@ -57,7 +57,8 @@ GRAB_OPACITY = 0.6
 GRAB_RADIUS = 0.003  # m, a ball's radius until the page reports its camera
 RESCALE_PERIOD = 0.25  # s between two sizings of the balls from the page's camera
 HOLD_HZ = 20.0  # Hz at which a held clutch button reports it is held
-HOLD_TIMEOUT = 1.0  # s without a report before a held clutch counts as released
+HOLD_TIMEOUT = 3.0  # s without a report before a held clutch counts as released (a busy page
+# can go quiet for over a second while the key is still held)
 MODES = ('move in image', 'depth', 'rotate')
 MODE_KEYS = {'move in image': 'M', 'depth': 'Z', 'rotate': 'T'}
 HOTKEYS = {'clutch': 'C', 'coag': 'V', 'record': 'R'}
