@@ -280,11 +280,15 @@ class _SignalState:
         self.signum = None
         self.raise_at_once = True
 
-    def handle(self, signum, _frame):
+    def handle(self, signum, frame):
         if self.signum is not None:
             return  # a second signal while stopping: the first one is being handled
         self.signum = signum
-        if self.raise_at_once:
+        # Raised inside the import system's own callbacks (a module lock's weakref callback),
+        # the exception would be printed as 'Exception ignored' and dropped: there the signal
+        # is only kept, and takes effect when the node checks it (at the latest when it spins).
+        in_import_system = frame is not None and frame.f_code.co_filename.startswith('<frozen')
+        if self.raise_at_once and not in_import_system:
             raise Interrupted(signum)
 
     @contextmanager
