@@ -284,11 +284,12 @@ class _SignalState:
         if self.signum is not None:
             return  # a second signal while stopping: the first one is being handled
         self.signum = signum
-        # Raised inside the import system's own callbacks (a module lock's weakref callback),
-        # the exception would be printed as 'Exception ignored' and dropped: there the signal
-        # is only kept, and takes effect when the node checks it (at the latest when it spins).
-        in_import_system = frame is not None and frame.f_code.co_filename.startswith('<frozen')
-        if self.raise_at_once and not in_import_system:
+        # Raised inside a module lock's weakref callback (the import system's), the exception
+        # would be printed as 'Exception ignored' and dropped: there the signal is only kept,
+        # and takes effect when the node next checks it (at the latest when it spins).
+        in_lock_callback = (frame is not None and frame.f_code.co_name == 'cb'
+                            and frame.f_code.co_filename == '<frozen importlib._bootstrap>')
+        if self.raise_at_once and not in_lock_callback:
             raise Interrupted(signum)
 
     @contextmanager
