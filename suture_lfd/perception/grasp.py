@@ -10,6 +10,11 @@ frame) and the needle's estimate, ``T_tool_needle = inv(T_camera_tool) T_camera_
 :meth:`scipy.spatial.transform.Rotation.mean`) over the frames whose estimate was found, each
 weighted by ``1 / (residual_px + 0.1)``.
 
+Seen nearly face on, one pair leaves the needle's tilt across the line of sight open;
+:meth:`suture_lfd.perception.needle.NeedleTracker.fit_grasp` fits one grasp to the edges of
+several pairs at once (:class:`HeldView`: the images and the holding tool's pose), among them the
+pair of the needle lying where the jaw then closed on it (:class:`GraspFit`).
+
 Frames: camera = the left optical frame; tool = the PSM tool-tip frame (``measured_cp``'s); metres.
 """
 
@@ -47,6 +52,52 @@ class GraspEstimate:
     spread_position: float
     spread_angle: float
     n_frames: int
+
+
+@dataclass(frozen=True, eq=False)
+class HeldView:
+    """
+    One stereo pair of a grasp, for :meth:`~suture_lfd.perception.needle.NeedleTracker.fit_grasp`.
+
+    Attributes
+    ----------
+    left, right : ndarray, shape (height, width, 3), uint8
+        The rectified RGB pair.
+    T_camera_tool : ndarray, shape (4, 4)
+        The holding tool's pose (camera frame) -- for a pair taken before the grasp, where the
+        tool closed its jaw on the needle.
+    tools : tuple of ndarray (4, 4)
+        Poses (camera frame) of the instruments in view when the pair was taken: where their
+        jaws, wrist or shaft cover the arc it is not looked for.
+
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    T_camera_tool: np.ndarray
+    tools: tuple = ()
+
+
+@dataclass(frozen=True, eq=False)
+class GraspFit:
+    """
+    A grasp fitted to several pairs at once.
+
+    Attributes
+    ----------
+    T_tool_needle : ndarray, shape (4, 4)
+        The grasp (m).
+    residual_px : tuple of float
+        Per pair, the RMS distance (pixels) of the arc points seen in both images from the
+        needle's centre line (``inf`` when none is seen).
+    visible_share : tuple of float
+        Per pair, the share of the arc seen in both images.
+
+    """
+
+    T_tool_needle: np.ndarray
+    residual_px: tuple
+    visible_share: tuple
 
 
 def estimate_grasp(tool_poses: Sequence[ArrayLike],

@@ -55,6 +55,7 @@ from suture_lfd.perception.arc_stereo import (
     centre_line_points,
     fit_arc_to_points,
 )
+from suture_lfd.perception.grasp import GraspFit, HeldView
 from suture_lfd.perception.images import check_image
 from suture_lfd.perception.reacquire import shifted_priors
 from suture_lfd.perception.stereo import StereoModel
@@ -342,48 +343,131 @@ class NeedleTracker:
             out.append((index, dirs, offset, np.concatenate([valid, ends_valid])))
         return out
 
-    def _refine(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
-                hidden: np.ndarray) -> np.ndarray:
-        """Gauss-Newton on the edges' offsets (Huber weights); returns the pose."""
+    def edge_rows(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
+                  hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Return the edge fit's linear system at pose ``T`` (``T_camera_needle``).
+
+        Returns
+        -------
+        tuple of ndarray
+            Rows ``(k, 6)`` -- the derivative of each seen edge offset (pixels) by a rotation
+            (rad, camera axes) about ``T``'s origin, then by a translation (m) --, the offsets
+            ``(k,)`` and their Huber weights ``(k,)``; ``k`` is 0 when no edge is seen.
+
+        """
         c = self.config
         n = len(self._model)
         weight = np.ones(n + 2)
         weight[n:] = c.end_weight
-        T = T.copy()
         fx, fy, b = stereo.fx, stereo.fy, stereo.baseline
-        for _ in range(c.refine_iterations):
-            rows, rhs, weights = [], [], []
-            data = self._profiles(T, stereo, fields, hidden)
-            for side, (index, dirs, offset, valid) in enumerate(data):
-                if not valid.any():
-                    continue
-                points = self._model[index[valid]] @ T[:3, :3].T + T[:3, 3]
-                lever = points - T[:3, 3]
-                x, y, z = points[:, 0], points[:, 1], points[:, 2]
-                du = np.column_stack([fx / z, np.zeros_like(z),
-                                      (-fx * x + (fx * b if side else 0.0)) / z ** 2])
-                dv = np.column_stack([np.zeros_like(z), fy / z, -fy * y / z ** 2])
-                d = dirs[valid]
-                g = d[:, :1] * du + d[:, 1:] * dv  # d(offset along the direction)/dX
-                # dX/domega = -[lever]_x, dX/dtau = I
-                rows.append(np.hstack([np.cross(lever, g), g]))
-                r = offset[valid]
-                rhs.append(r)
-                weights.append(weight[valid] * np.minimum(1.0, c.huber / np.maximum(np.abs(r),
-                                                                                  1e-9)))
-            if not rows:
+        rows, rhs, weights = [], [], []
+        for side, (index, dirs, offset, valid) in enumerate(
+                self._profiles(T, stereo, fields, hidden)):
+            if not valid.any():
+                continue
+            points = self._model[index[valid]] @ T[:3, :3].T + T[:3, 3]
+            lever = points - T[:3, 3]
+            x, y, z = points[:, 0], points[:, 1], points[:, 2]
+            du = np.column_stack([fx / z, np.zeros_like(z),
+                                  (-fx * x + (fx * b if side else 0.0)) / z ** 2])
+            dv = np.column_stack([np.zeros_like(z), fy / z, -fy * y / z ** 2])
+            d = dirs[valid]
+            g = d[:, :1] * du + d[:, 1:] * dv  # d(offset along the direction)/dX
+            # dX/domega = -[lever]_x, dX/dtau = I
+            rows.append(np.hstack([np.cross(lever, g), g]))
+            r = offset[valid]
+            rhs.append(r)
+            weights.append(weight[valid] * np.minimum(1.0, c.huber / np.maximum(np.abs(r),
+                                                                              1e-9)))
+        if not rows:
+            return np.zeros((0, 6)), np.zeros(0), np.zeros(0)
+        return np.vstack(rows), np.concatenate(rhs), np.concatenate(weights)
+
+    def _refine(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
+                hidden: np.ndarray) -> np.ndarray:
+        """Gauss-Newton on the edges' offsets (Huber weights); returns the pose."""
+        T = T.copy()
+        for _ in range(self.config.refine_iterations):
+            J, r, w = self.edge_rows(T, stereo, fields, hidden)
+            if not len(r):
                 break
-            J = np.vstack(rows)
-            r = np.concatenate(rhs)
-            w = np.concatenate(weights)
-            A = J.T @ (w[:, None] * J)
-            A += 1e-6 * np.trace(A) * np.eye(6)
-            step = np.linalg.solve(A, J.T @ (w * r))
+            step = _gauss_newton_step(J, r, w)
             T[:3, :3] = rotvec_matrix(step[:3]) @ T[:3, :3]
             T[:3, 3] = T[:3, 3] + step[3:]
             if np.linalg.norm(step[3:]) < 2e-6 and np.linalg.norm(step[:3]) < 2e-4:
                 break
         return T
+
+    def fit_grasp(self, views: Sequence[HeldView], stereo: StereoModel,
+                  T_tool_needle: ArrayLike) -> GraspFit:
+        """
+        Fit the grasp ``T_tool_needle`` to several stereo pairs of one grasp at once.
+
+        Seen nearly face on, a needle's tilt across the line of sight hardly changes one pair's
+        images (a lying needle on a sloping pad can be 10-15 degrees off and fit as well as
+        the truth). The grasp is the same in every pair while the tool turns the needle
+        between them, so the tilt one pair cannot see another shows: the edges of all pairs
+        are fitted together (Gauss-Newton on the tool-frame grasp).
+
+        Parameters
+        ----------
+        views : sequence of HeldView
+            The pairs, each with the holding tool's pose (camera frame); a pair taken before
+            the grasp (the needle lying where the jaw then closed) gives the tool's pose at the
+            grasp.
+        stereo : suture_lfd.perception.stereo.StereoModel
+        T_tool_needle : array_like, shape (4, 4)
+            Starting grasp.
+
+        Returns
+        -------
+        GraspFit
+
+        Raises
+        ------
+        ValueError
+            When an image is not uint8 RGB of the camera's size, or a pose is not 4x4.
+
+        """
+        c = self.config
+        G = _pose(T_tool_needle, 'grasp').copy()
+        prepared = []
+        for v in views:
+            fields = (WireImage(check_image(v.left, stereo, 'left'), c.blur),
+                      WireImage(check_image(v.right, stereo, 'right'), c.blur))
+            capsules = [k for T in v.tools for k in tool_capsules(
+                _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length,
+                c.shaft_radius)]
+            prepared.append((fields, _pose(v.T_camera_tool, 'tool pose'), capsules))
+
+        def hidden(T: np.ndarray, capsules: list[Any]) -> np.ndarray:
+            return hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
+
+        for _ in range(c.refine_iterations):
+            rows, rhs, weights = [], [], []
+            for fields, T_ct, capsules in prepared:
+                T = T_ct @ G
+                J, r, w = self.edge_rows(T, stereo, fields, hidden(T, capsules))
+                R = T_ct[:3, :3]  # a tool-frame change of the grasp, seen in this camera
+                rows.append(np.hstack([J[:, :3] @ R, J[:, 3:] @ R]))
+                rhs.append(r)
+                weights.append(w)
+            J, r = np.vstack(rows), np.concatenate(rhs)
+            if not len(r):
+                break
+            step = _gauss_newton_step(J, r, np.concatenate(weights))
+            G[:3, :3] = rotvec_matrix(step[:3]) @ G[:3, :3]
+            G[:3, 3] = G[:3, 3] + step[3:]
+            if np.linalg.norm(step[3:]) < 2e-6 and np.linalg.norm(step[:3]) < 2e-4:
+                break
+        scores = []
+        for fields, T_ct, capsules in prepared:
+            T = T_ct @ G
+            residual, share, _, _ = self._score(T, stereo, fields, hidden(T, capsules))
+            scores.append((residual, share))
+        return GraspFit(T_tool_needle=G, residual_px=tuple(k[0] for k in scores),
+                        visible_share=tuple(k[1] for k in scores))
 
     def _score(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
                hidden: np.ndarray) -> tuple[float, float, float, float]:
@@ -471,10 +555,37 @@ class NeedleTracker:
                     starts.append(kabsch(model, points))
         return starts
 
+    def _laid_starts(self, stereo: StereoModel, fields: Fields, normal: np.ndarray,
+                     point: np.ndarray) -> list[np.ndarray]:
+        """
+        Start poses from the left image's blobs laid flat on the support's plane.
+
+        The rays through a blob's ends and bulge meet the plane ``normal . X = normal . point``
+        raised by the wire's radius (``normal`` towards the camera) where a needle lying on
+        it would put its tail, tip and middle.
+        """
+        g = self.geometry
+        model = g.point_at(np.array([0.0, 1.0, 0.5]))
+        level = float(normal @ point) + 0.5 * g.wire_diameter
+        starts = []
+        for blob in self._blobs(fields[0], stereo):
+            rays = np.column_stack([(blob[:, 0] - stereo.cx) / stereo.fx,
+                                    (blob[:, 1] - stereo.cy) / stereo.fy, np.ones(len(blob))])
+            along = rays @ normal
+            if np.any(along * level <= 0.0):
+                continue  # a ray that does not meet the plane in front of the camera
+            points = rays * (level / along)[:, None]
+            chord = float(np.linalg.norm(points[1] - points[0]))
+            if not 0.5 * g.chord < chord < 1.5 * g.chord:
+                continue
+            starts.append(kabsch(model, points))
+        return starts
+
     # ------------------------------------------------------------------ the estimate
     def estimate(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel,
                  prior: ArrayLike | None = None, tools: Sequence[ArrayLike] = (),
-                 support_normal: ArrayLike | None = None, search: int = 0) -> NeedleEstimate:
+                 support_normal: ArrayLike | None = None, search: int = 0,
+                 support_point: ArrayLike | None = None) -> NeedleEstimate:
         """
         Estimate the needle's pose in the camera frame from a rectified stereo pair.
 
@@ -495,6 +606,11 @@ class NeedleTracker:
             :attr:`suture_lfd.perception.markers.MarkerDetections.normal`: of the poses that
             fit the images alike, one whose plane is within ``max_support_tilt`` of it is
             taken. Without it (and without a prior) such a tie is "not found".
+        support_point : array_like, shape (3,), optional
+            A point (camera frame) of that surface, e.g. the markers' centroid: with
+            ``support_normal``, detection also starts from the needle's blobs laid flat on the
+            surface's plane (a start triangulated from the blobs' ends alone can be tens of
+            degrees off, seen nearly face on, and settle in a wrong fit).
         search : int
             With a prior: also start from the prior moved to where the images show the needle
             within this many pixels (:func:`suture_lfd.perception.reacquire.shifted_priors`),
@@ -527,6 +643,9 @@ class NeedleTracker:
                                          self._model, self.geometry.wire_diameter, int(search))
         else:
             starts = self._detections(stereo, fields)
+            if support_normal is not None and support_point is not None:
+                starts += self._laid_starts(stereo, fields, support_normal,
+                                            np.asarray(support_point, dtype=float).reshape(3))
             if not starts:
                 return NeedleEstimate(found=False, pose_camera=None, residual_px=math.inf,
                                       visible_share=0.0, reason='no needle-like blob in both '
@@ -575,7 +694,7 @@ class NeedleTracker:
         reason = ''
         if prior is None:
             rivals = [k for k in candidates[1:] if k[0] and k[1] <= cost + c.ambiguity
-                      and self._distance(k[2], T) > c.ambiguity_distance]
+                      and self.arc_distance(k[2], T) > c.ambiguity_distance]
             if rivals and c.ends_margin > 0.0:
                 best, rivals = self._by_ends(T, rivals, stereo, fields)
                 if best is not T:
@@ -588,9 +707,9 @@ class NeedleTracker:
                     T, stereo, fields):
                 T = flipped
             if rivals:
-                reason = (f'ambiguous: another pose {self._distance(rivals[0][2], T) * 1e3:.1f} '
-                          f'mm away fits the images as well (cost {rivals[0][1]:.2f} against '
-                          f'{cost:.2f} px)')
+                apart = self.arc_distance(rivals[0][2], T)
+                reason = (f'ambiguous: another pose {apart * 1e3:.1f} mm away fits the images '
+                          f'as well (cost {rivals[0][1]:.2f} against {cost:.2f} px)')
         if share < c.min_visible:
             reason = (f'too little of the needle seen in both images ({share:.0%} < '
                       f'{c.min_visible:.0%})')
@@ -642,7 +761,7 @@ class NeedleTracker:
             return T, rivals
         return poses[int(order[0])], []
 
-    def _distance(self, T_a: np.ndarray, T_b: np.ndarray) -> float:
+    def arc_distance(self, T_a: np.ndarray, T_b: np.ndarray) -> float:
         """Mean distance (m) of the arcs' base, middle and tip, tail and tip either way."""
         p = self.geometry.point_at(np.array([0.0, 0.5, 1.0]))
         a = p @ T_a[:3, :3].T + T_a[:3, 3]
@@ -650,6 +769,13 @@ class NeedleTracker:
         same = np.linalg.norm(a - b, axis=1).mean()
         swapped = np.linalg.norm(a - b[::-1], axis=1).mean()
         return float(min(same, swapped))
+
+
+def _gauss_newton_step(J: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Return the weighted least-squares step of rows ``J`` to offsets ``r`` (damped a little)."""
+    A = J.T @ (w[:, None] * J)
+    A += 1e-6 * np.trace(A) * np.eye(6)
+    return np.linalg.solve(A, J.T @ (w * r))
 
 
 def _pose(T: ArrayLike, what: str) -> np.ndarray:

@@ -62,6 +62,12 @@ _JAW_GAP_S = 0.15
 _TIP_MARGIN_S = 0.97
 # Part of the insertion (fraction of its duration) over which the start press fades out.
 _PRESS_FADE = 0.25
+# How squarely (|cos| of the plane normal to the line of sight) the carried needle should face
+# the camera when the grasp is looked at again, and the range a look is taken in at all: seen
+# face on, as it lay, the pair adds little; edge-on, little of the wire shows.
+_LOOK_FACING = 0.6
+_LOOK_FACING_RANGE = (0.3, 0.85)
+_LOOK_STEP = 0.05  # s between the planned instants whose facing is compared
 
 
 @dataclass(frozen=True)
@@ -241,9 +247,15 @@ class ThrowExecutor:
     look : callable, optional
         ``look(arm, obs) -> T_tool_needle or None``: look at the needle ``arm`` holds and
         return its grasp as seen. Given, the executor closes its loop where the skill needs
-        it: when PSM2 has carried the needle above the insertion start, the grasp is measured
+        it: while PSM2 carries the needle towards the insertion start, the grasp is measured
         again and the rest of the approach brings the needle -- its tip onto the entry marker
         -- where the rollout starts, as seen.
+    facing : callable, optional
+        ``facing(T_world_needle) -> float``: how squarely a needle pose faces the camera
+        (``|cos|``, 1 face on). Given with ``look``, the look is taken at the planned instant
+        of the carry where the needle faces the camera nearest ``0.6`` (turned from how it lay,
+        its tilt shows); without it, or when no instant is in ``0.3``-``0.85``, above the
+        insertion start.
 
     Attributes
     ----------
@@ -259,7 +271,8 @@ class ThrowExecutor:
     def __init__(self, skill: ThrowSkill, pair: Any, needle_geometry: 'NeedleGeometry',
                  kinematics: Any = None, config: 'ExecutorConfig | None' = None,
                  next_pair: 'MarkerPair | None' = None,
-                 look: 'Callable[[str, Observation], np.ndarray | None] | None' = None) -> None:
+                 look: 'Callable[[str, Observation], np.ndarray | None] | None' = None,
+                 facing: 'Callable[[np.ndarray], float] | None' = None) -> None:
         self.executor_config = ExecutorConfig() if config is None else config
         self.config = self.executor_config.script
         if not isinstance(skill, ThrowSkill):
@@ -275,6 +288,7 @@ class ThrowExecutor:
         self.plan_: 'Plan | None' = None
         self.follower: PlanFollower | None = None
         self.look = look
+        self.facing = facing
         self._above: np.ndarray | None = None
         self._checks: list[tuple[float, str]] = []
 
@@ -400,13 +414,24 @@ class ThrowExecutor:
         self._checks = [] if self.look is None else self._checkpoints()
 
     def _checkpoints(self) -> list[tuple[float, str]]:
-        """Plan times (s) and arms at which to look at the held needle: above the insertion."""
+        """Plan time (s) and arm at which to look at the held needle (see ``facing``)."""
         assert self.plan_ is not None and self._above is not None  # set by plan()
-        for seg in self.plan_.segments['PSM2']:
-            if seg.carries_needle and seg.t0 > 0.0 \
-                    and np.allclose(seg.needle(seg.t0), self._above, atol=1e-9):
-                return [(seg.t0, 'PSM2')]
-        return []
+        segments = [seg for seg in self.plan_.segments['PSM2']
+                    if seg.carries_needle and seg.t0 > 0.0]
+        above = next((seg.t0 for seg in segments
+                      if np.allclose(seg.needle(seg.t0), self._above, atol=1e-9)), None)
+        if above is None:
+            return []
+        if self.facing is None:
+            return [(above, 'PSM2')]
+        lo, hi = _LOOK_FACING_RANGE
+        best: tuple[float, float] | None = None
+        for seg in segments:
+            for t in np.arange(seg.t0, min(seg.t1, above), _LOOK_STEP):
+                f = self.facing(seg.needle(float(t)))
+                if lo <= f <= hi and (best is None or abs(f - _LOOK_FACING) < best[0]):
+                    best = (abs(f - _LOOK_FACING), float(t))
+        return [(above if best is None else best[1], 'PSM2')]
 
     @property
     def done(self) -> bool:
@@ -682,12 +707,15 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
     if physical:
         config = config.in_physical_mode()
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
-    look = None
+    look = facing = None
     if perception is not None:
         def look(arm: str, obs: 'Observation') -> np.ndarray | None:
             return perception.look_at_grasp(sim, arm, obs.T_world_tool)
+
+        def facing(T_world_needle: np.ndarray) -> float:
+            return perception.facing(sim, T_world_needle)
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
-                             config=config, next_pair=nxt, look=look)
+                             config=config, next_pair=nxt, look=look, facing=facing)
     controller = executor if kinematic is None else CorrectedController(executor, kinematic)
     recorder = _Recorder(controller, observer)
     t_start = sim.time

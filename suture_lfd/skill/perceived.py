@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 from sim_bridge.scene.markers import MarkerPair
-from suture_lfd.perception import NeedleTracker, detect_markers, stereo_from_camera_info
+from suture_lfd.perception import HeldView, NeedleTracker, detect_markers, stereo_from_camera_info
 
 if TYPE_CHECKING:
     from sim_bridge.common.needle import NeedleGeometry
@@ -77,6 +77,7 @@ class PerceivedScene:
         self._frame: tuple[float, Any, np.ndarray] | None = None
         self._pair: MarkerPair | None = None
         self._support_normal: np.ndarray | None = None
+        self._support_point: np.ndarray | None = None
         self.renders = 0
         self._next_look = -np.inf  # s: when an unseen lying needle is looked for again
         self.reset()
@@ -130,6 +131,7 @@ class PerceivedScene:
         R, p = T[:3, :3], T[:3, 3]
         normal = R @ found.normal
         self._support_normal = found.normal
+        self._support_point = found.points.mean(axis=0)
         self._pair = MarkerPair(name=self.pair_name, entry=R @ entry_c + p, exit=R @ exit_c + p,
                                 normal=normal, entry_normal=normal, exit_normal=normal,
                                 index=self.pair_index)
@@ -160,7 +162,8 @@ class PerceivedScene:
         tools_c = [T_camera_world @ np.asarray(t, dtype=float) for t in tools]
         estimate = self._tracker.estimate(frame.left_rgb, frame.right_rgb, self._stereo,
                                           prior=prior_c, tools=tools_c,
-                                          support_normal=self._support_normal)
+                                          support_normal=self._support_normal,
+                                          support_point=self._support_point)
         if not estimate.found:
             _LOG.info('needle not found: %s', estimate.reason)
             return NeedleView(None, estimate)
@@ -173,6 +176,11 @@ class PerceivedScene:
         self._grasps: dict[str, np.ndarray] = {}
         self._closed: dict[str, bool] = {}
         self._free_needle: np.ndarray | None = None
+        # the pair the free needle was last seen in: (left, right, T_world_camera, tools)
+        self._free_view: tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]] | None \
+            = None
+        # per holder that took the needle from where it lay: that pair and its tool at the grasp
+        self._grasp_views: dict[str, tuple[tuple[Any, ...], np.ndarray]] = {}
         self._next_look = -np.inf
 
     def estimate(self, sim: Any, arm_state: 'Observation'
@@ -202,6 +210,7 @@ class PerceivedScene:
         due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
         if not self._holders and self._free_needle is None and due:
             self._free_needle = self.needle(sim, tools=list(tools.values())).T_world_needle
+            self._free_view = self._seen_view(tools, self._free_needle)
             if self._free_needle is None:
                 self._next_look = arm_state.t + self.look_period
         for arm, jaw in arm_state.jaw.items():
@@ -214,10 +223,13 @@ class PerceivedScene:
                 held = self._held_needle(tools, arm)
                 self._holders.remove(arm)
                 self._grasps.pop(arm, None)
+                self._grasp_views.pop(arm, None)
+                self._free_view = None
                 if not self._holders and self.look_again:
                     view = self.needle(sim, prior=held, tools=list(tools.values()))
                     self._free_needle = held if view.T_world_needle is None \
                         else view.T_world_needle
+                    self._free_view = self._seen_view(tools, view.T_world_needle)
                 elif not self._holders:
                     self._free_needle = held
         needle = self._free_needle
@@ -258,6 +270,9 @@ class PerceivedScene:
             _LOG.info('%s: the held needle is edge-on to the camera (%.2f), its grasp is kept',
                       arm, facing)
             return None
+        lying = self._grasp_views.get(arm)
+        if lying is not None:
+            return self._fit_grasp(sim, arm, tools, lying)
         view = self.needle(sim, prior=held, tools=list(tools.values()))
         if view.T_world_needle is None:
             _LOG.info('%s: the held needle is not seen, its grasp is kept', arm)
@@ -265,6 +280,36 @@ class PerceivedScene:
         grasp = np.linalg.inv(np.asarray(tools[arm], dtype=float)) @ view.T_world_needle
         self._grasps[arm] = grasp
         return grasp
+
+    def _fit_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
+                   lying: tuple[tuple[Any, ...], np.ndarray]) -> np.ndarray | None:
+        """
+        Fit the grasp to the pair of the needle lying and the pair seen now, together.
+
+        The lying needle, seen nearly face on, leaves its tilt open (on a sloping pad 10-15
+        degrees, 2 mm at the tip); carried and turned, the same grasp shows it. The fit is kept
+        when the needle is seen well enough in the new pair and the grasp moved less than
+        :attr:`max_grasp_change`.
+        """
+        (left, right, T_world_camera0, tools0), T_world_tool0 = lying
+        frame, T_world_camera = self._look(sim)
+        inv0, inv = np.linalg.inv(T_world_camera0), np.linalg.inv(T_world_camera)
+        views = [HeldView(left, right, inv0 @ T_world_tool0, tuple(inv0 @ T for T in tools0)),
+                 HeldView(frame.left_rgb, frame.right_rgb,
+                          inv @ np.asarray(tools[arm], dtype=float),
+                          tuple(inv @ np.asarray(T, dtype=float) for T in tools.values()))]
+        old = self._grasps[arm]
+        fit = self._tracker.fit_grasp(views, self._stereo, old)
+        c = self._tracker.config
+        residual, share = fit.residual_px[-1], fit.visible_share[-1]
+        moved = self._tracker.arc_distance(old, fit.T_tool_needle)
+        if share < c.min_visible or residual > c.max_residual or moved > self.max_grasp_change:
+            _LOG.info('%s: the grasp fitted to the lying and the held needle is not trusted '
+                      '(seen %.0f %%, residual %.2f px, moved %.1f mm), it is kept', arm,
+                      100.0 * share, residual, 1e3 * moved)
+            return None
+        self._grasps[arm] = fit.T_tool_needle
+        return fit.T_tool_needle
 
     def facing(self, sim: Any, T_world_needle: ArrayLike) -> float:
         """
@@ -295,6 +340,9 @@ class PerceivedScene:
     #: s (simulated): an unseen free needle is looked for again at this period -- the rate
     #: learning needs (the recorder's perception rate, 2 Hz), not every control sample.
     look_period = 0.5
+    #: m: a grasp fitted to the lying and the held needle together is kept only when it moved
+    #: the arc (mean of its tail, middle and tip) less than this from the grasp taken lying.
+    max_grasp_change = 0.005
     closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
     grasp_reach = 0.003  # m: a jaw closed with its bite this close to the wire holds it
 
@@ -316,6 +364,7 @@ class PerceivedScene:
         prior = self._held_needle(tools, self._holders[0]) if self._holders else self._free_needle
         if prior is None:
             prior = self.needle(sim, tools=list(tools.values())).T_world_needle
+            self._free_view = self._seen_view(tools, prior)
         if prior is None:
             _LOG.warning('%s closed its jaw but the needle is not seen', arm)
             return
@@ -328,5 +377,16 @@ class PerceivedScene:
         if gap > self.grasp_reach:
             _LOG.info('%s closed %.1f mm from the needle: not holding it', arm, 1e3 * gap)
             return
+        if not self._holders and self._free_view is not None:
+            self._grasp_views[arm] = (self._free_view, T_tool.copy())
         self._holders.append(arm)
         self._grasps[arm] = np.linalg.inv(T_tool) @ prior
+
+    def _seen_view(self, tools: Mapping[str, ArrayLike], seen: np.ndarray | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]] | None:
+        """Return the pair just looked at and the tools then in view, if the needle was seen."""
+        if seen is None or self._frame is None:
+            return None
+        _, frame, T_world_camera = self._frame
+        return (frame.left_rgb, frame.right_rgb, T_world_camera,
+                [np.asarray(T, dtype=float) for T in tools.values()])
