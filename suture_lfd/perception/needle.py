@@ -608,9 +608,10 @@ class NeedleTracker:
             taken. Without it (and without a prior) such a tie is "not found".
         support_point : array_like, shape (3,), optional
             A point (camera frame) of that surface, e.g. the markers' centroid: with
-            ``support_normal``, detection also starts from the needle's blobs laid flat on the
-            surface's plane (a start triangulated from the blobs' ends alone can be tens of
-            degrees off, seen nearly face on, and settle in a wrong fit).
+            ``support_normal``, when no trusted fit lies on the surface, detection starts
+            again from the needle's blobs laid flat on the surface's plane (a start
+            triangulated from the blobs' ends alone can be tens of degrees off, seen nearly
+            face on, and settle in a wrong fit).
         search : int
             With a prior: also start from the prior moved to where the images show the needle
             within this many pixels (:func:`suture_lfd.perception.reacquire.shifted_priors`),
@@ -643,9 +644,6 @@ class NeedleTracker:
                                          self._model, self.geometry.wire_diameter, int(search))
         else:
             starts = self._detections(stereo, fields)
-            if support_normal is not None and support_point is not None:
-                starts += self._laid_starts(stereo, fields, support_normal,
-                                            np.asarray(support_point, dtype=float).reshape(3))
             if not starts:
                 return NeedleEstimate(found=False, pose_camera=None, residual_px=math.inf,
                                       visible_share=0.0, reason='no needle-like blob in both '
@@ -669,25 +667,20 @@ class NeedleTracker:
                                            stereo, fields, none) for T in starts]
                 else:
                     points = None
-        candidates = []
-        for T in starts:
-            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
-            T = self._refine(T, stereo, fields, hidden)
-            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
-            residual, share, share_l, share_r = self._score(T, stereo, fields, hidden)
-            trusted = share >= c.min_visible and residual <= c.max_residual
-            # the closest fit, a hidden tenth of the arc counting as 0.2 px
-            cost = residual + 2.0 * (1.0 - share)
-            if points is not None:
-                # and off the triangulated wire: px per mm of the points' median distance
-                cost += c.stereo_weight * 1e3 * float(np.median(arc_distances(
-                    T, points, self.geometry)))
-            candidates.append((trusted, cost, T, residual, share,
-                               share_l, share_r))
+        candidates = self._candidates(starts, stereo, fields, capsules, points)
         if support_normal is not None:
             # a needle lying free lies on the tissue: its plane near the surface's
-            on_surface = [k for k in candidates
-                          if abs(k[2][:3, 2] @ support_normal) >= math.cos(c.max_support_tilt)]
+            on_surface = self._on_surface(candidates, support_normal)
+            if prior is None and support_point is not None and not any(
+                    k[0] for k in on_surface):
+                # no trusted fit lies on it: start again from the blobs laid on its plane
+                none = np.zeros((2, len(self._model)), bool)
+                laid = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
+                        for T0 in self._laid_starts(stereo, fields, support_normal, np.asarray(
+                            support_point, dtype=float).reshape(3))]
+                candidates += self._candidates(laid + [mirrored(T) for T in laid], stereo,
+                                               fields, capsules, points)
+                on_surface = self._on_surface(candidates, support_normal)
             candidates = on_surface or candidates
         candidates.sort(key=lambda k: (not k[0], k[1]))
         _, cost, T, residual, share, share_l, share_r = candidates[0]
@@ -719,6 +712,32 @@ class NeedleTracker:
                               visible_share=float(share), visible_left=float(share_l),
                               visible_right=float(share_r),
                               partial=bool(share < c.partial_below), reason=reason)
+
+    def _candidates(self, starts: list[np.ndarray], stereo: StereoModel, fields: Fields,
+                    capsules: list[Any], points: np.ndarray | None) -> list[tuple[Any, ...]]:
+        """Refine each start; ``(trusted, cost, T, residual, share, share_l, share_r)`` each."""
+        c = self.config
+        candidates = []
+        for T in starts:
+            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
+            T = self._refine(T, stereo, fields, hidden)
+            hidden = hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
+            residual, share, share_l, share_r = self._score(T, stereo, fields, hidden)
+            trusted = share >= c.min_visible and residual <= c.max_residual
+            # the closest fit, a hidden tenth of the arc counting as 0.2 px
+            cost = residual + 2.0 * (1.0 - share)
+            if points is not None:
+                # and off the triangulated wire: px per mm of the points' median distance
+                cost += c.stereo_weight * 1e3 * float(np.median(arc_distances(
+                    T, points, self.geometry)))
+            candidates.append((trusted, cost, T, residual, share, share_l, share_r))
+        return candidates
+
+    def _on_surface(self, candidates: list[tuple[Any, ...]],
+                    normal: np.ndarray) -> list[tuple[Any, ...]]:
+        """Return the candidates whose plane is within ``max_support_tilt`` of the surface's."""
+        cos = math.cos(self.config.max_support_tilt)
+        return [k for k in candidates if abs(k[2][:3, 2] @ normal) >= cos]
 
     def _seen_ends(self, stereo: StereoModel, fields: Fields) -> np.ndarray | None:
         """Return the wire's two ends triangulated from each image's largest blob, (2, 3) m."""
