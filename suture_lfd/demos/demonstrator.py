@@ -670,10 +670,16 @@ def _one_throw(sim: 'Simulation', subject: Subject | SkillProfile, pair_name: st
     seen = None if link is None else link.record().pair
     if seen is not None:  # the recorder's markers: as the robot perceives them
         pair = cast('MarkerPair', seen)
+    needle = np.array(rows['needle'])
+    unseen = int(np.isnan(needle).any(axis=1).sum()) if len(needle) else 0
+    if unseen:
+        raise DemonstrationError(f'demonstration on {pair_name}: the needle was not seen in '
+                                 f'{unseen} of {len(needle)} samples (the recorder needs its '
+                                 f'pose throughout)')
     demo = Demonstration(
         t=np.array(rows['t']), psm1_pose=np.array(rows['psm1']),
         psm2_pose=np.array(rows['psm2']), psm1_jaw=np.array(rows['j1']),
-        psm2_jaw=np.array(rows['j2']), needle_pose=np.array(rows['needle']),
+        psm2_jaw=np.array(rows['j2']), needle_pose=needle,
         psm1_holds=np.array(rows['h1']), psm2_holds=np.array(rows['h2']),
         entry=pair.entry, exit=pair.exit, normal=pair.normal, pair=pair_name)
     return DemonstrationRun(demo=demo, labels=np.array(rows['label']), score=sim.score(),
