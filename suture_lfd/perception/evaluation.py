@@ -331,6 +331,35 @@ class SceneMaker:
         sim.pop_events()
         return self._render('free')
 
+    def pick(self, rng: np.random.Generator) -> np.ndarray | None:
+        """
+        Draw a grasp PSM2 reaches on the needle where it now lies (after :meth:`resting`).
+
+        Nothing moves; :meth:`held_frames` then shows the needle held with it.
+
+        Returns
+        -------
+        ndarray, shape (4, 4) or None
+            The grasp ``T_tool_needle``; None when no drawn grasp is reachable.
+
+        """
+        picked = self._reachable('PSM2', self.sim.needle_pose(), (0.12, 0.45), rng)
+        return None if picked is None else picked[1]
+
+    def held_frames(self, G: ArrayLike, n: int,
+                    rng: np.random.Generator) -> tuple['RenderedScene', ...] | None:
+        """
+        Render ``n`` pairs of PSM2 holding the needle with grasp ``G``, turned in the air.
+
+        Returns
+        -------
+        tuple of RenderedScene or None
+            Of kind ``held`` (the needle faces the camera within 55 degrees); None when the
+            arm cannot reach enough such poses.
+
+        """
+        return self._grasp_history(np.asarray(G, dtype=float), n, rng)
+
     def carry(self, translation: ArrayLike, arm: str = 'PSM2') -> 'RenderedScene':
         """
         Move the arm holding the needle by ``translation`` and render the pair again.
