@@ -608,10 +608,10 @@ class NeedleTracker:
             taken. Without it (and without a prior) such a tie is "not found".
         support_point : array_like, shape (3,), optional
             A point (camera frame) of that surface, e.g. the markers' centroid: with
-            ``support_normal``, when no trusted fit lies on the surface, detection starts
-            again from the needle's blobs laid flat on the surface's plane (a start
-            triangulated from the blobs' ends alone can be tens of degrees off, seen nearly
-            face on, and settle in a wrong fit).
+            ``support_normal``, detection also starts from the needle's blobs laid flat on
+            the surface's plane, and takes those fits when the images clearly prefer one (a
+            start triangulated from the blobs' ends alone can be tens of degrees off, seen
+            nearly face on, and settle in a fit 5-8 mm off at the tip).
         search : int
             With a prior: also start from the prior moved to where the images show the needle
             within this many pixels (:func:`suture_lfd.perception.reacquire.shifted_priors`),
@@ -670,17 +670,11 @@ class NeedleTracker:
         candidates = self._candidates(starts, stereo, fields, capsules, points)
         if support_normal is not None:
             # a needle lying free lies on the tissue: its plane near the surface's
+            if prior is None and support_point is not None:
+                candidates += self._laid_candidates(stereo, fields, capsules, points,
+                                                    candidates, support_normal, np.asarray(
+                                                        support_point, dtype=float).reshape(3))
             on_surface = self._on_surface(candidates, support_normal)
-            if prior is None and support_point is not None and not any(
-                    k[0] for k in on_surface):
-                # no trusted fit lies on it: start again from the blobs laid on its plane
-                none = np.zeros((2, len(self._model)), bool)
-                laid = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
-                        for T0 in self._laid_starts(stereo, fields, support_normal, np.asarray(
-                            support_point, dtype=float).reshape(3))]
-                candidates += self._candidates(laid + [mirrored(T) for T in laid], stereo,
-                                               fields, capsules, points)
-                on_surface = self._on_surface(candidates, support_normal)
             candidates = on_surface or candidates
         candidates.sort(key=lambda k: (not k[0], k[1]))
         _, cost, T, residual, share, share_l, share_r = candidates[0]
@@ -732,6 +726,28 @@ class NeedleTracker:
                     T, points, self.geometry)))
             candidates.append((trusted, cost, T, residual, share, share_l, share_r))
         return candidates
+
+    def _laid_candidates(self, stereo: StereoModel, fields: Fields, capsules: list[Any],
+                         points: np.ndarray | None, candidates: list[tuple[Any, ...]],
+                         normal: np.ndarray, point: np.ndarray) -> list[tuple[Any, ...]]:
+        """
+        Return the fits started from the blobs laid on the surface's plane, if one is better.
+
+        They count only when one of them, trusted and on the surface, costs less by
+        ``ambiguity`` than every trusted fit on the surface from the triangulated starts
+        (or there is none): otherwise the images do not prefer them, and as rivals a
+        millimetre away they would only make a good detection ambiguous.
+        """
+        none = np.zeros((2, len(self._model)), bool)
+        laid = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
+                for T0 in self._laid_starts(stereo, fields, normal, point)]
+        found = self._candidates(laid + [mirrored(T) for T in laid], stereo, fields,
+                                 capsules, points)
+
+        def best(ks: list[tuple[Any, ...]]) -> float:
+            return min((k[1] for k in self._on_surface(ks, normal) if k[0]), default=math.inf)
+
+        return found if best(found) < best(candidates) - self.config.ambiguity else []
 
     def _on_surface(self, candidates: list[tuple[Any, ...]],
                     normal: np.ndarray) -> list[tuple[Any, ...]]:

@@ -63,15 +63,23 @@ class PerceivedScene:
     look_again : bool
         Look at the needle again when the arms let go of it (False: only at the start; a
         dropped needle is then believed where it was let go).
+    refit_facing : float, optional
+        A recorder's second look: once a needle taken from where it lay is held facing the
+        camera this squarely or less (:meth:`facing`, at least :attr:`min_facing`), look at
+        it once more and fit its grasp to both pairs (:meth:`look_at_grasp`), so that what
+        is recorded from then on carries the grasp as seen turned, not only as seen lying.
+        None (default): only when :meth:`look_at_grasp` is called (the executor chooses the
+        instant from its plan).
 
     """
 
     def __init__(self, pair_name: str, pair_index: int,
                  needle_geometry: 'NeedleGeometry | None' = None,
-                 look_again: bool = True) -> None:
+                 look_again: bool = True, refit_facing: float | None = None) -> None:
         self.pair_name = str(pair_name)
         self.pair_index = int(pair_index)
         self.look_again = bool(look_again)
+        self.refit_facing = None if refit_facing is None else float(refit_facing)
         self._tracker = NeedleTracker(needle_geometry)
         self._stereo: Any = None
         self._frame: tuple[float, Any, np.ndarray] | None = None
@@ -232,6 +240,13 @@ class PerceivedScene:
                     self._free_view = self._seen_view(tools, view.T_world_needle)
                 elif not self._holders:
                     self._free_needle = held
+        if self.refit_facing is not None:
+            for arm in [a for a in self._holders if a in self._grasp_views]:
+                held = self._held_needle(tools, arm)
+                facing = self.facing(sim, held) if held is not None else 0.0
+                if self.min_facing <= facing <= self.refit_facing:
+                    self.look_at_grasp(sim, arm, tools)
+                    self._grasp_views.pop(arm, None)  # once per grasp
         needle = self._free_needle
         if self._holders:
             needle = self._held_needle(tools, self._holders[0])

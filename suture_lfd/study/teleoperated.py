@@ -42,6 +42,12 @@ if TYPE_CHECKING:
     from sim_bridge.simulation import Simulation
 
 
+#: The recorder looks at the carried needle again when it faces the camera this squarely
+#: (:class:`suture_lfd.skill.perceived.PerceivedScene` ``refit_facing``): turned from how it
+#: lay, its tilt shows (the executor looks at about the same facing, 0.6, chosen from its plan).
+REFIT_FACING = 0.7
+
+
 class TeleoperatedRobot:
     """
     The link between a subject and a simulated robot in physical mode.
@@ -83,7 +89,8 @@ class TeleoperatedRobot:
         if self._perception is not None:
             self.renders += self._perception.renders
         self._perception = PerceivedScene(self._pair_name, self._index,
-                                          self._sim.needle_geometry)
+                                          self._sim.needle_geometry,
+                                          refit_facing=REFIT_FACING)
         self._observer = PhysicalObserver(self._sim, self._perception,
                                           correction=self.correction)
 
