@@ -61,6 +61,9 @@ class TeleoperatedRobot:
     register : bool
         Register the arms against the endoscope now (kept for ``sim``) and record the tool
         poses the correction gives; False records the raw reports.
+    refit_facing : float or None
+        The recorder's second look at a needle picked up from where it lay
+        (:class:`suture_lfd.skill.perceived.PerceivedScene` ``refit_facing``; None: none).
 
     Attributes
     ----------
@@ -71,12 +74,14 @@ class TeleoperatedRobot:
 
     """
 
-    def __init__(self, sim: 'Simulation', pair_name: str, register: bool = True) -> None:
+    def __init__(self, sim: 'Simulation', pair_name: str, register: bool = True,
+                 refit_facing: float | None = REFIT_FACING) -> None:
         if pair_name not in sim.phantom.markers:
             raise ValueError(f'unknown marker pair {pair_name!r}; the phantom has '
                              f'{sorted(sim.phantom.markers)}')
         self._sim = sim
         self._pair_name = str(pair_name)
+        self._refit_facing = refit_facing
         self._index = int(sim.phantom.markers[pair_name].index)
         self._observer: PhysicalObserver | None = None
         self._perception: PerceivedScene | None = None
@@ -90,7 +95,7 @@ class TeleoperatedRobot:
             self.renders += self._perception.renders
         self._perception = PerceivedScene(self._pair_name, self._index,
                                           self._sim.needle_geometry,
-                                          refit_facing=REFIT_FACING)
+                                          refit_facing=self._refit_facing)
         self._observer = PhysicalObserver(self._sim, self._perception,
                                           correction=self.correction)
 

@@ -115,3 +115,49 @@ def test_a_teleoperated_demonstration_at_the_3_mm_class_is_learnt_and_executed(t
         assert outcome.score >= 0.8, (outcome.score, outcome.failure, outcome.subtasks)
     finally:
         sim.close()
+
+
+def test_the_recorder_fits_the_grasp_again_once_the_picked_needle_turns():
+    """
+    On the scanned pad the needle seen lying can be tilted off (the pad slopes where it lies);
+    the grasp taken from it carries that into every recorded pose while it is held. Once the
+    carried needle turns to face the camera obliquely, the recorder looks once more and fits
+    the grasp to both pairs, and the rest is recorded with it.
+    """
+    from suture_lfd.demos.cohort import load_cohort
+    from suture_lfd.demos.demonstrator import run_demonstration
+    from suture_lfd.study.teleoperated import TeleoperatedRobot
+
+    config = replace(load_simulation_config(), kinematic_error_level=3.0, kinematic_error_seed=1)
+    sim = Simulation(config, phantom='scanned')
+    geometry = sim.needle_geometry
+
+    def tip(T):
+        return T[:3, :3] @ geometry.point_at(1.0) + T[:3, 3]
+
+    medians, looks = {}, {}
+    try:
+        for refit in (None, 0.7):
+            link = TeleoperatedRobot(sim, 'scan1', refit_facing=refit)
+            record = link.record
+            errors = []
+
+            def recorded(record=record, errors=errors):
+                obs = record()
+                if obs.holders and obs.T_world_needle is not None:
+                    # checked against the truth here, in the test
+                    errors.append(np.linalg.norm(tip(np.asarray(obs.T_world_needle))
+                                                 - tip(sim.needle_pose())))
+                return obs
+
+            link.record = recorded
+            run = run_demonstration(sim, load_cohort()[0], 'scan1', seed=1, command_rate=50.0,
+                                    attempts=1, require_success=False, link=link)
+            assert run.score.score == 1.0, run.score.failure
+            medians[refit], looks[refit] = float(np.median(errors)), link.images_seen
+    finally:
+        sim.close()
+    # measured: the held tip 0.81 mm off (median) with the lying grasp, 0.25 mm refitted
+    assert medians[0.7] < 0.0005, medians
+    assert medians[None] > 0.0006, medians  # the case: the lying grasp is off
+    assert looks[0.7] == looks[None] + 1, looks  # one more pair looked at, not one per sample
