@@ -198,6 +198,9 @@ class NeedleEstimate:
         ``partial_below``.
     reason : str
         Why the estimate is not found (empty when found).
+    rival_distance : float
+        When ambiguous: how far (m, mean of base, middle and tip) the other pose that fits
+        the images as well lies from ``pose_camera``; ``inf`` otherwise.
 
     """
 
@@ -209,6 +212,7 @@ class NeedleEstimate:
     visible_right: float = 0.0
     partial: bool = False
     reason: str = ''
+    rival_distance: float = math.inf
 
     def points_camera(self, geometry: NeedleGeometry | None = None) -> np.ndarray | None:
         """Return the base (tail), middle and tip (3, 3) in the camera frame (m), or None."""
@@ -679,6 +683,7 @@ class NeedleTracker:
         candidates.sort(key=lambda k: (not k[0], k[1]))
         _, cost, T, residual, share, share_l, share_r = candidates[0]
         reason = ''
+        apart = math.inf
         if prior is None:
             rivals = [k for k in candidates[1:] if k[0] and k[1] <= cost + c.ambiguity
                       and self.arc_distance(k[2], T) > c.ambiguity_distance]
@@ -705,7 +710,8 @@ class NeedleTracker:
         return NeedleEstimate(found=not reason, pose_camera=T, residual_px=residual,
                               visible_share=float(share), visible_left=float(share_l),
                               visible_right=float(share_r),
-                              partial=bool(share < c.partial_below), reason=reason)
+                              partial=bool(share < c.partial_below), reason=reason,
+                              rival_distance=apart if reason.startswith('ambiguous') else math.inf)
 
     def _candidates(self, starts: list[np.ndarray], stereo: StereoModel, fields: Fields,
                     capsules: list[Any], points: np.ndarray | None) -> list[tuple[Any, ...]]:

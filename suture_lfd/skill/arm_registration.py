@@ -41,6 +41,7 @@ optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+import itertools
 import json
 import logging
 import os
@@ -332,9 +333,9 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
         raise ValueError(f'{arm}: its instrument was seen in both images at {len(used)} of '
                          f'{len(samples)} registration poses; 3 are needed')
 
-    def residuals(x: np.ndarray) -> np.ndarray:
+    def residuals(x: np.ndarray, poses: list[Any]) -> np.ndarray:
         out: list[float] = []
-        for q, T_cw, left, right in used:
+        for q, T_cw, left, right in poses:
             pts = _model_points(kinematics, T_world_base, q, x, jaw)
             pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
             uv_l, uv_r = stereo.project(pc)
@@ -345,15 +346,39 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
                 out.append(float(view.distance(uv[2:3])[0]))
         return np.asarray(out)
 
-    fit = least_squares(residuals, np.zeros(6), x_scale=_X_SCALE, loss='soft_l1', f_scale=2.0)
+    def solve(poses: list[Any], x0: np.ndarray) -> Any:
+        return least_squares(residuals, x0, args=(poses,), x_scale=_X_SCALE, loss='soft_l1',
+                             f_scale=2.0)
+
+    def per_pose(x: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.mean(residuals(x, used).reshape(len(used), -1) ** 2, axis=1))
+
+    fit = solve(used, np.zeros(6))
     # a pose whose image disagrees with the others (another dark thing taken for the shaft)
     # is left out, and the rest fitted again
-    per_pose = np.sqrt(np.mean(fit.fun.reshape(len(used), -1) ** 2, axis=1))
-    good = per_pose <= _OUTLIER_PX
-    _LOG.debug('%s per-pose residuals %s', arm, per_pose.round(2))
+    x0 = fit.x
+    good = per_pose(x0) <= _OUTLIER_PX
+    _LOG.debug('%s per-pose residuals %s', arm, per_pose(x0).round(2))
+    if good.sum() < 3 and len(used) > 3:
+        # so many poses disagree that the fit of all of them is the outliers': fit each
+        # subset of three poses alone, keep the one the most poses agree with
+        best: tuple[int, float, np.ndarray] | None = None
+        for subset in itertools.combinations(range(len(used)), 3):
+            x = solve([used[i] for i in subset], np.zeros(6)).x
+            errors = per_pose(x)
+            agree = errors <= _OUTLIER_PX
+            key = (int(agree.sum()), -float(errors[agree].mean()) if agree.any() else 0.0)
+            if best is None or key > best[:2]:
+                best = (*key, x)
+        assert best is not None
+        x0 = best[2]
+        good = per_pose(x0) <= _OUTLIER_PX
+        _LOG.debug('%s: %d of %d poses agree with the best subset', arm, good.sum(), len(used))
+        if good.all():
+            fit = solve(used, x0)
     if not good.all() and good.sum() >= 3:
         used = [s for s, g in zip(used, good) if g]
-        fit = least_squares(residuals, fit.x, x_scale=_X_SCALE, loss='soft_l1', f_scale=2.0)
+        fit = solve(used, x0)
     rms = float(np.sqrt(np.mean(fit.fun ** 2)))
     offset = np.zeros(6)
     offset[:3] = fit.x[:3]

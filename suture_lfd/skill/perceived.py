@@ -162,6 +162,9 @@ class PerceivedScene:
         Returns
         -------
         NeedleView
+            A detection the tracker calls ambiguous between poses closer than
+            :attr:`close_ambiguity` is taken (the better fit): either is within a jaw's reach,
+            and the grasp is fitted again once the needle is held and turned.
 
         """
         frame, T = self._look(sim)
@@ -172,9 +175,12 @@ class PerceivedScene:
                                           prior=prior_c, tools=tools_c,
                                           support_normal=self._support_normal,
                                           support_point=self._support_point)
-        if not estimate.found:
+        close = estimate.rival_distance <= self.close_ambiguity
+        if not estimate.found and not close:
             _LOG.info('needle not found: %s', estimate.reason)
             return NeedleView(None, estimate)
+        if close:
+            _LOG.info('needle taken from a close tie: %s', estimate.reason)
         return NeedleView(T @ estimate.pose_camera, estimate)
 
     # ------------------------------------------------------------------ observer protocol
@@ -355,6 +361,9 @@ class PerceivedScene:
     #: s (simulated): an unseen free needle is looked for again at this period -- the rate
     #: learning needs (the recorder's perception rate, 2 Hz), not every control sample.
     look_period = 0.5
+    #: m: a lying needle's detection tied with another pose at most this far away (mean of
+    #: tail, middle and tip) is taken: both lie within a jaw's reach of the wire.
+    close_ambiguity = 0.0015
     #: m: a grasp fitted to the lying and the held needle together is kept only when it moved
     #: the arc (mean of its tail, middle and tip) less than this from the grasp taken lying.
     max_grasp_change = 0.005

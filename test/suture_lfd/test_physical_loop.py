@@ -84,6 +84,31 @@ def test_the_registration_finds_each_tools_error_within_a_millimetre(scene):
         assert np.linalg.norm(off) < 1e-3, (arm, off)
 
 
+def test_a_registration_whose_poses_half_disagree_is_fitted_to_those_that_agree():
+    # A study's robot (error seed 1060198364, the study's 10 ms step): three of PSM1's six
+    # registration poses were seen off (10 px), the fit of all six settled on offsets of
+    # 12 degrees and 2 cm and was refused, and the robot's demonstrations on that phantom
+    # could not hand the needle over. Fitted to three poses at a time, the poses that agree
+    # give the arm's errors.
+    config = load_simulation_config()
+    config = replace(config, kinematic_error_level=LEVEL, kinematic_error_seed=1060198364,
+                     world=replace(config.world, physics_step=0.01),
+                     loop=replace(config.loop, collision_period=max(
+                         config.loop.collision_period, 0.01)))
+    sim = Simulation(config)
+    try:
+        correction = register_arms(sim)
+        assert set(correction.arms) == {'PSM1', 'PSM2'}
+        for arm, fit in correction.arms.items():
+            assert fit.residual_px < 1.0, (arm, fit.residual_px)
+            q = np.array(sim.arms[arm].measured_jp)
+            # checked against the truth here, in the test
+            off = fit.tool_pose(q)[:3, 3] - sim.tool_pose(arm)[:3, 3]
+            assert np.linalg.norm(off) < 1e-3, (arm, off)
+    finally:
+        sim.close()
+
+
 def test_a_level_3_throw_completes_on_what_the_camera_sees_and_reads_no_truth(
         scene, skill, monkeypatch):
     for name in _TRUTH:
