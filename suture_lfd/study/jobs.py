@@ -61,6 +61,7 @@ from suture_lfd.demos.demonstrator import run_demonstration
 from suture_lfd.demos.resampling import resample_poses
 from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.dmp import DmpParams, load_dmp_params
+from suture_lfd.errors import DemonstrationError
 from suture_lfd.segmentation import Segmentation, segment_demonstration
 from suture_lfd.skill import ThrowSkill, learn_skill, training_data
 from suture_lfd.skill.arm_registration import (
@@ -470,11 +471,19 @@ def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
             _registered(state, (job.phantom, float(s.demo_physics_step),
                                 float(physical.error_level), int(physical.error_seed)), sim)
         link = TeleoperatedRobot(sim, job.pair)
-    run = run_demonstration(sim, subject, job.pair, seed=job.seed,
-                            sample_rate=s.sample_rate, command_rate=s.command_rate,
-                            timeout=s.timeout,
-                            attempts=s.demo_attempts, next_pair=job.next_pair,
-                            require_success=False, link=link)
+    try:
+        run = run_demonstration(sim, subject, job.pair, seed=job.seed,
+                                sample_rate=s.sample_rate, command_rate=s.command_rate,
+                                timeout=s.timeout,
+                                attempts=s.demo_attempts, next_pair=job.next_pair,
+                                require_success=False, link=link)
+    except DemonstrationError as exc:
+        if link is None:
+            raise
+        # on a robot, a demonstration whose needle the recorder never saw is a result, not a
+        # fault to run again
+        return DemoRecord.of(job, attempts=1, demo_score=0.0, failure=str(exc),
+                             time_s=None, ok=False)
     # a robot's recorder writes its arms as it believes them: measured_cp through the believed
     # bases
     bases = None if link is None else {arm: sim.believed_base(arm) for arm in PSMS}
@@ -483,10 +492,6 @@ def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
     demo = _through_bag(state, run.demo, out / job.bag, job.pair, bases)
     if run.score.score < 1.0:
         return replace(record, failure=f'no successful demonstration: {run.score.failure}')
-    unseen = int(np.isnan(run.demo.needle_pose).any(axis=1).sum())
-    if unseen:
-        return replace(record, failure=f'the recorder did not see the needle in {unseen} of '
-                                       f'{len(run.demo.t)} samples')
     target = out / job.segments
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(target.stem + '.part' + target.suffix)
