@@ -161,3 +161,23 @@ def test_the_recorder_fits_the_grasp_again_once_the_picked_needle_turns():
     assert medians[0.7] < 0.0005, medians
     assert medians[None] > 0.0006, medians  # the case: the lying grasp is off
     assert looks[0.7] == looks[None] + 1, looks  # one more pair looked at, not one per sample
+
+
+def test_a_demonstration_whose_needle_the_recorder_never_sees_fails_with_that_reason():
+    from suture_lfd.demos.cohort import load_cohort
+    from suture_lfd.demos.demonstrator import run_demonstration
+    from suture_lfd.errors import DemonstrationError
+    from suture_lfd.study.teleoperated import TeleoperatedRobot
+
+    config = load_simulation_config()
+    start = replace(config.loop.needle_start, position=(0.11, 0.0), position_jitter=0.0)
+    config = replace(config, kinematic_error_level=3.0, kinematic_error_seed=1,
+                     loop=replace(config.loop, needle_start=start))
+    sim = Simulation(config)
+    try:
+        link = TeleoperatedRobot(sim, 'synth1')
+        with pytest.raises(DemonstrationError, match='the needle was not seen in'):
+            run_demonstration(sim, load_cohort()[0], 'synth1', seed=0, command_rate=50.0,
+                              attempts=1, require_success=False, link=link)
+    finally:
+        sim.close()
