@@ -637,9 +637,10 @@ class NeedleTracker:
         fields = (WireImage(left, c.blur), WireImage(right, c.blur))
         capsules = [k for T in tools for k in tool_capsules(
             _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length, c.shaft_radius)]
+        normal: np.ndarray | None = None
         if support_normal is not None:
-            support_normal = np.asarray(support_normal, dtype=float).reshape(3)
-            support_normal = support_normal / np.linalg.norm(support_normal)
+            normal = np.asarray(support_normal, dtype=float).reshape(3)
+            normal = normal / np.linalg.norm(normal)
         points = None
         if prior is not None:
             starts = [_pose(prior, 'prior')]
@@ -672,13 +673,13 @@ class NeedleTracker:
                 else:
                     points = None
         candidates = self._candidates(starts, stereo, fields, capsules, points)
-        if support_normal is not None:
+        if normal is not None:
             # a needle lying free lies on the tissue: its plane near the surface's
             if prior is None and support_point is not None:
                 candidates += self._laid_candidates(stereo, fields, capsules, points,
-                                                    candidates, support_normal, np.asarray(
+                                                    candidates, normal, np.asarray(
                                                         support_point, dtype=float).reshape(3))
-            on_surface = self._on_surface(candidates, support_normal)
+            on_surface = self._on_surface(candidates, normal)
             candidates = on_surface or candidates
         candidates.sort(key=lambda k: (not k[0], k[1]))
         _, cost, T, residual, share, share_l, share_r = candidates[0]
