@@ -93,6 +93,39 @@ class MarkerDetections:
         return len(self.entries)
 
 
+def pair_normal(entries: np.ndarray, exits: np.ndarray, i: int,
+                normal: np.ndarray) -> np.ndarray:
+    """
+    Return the surface normal at pair ``i``: of the plane through its dots and its neighbours'.
+
+    On a curved pad the plane of all the dots can be 4-5 degrees off a pair's own surface, the
+    plane of the pair's and its neighbours' dots 1-2 degrees.
+
+    Parameters
+    ----------
+    entries, exits : ndarray, shape (n, 3)
+        The pairs' dots (:class:`MarkerDetections`; NaN rows not seen), in order along the wound.
+    i : int
+        The pair (0-based).
+    normal : ndarray, shape (3,)
+        The plane of all the dots' normal (towards the camera): the answer's side, and the
+        answer when fewer than four dots around the pair are seen.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Unit normal, on ``normal``'s side.
+
+    """
+    lo, hi = max(0, i - 1), min(len(entries), i + 2)
+    points = np.vstack([entries[lo:hi], exits[lo:hi]])
+    points = points[np.isfinite(points).all(axis=1)]
+    if len(points) < 4:
+        return np.asarray(normal, dtype=float)
+    _, _, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    return vt[2] if vt[2] @ normal >= 0.0 else -vt[2]
+
+
 def _blobs(mask: np.ndarray, min_area: int) -> np.ndarray:
     n, _, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = stats[1:, cv2.CC_STAT_AREA] >= min_area

@@ -103,6 +103,12 @@ class ExecutorConfig:
         tenths of a millimetre only (the registration's residual, the needle seen lying), so
         the tip lowered onto the entry can already be in when the insertion starts and backed
         out by the rollout's first motion; pressed this deep, such an error leaves it in.
+    hold_press : bool
+        Keep the start press until the rollout's own tip has gone that deep below its start,
+        instead of fading it out over the first quarter of the insertion (physical mode: a
+        skill learnt on what a robot saw can start its tip a few tenths of a millimetre high
+        and go down slowly, and a grasp known to a few tenths adds as much; faded by time,
+        the press left the tip in the puncture's mouth and the first turn pulled it out).
     final_approach_time : float
         Shortest time (s) of lowering the needle from ``start_lift`` onto the DMP ii start
         (the tip onto the entry marker): slow, so a lagging arm does not overshoot into the
@@ -120,6 +126,7 @@ class ExecutorConfig:
     start_lift: float = 0.005
     start_press: float = 0.0003
     physical_start_press: float = 0.0008
+    hold_press: bool = False
     final_approach_time: float = 1.0
     resend_unchanged: bool = False
 
@@ -128,9 +135,10 @@ class ExecutorConfig:
         Return these settings as a controller on what a robot shows runs them.
 
         The one place physical mode changes the executor's settings (in-process and in the
-        executor node alike): ``start_press`` becomes ``physical_start_press``.
+        executor node alike): ``start_press`` becomes ``physical_start_press``, held
+        (``hold_press``).
         """
-        return replace(self, start_press=self.physical_start_press)
+        return replace(self, start_press=self.physical_start_press, hold_press=True)
 
 
 class SampledPath:
@@ -328,8 +336,16 @@ class ThrowExecutor:
         # deeper, the rollout's own small deviations from the demonstration cannot lift the tip
         # back out through its puncture. The press fades out over the first part of the
         # insertion, so the needle crosses the exit and ends it where the rollout does.
-        fade = np.clip(1.0 - np.linspace(0.0, 1.0, len(P2)) / _PRESS_FADE, 0.0, 1.0)[:, None]
-        P2 = P2 - self.executor_config.start_press * fade * normal
+        press = self.executor_config.start_press
+        if self.executor_config.hold_press and press > 0.0:
+            # held until the rollout's tip has gone as deep itself
+            tips = np.einsum('kij,j->ki', matrix_from_quaternion(Q2), g.point_at(1.0)) + P2
+            descent = np.maximum.accumulate(np.maximum(0.0, (tips[0] - tips) @ normal))
+            fade = np.clip(1.0 - descent / press, 0.0, 1.0)[:, None]
+        else:
+            fade = np.clip(1.0 - np.linspace(0.0, 1.0, len(P2)) / _PRESS_FADE, 0.0,
+                           1.0)[:, None]
+        P2 = P2 - press * fade * normal
         R2 = _transforms(P2, Q2)
         S2 = R2[0]
         S2_hi = translated(S2, self.executor_config.start_lift * normal)

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from sim_bridge.scene.markers import MarkerPair
 from suture_lfd.perception import HeldView, NeedleTracker, detect_markers, stereo_from_camera_info
+from suture_lfd.perception.markers import pair_normal
 
 if TYPE_CHECKING:
     from sim_bridge.common.needle import NeedleGeometry
@@ -137,7 +138,7 @@ class PerceivedScene:
             _LOG.warning('pair %s: a marker is not seen', self.pair_name)
             return None
         R, p = T[:3, :3], T[:3, 3]
-        normal = R @ found.normal
+        normal = R @ pair_normal(found.entries, found.exits, i, found.normal)
         self._support_normal = found.normal
         self._support_point = found.points.mean(axis=0)
         self._pair = MarkerPair(name=self.pair_name, entry=R @ entry_c + p, exit=R @ exit_c + p,

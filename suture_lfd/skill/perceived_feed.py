@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from sim_bridge.control import Observation
 from sim_bridge.scene.markers import MarkerPair
+from suture_lfd.perception.markers import pair_normal
 from suture_lfd.skill.perceived import NeedleView, PerceivedScene
 
 _LOG = logging.getLogger(__name__)
@@ -251,7 +252,7 @@ class PerceptionFeed(PerceivedScene):
             return None
         T = self.T_world_camera
         R, p = T[:3, :3], T[:3, 3]
-        normal = R @ normal_c
+        normal = R @ pair_normal(entries, exits, i, normal_c)
         self._support_normal = normal_c
         self._pair = MarkerPair(name=self.pair_name, entry=R @ entries[i] + p,
                                 exit=R @ exits[i] + p, normal=normal, entry_normal=normal,
