@@ -131,3 +131,42 @@ def test_a_needle_out_of_view_stops_the_throw_with_a_reason(skill):
         assert outcome.executed == {} and outcome.duration == 0.0
     finally:
         sim.close()
+
+
+def test_physical_mode_holds_the_start_press_until_the_rollout_is_as_deep(skill):
+    # A skill learnt on what a robot saw can start the tip a little high and go down slowly;
+    # faded by time, the press left the tip in the puncture's mouth and the first turn of the
+    # insertion pulled it out ("withdrawn" on every synthetic pair for three of a study's
+    # skills). Held, the planned tip stays the press below the rollout's own (less what the
+    # rollout has already gone down) until the rollout is that deep, then follows it.
+    from sim_bridge.common.geometry import matrix_from_quaternion
+    from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
+
+    sim = Simulation()
+    try:
+        pair, geometry = sim.phantom.markers['synth2'], sim.needle_geometry
+        physical = ExecutorConfig(script=sim.config.scene.expert).in_physical_mode()
+        assert physical.hold_press and physical.start_press == physical.physical_start_press
+        executor = ThrowExecutor(skill, pair, geometry, config=physical)
+        executor.rollout_paths()
+    finally:
+        sim.close()
+    start, goal = skill.start_goal('ii', pair, needle=geometry)
+    _, P, Q = skill.rollout('ii', pair, start=start, goal=goal, needle=geometry,
+                            targets=(start, goal))
+    _, Pp, Qp = executor.rollouts['ii']
+
+    def heights(P, Q):
+        tips = np.einsum('kij,j->ki', matrix_from_quaternion(Q), geometry.point_at(1.0)) + P
+        return (tips - pair.entry) @ pair.normal
+
+    raw, pressed = heights(P, Q), heights(Pp, Qp)
+    press = physical.start_press
+    descent = np.maximum.accumulate(np.maximum(0.0, raw[0] - raw))
+    holding = descent < press
+    assert holding[0] and not holding[-1]
+    np.testing.assert_allclose(pressed[holding], raw[holding] - press + descent[holding],
+                               atol=1e-12)
+    # faded by time instead, the press is gone at a quarter of the insertion
+    assert holding[len(raw) // 4]
+    np.testing.assert_allclose(pressed[~holding], raw[~holding], atol=1e-12)

@@ -25,6 +25,7 @@ from suture_lfd.perception import (
 )
 from suture_lfd.perception.arc_stereo import arc_distances, centre_line_points, fit_arc_to_points
 from suture_lfd.perception.evaluation import SceneMaker, needle_errors, perturbed
+from suture_lfd.perception.markers import pair_normal
 from suture_lfd.perception.wire_images import WireImage
 
 
@@ -86,6 +87,27 @@ def test_markers_are_found_triangulated_and_paired_along_the_wound(phantom, requ
         assert errors.max() < 0.0008, errors  # measured: at most 0.45 mm in view of the thread
         assert np.median(errors) < 0.0004
     assert markers.normal[2] < -0.5  # the tissue faces the camera
+
+
+def test_a_pairs_normal_from_its_and_its_neighbours_dots_follows_the_curved_pad(scanned,
+                                                                               tmp_path):
+    # the plane of all the dots is 3-5 degrees off the outer pairs' surface on the scanned pad
+    scene = scanned.resting(0)
+    left, right, stereo = on_disk(scene, tmp_path)
+    found = detect_markers(left, right, stereo)
+    sim = scanned.sim
+    T_camera_world = scene.T_camera_needle @ np.linalg.inv(sim.needle_pose())
+    pairs = sorted(sim.phantom.markers.values(), key=lambda p: p.index)
+    assert found.n_pairs == len(pairs)
+    off_all, off_local = [], []
+    for i, pair in enumerate(pairs):
+        true = T_camera_world[:3, :3] @ pair.normal
+        local = pair_normal(found.entries, found.exits, i, found.normal)
+        assert abs(np.linalg.norm(local) - 1.0) < 1e-9 and local @ found.normal > 0.0
+        off_all.append(math.degrees(math.acos(min(1.0, abs(true @ found.normal)))))
+        off_local.append(math.degrees(math.acos(min(1.0, abs(true @ local)))))
+    # measured: 4.0, 1.3, 3.2, 5.5 degrees -> 1.3, 0.9, 2.0, 1.6
+    assert max(off_local) < 2.5 and max(off_all) > 4.0, (off_all, off_local)
 
 
 def test_markers_of_a_users_mesh_are_found(tmp_path):
