@@ -16,9 +16,15 @@ anchor's.
 
 ``--physics-step 0.01``: the scenes settled at the study's physics step (the needle then rests
 a few hundredths of a millimetre deeper into the pad) instead of ``world.yaml``'s 2 ms.
+``--resting``: the needle where a scene reset leaves it (a study's start), each scene on its own
+3 mm-class robot (its instruments elsewhere in view), instead of placed at random.
+
+A third row gives the anchor's tracker the markers' centroid as well (``support_point``): the
+detection then also starts from the needle's blobs laid on the markers' plane, as the physical
+mode's perception does.
 
 Run: ``.venv/bin/python bench/bench_lying_needle.py [--scenes 12] [--seed 3]
-[--physics-step 0.01]``.
+[--physics-step 0.01] [--resting]``.
 """
 
 import argparse
@@ -42,35 +48,50 @@ def main():
     parser.add_argument('--seed', type=int, default=3)
     parser.add_argument('--physics-step', type=float, default=None,
                         help="physics step (s) the scenes settle at (default world.yaml's)")
+    parser.add_argument('--resting', action='store_true',
+                        help='the needle where a reset leaves it, each scene on its own '
+                             '3 mm-class robot')
     args = parser.parse_args()
     anchor = NeedleTracker()
-    trackers = {'image fit (anchor)': anchor,
-                'centre line + image fit': NeedleTracker(
-                    config=replace(anchor.config, centre_line=True))}
+    trackers = {'image fit (anchor)': (anchor, False),
+                'centre line + image fit': (NeedleTracker(
+                    config=replace(anchor.config, centre_line=True)), False),
+                'image fit + marker point': (anchor, True)}
     head = (f'{"pad":10} {"detection":24} {"found":>6} {"max mm":>7} {"p90 mm":>7} {"deg":>5} '
             f'{"p90 deg":>7} {"wrong":>6} {"CPU ms":>7} {"CPU/anchor":>10}')
     print(head)
     print('-' * len(head))
     for phantom in ('synthetic', 'scanned'):
-        maker = SceneMaker(phantom, physics_step=args.physics_step)
+        maker = None if args.resting else SceneMaker(phantom, physics_step=args.physics_step)
         rng = np.random.default_rng(args.seed)
         rows = {name: [] for name in trackers}
         done = 0
         while done < args.scenes:
-            scene = maker.scene('free', rng)
+            if args.resting:
+                if maker is not None:
+                    maker.close()
+                robot = (3.0, int(rng.integers(1 << 31)))
+                maker = SceneMaker(phantom, physics_step=args.physics_step,
+                                   kinematic_errors=robot)
+                scene = maker.resting(int(rng.integers(1 << 31)))
+            else:
+                scene = maker.scene('free', rng)
             if scene is None:
                 continue
             done += 1
-            normal = detect_markers(scene.left, scene.right, scene.stereo).normal
-            for name, tracker in trackers.items():
+            markers = detect_markers(scene.left, scene.right, scene.stereo)
+            for name, (tracker, with_point) in trackers.items():
                 start = time.process_time()
                 est = tracker.estimate(scene.left, scene.right, scene.stereo,
-                                       support_normal=normal)
+                                       support_normal=markers.normal,
+                                       support_point=markers.points.mean(axis=0)
+                                       if with_point else None)
                 cpu = time.process_time() - start
                 _, largest, angle = needle_errors(est.pose_camera, scene.T_camera_needle,
                                                   tracker.geometry)
                 rows[name].append((est.found, largest, angle, cpu))
-        maker.close()
+        if maker is not None:
+            maker.close()
         anchor_cpu = None
         for name, r in rows.items():
             a = np.array(r, dtype=float)
