@@ -746,7 +746,7 @@ class NeedleTracker:
         millimetre away they would only make a good detection ambiguous.
         """
         none = np.zeros((2, len(self._model)), bool)
-        laid = [self._refine(self._fit(T0, stereo, fields, none), stereo, fields, none)
+        laid = [self._refine(T0, stereo, fields, none)
                 for T0 in self._laid_starts(stereo, fields, normal, point)]
         found = self._candidates(laid + [mirrored(T) for T in laid], stereo, fields,
                                  capsules, points)
