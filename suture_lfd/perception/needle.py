@@ -347,6 +347,16 @@ class NeedleTracker:
             out.append((index, dirs, offset, np.concatenate([valid, ends_valid])))
         return out
 
+    def _seen(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel,
+              tools: Sequence[ArrayLike]) -> tuple[Fields, list[Any]]:
+        """Return a checked pair's wire fields and the capsules of the instruments in view."""
+        c = self.config
+        fields = (WireImage(check_image(left, stereo, 'left'), c.blur),
+                  WireImage(check_image(right, stereo, 'right'), c.blur))
+        capsules = [k for T in tools for k in tool_capsules(
+            _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length, c.shaft_radius)]
+        return fields, capsules
+
     def edge_rows(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
                   hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
@@ -438,11 +448,7 @@ class NeedleTracker:
         G = _pose(T_tool_needle, 'grasp').copy()
         prepared = []
         for v in views:
-            fields = (WireImage(check_image(v.left, stereo, 'left'), c.blur),
-                      WireImage(check_image(v.right, stereo, 'right'), c.blur))
-            capsules = [k for T in v.tools for k in tool_capsules(
-                _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length,
-                c.shaft_radius)]
+            fields, capsules = self._seen(v.left, v.right, stereo, v.tools)
             prepared.append((fields, _pose(v.T_camera_tool, 'tool pose'), capsules))
 
         def hidden(T: np.ndarray, capsules: list[Any]) -> np.ndarray:
@@ -632,11 +638,7 @@ class NeedleTracker:
 
         """
         c = self.config
-        left = check_image(left, stereo, 'left')
-        right = check_image(right, stereo, 'right')
-        fields = (WireImage(left, c.blur), WireImage(right, c.blur))
-        capsules = [k for T in tools for k in tool_capsules(
-            _pose(T, 'tool pose'), c.jaw_length, c.jaw_radius, c.shaft_length, c.shaft_radius)]
+        fields, capsules = self._seen(left, right, stereo, tools)
         normal: np.ndarray | None = None
         if support_normal is not None:
             normal = np.asarray(support_normal, dtype=float).reshape(3)
