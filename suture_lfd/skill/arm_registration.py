@@ -357,8 +357,9 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
     # a pose whose image disagrees with the others (another dark thing taken for the shaft)
     # is left out, and the rest fitted again
     x0 = fit.x
-    good = per_pose(x0) <= _OUTLIER_PX
-    _LOG.debug('%s per-pose residuals %s', arm, per_pose(x0).round(2))
+    errors = per_pose(x0)
+    good = errors <= _OUTLIER_PX
+    _LOG.debug('%s per-pose residuals %s', arm, errors.round(2))
     if good.sum() < 3 and len(used) > 3:
         # so many poses disagree that the fit of all of them is the outliers': fit each
         # subset of three poses alone, keep the one the most poses agree with
