@@ -358,8 +358,10 @@ class PrimitivePart(Primitive):
     """
     A position or quaternion primitive: learnt weights, demonstrated start and goal.
 
-    Attributes (after ``fit`` or ``load``)
-    -------------------------------------
+    The attributes below are set by ``fit`` or ``load``.
+
+    Attributes
+    ----------
     weights_ : ndarray, shape (n_bfs, n)
         Forcing-term weights.
     start_, goal_ : ndarray

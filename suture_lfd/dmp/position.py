@@ -31,8 +31,10 @@ class PositionDmp(PrimitivePart):
     """
     Discrete position DMP (Ijspeert et al. 2013) with ``(g - y0)`` scaling and LWR weights.
 
-    Attributes (after :meth:`fit`)
-    ------------------------------
+    The attributes below are set by :meth:`fit`.
+
+    Attributes
+    ----------
     weights_ : ndarray, shape (n_bfs, n_dims)
         LWR weights.
     start_, goal_ : ndarray, shape (n_dims,)

@@ -62,8 +62,10 @@ class QuaternionDmp(PrimitivePart):
     degrees mean error, the same with Euler integration in ``q``). ``orientation_form='log'``
     avoids it.
 
-    Attributes (after :meth:`fit`)
-    ------------------------------
+    The attributes below are set by :meth:`fit`.
+
+    Attributes
+    ----------
     weights_ : ndarray, shape (n_bfs_o, 3)
         LWR weights.
     start_, goal_ : ndarray, shape (4,)

@@ -5,17 +5,17 @@ Each arm's motions are its motion keypoints (:mod:`suture_lfd.segmentation.keypo
 
 Subtasks (seed paper, after Schwaner et al. 2021), cut with the grasp signals:
 
-i    PSM2 picks the needle and brings its tip to the entry: the PSM2 motions before ii.
-ii   PSM2 inserts the needle to the exit: the PSM2 motions before PSM1 grasps the needle, from
-     the one in which the needle tip went into the tissue for the last time before that grasp
-     (from ``surface_depth`` to deeper than ``entered_depth`` below the pair's surface, entry
-     marker and normal), or the last one if the tip never went that deep: a person who
-     pauses during the insertion makes it of several motions, and the insertion starts where
-     the tip was still at the surface, however many motions follow it in the tissue or once
-     the tip is out of the exit.
-iii  PSM1 regrasps: from PSM1's first motion after ii to the moment PSM2 releases the needle.
-iv   PSM1 extracts the needle: PSM1's motions after PSM2 released it, before PSM2 grasps again.
-v    hand-over to PSM2 and move on: from the first motion after iv to the last motion.
+- i: PSM2 picks the needle and brings its tip to the entry: the PSM2 motions before ii.
+- ii: PSM2 inserts the needle to the exit: the PSM2 motions before PSM1 grasps the needle, from
+  the one in which the needle tip went into the tissue for the last time before that grasp
+  (from ``surface_depth`` to deeper than ``entered_depth`` below the pair's surface, entry
+  marker and normal), or the last one if the tip never went that deep: a person who
+  pauses during the insertion makes it of several motions, and the insertion starts where
+  the tip was still at the surface, however many motions follow it in the tissue or once
+  the tip is out of the exit.
+- iii: PSM1 regrasps: from PSM1's first motion after ii to the moment PSM2 releases the needle.
+- iv: PSM1 extracts the needle: PSM1's motions after PSM2 released it, before PSM2 grasps again.
+- v: hand-over to PSM2 and move on: from the first motion after iv to the last motion.
 
 Times in s, positions in m, quaternions (x, y, z, w).
 """
