@@ -63,6 +63,7 @@ from sim_bridge.ros import qos
 from sim_bridge.ros.intake import CommandIntake
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.polled import PolledInputs
+from sim_bridge.ros.readers_gate import ReadersGate
 from std_msgs.msg import Bool, Empty, Float64, String
 from suture_lfd.nodes import executables
 from suture_lfd.teleop.devices import CAMERA_FRAME, PEDALS, open_device
@@ -206,6 +207,8 @@ class MtmsNode(Node):
         self._active_until = -1.0      # s: the cycle runs at the full rate until then
         self._period_ns = None
         self._intakes = {}
+        self._gates = {}
+        self._held = {}      # MTM name: state commands held until its readers get its state
         realism = MtmRealism(level=cfg.realism_level, seed=cfg.realism_seed)
         self._imperfect = {}
         for k, name in enumerate(cfg.mtms):
@@ -250,6 +253,8 @@ class MtmsNode(Node):
                                  lambda m, n=name: self._on_handle(n, m))
                 self._poll_input(Float64, f'{prefix}/{name}/gripper',
                                  lambda m, n=name: self._on_gripper(n, m))
+            self._gates[name] = ReadersGate(self._pubs[name]['operating_state'], [
+                self._pubs[name][topic] for topic in ('measured_cp', 'setpoint_cp', 'gripper')])
             self._publish_state(name)
         if cfg.device == 'browser':
             self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals,
@@ -282,6 +287,29 @@ class MtmsNode(Node):
             mtm.state, mtm.is_homed, busy, self.get_clock().now().to_msg()))
 
     def _on_state_command(self, name, msg):
+        """
+        Apply a state command, once whoever reads the MTM's state can read its poses.
+
+        A physical MTM powers up and homes in seconds, long after a client's streams have
+        matched; the virtual one takes commands at once, so they wait (in order, for 0.5 s at
+        most: :class:`sim_bridge.ros.readers_gate.ReadersGate`) while a reader of its
+        ``operating_state`` does not yet get its ``measured_cp``, ``setpoint_cp`` and gripper.
+        """
+        held = self._held.setdefault(name, [])
+        held.append(msg)
+        self._release_commands(name)
+        if self._held[name]:
+            self._wake()            # look again at the full rate
+
+    def _release_commands(self, name):
+        held = self._held.get(name)
+        if not held or self._gates[name].holds():
+            return
+        self._held[name] = []
+        for msg in held:
+            self._apply_state_command(name, msg)
+
+    def _apply_state_command(self, name, msg):
         problem = self.mtms[name].state_command(msg.string)
         if problem:
             self._pubs[name]['warning'].publish(String(data=problem))
@@ -408,6 +436,8 @@ class MtmsNode(Node):
 
     def _on_timer(self):
         self._read_inputs()
+        for name in self._held:
+            self._release_commands(name)
         t = self._now()
         dt = max(0.0, t - self._t)
         self._t = t

@@ -75,7 +75,7 @@ def machine_is_quiet():
 
 
 def assert_no_stale_getter(client, quiet):
-    ages = [line for line in client.stale()]
+    ages = client.stale()
     print(f'\ngetters that found data older than 20 ms or none at all: {len(ages)}'
           + (f', e.g. {ages[0]}' if ages else ''))
     if quiet:
