@@ -79,7 +79,7 @@ def assert_no_stale_getter(client, quiet):
     print(f'\ngetters that found data older than 20 ms or none at all: {len(ages)}'
           + (f', e.g. {ages[0]}' if ages else ''))
     if quiet:
-        assert not ages, ages[:10]
+        assert not ages, client.proc.log()[-20000:]
     else:
         print('the machine was loaded when the test started: the stale getters are reported, '
               'not asserted')
