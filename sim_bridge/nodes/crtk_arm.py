@@ -73,6 +73,7 @@ from sim_bridge.kinematics import UnreachableError
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.intake import CommandIntake
+from sim_bridge.ros.readers_gate import ReadersGate
 from std_msgs.msg import Bool, Empty, Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -290,6 +291,9 @@ class CrtkArm:
             'status': pub(String, f'{name}/status', qos.EVENTS),
             'ratio': pub(Float64, f'{name}/trajectory_j/ratio', qos.EVENTS),
         }
+        self._held_events = []
+        self._gate = ReadersGate(self._events['operating_state'], [
+            self._state[f'{name}/{topic}'][0] for topic in ('measured_cp', 'setpoint_cp')])
         if self._has_jaw:
             self._type_pub = pub(String, f'{name}/tool_type', qos.EVENTS)
             self._type_pub.publish(String(data=str(getattr(k, 'tool_type', ''))))
@@ -517,9 +521,19 @@ class CrtkArm:
         self._events[kind].publish(String(data=text))
 
     def flush_events(self, arm=None):
-        """Publish the arm's pending events (operating_state, goal_reached, messages, ratio)."""
+        """
+        Publish the arm's pending events (operating_state, goal_reached, messages, ratio).
+
+        They are held, in order, while a reader of the arm's events is not yet a reader of its
+        ``measured_cp`` and ``setpoint_cp`` (:class:`sim_bridge.ros.readers_gate.ReadersGate`):
+        a client that enabled and homed the arm gets its state before it sees it ready.
+        """
         arm = arm or self._get_arm()
-        for event in arm.pop_events():
+        self._held_events.extend(arm.pop_events())
+        if not self._held_events or self._gate.holds():
+            return
+        events, self._held_events = self._held_events, []
+        for event in events:
             kind = event.kind
             if kind == 'operating_state':
                 self.publish_operating_state(event.value)

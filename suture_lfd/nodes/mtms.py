@@ -46,6 +46,7 @@ brings the full rate back.
 """
 
 from dataclasses import dataclass
+import math
 import sys
 
 from crtk_msgs.msg import OperatingState, StringStamped
@@ -62,10 +63,12 @@ from sim_bridge.ros import qos
 from sim_bridge.ros.intake import CommandIntake
 from sim_bridge.ros.params import declare_config
 from sim_bridge.ros.polled import PolledInputs
+from sim_bridge.ros.readers_gate import ReadersGate
 from std_msgs.msg import Bool, Empty, Float64, String
 from suture_lfd.nodes import executables
 from suture_lfd.teleop.devices import CAMERA_FRAME, PEDALS, open_device
 from suture_lfd.teleop.frames import FrameTree
+from suture_lfd.teleop.mtm_realism import MtmImperfection, MtmRealism
 from suture_lfd.teleop.virtual_mtm import DISPLAY_FRAME, VirtualMtm
 from tf2_msgs.msg import TFMessage
 
@@ -113,6 +116,11 @@ class MtmsConfig:
     camera : str
         The arm whose ``measured_cp`` is the camera (the display frame's origin and axes),
         for a device that gives poses in another frame (the browser's ``world``).
+    realism_level : float
+        How imperfect the MTMs are (:mod:`suture_lfd.teleop.mtm_realism`): 0 a perfect MTM
+        (exact alignment, exact readings), 1 the ``dvrk`` preset, more scales it.
+    realism_seed : int
+        Seed of the MTMs' imperfection draws.
 
     """
 
@@ -133,6 +141,8 @@ class MtmsConfig:
     device_index: int = 0
     device_path: str = ''
     camera: str = 'ECM'
+    realism_level: float = 1.0
+    realism_seed: int = 0
 
     def __post_init__(self):
         if self.device not in ('browser', 'gamepad', 'spacemouse'):
@@ -148,6 +158,9 @@ class MtmsConfig:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.move_duration < 0:
             raise ValueError(f'parameter move_duration must be >= 0, got {self.move_duration}')
+        if not (math.isfinite(self.realism_level) and self.realism_level >= 0):
+            raise ValueError(f'parameter realism_level must be a finite number >= 0, got '
+                             f'{self.realism_level}')
 
 
 class MtmsNode(Node):
@@ -194,10 +207,15 @@ class MtmsNode(Node):
         self._active_until = -1.0      # s: the cycle runs at the full rate until then
         self._period_ns = None
         self._intakes = {}
-        for name in cfg.mtms:
+        self._gates = {}
+        self._held = {}      # MTM name: state commands held until its readers get its state
+        realism = MtmRealism(level=cfg.realism_level, seed=cfg.realism_seed)
+        self._imperfect = {}
+        for k, name in enumerate(cfg.mtms):
             T0 = np.eye(4)
             T0[:3, 3] = (0.05 if name.endswith('R') else -0.05, 0.0, 0.15)
-            mtm = self.mtms[name] = VirtualMtm(name, T0, cfg.move_duration)
+            imperfect = self._imperfect[name] = MtmImperfection(realism, stream=k)
+            mtm = self.mtms[name] = VirtualMtm(name, T0, cfg.move_duration, imperfect)
             mtm.set_gripper(cfg.gripper_start)
             self._busy[name] = False
             pub = self.create_publisher
@@ -235,6 +253,8 @@ class MtmsNode(Node):
                                  lambda m, n=name: self._on_handle(n, m))
                 self._poll_input(Float64, f'{prefix}/{name}/gripper',
                                  lambda m, n=name: self._on_gripper(n, m))
+            self._gates[name] = ReadersGate(self._pubs[name]['operating_state'], [
+                self._pubs[name][topic] for topic in ('measured_cp', 'setpoint_cp', 'gripper')])
             self._publish_state(name)
         if cfg.device == 'browser':
             self.create_subscription(Joy, f'{cfg.browser_prefix}/pedals', self._on_pedals,
@@ -267,6 +287,29 @@ class MtmsNode(Node):
             mtm.state, mtm.is_homed, busy, self.get_clock().now().to_msg()))
 
     def _on_state_command(self, name, msg):
+        """
+        Apply a state command, once whoever reads the MTM's state can read its poses.
+
+        A physical MTM powers up and homes in seconds, long after a client's streams have
+        matched; the virtual one takes commands at once, so they wait (in order, for 0.5 s at
+        most: :class:`sim_bridge.ros.readers_gate.ReadersGate`) while a reader of its
+        ``operating_state`` does not yet get its ``measured_cp``, ``setpoint_cp`` and gripper.
+        """
+        held = self._held.setdefault(name, [])
+        held.append(msg)
+        self._release_commands(name)
+        if self._held[name]:
+            self._wake()            # look again at the full rate
+
+    def _release_commands(self, name):
+        held = self._held.get(name)
+        if not held or self._gates[name].holds():
+            return
+        self._held[name] = []
+        for msg in held:
+            self._apply_state_command(name, msg)
+
+    def _apply_state_command(self, name, msg):
         problem = self.mtms[name].state_command(msg.string)
         if problem:
             self._pubs[name]['warning'].publish(String(data=problem))
@@ -393,6 +436,8 @@ class MtmsNode(Node):
 
     def _on_timer(self):
         self._read_inputs()
+        for name in self._held:
+            self._release_commands(name)
         t = self._now()
         dt = max(0.0, t - self._t)
         self._t = t
@@ -421,9 +466,12 @@ class MtmsNode(Node):
             pubs = self._pubs[name]
             # written as CDR bytes (common.cdr): a fraction of building the messages, on a
             # cycle that a teleoperation client wants every 5 ms
-            pose = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
-            pubs['measured_cp'].publish(pose)
-            pubs['setpoint_cp'].publish(pose)
+            setpoint = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
+            imperfect = self._imperfect[name]
+            # what the encoders read (level 0: the pose itself, one message for both)
+            pubs['measured_cp'].publish(setpoint if imperfect.is_perfect else cdr.pose_stamped(
+                ns, self.frame_id, cv.pose_vector(imperfect.measured(T))))
+            pubs['setpoint_cp'].publish(setpoint)
             v = w = np.zeros(3)
             last = self._last_cp.get(name)
             if last is not None and dt > 0:
@@ -437,7 +485,8 @@ class MtmsNode(Node):
             self._last_gripper[name] = mtm.gripper
             pubs['measured_cv'].publish(cdr.vector6_stamped(ns, self.frame_id,
                                                             np.concatenate([v, w])))
-            pubs['gripper'].publish(cdr.joint_state(ns, ('gripper',), [mtm.gripper]))
+            pubs['gripper'].publish(cdr.joint_state(ns, ('gripper',),
+                                                    [imperfect.gripper(mtm.gripper)]))
             busy = mtm.is_busy(t)
             changed = changed or busy
             if busy != self._busy[name]:

@@ -13,7 +13,9 @@ change, as a physical MTM's motors do:
 
 - ``move_cp``: the MTM goes to the goal along a straight line and a slerp in ``move_duration``
   s (``is_busy`` true meanwhile, as a dVRK arm's trajectory), then stays there: the offset
-  takes up the difference between the hand and the goal;
+  takes up the difference between the hand and the goal; with an imperfection
+  (:mod:`suture_lfd.teleop.mtm_realism`) it ends a little off the goal, as a physical MTM's
+  wrist does;
 - ``lock_orientation``: the orientation stays at the given one, whatever the hand does;
   ``unlock_orientation``, or the operator letting go of the clutch pedal
   (:meth:`VirtualMtm.release_clutch`): it follows the hand's rotations again from there,
@@ -32,6 +34,7 @@ from sim_bridge.common.geometry import (
     quaternion_from_matrix,
     quaternion_slerp,
 )
+from suture_lfd.teleop.mtm_realism import MtmImperfection
 
 STATES = ('DISABLED', 'ENABLED')
 # The console's display frame (named as the dVRK console's stereo viewer frame): the axes of the
@@ -98,12 +101,16 @@ class VirtualMtm:
         Device pose at start.
     move_duration : float
         s a ``move_cp`` takes.
+    imperfection : MtmImperfection, optional
+        Where a ``move_cp`` really ends (:meth:`MtmImperfection.reached`); None: at the goal.
 
     """
 
     def __init__(self, name: str, T_F_dev: ArrayLike | None = None,
-                 move_duration: float = 0.5) -> None:
+                 move_duration: float = 0.5,
+                 imperfection: MtmImperfection | None = None) -> None:
         self.name = name
+        self.imperfection = imperfection
         self.move_duration = float(move_duration)
         self.device = np.eye(4) if T_F_dev is None else np.array(T_F_dev, dtype=float)
         self.gripper = 0.0
@@ -195,6 +202,8 @@ class VirtualMtm:
     def move_cp(self, T_goal: ArrayLike, t: float) -> None:
         """Start a move to ``T_goal`` (4x4, frame F) at ``t``; the MTM is busy meanwhile."""
         T_goal = np.array(T_goal, dtype=float)
+        if self.imperfection is not None:     # the wrist's controllers leave a small error
+            T_goal = self.imperfection.reached(T_goal)
         self._move = (t, self.measured_cp(t), T_goal)
         self.moves += 1
 

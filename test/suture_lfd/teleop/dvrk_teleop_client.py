@@ -131,12 +131,14 @@ class TeleopScript:
         self.clutch = Button(node, '/footpedals/clutch')
         self.operator = Button(node, '/footpedals/coag')
         self.state = None
-        self.set_state('SETTING_ARMS')
+        self.set_state('ALIGNING')
         self.errors = []
         self.sent = []            # (time, PSM servo_cp goal) while following
         self.following = False
         self.cycles = 0
         self.gripper_range = [math.inf, -math.inf]
+        self.roll_range = [math.inf, -math.inf]
+        self.frames_said = False
         self.active = False
         self.active_before_clutch = False
         self.move_at = None
@@ -154,6 +156,10 @@ class TeleopScript:
                 # that a test can tell its other claims apart from the data's age
                 self.errors.append(str(exc))
                 say('ERROR', exc)
+            except ValueError as exc:
+                # the script's arithmetic failed (math.acos out of its domain): it stops
+                say('FAIL', f'{type(exc).__name__}: {exc}')
+                return
             self.cycles += 1
             next_at += PERIOD
             delay = next_at - time.monotonic()
@@ -166,8 +172,7 @@ class TeleopScript:
         # run_all_states: every getter, every cycle (all of them asked, so that the errors name
         # every stale topic; the first one stops the cycle as it stops the script)
         stale = []
-        for arm, topic in ((self.mtm, 'measured_cp'), (self.mtm, 'setpoint_cp'),
-                           (self.psm, 'setpoint_cp')):
+        for arm, topic in ((self.mtm, 'measured_cp'), (self.psm, 'setpoint_cp')):
             try:
                 arm.cp[topic].get()
             except DataAgeError as exc:
@@ -178,35 +183,39 @@ class TeleopScript:
             raise stale[0]
         self.mtm_cp = self.mtm.pose('measured_cp')
         self.psm_cp = self.psm.pose('setpoint_cp')
+        if not self.frames_said:
+            self.frames_said = True
+            say('FRAMES', f"{self.mtm.cp['measured_cp'].msg.header.frame_id} "
+                          f"{self.psm.cp['setpoint_cp'].msg.header.frame_id}")
         getattr(self, f'_{self.state.lower()}')()
 
     # -- states -----------------------------------------------------------------------------
 
-    def _setting_arms(self):
-        if self.mtm.enabled_and_homed() and self.psm.enabled_and_homed():
-            self.set_state('ALIGNING')
-            self.move_at = None
-
     def _aligning(self):
         now = time.monotonic()
-        if not self.clutch.value and (self.move_at is None or now - self.move_at > 10.0):
-            goal = self.mtm_cp.copy()
-            goal[:3, :3] = self.psm_cp[:3, :3]     # the PSM's orientation, as it is
+        offset = self.mtm_cp[:3, :3].T @ self.psm_cp[:3, :3]
+        error = math.acos(max(-1.0, min(1.0, (np.trace(offset) - 1.0) / 2.0)))  # GetRotAngle
+        if self.operator.value == 1:
+            g = float(self.mtm.gripper.get().position[0])
+            self.gripper_range = [min(self.gripper_range[0], g), max(self.gripper_range[1], g)]
+            self.active = self.active or self.gripper_range[1] - self.gripper_range[0] >= 5 * DEG
+            # the script's roll: math.acos of the dot product of the two y axes, unclamped (a
+            # ValueError there stops the script)
+            roll = math.acos(float(np.dot(self.psm_cp[:3, 1], self.mtm_cp[:3, 1])))
+            self.roll_range = [min(self.roll_range[0], roll), max(self.roll_range[1], roll)]
+        if self.move_at is None or now - self.move_at > 4.0:
+            goal = np.eye(4)
+            goal[:3, :3] = self.psm_cp[:3, :3]     # the PSM's orientation, as it is, at the
+            goal[:3, 3] = self.mtm.pose('setpoint_cp')[:3, 3]   # MTM's setpoint position
             self.mtm.move_cp_pub.publish(cv.pose_stamped(goal, '', self.stamp()))
             self.move_at = now
-            return
-        if self.mtm.state.is_busy or now - self.move_at < 0.05:
-            return
-        offset = self.mtm_cp[:3, :3].T @ self.psm_cp[:3, :3]
-        error = math.acos(max(-1.0, min(1.0, (np.trace(offset) - 1.0) / 2.0)))
-        if not self.active:
-            g = float(self.mtm.gripper.get(age=0.05).position[0])
-            self.gripper_range = [min(self.gripper_range[0], g), max(self.gripper_range[1], g)]
-            self.active = self.gripper_range[1] - self.gripper_range[0] >= 5 * DEG
-        if error <= 5 * DEG and self.active and self.operator.value == 1:
+        if self.clutch.value == 1 and self.active:
+            self._enter_clutched()
+        elif error <= 5 * DEG and self.active and self.operator.value == 1:
             self._enter_enabled()
 
     def _enter_enabled(self):
+        self.psm.jaw.get()                          # the script reads the jaw's setpoint here
         self.mtm0, self.psm0 = self.mtm_cp.copy(), self.psm_cp.copy()
         self.offset = self.mtm0[:3, :3].T @ self.psm0[:3, :3]
         self.mtm.gravity_pub.publish(Bool(data=True))
@@ -216,13 +225,7 @@ class TeleopScript:
 
     def _enabled(self):
         if self.clutch.value == 1:
-            self.following = False
-            self.active_before_clutch = self.active
-            x, y, z, w = quaternion_from_matrix(self.mtm_cp[:3, :3]).tolist()
-            self.mtm.lock_pub.publish(Quaternion(x=x, y=y, z=z, w=w))
-            self.mtm.gravity_pub.publish(Bool(data=True))
-            self.psm.hold_pub.publish(Empty())
-            self.set_state('CLUTCHED')
+            self._enter_clutched()
             return
         if self.operator.value != 1:
             self.following = False
@@ -236,9 +239,18 @@ class TeleopScript:
         stamp = self.stamp()
         self.psm.servo_cp_pub.publish(cv.pose_stamped(goal, '', stamp))
         self.sent.append((time.monotonic(), goal))
-        g = float(self.mtm.gripper.get(age=0.05).position[0])
+        g = float(self.mtm.gripper.get().position[0])
         jaw = min(80 * DEG, max(-20 * DEG, g * 80.0 / 60.0))
         self.psm.jaw_pub.publish(cv.joint_state(['jaw'], stamp, position=[jaw]))
+
+    def _enter_clutched(self):
+        self.following = False
+        self.active_before_clutch = self.active
+        x, y, z, w = quaternion_from_matrix(self.mtm_cp[:3, :3]).tolist()
+        self.mtm.lock_pub.publish(Quaternion(x=x, y=y, z=z, w=w))
+        self.mtm.gravity_pub.publish(Bool(data=True))
+        self.psm.hold_pub.publish(Empty())
+        self.set_state('CLUTCHED')
 
     def _clutched(self):
         if self.clutch.value != 1:
@@ -299,12 +311,6 @@ def main(mtm_name, psm_name):
                 say('FAIL', f'failed to home {arm.name} within 10.0 seconds')
                 return 1
         say('HOMED', f'{time.monotonic() - t0:.3f}')
-        if not wait_for(lambda: all(s.msg is not None for s in (
-                mtm.cp['measured_cp'], psm.cp['setpoint_cp'])), 10.0):
-            say('FAIL', 'no MTM measured_cp or PSM setpoint_cp within 10 s')
-            return 1
-        say('FRAMES', f"{mtm.cp['measured_cp'].msg.header.frame_id} "
-                      f"{psm.cp['setpoint_cp'].msg.header.frame_id}")
         script = TeleopScript(node, mtm, psm)
         gc.freeze()   # what start-up built stays out of the cyclic collector's full passes
         script.run()

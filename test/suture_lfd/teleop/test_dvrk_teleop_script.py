@@ -12,6 +12,7 @@ asserted: on an oversubscribed machine they come from the client's own process b
 """
 
 import math
+import os
 from pathlib import Path
 import sys
 import time
@@ -68,7 +69,24 @@ class Setpoints:
         return cv.matrix_from_pose(self.measured.pose)
 
 
+def machine_is_quiet():
+    """Whether the 1-minute load average leaves half the CPUs free (the stale count's check)."""
+    return os.getloadavg()[0] < 0.5 * (os.cpu_count() or 1)
+
+
+def assert_no_stale_getter(client, quiet):
+    ages = client.stale()
+    print(f'\ngetters that found data older than 20 ms or none at all: {len(ages)}'
+          + (f', e.g. {ages[0]}' if ages else ''))
+    if quiet:
+        assert not ages, client.proc.log()[-20000:]
+    else:
+        print('the machine was loaded when the test started: the stale getters are reported, '
+              'not asserted')
+
+
 def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(ros, launch):
+    quiet = machine_is_quiet()
     sim = launch('simulator')                                  # the default configuration
     mtms = launch('mtms')
     node = ros.node('operator')
@@ -155,8 +173,22 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
     assert client.state() == 'ENABLED' and not client.errors(), client.proc.log()[-2000:]
     assert client.proc.running() and sim.running() and mtms.running()
     assert homed <= 5.0, f'both arms enabled and homed after {homed:.2f} s'
-    # the data's age (each stale getter would have stopped the dVRK's script) is a wall-clock
-    # figure of the whole machine: reported here, measured by the benchmarks, not asserted
-    ages = [float(line.rsplit('(', 1)[1].split()[0]) for line in client.stale()]
-    print(f'\ngetters that found data older than 20 ms: {len(ages)}'
-          + (f', oldest {max(ages):.3f} s' if ages else ''))
+    # each stale getter would have stopped the dVRK's script
+    assert_no_stale_getter(client, quiet)
+
+
+def test_the_script_gets_data_before_it_acts_with_the_fast_start_settings(ros, launch):
+    """Homing that takes no time still leaves a new client its data before its first getter."""
+    quiet = machine_is_quiet()
+    launch('simulator', '--ros-args', '-p', 'start_at_home:=true', '-p', 'power_up_time:=0.0')
+    mtms = launch('mtms')
+    node = ros.node('operator')
+    assert wait_for(lambda: all(node.get_publishers_info_by_topic(t) for t in (
+        '/PSM1/operating_state', '/MTMR/operating_state')), 60.0), mtms.log()
+    client = ClientLog(launch(sys.executable, str(CLIENT), 'MTMR', 'PSM1'))
+    assert wait_for(lambda: client.lines('FRAMES') or client.errors(), 30.0), client.proc.log()
+    time.sleep(2.0)                          # aligning: move_cp, getters every 5 ms
+    assert not client.errors(), client.errors()
+    assert client.state() == 'ALIGNING', client.proc.log()[-2000:]
+    assert not [line for line in client.stale() if 'never' in line], client.stale()[:5]
+    assert_no_stale_getter(client, quiet)

@@ -5,7 +5,9 @@ alignment (busy pulse), ``lock_orientation``, ``gripper/measured_js``, the pedal
 and PSM ``servo_cp`` + ``jaw/servo_jp`` at 200 Hz.
 """
 
+import math
 import threading
+import time
 
 from crtk_msgs.msg import OperatingState, StringStamped
 from geometry_msgs.msg import PoseStamped, Quaternion, WrenchStamped
@@ -158,6 +160,12 @@ def client_graph(ros, launch):
     yield node, operator, mtm, psm, clutch, coag, watch, (sim, mtms)
 
 
+def angle_between(T_a, T_b):
+    """The angle (rad) of the rotation between two poses' orientations."""
+    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
+    return math.acos(max(-1.0, min(1.0, cos)))
+
+
 def test_a_dvrk_python_style_client_teleoperates_psm1_through_the_virtual_mtms(client_graph):
     node, op, mtm, psm, clutch, coag, watch, procs = client_graph
     # arms: enable and home, waiting on the operating_state events the commands cause
@@ -168,15 +176,18 @@ def test_a_dvrk_python_style_client_teleoperates_psm1_through_the_virtual_mtms(c
     goal = mtm.measured.copy()
     goal[:3, :3] = psm.setpoint[:3, :3]
     mtm.move_cp(goal)
-    assert wait_for(lambda: np.allclose(mtm.measured[:3, :3], goal[:3, :3], atol=1e-6),
-                    timeout=5)
+    # there as a physical MTM gets there: within its wrist's tracking error (0.5 deg RMS at the
+    # virtual MTMs' dvrk preset), never exactly
+    assert wait_for(lambda: angle_between(mtm.measured, goal) < math.radians(2.5), timeout=5)
+    time.sleep(0.7)                                   # the move has ended
+    aligned = mtm.measured.copy()
     # lock_orientation: turning the handle leaves the MTM's orientation where it is
-    mtm.lock_orientation(mtm.measured[:3, :3])
+    mtm.lock_orientation(aligned[:3, :3])
     turned = op.handles['MTMR'].copy()
     turned[:3, :3] = rotation_from_rotvec([0.0, 0.0, 0.5]) @ turned[:3, :3]
     op.handles['MTMR'] = turned
     stream(op, 0.5)
-    assert np.allclose(mtm.measured[:3, :3], goal[:3, :3], atol=1e-6)
+    assert angle_between(mtm.measured, aligned) < math.radians(0.2)   # encoder noise only
     # the operator presses coag (a Joy button from the virtual console)
     op.coag = True
     assert wait_for(lambda: (op.publish(), coag.value)[1] == 1, timeout=10)
