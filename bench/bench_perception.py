@@ -111,13 +111,16 @@ def main():
     parser.add_argument('--scenes', type=int, default=40, help='scenes per kind and phantom')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--phantoms', default='synthetic,scanned')
+    parser.add_argument('--camera-realism', default='',
+                        help="endoscope preset of config/realism_camera.yaml (dvrk: images "
+                             "through a distorting lens, then rectified); '' = ideal")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     tracker = NeedleTracker()
     rows, all_markers, all_cpu, marker_cpu = [], [], [], []
     wall = time.perf_counter()
     for phantom in args.phantoms.split(','):
-        maker = SceneMaker(phantom)
+        maker = SceneMaker(phantom, endoscope=args.camera_realism)
         for kind in KINDS:
             results = []
             tries = 0

@@ -144,7 +144,7 @@ class ScenePhysics:
             'PSM1': psm, 'PSM2': psm, 'ECM': ecm_kinematics()}
         self.world = World(cfg.world, self.kinematics, self.phantom, self.needle_geometry,
                            self.thread_geometry, client)
-        self.camera = StereoCamera(cfg.camera, client)
+        self.camera = StereoCamera(cfg.camera, client, lens=cfg.endoscope.lens)
         self.camera.make_shiny(self.world.needle_body)
         self._dt = cfg.world.physics_step
         self._thread_every = steps_per_period(cfg.loop.thread_period, self._dt, 'thread_period')

@@ -15,6 +15,7 @@ from typing import Any
 from sim_bridge.arm import ArmConfig
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.common.paths import config_path
+from sim_bridge.realism.endoscope import EndoscopeRealism
 from sim_bridge.scene.camera import CameraConfig
 from sim_bridge.scene.grasp import GraspConfig
 from sim_bridge.scene.scene_config import SceneConfig, load_scene_config
@@ -116,6 +117,9 @@ class SimulationConfig:
         0: perfect kinematics.
     kinematic_error_seed : int
         Seed of the errors' draw (fixed for the life of the simulation, as a robot's are).
+    endoscope : EndoscopeRealism
+        The endoscope's lens and frame timing (:mod:`sim_bridge.realism.endoscope`; default:
+        an ideal camera).
 
     """
 
@@ -131,6 +135,7 @@ class SimulationConfig:
     ecm_rest_jp: tuple[float, ...] | None = None
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
+    endoscope: EndoscopeRealism = field(default_factory=EndoscopeRealism)
 
 
 def load_simulation_config(world_path: str | Path | None = None,

@@ -12,9 +12,14 @@ All poses are in ``world`` (z up, phantom at the origin; SI units):
   and ``ECM -> ECM_left|right_optical``;
 - ``sim/visualization`` (visualization_msgs/MarkerArray): needle arc, thread, red markers, tool
   tips;
-- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8), ``ECM/left|right/camera_info`` (a
-  rectified pair: the right ``P`` has ``-fx * baseline``) and, when asked for,
-  ``ECM/left|right/depth`` (32FC1, m); rendered only while someone subscribes.
+- ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8), ``ECM/left|right/camera_info`` (the
+  right ``P`` has ``-fx * baseline``; ``D`` the lens's coefficients) and
+  ``ECM/left|right/image_rect`` (the rectified images, as the ROS image pipeline publishes them,
+  with ``ECM/left|right/image_rect/camera_info``, zero ``D``) and, when asked for,
+  ``ECM/left|right/depth`` (32FC1, m); rendered only while someone subscribes. With an ideal
+  lens (the default) the raw images are the rectified ones. An endoscope with a frame timing
+  (:mod:`sim_bridge.realism.frame_timing`) exposes a frame at its rate and publishes it, stamped,
+  its latency later.
 
 In physical mode the ground truth is for the evaluation only: the needle, phantom, marker and
 base topics and ``sim/visualization`` move under ``/evaluation/`` (:func:`truth_topic`), ``/tf``
@@ -101,6 +106,10 @@ class SceneTopics:
                        for s in ('left', 'right')}
         self._depths = ({s: pub(Image, f'ECM/{s}/depth', qos.IMAGES) for s in ('left', 'right')}
                         if depth else {})
+        self._rect = {s: pub(Image, f'ECM/{s}/image_rect', qos.IMAGES) for s in ('left', 'right')}
+        self._rect_infos = {s: pub(CameraInfo, f'ECM/{s}/image_rect/camera_info', qos.IMAGES)
+                            for s in ('left', 'right')}
+        self._exposed = []   # (t_publish, frame) rendered, waiting for the camera's latency
 
     def publish_latched(self, stamp):
         """Publish the scene's fixed frames (after start-up and after a reset)."""
@@ -161,20 +170,37 @@ class SceneTopics:
         ])
         self._viz.publish(msg)
 
-    def publish_camera(self, stamp):
-        """Render and publish the stereo pair and its calibration (only if someone listens)."""
-        listening = any(p.get_subscription_count() for p in (*self._images.values(),
-                                                              *self._infos.values(),
-                                                              *self._depths.values()))
-        if not listening:
+    def expose_camera(self, t, t_publish):
+        """
+        Render the stereo pair of the scene at ``t`` if someone listens.
+
+        It is published at ``t_publish`` (simulation s), stamped then (:meth:`publish_camera`).
+        """
+        publishers = (*self._images.values(), *self._infos.values(), *self._depths.values(),
+                      *self._rect.values(), *self._rect_infos.values())
+        if not any(p.get_subscription_count() for p in publishers):
             return
-        frame = self._sim.render()
+        self._exposed.append((t_publish, self._sim.render()))
+
+    def publish_camera(self, t, stamp):
+        """Publish the exposed frames whose time has come (``stamp(t)``: the clock's stamp)."""
+        while self._exposed and self._exposed[0][0] <= t + 1e-9:
+            t_publish, frame = self._exposed.pop(0)
+            self._publish_frame(frame, stamp(t_publish))
+
+    def _publish_frame(self, frame, stamp):
         camera = self._sim.camera
-        for side, rgb, depth in (('left', frame.left_rgb, frame.left_depth),
-                                 ('right', frame.right_rgb, frame.right_depth)):
+        for side, rgb, raw, depth in (('left', frame.left_rgb, frame.left_raw, frame.left_depth),
+                                      ('right', frame.right_rgb, frame.right_raw,
+                                       frame.right_depth)):
             frame_id = f'ECM_{side}_optical'
-            self._images[side].publish(cv.image_message(rgb, frame_id, stamp))
-            self._infos[side].publish(cv.camera_info_message(camera.camera_info(side), frame_id,
-                                                             stamp))
+            rect_msg = cv.image_message(rgb, frame_id, stamp)
+            self._images[side].publish(rect_msg if raw is None
+                                       else cv.image_message(raw, frame_id, stamp))
+            self._infos[side].publish(cv.camera_info_message(camera.camera_info(side, raw=True),
+                                                             frame_id, stamp))
+            self._rect[side].publish(rect_msg)
+            self._rect_infos[side].publish(cv.camera_info_message(camera.camera_info(side),
+                                                                  frame_id, stamp))
             if side in self._depths and depth is not None:
                 self._depths[side].publish(cv.depth_message(depth, frame_id, stamp))

@@ -79,6 +79,7 @@ from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
+from sim_bridge.realism.endoscope import endoscope_preset
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.entry import NodeHooks
@@ -164,6 +165,9 @@ class SimulatorConfig:
         Class (mm, >= 0) of the PSMs' hidden kinematic errors; 0: perfect kinematics.
     kinematic_error_seed : int
         Seed of the kinematic errors' draw.
+    camera_realism : str
+        The endoscope's preset in ``config/realism_camera.yaml`` (``dvrk``: a distorting lens,
+        30 Hz, 50 ms latency); ``''``: an ideal camera at ``camera_rate``, stamped when rendered.
 
     """
 
@@ -194,6 +198,7 @@ class SimulatorConfig:
     physical: bool = False
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
+    camera_realism: str = ''
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -300,6 +305,7 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
             loop=replace(sim_config.loop, target_pair=cfg.target_pair or None),
             kinematic_error_level=float(cfg.kinematic_error_level),
             kinematic_error_seed=int(cfg.kinematic_error_seed),
+            endoscope=endoscope_preset(cfg.camera_realism),
             camera=replace(sim_config.camera, depth=cfg.camera_depth,
                            width=cfg.camera_width or sim_config.camera.width,
                            height=cfg.camera_height or sim_config.camera.height), **rest)
@@ -314,7 +320,10 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
         self._state_ns = None  # stamp of the state published in this step, if any
         self._tf = _Every(cfg.tf_rate)
         self._viz = _Every(cfg.visualization_rate)
-        self._camera = _Every(cfg.camera_rate)
+        # an endoscope with a frame rate exposes at it (while camera_rate asks for images) and
+        # its frames reach ROS its latency later
+        self._frame_timing = timing = sim_config.endoscope.timing
+        self._camera = _Every(timing.rate if timing.rate and cfg.camera_rate else cfg.camera_rate)
         self._rtf = cfg.real_time_factor
         # a round every half state period (at most every tick); as fast as it goes: 1 ms
         period = 0.001 if self._rtf == 0 else max(0.001, min(cfg.tick,
@@ -491,7 +500,8 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
         if self._viz.due(t):
             self.scene.publish_visualization(self.stamp())
         if self._camera.due(t):
-            self.scene.publish_camera(self.stamp())
+            self.scene.expose_camera(t, t + self._frame_timing.latency)
+        self.scene.publish_camera(t, self.stamp)
 
     def _publish_arm_state(self):
         """Publish the arms' state when it is due: called as soon as the arms have moved."""

@@ -368,14 +368,17 @@ def rgb_from_image(msg, width=None, height=None):
 
 def camera_info_arrays(msg):
     """
-    Return a ``sensor_msgs/CameraInfo``'s size, ``K`` (3, 3) and ``P`` (3, 4) as a dict.
+    Return a ``sensor_msgs/CameraInfo``'s size, ``K`` (3, 3), ``P`` (3, 4) and ``D`` as a dict.
 
     The keys are those of :func:`suture_lfd.perception.stereo.stereo_from_camera_info`:
-    ``width``, ``height``, ``K``, ``P``.
+    ``width``, ``height``, ``K``, ``P``, and ``D``: the ``plumb_bob`` coefficients, shape (5,)
+    (zeros when the message has none: a rectified image).
     """
+    d = np.zeros(5)
+    d[:min(5, len(msg.d))] = np.asarray(msg.d, dtype=float)[:5]
     return {'width': int(msg.width), 'height': int(msg.height),
             'K': np.asarray(msg.k, dtype=float).reshape(3, 3),
-            'P': np.asarray(msg.p, dtype=float).reshape(3, 4)}
+            'P': np.asarray(msg.p, dtype=float).reshape(3, 4), 'D': d}
 
 
 def camera_info_message(info, frame_id, stamp):

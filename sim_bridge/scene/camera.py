@@ -12,7 +12,11 @@ Camera frames (optical convention, as ROS ``sensor_msgs/CameraInfo`` and OpenCV 
   with ``(0, 0)`` at the centre of the top-left pixel; in homogeneous form ``P_left [p; 1]`` with
   ``P_left = [K | 0]``. The right camera's ``P_right = [K | (-fx * baseline, 0, 0)^T]`` takes
   left-camera coordinates, as camera_info defines it for a rectified stereo pair.
-- Distortion model ``plumb_bob`` with all coefficients zero (the renderer is an ideal pinhole).
+- Distortion model ``plumb_bob``: the renderer is an ideal pinhole; a lens
+  (:mod:`sim_bridge.realism.lens`, off by default) makes the raw images of it, whose
+  ``camera_info`` carries its coefficients, and their rectification (``image_rect``, zero ``D``).
+- A window ``(u0, v0, width, height)`` of the image is rendered alone as the same camera with its
+  principal point at ``(cx - u0, cy - v0)``, as a camera's region of interest.
 
 Rendering uses PyBullet's CPU renderer (``ER_TINY_RENDERER``) through an injected client; depth is
 metric: the ``z`` coordinate (m) of the surface point seen in each pixel, in the camera frame, and
@@ -34,6 +38,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 from sim_bridge.bullet import pybullet
+from sim_bridge.realism.lens import Lens, LensConfig
 
 # Optical frame (x right, y down, z forward) -> OpenGL camera frame (x right, y up, z backward).
 _OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -160,6 +165,10 @@ class StereoFrame:
         nothing is closer than ``far``; None when the camera computes no depth.
     T_world_left, T_world_right : ndarray, shape (4, 4)
         Optical frames of the two cameras in ``world``.
+    left_raw, right_raw : ndarray, shape (height, width, 3), uint8, or None
+        The raw images through the lens (:mod:`sim_bridge.realism.lens`), of which
+        ``left_rgb`` and ``right_rgb`` are the rectification (``image_rect``); None for an
+        ideal lens (the colour images are then the raw ones too).
 
     """
 
@@ -169,6 +178,8 @@ class StereoFrame:
     right_depth: np.ndarray | None
     T_world_left: np.ndarray
     T_world_right: np.ndarray
+    left_raw: np.ndarray | None = None
+    right_raw: np.ndarray | None = None
 
 
 class StereoCamera:
@@ -181,10 +192,13 @@ class StereoCamera:
         Intrinsics and rendering settings.
     client : pybullet_utils.bullet_client.BulletClient, optional
         PyBullet client to render with; needed only by :meth:`render` and :meth:`render_view`.
+    lens : LensConfig, optional
+        The endoscope's distortion (default: an ideal pinhole).
 
     """
 
-    def __init__(self, config: CameraConfig | None = None, client: Any = None) -> None:
+    def __init__(self, config: CameraConfig | None = None, client: Any = None,
+                 lens: LensConfig | None = None) -> None:
         self.config = config or CameraConfig()
         self._client = client
         c = self.config
@@ -201,6 +215,7 @@ class StereoCamera:
         self._rng = np.random.default_rng(c.seed)
         self._light = np.asarray(c.light_direction, dtype=float)
         self._realistic = bool(c.noise_std or c.blur_sigma or c.light_jitter)
+        self.lens = Lens(self.K, (lens or LensConfig()).D, (c.width, c.height))
 
     def make_shiny(self, body: int, link: int = -1) -> None:
         """
@@ -230,7 +245,7 @@ class StereoCamera:
         P[0, 3] = -self.K[0, 0] * self.config.baseline
         return P
 
-    def camera_info(self, side: str) -> CameraInfo:
+    def camera_info(self, side: str, raw: bool = False) -> CameraInfo:
         """
         Calibration of one camera, as camera_info carries it.
 
@@ -238,6 +253,9 @@ class StereoCamera:
         ----------
         side : {'left', 'right'}
             Which camera.
+        raw : bool
+            The calibration of the raw images (``D`` the lens's coefficients) rather than of
+            the rectified ones (``D`` zero).
 
         Returns
         -------
@@ -248,8 +266,9 @@ class StereoCamera:
         if side not in ('left', 'right'):
             raise ValueError(f"camera side must be 'left' or 'right', got {side!r}")
         P = self.P_left if side == 'left' else self.P_right
+        D = self.lens.D.copy() if raw else np.zeros(5)
         return CameraInfo(width=self.config.width, height=self.config.height,
-                          distortion_model='plumb_bob', D=np.zeros(5), K=self.K.copy(),
+                          distortion_model='plumb_bob', D=D, K=self.K.copy(),
                           R=np.eye(3), P=P)
 
     def camera_poses(self, T_world_tip: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
@@ -294,10 +313,17 @@ class StereoCamera:
         return uvw[:, :2] / uvw[:, 2:3]
 
     # ------------------------------------------------------------------ rendering
-    def _gl_projection(self, fx: float, fy: float, cx: float, cy: float) -> list[float]:
-        """OpenGL projection (column-major list of 16) for pinhole ``K`` and near/far planes."""
+    def _gl_projection(self, fx: float, fy: float, cx: float, cy: float,
+                       size: tuple[int, int] | None = None) -> list[float]:
+        """
+        OpenGL projection (column-major list of 16) for pinhole ``K`` and near/far planes.
+
+        ``size`` is the image's ``(width, height)`` (default: the configured one); a window of
+        the image is the same camera with its principal point moved by the window's corner.
+        """
         c = self.config
-        w, h, n, f = c.width, c.height, c.near, c.far
+        w, h = size if size is not None else (c.width, c.height)
+        n, f = c.near, c.far
         P = np.zeros((4, 4))
         P[0, 0] = 2.0 * fx / w
         # TinyRenderer samples pixel column i at window x = i and writes row r from window
@@ -327,10 +353,12 @@ class StereoCamera:
             rgb = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
         return rgb
 
-    def render_view(self, T_world_camera: ArrayLike, light_direction: Sequence[float] | None = None
+    def render_view(self, T_world_camera: ArrayLike,
+                    light_direction: Sequence[float] | None = None,
+                    window: tuple[int, int, int, int] | None = None
                     ) -> tuple[np.ndarray, np.ndarray | None]:
         """
-        Render one camera's colour and metric depth images.
+        Render one camera's colour and metric depth images, or a window of them.
 
         Parameters
         ----------
@@ -338,6 +366,11 @@ class StereoCamera:
             Optical frame of the camera in ``world``.
         light_direction : sequence of float, optional
             Direction (world) towards the light; default: the configured one (jittered).
+        window : tuple of int, optional
+            ``(u0, v0, width, height)``: render only these pixels of the full image (rows
+            ``v0 .. v0 + height``, columns ``u0 .. u0 + width``), as a camera's region of interest
+            does: the same camera with its principal point at ``(cx - u0, cy - v0)``. Default:
+            the whole image.
 
         Returns
         -------
@@ -356,21 +389,46 @@ class StereoCamera:
         T_gl = np.asarray(T_world_camera, dtype=float) @ _OPTICAL_TO_GL
         view = np.linalg.inv(T_gl)
         light = {'lightSpecularCoeff': c.specular} if c.specular > 0.0 else {}
+        width, height, projection = c.width, c.height, self._projection
+        if window is not None:
+            u0, v0, width, height = self.check_window(window)
+            K = self.K
+            projection = self._gl_projection(K[0, 0], K[1, 1], K[0, 2] - u0, K[1, 2] - v0,
+                                             (width, height))
         _, _, rgba, depth_buffer, _ = self._client.getCameraImage(
-            c.width, c.height, viewMatrix=view.T.reshape(-1).tolist(),
-            projectionMatrix=self._projection, lightDirection=list(light_direction),
+            width, height, viewMatrix=view.T.reshape(-1).tolist(),
+            projectionMatrix=projection, lightDirection=list(light_direction),
             shadow=0, renderer=pybullet.ER_TINY_RENDERER,
             flags=pybullet.ER_NO_SEGMENTATION_MASK, **light)
-        rgba = np.asarray(rgba, dtype=np.uint8).reshape(c.height, c.width, 4)
+        rgba = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
         rgb = rgba[:, :, :3].copy()
         if self._realistic:
             rgb = self._degrade(rgb)
         if not c.depth:
             return rgb, None
-        d = np.asarray(depth_buffer, dtype=np.float64).reshape(c.height, c.width)
+        d = np.asarray(depth_buffer, dtype=np.float64).reshape(height, width)
         depth = c.far * c.near / (c.far - (c.far - c.near) * d)
         depth[d >= 1.0] = np.inf
         return rgb, depth.astype(np.float32)
+
+    def check_window(self, window: Sequence[int]) -> tuple[int, int, int, int]:
+        """
+        Return a region of interest ``(u0, v0, width, height)`` checked against the image.
+
+        Raises
+        ------
+        ValueError
+            If it is not four integers inside the image with a size of at least 2 x 2.
+
+        """
+        if len(window) != 4:
+            raise ValueError(f'camera window must be (u0, v0, width, height), got {window!r}')
+        u0, v0, w, h = (int(x) for x in window)
+        c = self.config
+        if w < 2 or h < 2 or u0 < 0 or v0 < 0 or u0 + w > c.width or v0 + h > c.height:
+            raise ValueError(f'camera window {(u0, v0, w, h)} is not inside the '
+                             f'{c.width}x{c.height} image (at least 2x2 pixels)')
+        return u0, v0, w, h
 
     def render(self, T_world_tip: ArrayLike) -> StereoFrame:
         """
@@ -391,5 +449,13 @@ class StereoCamera:
         light = self._light_direction()  # one light for both eyes
         left_rgb, left_depth = self.render_view(T_left, light)
         right_rgb, right_depth = self.render_view(T_right, light)
-        return StereoFrame(left_rgb=left_rgb, left_depth=left_depth, right_rgb=right_rgb,
-                           right_depth=right_depth, T_world_left=T_left, T_world_right=T_right)
+        if self.lens.is_ideal:
+            return StereoFrame(left_rgb=left_rgb, left_depth=left_depth, right_rgb=right_rgb,
+                               right_depth=right_depth, T_world_left=T_left,
+                               T_world_right=T_right)
+        # through the lens, then rectified as the ROS image pipeline does (image_rect)
+        left_raw, right_raw = self.lens.distort(left_rgb), self.lens.distort(right_rgb)
+        return StereoFrame(left_rgb=self.lens.rectify(left_raw), left_depth=left_depth,
+                           right_rgb=self.lens.rectify(right_raw), right_depth=right_depth,
+                           T_world_left=T_left, T_world_right=T_right, left_raw=left_raw,
+                           right_raw=right_raw)

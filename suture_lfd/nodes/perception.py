@@ -3,9 +3,11 @@ Perception node: the needle's pose and the markers from the ECM's stereo pair, n
 
 Subscribes ``<camera>/left|right/image_raw`` (sensor_msgs/Image, rgb8 or bgr8) and
 ``<camera>/left|right/camera_info``; at most ``rate`` times a second it takes the newest pair
-whose two images have the same stamp and runs :class:`suture_lfd.perception.StereoPerception`
-on it (markers, then the needle, tracked from pair to pair). Publishes, stamped with the pair and
-in its frame (the left optical frame, ``<camera>_left_optical``):
+whose two images have the same stamp (raw images whose ``camera_info`` has a non-zero ``D`` are
+rectified first, with OpenCV maps built once per calibration) and runs
+:class:`suture_lfd.perception.StereoPerception` on it (markers, then the needle, tracked from
+pair to pair). Publishes, stamped with the pair and in its frame (the left optical frame,
+``<camera>_left_optical``):
 
 - ``perception/needle/measured_cp`` (geometry_msgs/PoseStamped): the needle's pose, when found;
 - ``perception/needle/status`` (std_msgs/String, JSON): ``found``, ``residual_px``,
@@ -28,6 +30,7 @@ import sys
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from sim_bridge.realism.lens import Lens
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.params import declare_config
@@ -67,6 +70,7 @@ class PerceptionNode(Node):
         self.perception = StereoPerception(track_timeout=cfg.track_timeout, markers=cfg.markers)
         self._images = dict.fromkeys(SIDES)
         self._infos = dict.fromkeys(SIDES)
+        self._lenses = {}       # rectification maps per calibration
         self._done_stamp = None
         for side in SIDES:
             self.create_subscription(Image, f'{cfg.camera}/{side}/image_raw',
@@ -100,7 +104,7 @@ class PerceptionNode(Node):
         try:
             infos = [cv.camera_info_arrays(self._infos[s]) for s in SIDES]
             stereo = stereo_from_camera_info(*infos)
-            images = [cv.rgb_from_image(m, i['width'], i['height'])
+            images = [self._rectified(cv.rgb_from_image(m, i['width'], i['height']), i)
                       for m, i in zip(pair, infos)]
             result = self.perception.process(images[0], images[1], stereo,
                                              cv.nanoseconds_from_stamp(left_msg.header.stamp)
@@ -128,6 +132,18 @@ class PerceptionNode(Node):
                 msg.poses = [Pose(position=Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
                                   orientation=Quaternion(x=x, y=y, z=z, w=w)) for p in points]
                 pub.publish(msg)
+
+
+    def _rectified(self, image, info):
+        """Return the image rectified with its camera_info's ``D`` (raw images of a lens)."""
+        if not info['D'].any():
+            return image
+        key = (info['width'], info['height'], info['K'].tobytes(), info['D'].tobytes())
+        lens = self._lenses.get(key)
+        if lens is None:        # OpenCV's maps, built once per calibration
+            lens = self._lenses[key] = Lens(info['K'], info['D'], (info['width'],
+                                                                  info['height']))
+        return lens.rectify(image)
 
 
 def _finite(value):

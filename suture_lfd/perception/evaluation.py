@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.needle import NeedleGeometry
 from sim_bridge.control import Command
+from sim_bridge.realism.endoscope import endoscope_preset
 from sim_bridge.scene.camera import CameraConfig
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.perception.stereo import StereoModel, stereo_from_camera_info
@@ -146,14 +147,18 @@ class SceneMaker:
     kinematic_errors : (float, int), optional
         Hidden dVRK kinematic errors ``(level mm class, seed)`` of the arms
         (:mod:`sim_bridge.kinematic_errors`): the instruments then stand elsewhere in view.
+    endoscope : str
+        Preset of ``config/realism_camera.yaml`` (:mod:`sim_bridge.realism.endoscope`): the
+        scenes are seen through its lens and rectified; ``''``: an ideal camera.
 
     """
 
     def __init__(self, phantom: str | Path = 'synthetic',
                  camera: CameraConfig | None = None,
                  physics_step: float | None = None,
-                 kinematic_errors: tuple[float, int] | None = None) -> None:
-        cfg = load_simulation_config()
+                 kinematic_errors: tuple[float, int] | None = None,
+                 endoscope: str = '') -> None:
+        cfg = replace(load_simulation_config(), endoscope=endoscope_preset(endoscope))
         camera = camera or replace(cfg.camera, depth=False)
         cfg = replace(cfg, arm=replace(cfg.arm, tracking='exact'), camera=camera)
         if physics_step is not None:

@@ -1,0 +1,182 @@
+"""
+The endoscope's lens: radial and tangential distortion (``plumb_bob``) and its rectification.
+
+A physical endoscope's raw images are distorted; its calibration (``camera_info`` ``D``, the
+``plumb_bob`` model of OpenCV and ROS: ``k1, k2, p1, p2, k3``) lets the ROS image pipeline
+publish ``image_rect``, the undistorted image of an ideal pinhole camera with the same ``K``.
+The renderer draws that ideal image; :class:`Lens` turns it into the raw one and back, with
+OpenCV remap tables built once per image size.
+
+For a normalised image point ``(x, y)`` (``x = X / Z``, ``y = Y / Z``) and ``r^2 = x^2 + y^2``,
+the distorted point is ``x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)`` and
+``y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y`` (Brown-Conrady); pixels are
+``K`` times the normalised points. Level 0 has all coefficients zero: the raw image is the ideal
+one, untouched.
+
+Pixels ``(u, v)``: ``(0, 0)`` is the centre of the top-left pixel, as in
+:mod:`sim_bridge.scene.camera`.
+"""
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike
+
+
+@dataclass(frozen=True)
+class LensConfig:
+    """
+    The lens's distortion at level 1 (a preset) and the level that scales it.
+
+    Attributes
+    ----------
+    level : float
+        Scale of the coefficients (0: an ideal pinhole, bit-identical images).
+    k1, k2, k3 : float
+        Radial coefficients.
+    p1, p2 : float
+        Tangential coefficients.
+
+    """
+
+    level: float = 0.0
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    @property
+    def D(self) -> np.ndarray:  # noqa: N802 (camera_info's name)
+        """The coefficients ``(k1, k2, p1, p2, k3)`` at the level, shape (5,)."""
+        return self.level * np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+
+class Lens:
+    """
+    Distortion of one camera's images and its rectification.
+
+    Parameters
+    ----------
+    K : array_like, shape (3, 3)
+        Intrinsic matrix of the rectified (ideal) image.
+    D : array_like, shape (5,)
+        ``plumb_bob`` coefficients ``(k1, k2, p1, p2, k3)``.
+    size : tuple of int
+        ``(width, height)`` of the images.
+
+    """
+
+    def __init__(self, K: ArrayLike, D: ArrayLike, size: tuple[int, int]) -> None:
+        self.K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+        self.D = np.asarray(D, dtype=np.float64).reshape(5)
+        self.size = (int(size[0]), int(size[1]))
+        self.is_ideal = not self.D.any()
+        self._raw_maps = self._rect_maps = None
+
+    def distort_points(self, uv: ArrayLike) -> np.ndarray:
+        """
+        Return where ideal (rectified) pixels lie in the raw image.
+
+        Parameters
+        ----------
+        uv : array_like, shape (n, 2)
+            Pixels of the ideal pinhole image.
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+            The same points in the raw, distorted image.
+
+        """
+        uv = np.atleast_2d(np.asarray(uv, dtype=np.float64))
+        if self.is_ideal:
+            return uv.copy()
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        x, y = (uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy
+        k1, k2, p1, p2, k3 = self.D
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return np.column_stack([fx * xd + cx, fy * yd + cy])
+
+    def undistort_points(self, uv_raw: ArrayLike) -> np.ndarray:
+        """
+        Return where raw pixels lie in the ideal (rectified) image (OpenCV's iterative inverse).
+
+        Parameters
+        ----------
+        uv_raw : array_like, shape (n, 2)
+            Pixels of the raw image.
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+
+        """
+        uv_raw = np.atleast_2d(np.asarray(uv_raw, dtype=np.float64))
+        if self.is_ideal:
+            return uv_raw.copy()
+        out = cv2.undistortPointsIter(uv_raw.reshape(-1, 1, 2), self.K, self.D, None, self.K,
+                                      (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
+        return out.reshape(-1, 2)
+
+    def _maps_raw(self):
+        """For each raw pixel, where it comes from in the ideal image (built once)."""
+        if self._raw_maps is None:
+            w, h = self.size
+            u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+            ideal = self.undistort_points(np.column_stack([u.ravel(), v.ravel()]))
+            self._raw_maps = cv2.convertMaps(ideal[:, 0].reshape(h, w).astype(np.float32),
+                                             ideal[:, 1].reshape(h, w).astype(np.float32),
+                                             cv2.CV_16SC2)
+        return self._raw_maps
+
+    def _maps_rect(self):
+        """For each rectified pixel, where it comes from in the raw image (built once)."""
+        if self._rect_maps is None:
+            self._rect_maps = cv2.initUndistortRectifyMap(self.K, self.D, np.eye(3), self.K,
+                                                          self.size, cv2.CV_16SC2)
+        return self._rect_maps
+
+    def distort(self, image: np.ndarray) -> np.ndarray:
+        """
+        Return the raw image the lens makes of an ideal one (the renderer's).
+
+        Parameters
+        ----------
+        image : ndarray, shape (height, width, ...)
+            Ideal pinhole image.
+
+        Returns
+        -------
+        ndarray
+            Raw image, same shape and type (the input itself at level 0).
+
+        """
+        if self.is_ideal:
+            return image
+        m1, m2 = self._maps_raw()
+        return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+    def rectify(self, raw: np.ndarray) -> np.ndarray:
+        """
+        Return ``image_rect``: the raw image undistorted, as the ROS image pipeline makes it.
+
+        Parameters
+        ----------
+        raw : ndarray, shape (height, width, ...)
+            Raw image.
+
+        Returns
+        -------
+        ndarray
+            Rectified image, same shape and type (the input itself at level 0).
+
+        """
+        if self.is_ideal:
+            return raw
+        m1, m2 = self._maps_rect()
+        return cv2.remap(raw, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
