@@ -15,6 +15,7 @@ from typing import Any
 from sim_bridge.arm import ArmConfig
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.common.paths import config_path
+from sim_bridge.realism.tissue_config import TissueRealismConfig
 from sim_bridge.scene.camera import CameraConfig
 from sim_bridge.scene.grasp import GraspConfig
 from sim_bridge.scene.scene_config import SceneConfig, load_scene_config
@@ -116,6 +117,9 @@ class SimulationConfig:
         0: perfect kinematics.
     kinematic_error_seed : int
         Seed of the errors' draw (fixed for the life of the simulation, as a robot's are).
+    tissue_realism : sim_bridge.realism.tissue_config.TissueRealismConfig or None
+        The needle-in-tissue effects (forces, grip, pad, thread drag); None or all levels 0:
+        none (the simulation as without them).
 
     """
 
@@ -131,6 +135,7 @@ class SimulationConfig:
     ecm_rest_jp: tuple[float, ...] | None = None
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
+    tissue_realism: TissueRealismConfig | None = None
 
 
 def load_simulation_config(world_path: str | Path | None = None,

@@ -1,0 +1,123 @@
+"""The needle in tissue: the needle turns in the jaw when pushed off its arc; the pad gives."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from sim_bridge.common.geometry import invert_transform
+from sim_bridge.realism.tissue_config import load_tissue_realism
+from sim_bridge.realism.tissue_realism import TissueRealism
+from sim_bridge.scene.grasp import GraspManager
+from sim_bridge.scene.scene_config import load_scene_config
+from sim_bridge.scene.tissue import TissueTracker
+from suture_lfd.planning.throw_geometry import ThrowArc
+
+DT = 0.002
+
+
+class Heard:
+    def __init__(self):
+        self.slips = []
+
+    def on_slip(self, t, **data):
+        self.slips.append(data)
+
+
+@pytest.fixture(scope='module')
+def scene():
+    return load_scene_config()
+
+
+@pytest.fixture(scope='module')
+def phantom(scene):
+    return scene.build_phantom('synthetic')
+
+
+def _throw(scene, phantom, config, push, steps=200):
+    """Insert along the arc to mid-bite, then move the tool ``push`` m off the arc in-plane."""
+    needle = scene.needle
+    tracker = TissueTracker(phantom, needle, scene.tissue)
+    tracker.set_target_pair('synth1')
+    grasp = GraspManager(load_default_grasp(), needle, ('PSM1', 'PSM2'))
+    G = needle.T_tool_needle
+    grasp.attach('PSM2', G)
+    realism = TissueRealism(config, needle, phantom, grasp.jaw_point)
+    heard = Heard()
+    arc = ThrowArc(phantom.markers['synth1'], needle)
+    mid = 0.5 * (arc.alpha_entry + arc.alpha_exit)
+    tools = [arc.T_world_needle(a) @ invert_transform(G)
+             for a in np.linspace(arc.alpha_entry + 0.2, mid, 300)]
+    in_plane = np.cross(arc.plane_normal, [0.0, 0.0, 1.0])
+    in_plane /= np.linalg.norm(in_plane)
+    last = tools[-1]
+    for k in range(1, steps + 1):
+        T = last.copy()
+        T[:3, 3] += push * min(1.0, k / (0.5 * steps)) * in_plane
+        tools.append(T)
+    prev = tools[0] @ G
+    kinds = []
+    for k, T_tool in enumerate(tools):
+        T_needle = grasp.needle_pose(T_tool)
+        T_needle = realism.step(k * DT, DT, grasp, tracker, lambda arm, T=T_tool: T,
+                                T_needle, prev, True, heard)
+        kinds += [e.kind for e in tracker.update(k * DT, T_needle)]
+        prev = T_needle
+    return realism, heard, kinds, tracker
+
+
+def load_default_grasp():
+    from sim_bridge.simulation_config import load_simulation_config
+    return load_simulation_config().grasp
+
+
+def test_a_throw_pushed_off_its_arc_turns_the_needle_more_with_more_push_and_less_grip(
+        scene, phantom):
+    tissue = load_tissue_realism('tissue')
+    turned = {}
+    for push in (0.0, 0.006, 0.009):
+        for grip in (2.0, 4.0):
+            realism, heard, kinds, _ = _throw(scene, phantom, replace(tissue, grip=grip), push)
+            assert kinds[0] == 'entry'
+            turned[push, grip] = abs(realism.grip.angle)
+    # following its own arc, the needle stays in the jaw (only the puncture push, held)
+    # (grip level 2 and 4: the grip holds a half and a quarter of the preset's torque)
+    assert turned[0.0, 2.0] == 0.0 and turned[0.0, 4.0] < np.radians(0.1)
+    assert turned[0.0, 4.0] < turned[0.006, 4.0] < turned[0.009, 4.0]
+    assert turned[0.0, 2.0] <= turned[0.006, 2.0] < turned[0.009, 2.0]
+    assert turned[0.006, 2.0] < turned[0.006, 4.0]
+    assert turned[0.009, 2.0] < turned[0.009, 4.0]
+    assert turned[0.009, 4.0] > np.radians(2.0)
+
+
+def test_a_slip_is_reported_once_per_episode_and_a_weld_never_slips(scene, phantom):
+    tissue = load_tissue_realism('tissue')
+    realism, heard, _, _ = _throw(scene, phantom, replace(tissue, grip=4.0), 0.009)
+    assert heard.slips and all(s['arm'] == 'PSM2' for s in heard.slips)
+    assert sum(s['angle'] for s in heard.slips) == pytest.approx(realism.grip.angle, abs=0.02)
+    welded, heard, _, _ = _throw(scene, phantom, replace(tissue, grip=0.0), 0.009)
+    assert welded.grip.angle == 0.0 and not heard.slips
+
+
+def test_a_pad_point_deflects_before_the_puncture_and_relaxes_after(scene, phantom):
+    tissue = load_tissue_realism('tissue')
+    realism = TissueRealism(tissue, scene.needle, phantom, np.zeros(3))
+    pad = realism.pad
+    marker = phantom.markers['synth1'].entry
+    assert pad.limit == pytest.approx(tissue.magnitudes.puncture_force
+                                      / tissue.magnitudes.pad_stiffness)
+    # the tip presses in next to the marker: the surface there goes down with it
+    tip = marker + np.array([0.001, 0.0, 0.0])
+    depths = []
+    for indentation in np.linspace(0.0, 0.9 * pad.limit, 10):
+        pad.press(tip - indentation * realism.normal, indentation)
+        depths.append(-pad.displacement([marker])[0] @ realism.normal)
+    assert not pad.punctured
+    assert np.all(np.diff(depths) > 0.0) and depths[-1] > 0.5 * pad.limit
+    far = marker + np.array([0.03, 0.0, 0.0])
+    assert np.linalg.norm(pad.displacement([far])) < 1e-3 * depths[-1]
+    pad.press(tip - 1.2 * pad.limit * realism.normal, 1.2 * pad.limit)
+    assert pad.punctured
+    before = -pad.displacement([marker])[0] @ realism.normal
+    for _ in range(int(1.0 / DT)):
+        pad.relax(DT)
+    assert before > 0.5 * pad.limit and np.linalg.norm(pad.displacement([marker])) < 1e-6
