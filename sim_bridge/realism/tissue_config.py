@@ -62,7 +62,7 @@ class TissueMagnitudes:
     pad_stiffness: float = 2000.0
     lateral_stiffness: float = 1000.0
     friction_per_length: float = 5.0
-    grip_torque: float = 0.03
+    grip_torque: float = 0.01
     grip_force: float = 10.0
     slip_event_angle: float = 0.0087
     slip_event_slide: float = 0.0002

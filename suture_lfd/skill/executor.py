@@ -116,6 +116,14 @@ class ExecutorConfig:
     resend_unchanged : bool
         Send a tool target every step even when it equals the last one sent (False: send
         None, so a resting arm is not asked to solve its inverse kinematics again).
+    slip_turn, slip_shift : float
+        During the DMP subtasks, a grasp observed to differ from the one followed by more than
+        this turn (rad) or shift (m) means the needle slipped in the jaw: the observed grasp is
+        followed from then on, so the needle -- not the tool -- keeps to the rollout (ground
+        truth: the grasp is observed every step).
+    slip_looks : int
+        In physical mode, how many times the holding arm's grasp is looked at again during each
+        DMP subtask (evenly spread; 0: never; on tissue the needle can turn in the jaw).
 
     """
 
@@ -129,6 +137,9 @@ class ExecutorConfig:
     hold_press: bool = False
     final_approach_time: float = 1.0
     resend_unchanged: bool = False
+    slip_turn: float = 0.0035
+    slip_shift: float = 0.0001
+    slip_looks: int = 0
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -428,6 +439,39 @@ class ThrowExecutor:
         self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
         self._sent: dict[str, np.ndarray] = {}
         self._checks = [] if self.look is None else self._checkpoints()
+        looks = self.executor_config.slip_looks
+        if self.look is not None and looks > 0:
+            self._checks = sorted(self._checks + self._slip_checkpoints(looks))
+        self.slips_noticed = 0
+
+    def _slip_checkpoints(self, looks: int) -> list[tuple[float, str]]:
+        """Plan times (s) and arms of the looks at the grasp during the DMP subtasks."""
+        assert self.plan_ is not None
+        labels = list(self.plan_.labels)
+        out = []
+        for (t0, name), (t1, _) in zip(labels[:-1], labels[1:]):
+            if name in TASKS:
+                arm = 'PSM2' if name == 'ii' else 'PSM1'
+                out += [(t0 + (t1 - t0) * (k + 1) / (looks + 1), arm) for k in range(looks)]
+        return out
+
+    def _notice_slip(self, obs: 'Observation', tau: float) -> None:
+        """Follow the grasp as observed when the needle has turned in the jaw (ground truth)."""
+        assert self.plan_ is not None and self.follower is not None
+        label = self.plan_.label(tau)
+        if label not in TASKS or obs.T_world_needle is None:
+            return
+        arm = 'PSM2' if label == 'ii' else 'PSM1'
+        known = self.follower.grasp(arm)
+        if known is None or arm not in obs.holders:
+            return
+        seen = np.linalg.inv(np.asarray(obs.T_world_tool[arm])) @ np.asarray(obs.T_world_needle)
+        cfg = self.executor_config
+        c = 0.5 * (float(np.sum(seen[:3, :3] * known[:3, :3])) - 1.0)
+        turn = math.acos(max(-1.0, min(1.0, c)))
+        if turn > cfg.slip_turn or np.linalg.norm(seen[:3, 3] - known[:3, 3]) > cfg.slip_shift:
+            self.follower.set_grasp(arm, seen)
+            self.slips_noticed += 1
 
     def _checkpoints(self) -> list[tuple[float, str]]:
         """Plan time (s) and arm at which to look at the held needle (see ``facing``)."""
@@ -491,6 +535,8 @@ class ThrowExecutor:
                     e_o = math.acos(max(-1.0, min(1.0, c_ang))) ** 2
                     slow = 1.0 + cfg.phase_stop_position * e_p + cfg.phase_stop_orientation * e_o
                     follower.offset += dt * (1.0 - 1.0 / slow)
+        if self.look is None:
+            self._notice_slip(obs, follower.tau(obs.t))
         if self._checks and follower.tau(obs.t) >= self._checks[0][0]:
             _, arm = self._checks.pop(0)
             assert self.look is not None  # checkpoints are set only with look
@@ -722,6 +768,9 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
         config = ExecutorConfig(script=sim.config.scene.expert)
     if physical:
         config = config.in_physical_mode()
+    tissue = sim.config.tissue_realism
+    if tissue is not None and tissue.active and config.slip_looks == 0:
+        config = replace(config, slip_looks=2)  # on tissue: look at the grasp while inserting
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     look = facing = None
     if perception is not None:
