@@ -402,6 +402,14 @@ def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
     return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
 
 
+def _slips(events: list[dict[str, Any]]) -> dict[str, Any]:
+    """Return the record's ``slips`` (the needle turning in the jaw), if the throw had any."""
+    slips = [{'t': float(ev['t']), 'arm': ev.get('arm'), 'angle': float(ev.get('angle', 0.0)),
+              'slide': float(ev.get('slide', 0.0)), 'in_tissue': bool(ev.get('in_tissue'))}
+             for ev in events if ev.get('kind') == 'slip']
+    return {'slips': slips} if slips else {}
+
+
 def _with_tissue(config: SimulationConfig, preset: str) -> SimulationConfig:
     """Return ``config`` with the needle-in-tissue preset ``preset`` (unchanged for none)."""
     if preset == 'none':
@@ -695,7 +703,8 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
         score=float(outcome.score), failure=outcome.failure,
         time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
         exit_error_mm=float(outcome.exit_error_mm),
-        **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS})
+        **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS},
+        **_slips(getattr(outcome, 'events', None) or []))
     if not regeneration:
         return replace(record, trajectories=None)
     data = _training(state, path)
