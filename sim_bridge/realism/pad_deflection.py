@@ -1,12 +1,14 @@
 """
 A pad that gives: the surface near the tip is pressed in before the puncture and relaxes after.
 
-The dimple is a Gaussian of depth ``depth`` and radius ``spread`` centred on the surface point
-under the tip, pressed in along the surface's inward normal. Before the puncture its depth
-follows the tip's indentation of the undeformed surface up to ``limit`` (the puncture force over
-the pad's stiffness); the tip punctures when its indentation passes ``limit``. After the
-puncture the depth relaxes exponentially with time constant ``relax_time``. Frames: ``world``,
-metres, seconds.
+The dimple is a Gaussian of depth ``depth`` and radius ``spread`` centred where the tip first
+touched the surface, pressed in along the surface's inward normal and dragged along the surface
+with the tip (``drag``: the tip's motion along the surface since it touched, up to ``limit`` --
+the entry point moves before the tip punctures). Before the puncture its depth follows the
+tip's indentation of the undeformed surface up to ``limit`` (the puncture force over the pad's
+stiffness); the tip punctures when its indentation passes ``limit``. After the puncture depth
+and drag relax exponentially with time constant ``relax_time``. Frames: ``world``, metres,
+seconds.
 """
 
 import math
@@ -53,6 +55,7 @@ class PadDeflection:
         """Start an untouched pad: no dimple, no puncture yet."""
         self.depth = 0.0
         self.centre: np.ndarray | None = None
+        self.drag = np.zeros(3)
         self.punctured = False
 
     def press(self, tip: np.ndarray, indentation: float) -> float:
@@ -75,9 +78,16 @@ class PadDeflection:
         """
         if indentation <= 0.0:
             self.depth = 0.0
+            self.drag = np.zeros(3)
             return 0.0
+        on_surface = tip + indentation * self.normal
+        if self.depth == 0.0 or self.centre is None:
+            self.centre = on_surface  # where the tip touched
+        along = on_surface - self.centre
+        along = along - (along @ self.normal) * self.normal
+        length = float(np.linalg.norm(along))
+        self.drag = along if length <= self.limit else along * (self.limit / length)
         self.depth = min(indentation, self.limit)
-        self.centre = tip + indentation * self.normal
         if indentation > self.limit:
             self.punctured = True
         return self.depth
@@ -93,11 +103,14 @@ class PadDeflection:
 
         """
         if self.depth > 0.0:
-            self.depth *= math.exp(-dt / self.relax_time)
+            decay = math.exp(-dt / self.relax_time)
+            self.depth *= decay
+            self.drag = self.drag * decay
             if self.depth < 1e-7:
                 self.depth = 0.0
+                self.drag = np.zeros(3)
 
-    def displacement(self, points: ArrayLike) -> np.ndarray:
+    def displacement(self, points: ArrayLike, normal_cap: float = math.inf) -> np.ndarray:
         """
         How far the surface at ``points`` is moved by the dimple (``world``, m).
 
@@ -105,11 +118,14 @@ class PadDeflection:
         ----------
         points : array_like, shape (n, 3)
             Surface points (``world``).
+        normal_cap : float
+            Largest part (m) along the normal (drawing on a pad mesh that is not deformed: a
+            marker pressed deeper than its thickness would vanish under it).
 
         Returns
         -------
         ndarray, shape (n, 3)
-            Displacements (along the inward normal).
+            Displacements: the drag along the surface and the press along the inward normal.
 
         """
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -118,4 +134,5 @@ class PadDeflection:
         d = pts - self.centre
         d = d - np.outer(d @ self.normal, self.normal)
         w = np.exp(-0.5 * np.einsum('ij,ij->i', d, d) / self.spread ** 2)
-        return -self.depth * np.outer(w, self.normal)
+        return np.outer(w, self.drag) - np.outer(np.minimum(self.depth * w, normal_cap),
+                                                  self.normal)

@@ -180,6 +180,9 @@ class TissueRealism:
         """
         Move the drawn markers with the dimple (their rest poses when it has relaxed).
 
+        The pad's mesh is drawn undeformed, so a marker is pressed in by at most half its
+        thickness (it would vanish under the mesh); it follows the surface's drag in full.
+
         Parameters
         ----------
         world : sim_bridge.scene.world.World
@@ -196,7 +199,8 @@ class TissueRealism:
             return
         bodies = list(self._marker_rest)
         rest = np.array([self._marker_rest[b][0] for b in bodies])
-        moved = rest + self.pad.displacement(rest)
+        cap = 0.5 * world.config.marker_thickness
+        moved = rest + self.pad.displacement(rest, cap)
         for body, p in zip(bodies, moved):
             c.resetBasePositionAndOrientation(body, p.tolist(), self._marker_rest[body][1])
         self._drawn = self.pad.depth > 0.0

@@ -121,3 +121,63 @@ def test_a_pad_point_deflects_before_the_puncture_and_relaxes_after(scene, phant
     for _ in range(int(1.0 / DT)):
         pad.relax(DT)
     assert before > 0.5 * pad.limit and np.linalg.norm(pad.displacement([marker])) < 1e-6
+
+
+@pytest.fixture(scope='module')
+def pressed_sim():
+    from sim_bridge.simulation import Simulation, load_simulation_config
+
+    tissue = replace(load_tissue_realism('tissue'), pad=4.0)  # 2 mm of give: well seen
+    sim = Simulation(replace(load_simulation_config(), tissue_realism=tissue))
+    sim.reset(seed=0)
+    yield sim
+    sim.close()
+
+
+def _seen_markers(sim):
+    from suture_lfd.perception import detect_markers, stereo_from_camera_info
+
+    frame = sim.render()
+    stereo = stereo_from_camera_info(sim.camera.camera_info('left'),
+                                     sim.camera.camera_info('right'))
+    found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
+    T = frame.T_world_left
+    return found.points @ T[:3, :3].T + T[:3, 3]  # world
+
+
+def test_a_perceived_marker_moves_with_the_deflected_surface(pressed_sim):
+    sim = pressed_sim
+    realism = sim.physics.realism
+    pad = realism.pad
+    before = _seen_markers(sim)
+    entry = sim.phantom.markers['synth2'].entry
+    # the tip touches the pad 1 mm beside the entry marker, then presses it 90 % of the way to a
+    # puncture while moving 2 mm along the surface: the surface goes with it
+    along = np.array([0.0, 1.0, 0.0])
+    along -= (along @ realism.normal) * realism.normal
+    along /= np.linalg.norm(along)
+    touch = entry + np.array([0.001, 0.0, 0.0])
+    pad.press(touch - 1e-5 * realism.normal, 1e-5)
+    depth = 0.9 * pad.limit
+    pad.press(touch + 0.002 * along - depth * realism.normal, depth)
+    assert not pad.punctured
+    pressed = _seen_markers(sim)
+    assert len(pressed) == len(before) >= 4
+    i = int(np.argmin(np.linalg.norm(before - entry, axis=1)))
+    j = int(np.argmin(np.linalg.norm(pressed - entry, axis=1)))
+    moved = pressed[j] - before[i]
+    expected = pad.displacement([entry])[0]
+    assert expected @ along > 1e-3
+    # seen moved along the surface by about what the surface there did
+    assert moved @ along == pytest.approx(expected @ along, abs=0.3e-3)
+    far = [k for k in range(len(before)) if np.linalg.norm(before[k] - entry) > 0.02]
+    assert far
+    for k in far:
+        assert np.min(np.linalg.norm(pressed - before[k], axis=1)) < 0.3e-3
+    # relaxed after the puncture, the marker is seen back where it was
+    pad.press(touch + 0.002 * along - 1.1 * pad.limit * realism.normal, 1.1 * pad.limit)
+    assert pad.punctured
+    for _ in range(1000):
+        pad.relax(0.002)
+    back = _seen_markers(sim)
+    assert np.min(np.linalg.norm(back - before[i], axis=1)) < 0.2e-3
