@@ -49,6 +49,9 @@ class TissueMagnitudes:
         A slip episode sliding the needle at least this far (m) is reported.
     max_slip_step : float
         Largest turn (rad) per physics step (and a hundredth of it in m of slide).
+    break_angle, break_slide : float
+        Turn (rad) and slide (m) since the grasp past which the grasp breaks: the jaw no longer
+        holds the needle.
     deflection_spread : float
         Gaussian radius (m) of the surface dimple around the tip.
     relax_time : float
@@ -67,6 +70,8 @@ class TissueMagnitudes:
     slip_event_angle: float = 0.0087
     slip_event_slide: float = 0.0002
     max_slip_step: float = 0.02
+    break_angle: float = 0.5236
+    break_slide: float = 0.01
     deflection_spread: float = 0.004
     relax_time: float = 0.15
     thread_drag: float = 0.2

@@ -14,7 +14,9 @@ wire, and between the exit and the extraction the thread pulls the tail. The gri
 up to its limits; past them the grasp itself turns (the needle stays slipped). A slip episode
 (consecutive slipping steps) that turned or slid the needle more than the reporting thresholds
 is reported when it ends, as ``on_slip(t, arm=, angle=, slide=, total_angle=, in_tissue=)``
-(rad, m; ``total_angle`` since the grasp).
+(rad, m; ``total_angle`` since the grasp). Past ``break_angle`` or ``break_slide`` since the
+grasp (the dVRK simulators' 30 deg and 10 mm) the grasp breaks: the episode is reported with
+``broken=True`` and the jaw lets the needle go.
 
 Frames: ``world`` unless named otherwise; SI units.
 """
@@ -161,19 +163,24 @@ class TissueRealism:
         grasp.attach(leader, G)
         self._episode[0] += slip.angle
         self._episode[1] += slip.slide
+        m = self.config.magnitudes
+        if abs(self.grip.angle) > m.break_angle or abs(self.grip.slide) > m.break_slide:
+            # turned or slid too far: the jaw no longer holds the needle (dropped next step)
+            self._end_episode(t, listener, tissue, broken=True)
+            grasp.let_go(leader)
         return T_tool @ G
 
-    def _end_episode(self, t: float, listener: Any, tissue: Any) -> None:
+    def _end_episode(self, t: float, listener: Any, tissue: Any, broken: bool = False) -> None:
         angle, slide = self._episode
         if angle == 0.0 and slide == 0.0:
             return
         self._episode = [0.0, 0.0]
         m = self.config.magnitudes
-        if abs(angle) >= m.slip_event_angle or abs(slide) >= m.slip_event_slide:
+        if broken or abs(angle) >= m.slip_event_angle or abs(slide) >= m.slip_event_slide:
             self.slips += 1
             listener.on_slip(t, arm=self._leader, angle=float(angle), slide=float(slide),
                              total_angle=float(self.grip.angle),
-                             in_tissue=bool(tissue.in_tissue))
+                             in_tissue=bool(tissue.in_tissue), broken=broken)
 
     # ------------------------------------------------------------------ drawing
     def draw(self, world: Any) -> None:
