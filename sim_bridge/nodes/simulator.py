@@ -79,6 +79,7 @@ from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
+from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.entry import NodeHooks
@@ -164,6 +165,9 @@ class SimulatorConfig:
         Class (mm, >= 0) of the PSMs' hidden kinematic errors; 0: perfect kinematics.
     kinematic_error_seed : int
         Seed of the kinematic errors' draw.
+    tissue : str
+        Needle-in-tissue realism preset of ``config/realism_tissue.yaml`` (``none``: off;
+        ``tissue``: tissue forces, the needle turning in the jaw, a pad that gives).
 
     """
 
@@ -194,6 +198,7 @@ class SimulatorConfig:
     physical: bool = False
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
+    tissue: str = 'none'
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -303,6 +308,8 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
             camera=replace(sim_config.camera, depth=cfg.camera_depth,
                            width=cfg.camera_width or sim_config.camera.width,
                            height=cfg.camera_height or sim_config.camera.height), **rest)
+        if cfg.tissue != 'none':
+            sim_config = replace(sim_config, tissue_realism=load_tissue_realism(cfg.tissue))
         self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
                               phantom=cfg.phantom)
         self._resets = 0
