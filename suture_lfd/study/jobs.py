@@ -405,7 +405,8 @@ def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
 def _slips(events: list[dict[str, Any]]) -> dict[str, Any]:
     """Return the record's ``slips`` (the needle turning in the jaw), if the throw had any."""
     slips = [{'t': float(ev['t']), 'arm': ev.get('arm'), 'angle': float(ev.get('angle', 0.0)),
-              'slide': float(ev.get('slide', 0.0)), 'in_tissue': bool(ev.get('in_tissue'))}
+              'slide': float(ev.get('slide', 0.0)), 'in_tissue': bool(ev.get('in_tissue')),
+              'broken': bool(ev.get('broken'))}
              for ev in events if ev.get('kind') == 'slip']
     return {'slips': slips} if slips else {}
 
