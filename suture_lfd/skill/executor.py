@@ -68,6 +68,8 @@ _PRESS_FADE = 0.25
 _LOOK_FACING = 0.6
 _LOOK_FACING_RANGE = (0.3, 0.85)
 _LOOK_STEP = 0.05  # s between the planned instants whose facing is compared
+# Observations of the same new grasp after which a slip in the jaw counts as over.
+_SLIP_SETTLE = 5
 
 
 @dataclass(frozen=True)
@@ -120,7 +122,9 @@ class ExecutorConfig:
         During the DMP subtasks, a grasp observed to differ from the one followed by more than
         this turn (rad) or shift (m) means the needle slipped in the jaw: the observed grasp is
         followed from then on, so the needle -- not the tool -- keeps to the rollout (ground
-        truth: the grasp is observed every step).
+        truth: the grasp is observed every step; taken once the slip is over).
+    slip_corrections : int
+        Most grasps taken again so per DMP subtask in ground truth.
     slip_looks : int
         In physical mode, how many times the holding arm's grasp is looked at again during each
         DMP subtask (evenly spread; 0: never; on tissue the needle can turn in the jaw).
@@ -140,6 +144,7 @@ class ExecutorConfig:
     slip_turn: float = 0.0035
     slip_shift: float = 0.0001
     slip_looks: int = 0
+    slip_corrections: int = 1
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -443,6 +448,8 @@ class ThrowExecutor:
         if self.look is not None and looks > 0:
             self._checks = sorted(self._checks + self._slip_checkpoints(looks))
         self.slips_noticed = 0
+        self._slip_fixes: dict[str, int] = {}
+        self._slip_seen: tuple[np.ndarray, int] | None = None
 
     def _slip_checkpoints(self, looks: int) -> list[tuple[float, str]]:
         """Plan times (s) and arms of the looks at the grasp during the DMP subtasks."""
@@ -456,7 +463,14 @@ class ThrowExecutor:
         return out
 
     def _notice_slip(self, obs: 'Observation', tau: float) -> None:
-        """Follow the grasp as observed when the needle has turned in the jaw (ground truth)."""
+        """
+        Follow the grasp observed once the needle has turned in the jaw and settled (ground truth).
+
+        The grasp is taken again only when it differs from the one followed and has stayed the
+        same for ``_SLIP_SETTLE`` observations (the slip is over), at most ``slip_corrections``
+        times per DMP subtask: pushing the needle back onto its rollout at once would make the
+        tissue turn it again, on and on, until the grasp breaks.
+        """
         assert self.plan_ is not None and self.follower is not None
         label = self.plan_.label(tau)
         if label not in TASKS or obs.T_world_needle is None:
@@ -465,12 +479,20 @@ class ThrowExecutor:
         known = self.follower.grasp(arm)
         if known is None or arm not in obs.holders:
             return
-        seen = np.linalg.inv(np.asarray(obs.T_world_tool[arm])) @ np.asarray(obs.T_world_needle)
         cfg = self.executor_config
-        c = 0.5 * (float(np.sum(seen[:3, :3] * known[:3, :3])) - 1.0)
-        turn = math.acos(max(-1.0, min(1.0, c)))
-        if turn > cfg.slip_turn or np.linalg.norm(seen[:3, 3] - known[:3, 3]) > cfg.slip_shift:
+        if self._slip_fixes.get(label, 0) >= cfg.slip_corrections:
+            return
+        seen = np.linalg.inv(np.asarray(obs.T_world_tool[arm])) @ np.asarray(obs.T_world_needle)
+        if not _differs(seen, known, cfg):
+            self._slip_seen = None
+            return
+        last, count = self._slip_seen if self._slip_seen is not None else (None, 0)
+        count = count + 1 if last is not None and not _differs(seen, last, cfg) else 1
+        self._slip_seen = (seen, count)
+        if count >= _SLIP_SETTLE:
             self.follower.set_grasp(arm, seen)
+            self._slip_fixes[label] = self._slip_fixes.get(label, 0) + 1
+            self._slip_seen = None
             self.slips_noticed += 1
 
     def _checkpoints(self) -> list[tuple[float, str]]:
@@ -640,6 +662,13 @@ class _Recorder:
             poses = pose_from_transform(np.array([r[1] for r in rows]))
             out[label] = (t, poses)
         return out
+
+
+def _differs(a: np.ndarray, b: np.ndarray, cfg: ExecutorConfig) -> bool:
+    """Whether grasps ``a`` and ``b`` (4x4) differ by more than ``cfg``'s slip thresholds."""
+    c = 0.5 * (float(np.sum(a[:3, :3] * b[:3, :3])) - 1.0)
+    return (math.acos(max(-1.0, min(1.0, c))) > cfg.slip_turn
+            or float(np.linalg.norm(a[:3, 3] - b[:3, 3])) > cfg.slip_shift)
 
 
 def _event_dict(ev: Any) -> dict[str, Any]:
