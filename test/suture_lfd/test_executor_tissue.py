@@ -1,4 +1,4 @@
-"""The executor on tissue: the needle turns in the jaw during the insertion and the throw goes on."""
+"""The executor on tissue: the needle turns in the jaw while inserting, the throw goes on."""
 
 from dataclasses import replace
 
