@@ -143,15 +143,17 @@ def wrench_at(contacts: list, T_world_tool: np.ndarray, grasp_point: np.ndarray)
 
     """
     R = T_world_tool[:3, :3]
-    J = R @ grasp_point + T_world_tool[:3, 3]
-    x, z = R[:, 0], R[:, 2]
+    j0, j1, j2 = (R @ grasp_point + T_world_tool[:3, 3]).tolist()
+    (x0, _, z0), (x1, _, z1), (x2, _, z2) = R[:, [0, 1, 2]].tolist()
     torque = force = k_rot = k_x = 0.0
-    for c in contacts:
-        lever = c.point - J
-        torque += float(np.cross(lever, c.force) @ z)
-        force += float(c.force @ x)
-        perp = lever - (lever @ z) * z
-        k_rot += c.stiffness * float(perp @ perp)
+    for c in contacts:  # plain floats: a few contacts, every physics step
+        p0, p1, p2 = c.point.tolist()
+        f0, f1, f2 = c.force.tolist()
+        l0, l1, l2 = p0 - j0, p1 - j1, p2 - j2
+        torque += (l1 * f2 - l2 * f1) * z0 + (l2 * f0 - l0 * f2) * z1 + (l0 * f1 - l1 * f0) * z2
+        force += f0 * x0 + f1 * x1 + f2 * x2
+        lz = l0 * z0 + l1 * z1 + l2 * z2
+        k_rot += c.stiffness * (l0 * l0 + l1 * l1 + l2 * l2 - lz * lz)
         k_x += c.stiffness
     return Wrench(torque, force, k_rot, k_x)
 

@@ -65,6 +65,10 @@ class TissueRealism:
         self.grasp_point = np.asarray(grasp_point, dtype=float)
         self._T_world_phantom = np.asarray(phantom.T_world_phantom, dtype=float)
         self.normal = self._T_world_phantom[:3, 2].copy()
+        # Highest point of the tissue (world z) and how far below its centre the needle reaches:
+        # a needle wholly above it cannot press the pad.
+        self._tissue_top = float(phantom.mesh_world().vertices[:, 2].max())
+        self._reach = needle.radius + needle.wire_diameter
         grip = config.grip
         self.grip = Grip(m.grip_torque / grip if grip > 0 else math.inf,
                          m.grip_force / grip if grip > 0 else math.inf, m.max_slip_step)
@@ -133,7 +137,7 @@ class TissueRealism:
             self._end_episode(t, listener, tissue)
             return T_needle
         contacts = []
-        if not self.pad.punctured:
+        if not self.pad.punctured and T_needle[2, 3] - self._reach <= self._tissue_top:
             indentation = tissue.wire_depth(T_needle)
             tip = T_needle[:3, :3] @ self.needle.tip + T_needle[:3, 3]
             deflection = self.pad.press(tip, indentation)

@@ -482,7 +482,10 @@ class ThrowExecutor:
         cfg = self.executor_config
         if self._slip_fixes.get(label, 0) >= cfg.slip_corrections:
             return
-        seen = np.linalg.inv(np.asarray(obs.T_world_tool[arm])) @ np.asarray(obs.T_world_needle)
+        T, N = np.asarray(obs.T_world_tool[arm]), np.asarray(obs.T_world_needle)
+        seen = np.eye(4)
+        seen[:3, :3] = T[:3, :3].T @ N[:3, :3]
+        seen[:3, 3] = T[:3, :3].T @ (N[:3, 3] - T[:3, 3])
         if not _differs(seen, known, cfg):
             self._slip_seen = None
             return
