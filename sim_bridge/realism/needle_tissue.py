@@ -17,6 +17,7 @@ find how far the needle turns until the torque it holds balances the tissue's.
 """
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -122,14 +123,29 @@ def puncture_contacts(T_world_needle: np.ndarray, T_prev: np.ndarray, radius: fl
     """
     out = []
     share = friction / max(1, len(punctures))
-    R_rel = T_prev[:3, :3] @ T_world_needle[:3, :3].T
-    for p in punctures:
-        c, tangent = nearest_on_arc(T_world_needle, radius, p)
-        force = lateral_stiffness * (p - c)
+    R = T_world_needle[:3, :3]
+    t = T_world_needle[:3, 3]
+    # the same needle point one step before: R_prev R^T (c - t) + t_prev
+    R_rel = (T_prev[:3, :3] @ R.T).tolist()
+    t_prev = T_prev[:3, 3].tolist()
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    t0, t1, t2 = t.tolist()
+    for p in punctures.tolist():  # plain floats: one or two punctures, every physics step
+        d0, d1, d2 = p[0] - t0, p[1] - t1, p[2] - t2
+        q0 = r00 * d0 + r10 * d1 + r20 * d2  # R^T d
+        q1 = r01 * d0 + r11 * d1 + r21 * d2
+        phi = math.atan2(q1, q0)
+        cs, sn = math.cos(phi), math.sin(phi)
+        c = (r00 * radius * cs + r01 * radius * sn + t0,
+             r10 * radius * cs + r11 * radius * sn + t1,
+             r20 * radius * cs + r21 * radius * sn + t2)
+        tangent = (r00 * sn - r01 * cs, r10 * sn - r11 * cs, r20 * sn - r21 * cs)
+        force = [lateral_stiffness * (p[i] - c[i]) for i in range(3)]
         if share > 0.0:
-            # the same needle point one step before: how it moves along the wire
-            before = R_rel @ (c - T_world_needle[:3, 3]) + T_prev[:3, 3]
-            along = float(tangent @ (c - before))
-            force = force - share * np.clip(along / _FRICTION_SLIP, -1.0, 1.0) * tangent
-        out.append(Contact(c, force, lateral_stiffness))
+            e = (c[0] - t0, c[1] - t1, c[2] - t2)
+            before = [sum(R_rel[i][j] * e[j] for j in range(3)) + t_prev[i] for i in range(3)]
+            along = sum(tangent[i] * (c[i] - before[i]) for i in range(3))
+            rub = share * max(-1.0, min(1.0, along / _FRICTION_SLIP))
+            force = [force[i] - rub * tangent[i] for i in range(3)]
+        out.append(Contact(np.array(c), np.array(force), lateral_stiffness))
     return out
