@@ -27,8 +27,12 @@ L`` in the same folder, so that it runs only its physical-mode jobs (the ground-
 reused); each row's CPU per job is over the jobs it ran, and the ratio physical / ground truth
 is printed (``--correction off`` among ``--args`` for open loop).
 
+``--tissue PRESET`` measures the needle-in-tissue realism (issue target: CPU per throw in ground
+truth at most 1.3x): the design without it, then with ``--tissue PRESET``, each in its own
+folder; the ratio of the mean CPU per executed throw (``cpu_s`` of the records) is printed.
+
 Usage: ``python bench/bench_study.py [--workers 2] [--full | --subjects N] [--before REF]
-[--engines local dask] [--physical L]``
+[--engines local dask] [--physical L] [--tissue PRESET]``
 """
 
 import argparse
@@ -128,6 +132,26 @@ def physical_rows(design, workers, level):
     return [ground, physical]
 
 
+def _throw_cpu(records):
+    """Mean CPU (s) of the executed throws of ``records`` as their workers measured it."""
+    cpu = [r['cpu_s'] for r in records if r['kind'] == 'throw' and r.get('cpu_s') is not None
+           and r.get('segments')]
+    return (sum(cpu) / len(cpu) if cpu else float('nan')), len(cpu)
+
+
+def tissue_rows(design, workers, preset):
+    """The design without the needle-in-tissue realism, then with ``--tissue preset``."""
+    rows = []
+    for label, extra in (('tissue none', []), (f'tissue {preset}', ['--tissue', preset])):
+        with tempfile.TemporaryDirectory() as tmp:
+            row = run(label, design + extra, workers, folder=tmp)
+            records = [json.loads(line)
+                       for line in (Path(tmp) / 'results.jsonl').read_text().splitlines()]
+        row['throw_cpu_s'], row['throws'] = _throw_cpu(records)
+        rows.append(row)
+    return rows
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--workers', type=int, default=2)
@@ -143,6 +167,8 @@ def main():
     parser.add_argument('--physical', type=float, default=None, metavar='L',
                         help='compare physical mode at error level L with ground truth '
                              '(instead of the engines)')
+    parser.add_argument('--tissue', default=None, metavar='PRESET',
+                        help='measure the needle-in-tissue preset against none')
     parser.add_argument('--args', nargs=argparse.REMAINDER, default=[],
                         help='more study options (e.g. --methods paper)')
     args = parser.parse_args()
@@ -153,6 +179,8 @@ def main():
     machine = _machine()
     if args.physical is not None:
         rows = physical_rows(design, args.workers, args.physical)
+    elif args.tissue is not None:
+        rows = tissue_rows(design, args.workers, args.tissue)
     else:
         rows = [run(e, design, args.workers, engine=e) for e in args.engines]
     if args.before:
@@ -190,6 +218,12 @@ def main():
         print(f'CPU per executed throw (in its worker), physical / ground truth: '
               f'{p["throw_cpu_s"]:.3f} ({p["throws"]}) / {g["throw_cpu_s"]:.3f} '
               f'({g["throws"]}) s = {p["throw_cpu_s"] / g["throw_cpu_s"]:.3f}')
+    if args.tissue is not None:
+        off, on = rows
+        print(f'CPU per executed throw (in its worker), tissue {args.tissue} / none: '
+              f'{on["throw_cpu_s"]:.3f} ({on["throws"]}) / {off["throw_cpu_s"]:.3f} '
+              f'({off["throws"]}) s = {on["throw_cpu_s"] / off["throw_cpu_s"]:.3f} '
+              '(target <= 1.30)')
     before = [r for r in rows if r['label'].startswith('before')]
     if before and 'local' in by:
         b, a = before[0], by['local']

@@ -51,6 +51,7 @@ from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.control import Command
 from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
+from sim_bridge.realism.tissue_realism import build_tissue_realism
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
 from sim_bridge.scene.grasp import GraspEvent, GraspManager
 from sim_bridge.scene.phantom import Phantom, PhantomConfig, build_phantom
@@ -87,6 +88,9 @@ class PhysicsListener(Protocol):
 
     def on_collision(self, t: float, arm: str, depth: float) -> None:
         """Take the start of an instrument's contact, ``depth`` (m) below the tissue surface."""
+
+    def on_slip(self, t: float, **data: Any) -> None:
+        """Take a slip of the needle in the jaw (:mod:`sim_bridge.realism.tissue_realism`)."""
 
 
 class ScenePhysics:
@@ -164,6 +168,9 @@ class ScenePhysics:
         self._T_base_world = {k: invert_transform(v) for k, v in self._T_world_base.items()}
         self.grasp = GraspManager(cfg.grasp, self.needle_geometry, PSMS)
         self.tissue = TissueTracker(self.phantom, self.needle_geometry, cfg.scene.tissue)
+        # The needle in tissue (forces, grip, pad, thread drag); None at level 0.
+        self.realism = build_tissue_realism(cfg.tissue_realism, self.needle_geometry,
+                                            self.phantom, self.grasp.jaw_point)
         # Highest point of the tissue (world z): far above it nothing can touch the tissue.
         self._tissue_top = float(self.phantom.mesh_world().vertices[:, 2].max())
         self._needle_reach = self.needle_geometry.radius + self.needle_geometry.wire_diameter
@@ -221,6 +228,8 @@ class ScenePhysics:
         self._steps = 0
         self.grasp.reset()
         self.tissue.reset()
+        if self.realism is not None:
+            self.realism.reset()
         self._contact = dict.fromkeys(PSMS, False)
         self._contact_checked = dict.fromkeys(PSMS)  # joints and jaw of the last check
         self._collisions = 0
@@ -412,6 +421,10 @@ class ScenePhysics:
         for ev in self.grasp.update(self._jaws(), self._tool_pose, self._T_needle):
             self._on_grasp_event(t, ev)
         self._move_needle()
+        if self.realism is not None:
+            self._T_needle = self.realism.step(t, dt, self.grasp, self.tissue, self._tool_pose,
+                                               self._T_needle, self._T_needle_prev,
+                                               self._needle_near_tissue(), self.listener)
         if self._needle_near_tissue():
             for ev in self.tissue.update(t, self._T_needle):
                 self.listener.on_tissue_event(t, ev)
@@ -656,6 +669,8 @@ class ScenePhysics:
         if self._needle_mode != 'free':
             world.set_needle_pose(self._T_needle)
         world.set_thread_points(self.thread.nodes)
+        if self.realism is not None:
+            self.realism.draw(world)
 
     def camera_pose(self) -> np.ndarray:
         """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4) (a copy)."""

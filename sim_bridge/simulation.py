@@ -61,7 +61,7 @@ __all__ = ['ARMS', 'EVENT_KINDS', 'PSMS', 'LoopConfig', 'NeedleStart', 'SimEvent
            'SimulationConfig', 'load_simulation_config']
 
 EVENT_KINDS = ('grasp', 'release', 'drop', 'entry', 'exit', 'withdrawn', 'extracted', 'trauma',
-               'collision', 'score')
+               'collision', 'score', 'slip')
 
 
 @dataclass(frozen=True, eq=False)
@@ -337,6 +337,10 @@ class Simulation:
         self.task.scorer.on_collision(t, arm)
         self._emit('collision', arm=arm, depth=depth)
         self._report_score()
+
+    def on_slip(self, t: float, **data: Any) -> None:
+        """Record a slip of the needle in the jaw: ``arm``, ``angle`` (rad), ``slide`` (m)."""
+        self._emit('slip', **data)
 
     def _emit(self, kind: str, **data: Any) -> None:
         self._events.append(SimEvent(self.time, kind, data))

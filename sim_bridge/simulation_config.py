@@ -16,6 +16,7 @@ from sim_bridge.arm import ArmConfig
 from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
 from sim_bridge.common.paths import config_path
 from sim_bridge.realism.endoscope import EndoscopeRealism
+from sim_bridge.realism.tissue_config import TissueRealismConfig
 from sim_bridge.scene.camera import CameraConfig
 from sim_bridge.scene.grasp import GraspConfig
 from sim_bridge.scene.scene_config import SceneConfig, load_scene_config
@@ -120,6 +121,9 @@ class SimulationConfig:
     endoscope : EndoscopeRealism
         The endoscope's lens and frame timing (:mod:`sim_bridge.realism.endoscope`; default:
         an ideal camera).
+    tissue_realism : sim_bridge.realism.tissue_config.TissueRealismConfig or None
+        The needle-in-tissue effects (forces, grip, pad, thread drag); None or all levels 0:
+        none (the simulation as without them).
 
     """
 
@@ -136,6 +140,7 @@ class SimulationConfig:
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
     endoscope: EndoscopeRealism = field(default_factory=EndoscopeRealism)
+    tissue_realism: TissueRealismConfig | None = None
 
 
 def load_simulation_config(world_path: str | Path | None = None,

@@ -80,6 +80,7 @@ from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
 from sim_bridge.realism.endoscope import endoscope_preset
+from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.entry import NodeHooks
@@ -168,6 +169,9 @@ class SimulatorConfig:
     camera_realism : str
         The endoscope's preset in ``config/realism_camera.yaml`` (``dvrk``: a distorting lens,
         30 Hz, 50 ms latency); ``''``: an ideal camera at ``camera_rate``, stamped when rendered.
+    tissue : str
+        Needle-in-tissue realism preset of ``config/realism_tissue.yaml`` (``none``: off;
+        ``tissue``: tissue forces, the needle turning in the jaw, a pad that gives).
 
     """
 
@@ -199,6 +203,7 @@ class SimulatorConfig:
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
     camera_realism: str = ''
+    tissue: str = 'none'
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -309,6 +314,8 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
             camera=replace(sim_config.camera, depth=cfg.camera_depth,
                            width=cfg.camera_width or sim_config.camera.width,
                            height=cfg.camera_height or sim_config.camera.height), **rest)
+        if cfg.tissue != 'none':
+            sim_config = replace(sim_config, tissue_realism=load_tissue_realism(cfg.tissue))
         self.sim = Simulation(sim_config, rng=np.random.default_rng(cfg.seed),
                               phantom=cfg.phantom)
         self._resets = 0

@@ -178,6 +178,22 @@ class GraspManager:
         self._holders = []
         self._relative = {}
 
+    def let_go(self, arm: str) -> None:
+        """
+        Make ``arm`` stop holding the needle with its jaw still closed (the grasp broke).
+
+        No event; the next holder, if any, leads (its recorded grasp is kept).
+
+        Parameters
+        ----------
+        arm : str
+            A holding arm.
+
+        """
+        if arm in self._holders:
+            self._holders.remove(arm)
+            del self._relative[arm]
+
     def attach(self, arm: str, T_tool_needle: ArrayLike) -> None:
         """
         Make ``arm`` hold the needle at ``T_tool_needle`` (used to set up a scene).

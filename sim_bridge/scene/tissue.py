@@ -539,6 +539,11 @@ class TissueTracker:
         return self._any_inside or bool(self._occ_index)
 
     @property
+    def had_exit(self) -> bool:
+        """Whether the tip has come out of the tissue (an exit) since the last reset."""
+        return self._had_exit
+
+    @property
     def extracted(self) -> bool:
         """Whether the needle has been pulled through after an exit."""
         return self._extracted

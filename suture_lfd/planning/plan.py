@@ -311,6 +311,22 @@ class PlanFollower:
         """
         self._grasps[arm] = np.asarray(grasp, dtype=float)
 
+    def grasp(self, arm: str) -> np.ndarray | None:
+        """
+        Return the grasp ``T_tool_needle`` (4x4) followed for ``arm``, or None.
+
+        Parameters
+        ----------
+        arm : str
+            Arm name.
+
+        Returns
+        -------
+        ndarray, shape (4, 4) or None
+
+        """
+        return self._grasps.get(arm)
+
     def tau(self, t: float) -> float:
         """Plan time (s) at simulation time ``t`` before gates are considered."""
         return t - cast(float, self.t0) - self.offset  # t0 is set by the first step

@@ -68,6 +68,8 @@ _PRESS_FADE = 0.25
 _LOOK_FACING = 0.6
 _LOOK_FACING_RANGE = (0.3, 0.85)
 _LOOK_STEP = 0.05  # s between the planned instants whose facing is compared
+# Observations of the same new grasp after which a slip in the jaw counts as over.
+_SLIP_SETTLE = 5
 
 
 @dataclass(frozen=True)
@@ -116,6 +118,16 @@ class ExecutorConfig:
     resend_unchanged : bool
         Send a tool target every step even when it equals the last one sent (False: send
         None, so a resting arm is not asked to solve its inverse kinematics again).
+    slip_turn, slip_shift : float
+        During the DMP subtasks, a grasp observed to differ from the one followed by more than
+        this turn (rad) or shift (m) means the needle slipped in the jaw: the observed grasp is
+        followed from then on, so the needle -- not the tool -- keeps to the rollout (ground
+        truth: the grasp is observed every step; taken once the slip is over).
+    slip_corrections : int
+        Most grasps taken again so per DMP subtask in ground truth.
+    slip_looks : int
+        In physical mode, how many times the holding arm's grasp is looked at again during each
+        DMP subtask (evenly spread; 0: never; on tissue the needle can turn in the jaw).
 
     """
 
@@ -129,6 +141,10 @@ class ExecutorConfig:
     hold_press: bool = False
     final_approach_time: float = 1.0
     resend_unchanged: bool = False
+    slip_turn: float = 0.0035
+    slip_shift: float = 0.0001
+    slip_looks: int = 0
+    slip_corrections: int = 1
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -428,6 +444,59 @@ class ThrowExecutor:
         self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
         self._sent: dict[str, np.ndarray] = {}
         self._checks = [] if self.look is None else self._checkpoints()
+        looks = self.executor_config.slip_looks
+        if self.look is not None and looks > 0:
+            self._checks = sorted(self._checks + self._slip_checkpoints(looks))
+        self.slips_noticed = 0
+        self._slip_fixes: dict[str, int] = {}
+        self._slip_seen: tuple[np.ndarray, int] | None = None
+
+    def _slip_checkpoints(self, looks: int) -> list[tuple[float, str]]:
+        """Plan times (s) and arms of the looks at the grasp during the DMP subtasks."""
+        assert self.plan_ is not None
+        labels = list(self.plan_.labels)
+        out = []
+        for (t0, name), (t1, _) in zip(labels[:-1], labels[1:]):
+            if name in TASKS:
+                arm = 'PSM2' if name == 'ii' else 'PSM1'
+                out += [(t0 + (t1 - t0) * (k + 1) / (looks + 1), arm) for k in range(looks)]
+        return out
+
+    def _notice_slip(self, obs: 'Observation', tau: float) -> None:
+        """
+        Follow the grasp observed once the needle has turned in the jaw and settled (ground truth).
+
+        The grasp is taken again only when it differs from the one followed and has stayed the
+        same for ``_SLIP_SETTLE`` observations (the slip is over), at most ``slip_corrections``
+        times per DMP subtask: pushing the needle back onto its rollout at once would make the
+        tissue turn it again, on and on, until the grasp breaks.
+        """
+        assert self.plan_ is not None and self.follower is not None
+        label = self.plan_.label(tau)
+        if label not in TASKS or obs.T_world_needle is None:
+            return
+        arm = 'PSM2' if label == 'ii' else 'PSM1'
+        known = self.follower.grasp(arm)
+        if known is None or arm not in obs.holders:
+            return
+        cfg = self.executor_config
+        if self._slip_fixes.get(label, 0) >= cfg.slip_corrections:
+            return
+        T, N = np.asarray(obs.T_world_tool[arm]), np.asarray(obs.T_world_needle)
+        seen = np.eye(4)
+        seen[:3, :3] = T[:3, :3].T @ N[:3, :3]
+        seen[:3, 3] = T[:3, :3].T @ (N[:3, 3] - T[:3, 3])
+        if not _differs(seen, known, cfg):
+            self._slip_seen = None
+            return
+        last, count = self._slip_seen if self._slip_seen is not None else (None, 0)
+        count = count + 1 if last is not None and not _differs(seen, last, cfg) else 1
+        self._slip_seen = (seen, count)
+        if count >= _SLIP_SETTLE:
+            self.follower.set_grasp(arm, seen)
+            self._slip_fixes[label] = self._slip_fixes.get(label, 0) + 1
+            self._slip_seen = None
+            self.slips_noticed += 1
 
     def _checkpoints(self) -> list[tuple[float, str]]:
         """Plan time (s) and arm at which to look at the held needle (see ``facing``)."""
@@ -491,6 +560,8 @@ class ThrowExecutor:
                     e_o = math.acos(max(-1.0, min(1.0, c_ang))) ** 2
                     slow = 1.0 + cfg.phase_stop_position * e_p + cfg.phase_stop_orientation * e_o
                     follower.offset += dt * (1.0 - 1.0 / slow)
+        if self.look is None:
+            self._notice_slip(obs, follower.tau(obs.t))
         if self._checks and follower.tau(obs.t) >= self._checks[0][0]:
             _, arm = self._checks.pop(0)
             assert self.look is not None  # checkpoints are set only with look
@@ -594,6 +665,13 @@ class _Recorder:
             poses = pose_from_transform(np.array([r[1] for r in rows]))
             out[label] = (t, poses)
         return out
+
+
+def _differs(a: np.ndarray, b: np.ndarray, cfg: ExecutorConfig) -> bool:
+    """Whether grasps ``a`` and ``b`` (4x4) differ by more than ``cfg``'s slip thresholds."""
+    c = 0.5 * (float(np.sum(a[:3, :3] * b[:3, :3])) - 1.0)
+    return (math.acos(max(-1.0, min(1.0, c))) > cfg.slip_turn
+            or float(np.linalg.norm(a[:3, 3] - b[:3, 3])) > cfg.slip_shift)
 
 
 def _event_dict(ev: Any) -> dict[str, Any]:
@@ -722,6 +800,9 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
         config = ExecutorConfig(script=sim.config.scene.expert)
     if physical:
         config = config.in_physical_mode()
+    tissue = sim.config.tissue_realism
+    if tissue is not None and tissue.active and config.slip_looks == 0:
+        config = replace(config, slip_looks=2)  # on tissue: look at the grasp while inserting
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     look = facing = None
     if perception is not None:

@@ -49,7 +49,9 @@ from numpy.typing import ArrayLike
 from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
 from sim_bridge.common.vocabulary import PSMS, SUBTASKS, TASKS
+from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.simulation import Simulation, load_simulation_config
+from sim_bridge.simulation_config import SimulationConfig
 from suture_lfd.demos.cohort import Subject, load_cohort
 from suture_lfd.demos.demo_bag import (
     default_base_frames,
@@ -137,6 +139,9 @@ class JobSettings:
         both steps): contacts are counted, never scored (``max_collisions`` -1) and the study
         reports no count, so they are checked every 50 ms instead of every step (at every
         10 ms step they cost about a sixth of a throw).
+    tissue : str
+        Preset of ``config/realism_tissue.yaml`` for every simulation of the study (the
+        needle in tissue); ``'none'``: without those effects.
 
     """
 
@@ -152,6 +157,7 @@ class JobSettings:
     demo_physics_step: float = 0.01
     thread_period: float = 0.5
     collision_period: float = 0.05
+    tissue: str = 'none'
 
 
 @dataclass(eq=False)
@@ -258,6 +264,7 @@ def _simulation(state: WorkerState, phantom: str, step: float | None = None,
         loop = replace(config.loop, thread_period=s.thread_period,
                        collision_period=max(s.collision_period, dt))
         config = replace(config, world=replace(config.world, physics_step=dt), loop=loop)
+        config = _with_tissue(config, s.tissue)
         if spec is not None:
             sims[phantom, dt] = Simulation(config, phantom=phantom_config(spec),
                                            rng=np.random.default_rng(0))
@@ -391,7 +398,24 @@ def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
     config = replace(config, world=replace(config.world, physics_step=float(step)), loop=loop,
                      kinematic_error_level=level,
                      kinematic_error_seed=int(physical.error_seed))
+    config = _with_tissue(config, s.tissue)
     return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
+
+
+def _slips(events: list[dict[str, Any]]) -> dict[str, Any]:
+    """Return the record's ``slips`` (the needle turning in the jaw), if the throw had any."""
+    slips = [{'t': float(ev['t']), 'arm': ev.get('arm'), 'angle': float(ev.get('angle', 0.0)),
+              'slide': float(ev.get('slide', 0.0)), 'in_tissue': bool(ev.get('in_tissue')),
+              'broken': bool(ev.get('broken'))}
+             for ev in events if ev.get('kind') == 'slip']
+    return {'slips': slips} if slips else {}
+
+
+def _with_tissue(config: SimulationConfig, preset: str) -> SimulationConfig:
+    """Return ``config`` with the needle-in-tissue preset ``preset`` (unchanged for none)."""
+    if preset == 'none':
+        return config
+    return replace(config, tissue_realism=load_tissue_realism(preset))
 
 
 def _subject(state: WorkerState, name: str, seed: int | None = None) -> Subject:
@@ -680,7 +704,8 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
         score=float(outcome.score), failure=outcome.failure,
         time_s=float(outcome.duration), entry_error_mm=float(outcome.entry_error_mm),
         exit_error_mm=float(outcome.exit_error_mm),
-        **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS})
+        **{k: bool(outcome.subtasks.get(k, False)) for k in SUBTASKS},
+        **_slips(getattr(outcome, 'events', None) or []))
     if not regeneration:
         return replace(record, trajectories=None)
     data = _training(state, path)

@@ -50,6 +50,10 @@ def add_study_arguments(parser: argparse.ArgumentParser) -> None:
                              "the subject's own best accepted one (subject, default) or the "
                              "cohort's best accepted one on that pair (cohort); off: no "
                              'assessment')
+    parser.add_argument('--tissue', default='none',
+                        help='needle-in-tissue realism preset of config/realism_tissue.yaml '
+                             '(tissue forces, the needle turning in the jaw, a pad that gives, '
+                             'thread drag): none (default) or tissue')
     held_out.add_arguments(parser)
     physical.add_arguments(parser)
     parser.add_argument('--plan', action='store_true',

@@ -336,6 +336,9 @@ class ThrowRecord:
         The job's wall time and its process's CPU time.
     code, worker : str or None
         The code digest and address of the Dask worker that computed it.
+    slips : list of dict or None
+        The needle's slips in the jaw (``t``, ``arm``, ``angle`` rad, ``slide`` m,
+        ``in_tissue``), with the needle-in-tissue realism on; None without any.
 
     The other fields are the job's (:class:`ThrowJob`).
 
@@ -397,6 +400,7 @@ class ThrowRecord:
     cpu_s: float | None = None
     code: str | None = None
     worker: str | None = None
+    slips: list[dict[str, Any]] | None = None
 
     @classmethod
     def of(cls, job: ThrowJob, **values: Any) -> 'ThrowRecord':

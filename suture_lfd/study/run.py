@@ -138,7 +138,13 @@ def build_config(args: argparse.Namespace) -> dict[str, Any]:
         methods = list(METHODS)
     held = held_out.held_out_config(args, phantoms, args.seed)
     physical_mode = physical.physical_config(args)
-    settings = JobSettings(out='', cohort_path=str(cohort_path), cohort_seed=args.seed)
+    tissue = str(getattr(args, 'tissue', 'none'))
+    if tissue != 'none':
+        from sim_bridge.realism.tissue_config import load_tissue_realism
+
+        load_tissue_realism(tissue)  # a bad name stops here, with the names there are
+    settings = JobSettings(out='', cohort_path=str(cohort_path), cohort_seed=args.seed,
+                           tissue=tissue)
     files = {name: file_digest(config_path(name))
              for name in ('scene.yaml', 'world.yaml', 'dmp.yaml', 'kinematics.yaml')
              if config_path(name).exists()}
@@ -366,7 +372,8 @@ def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
         print(f'suture-lfd study: error: --workers must be >= 1, got {workers}', file=sys.stderr)
         return 2
     settings = JobSettings(out=str(out), cohort_path=config['cohort_file'],
-                           cohort_seed=config['seed'])
+                           cohort_seed=config['seed'],
+                           tissue=config['settings'].get('tissue', 'none'))
     status = 0
     with stop_on_signals('study') as stop, ResultStore(out) as store:
         reused = stored_note('study', store, jobs, stream)
