@@ -116,6 +116,9 @@ class SimulationConfig:
         0: perfect kinematics.
     kinematic_error_seed : int
         Seed of the errors' draw (fixed for the life of the simulation, as a robot's are).
+    arm_realism : sim_bridge.realism.calibration.ArmRealismConfig or None
+        The PSMs' realism model (calibration errors, cable transmission), drawn with
+        ``kinematic_error_seed`` in place of the static offsets; None: the static model.
 
     """
 
@@ -131,6 +134,7 @@ class SimulationConfig:
     ecm_rest_jp: tuple[float, ...] | None = None
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
+    arm_realism: Any = None
 
 
 def load_simulation_config(world_path: str | Path | None = None,
