@@ -51,7 +51,7 @@ from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.control import Command
 from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
-from sim_bridge.realism.calibration import draw_arm_realism
+from sim_bridge.realism.calibration import draw_arm_realism, servo_config
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
 from sim_bridge.scene.grasp import GraspEvent, GraspManager
 from sim_bridge.scene.phantom import Phantom, PhantomConfig, build_phantom
@@ -208,6 +208,8 @@ class ScenePhysics:
         cfg = self.config
         self.client.restoreState(self._thread_world)
         arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
+        if cfg.arm_realism is not None:
+            arm_config = replace(arm_config, servo=servo_config(cfg.arm_realism))
         self.arms.clear()
         for name in ARMS:
             config = arm_config if name in PSMS else replace(arm_config, initial_jaw=0.0)

@@ -11,7 +11,7 @@ Frames: ``world``; joints in rad / m; ``T_*`` 4x4 poses.
 """
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 from pathlib import Path
 
@@ -20,6 +20,7 @@ from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, sect
 from sim_bridge.common.errors import ConfigError
 from sim_bridge.common.paths import config_path
 from sim_bridge.kinematic_errors import ArmError
+from sim_bridge.realism.servo import ServoConfig
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
 
 
@@ -63,22 +64,48 @@ class ArmRealismConfig:
         Preset name (``dvrk``), for reports.
     calibration : CalibrationConfig
     transmission : TransmissionConfig
+    servo : ServoConfig
+        The joints' servo loop at level 1 (PSMs and ECM).
     calibration_level, transmission_level : float
         Scale of each effect (>= 0).
+    servo_level : float
+        0: ideal tracking; ``L > 0``: the servo loop with its natural frequency divided by ``L``
+        (more lag).
 
     """
 
     name: str = 'dvrk'
     calibration: CalibrationConfig = CalibrationConfig()
     transmission: TransmissionConfig = TransmissionConfig()
+    servo: ServoConfig = ServoConfig()
     calibration_level: float = 1.0
     transmission_level: float = 1.0
+    servo_level: float = 1.0
 
     def __post_init__(self) -> None:
-        for key in ('calibration_level', 'transmission_level'):
+        for key in ('calibration_level', 'transmission_level', 'servo_level'):
             v = getattr(self, key)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f'arm realism {key} must be a finite number >= 0, got {v}')
+
+
+def servo_config(config: ArmRealismConfig) -> ServoConfig | None:
+    """
+    Return the arms' servo loop at ``config``'s servo level (None at level 0).
+
+    Parameters
+    ----------
+    config : ArmRealismConfig
+
+    Returns
+    -------
+    ServoConfig or None
+
+    """
+    if config.servo_level == 0.0:
+        return None
+    return replace(config.servo,
+                   natural_frequency=config.servo.natural_frequency / config.servo_level)
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
