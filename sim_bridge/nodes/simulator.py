@@ -79,6 +79,7 @@ from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
+from sim_bridge.realism.calibration import load_arm_realism
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.entry import NodeHooks
@@ -164,6 +165,10 @@ class SimulatorConfig:
         Class (mm, >= 0) of the PSMs' hidden kinematic errors; 0: perfect kinematics.
     kinematic_error_seed : int
         Seed of the kinematic errors' draw.
+    arm_realism : str
+        ``'static'`` (the offsets of ``kinematic_error_level``) or a preset of
+        ``config/realism_arm.yaml`` (``'dvrk'``: calibration errors, cable transmission, servo
+        lag), drawn with ``kinematic_error_seed``.
 
     """
 
@@ -194,6 +199,7 @@ class SimulatorConfig:
     physical: bool = False
     kinematic_error_level: float = 0.0
     kinematic_error_seed: int = 0
+    arm_realism: str = 'static'
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -300,6 +306,8 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
             loop=replace(sim_config.loop, target_pair=cfg.target_pair or None),
             kinematic_error_level=float(cfg.kinematic_error_level),
             kinematic_error_seed=int(cfg.kinematic_error_seed),
+            arm_realism=(None if cfg.arm_realism == 'static'
+                         else load_arm_realism(cfg.arm_realism)),
             camera=replace(sim_config.camera, depth=cfg.camera_depth,
                            width=cfg.camera_width or sim_config.camera.width,
                            height=cfg.camera_height or sim_config.camera.height), **rest)
