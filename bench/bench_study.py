@@ -106,9 +106,12 @@ def _stored(folder):
     return len(path.read_text().splitlines()) if path.exists() else 0
 
 
-def physical_rows(design, workers, level):
+def physical_rows(design, workers, level, realisms=('dvrk',)):
     """
     Ground truth, then physical mode at ``level`` in the same folder (its own jobs only).
+
+    One physical row per arm model of ``realisms`` (``'static'``: the constant offsets of class
+    ``level``; a preset of ``config/realism_arm.yaml``), each in the same folder.
 
     Each row also gets ``throw_cpu_s``: the mean CPU time of its executed throws as their
     worker processes measured it (``cpu_s`` of the records), throws that ran nothing (no
@@ -116,16 +119,26 @@ def physical_rows(design, workers, level):
     """
     with tempfile.TemporaryDirectory() as tmp:
         ground = run('ground truth', design, workers, folder=tmp)
-        physical = run(f'physical L{level:g}', design + ['--physical', '--error-level',
-                                                          f'{level:g}'], workers, folder=tmp)
+        physical = [run(f'physical {m}' + (f' L{level:g}' if m == 'static' else ''),
+                        design + ['--physical', '--error-level', f'{level:g}',
+                                  '--arm-realism', m], workers, folder=tmp)
+                    for m in realisms]
         records = [json.loads(line)
                    for line in (Path(tmp) / 'results.jsonl').read_text().splitlines()]
-    for row, phys in ((ground, False), (physical, True)):
+    for row, model in ((ground, None), *((p, m) for p, m in zip(physical, realisms))):
         cpu = [r['cpu_s'] for r in records if r['kind'] == 'throw' and r.get('cpu_s') is not None
-               and bool(r.get('physical')) == phys and r.get('segments')]
+               and _model(r) == model and r.get('segments')]
         row['throw_cpu_s'] = sum(cpu) / len(cpu) if cpu else float('nan')
         row['throws'] = len(cpu)
-    return [ground, physical]
+    return [ground, *physical]
+
+
+def _model(record):
+    """The arm model of a record (None: ground truth)."""
+    phys = record.get('physical')
+    if not phys:
+        return None
+    return phys.get('arm_realism', 'static') if isinstance(phys, dict) else 'static'
 
 
 def main():
@@ -143,6 +156,10 @@ def main():
     parser.add_argument('--physical', type=float, default=None, metavar='L',
                         help='compare physical mode at error level L with ground truth '
                              '(instead of the engines)')
+    parser.add_argument('--arm-realism', nargs='+', default=['static', 'dvrk'],
+                        help='with --physical: the arm models to run (static: the offsets of '
+                             'class L; a preset of config/realism_arm.yaml); the CPU per job '
+                             'of each is printed against the first')
     parser.add_argument('--args', nargs=argparse.REMAINDER, default=[],
                         help='more study options (e.g. --methods paper)')
     args = parser.parse_args()
@@ -152,7 +169,7 @@ def main():
         design = (FULL if args.full else QUICK) + args.args
     machine = _machine()
     if args.physical is not None:
-        rows = physical_rows(design, args.workers, args.physical)
+        rows = physical_rows(design, args.workers, args.physical, args.arm_realism)
     else:
         rows = [run(e, design, args.workers, engine=e) for e in args.engines]
     if args.before:
@@ -182,7 +199,10 @@ def main():
         print(f'dask / local wall time: {by["dask"]["wall_s"] / by["local"]["wall_s"]:.3f} '
               '(target <= 1.10)')
     if args.physical is not None:
-        g, p = rows
+        g, p, *more = rows
+        for q in more:
+            print(f'CPU per job, {q["label"]} / {p["label"]}: '
+                  f'{(q["cpu_s"] / q["jobs"]) / (p["cpu_s"] / p["jobs"]):.3f} (target <= 1.20)')
         print(f'CPU per job, physical / ground truth: {p["cpu_s"] / p["jobs"]:.3f} / '
               f'{g["cpu_s"] / g["jobs"]:.3f} s = '
               f'{(p["cpu_s"] / p["jobs"]) / (g["cpu_s"] / g["jobs"]):.3f} (target <= 1.50; '
