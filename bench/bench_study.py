@@ -110,9 +110,12 @@ def _stored(folder):
     return len(path.read_text().splitlines()) if path.exists() else 0
 
 
-def physical_rows(design, workers, level):
+def physical_rows(design, workers, level, realisms=('dvrk',)):
     """
     Ground truth, then physical mode at ``level`` in the same folder (its own jobs only).
+
+    One physical row per arm model of ``realisms`` (``'static'``: the constant offsets of class
+    ``level``; a preset of ``config/realism_arm.yaml``), each in the same folder.
 
     Each row also gets ``throw_cpu_s``: the mean CPU time of its executed throws as their
     worker processes measured it (``cpu_s`` of the records), throws that ran nothing (no
@@ -120,16 +123,26 @@ def physical_rows(design, workers, level):
     """
     with tempfile.TemporaryDirectory() as tmp:
         ground = run('ground truth', design, workers, folder=tmp)
-        physical = run(f'physical L{level:g}', design + ['--physical', '--error-level',
-                                                          f'{level:g}'], workers, folder=tmp)
+        physical = [run(f'physical {m}' + (f' L{level:g}' if m == 'static' else ''),
+                        design + ['--physical', '--error-level', f'{level:g}',
+                                  '--arm-realism', m], workers, folder=tmp)
+                    for m in realisms]
         records = [json.loads(line)
                    for line in (Path(tmp) / 'results.jsonl').read_text().splitlines()]
-    for row, phys in ((ground, False), (physical, True)):
+    for row, model in ((ground, None), *((p, m) for p, m in zip(physical, realisms))):
         cpu = [r['cpu_s'] for r in records if r['kind'] == 'throw' and r.get('cpu_s') is not None
-               and bool(r.get('physical')) == phys and r.get('segments')]
+               and _model(r) == model and r.get('segments')]
         row['throw_cpu_s'] = sum(cpu) / len(cpu) if cpu else float('nan')
         row['throws'] = len(cpu)
-    return [ground, physical]
+    return [ground, *physical]
+
+
+def _model(record):
+    """The arm model of a record (None: ground truth)."""
+    phys = record.get('physical')
+    if not phys:
+        return None
+    return phys.get('arm_realism', 'static') if isinstance(phys, dict) else 'static'
 
 
 def _throw_cpu(records):
@@ -169,6 +182,10 @@ def main():
                              '(instead of the engines)')
     parser.add_argument('--tissue', default=None, metavar='PRESET',
                         help='measure the needle-in-tissue preset against none')
+    parser.add_argument('--arm-realism', nargs='+', default=['static', 'dvrk'],
+                        help='with --physical: the arm models to run (static: the offsets of '
+                             'class L; a preset of config/realism_arm.yaml); the CPU per job '
+                             'of each is printed against the first')
     parser.add_argument('--args', nargs=argparse.REMAINDER, default=[],
                         help='more study options (e.g. --methods paper)')
     args = parser.parse_args()
@@ -178,7 +195,7 @@ def main():
         design = (FULL if args.full else QUICK) + args.args
     machine = _machine()
     if args.physical is not None:
-        rows = physical_rows(design, args.workers, args.physical)
+        rows = physical_rows(design, args.workers, args.physical, args.arm_realism)
     elif args.tissue is not None:
         rows = tissue_rows(design, args.workers, args.tissue)
     else:
@@ -210,7 +227,10 @@ def main():
         print(f'dask / local wall time: {by["dask"]["wall_s"] / by["local"]["wall_s"]:.3f} '
               '(target <= 1.10)')
     if args.physical is not None:
-        g, p = rows
+        g, p, *more = rows
+        for q in more:
+            print(f'CPU per job, {q["label"]} / {p["label"]}: '
+                  f'{(q["cpu_s"] / q["jobs"]) / (p["cpu_s"] / p["jobs"]):.3f} (target <= 1.20)')
         print(f'CPU per job, physical / ground truth: {p["cpu_s"] / p["jobs"]:.3f} / '
               f'{g["cpu_s"] / g["jobs"]:.3f} s = '
               f'{(p["cpu_s"] / p["jobs"]) / (g["cpu_s"] / g["jobs"]):.3f} (target <= 1.50; '

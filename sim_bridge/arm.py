@@ -57,6 +57,7 @@ from numpy.typing import ArrayLike
 from sim_bridge.common.geometry import matrix_from_quaternion
 from sim_bridge.common.validation import check_positive, check_quaternions
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, UnreachableError, check_pose
+from sim_bridge.realism.servo import ServoLag
 from sim_bridge.trajectory import Floats, JointMotion
 
 logger = logging.getLogger(__name__)
@@ -140,6 +141,8 @@ class ArmConfig:
         PSM instrument present at start-up (Cartesian and jaw commands need it).
     power_up_time : float
         Simulated time (s) from ``enable`` to ENABLED (DISABLED and busy meanwhile); 0: at once.
+    servo : sim_bridge.realism.servo.ServoConfig or None
+        The arm joints' servo dynamics (lag, overshoot); None: ideal limited tracking.
 
     """
 
@@ -151,6 +154,7 @@ class ArmConfig:
     servo_stream_gap: float = 0.1
     tool_present: bool = True
     power_up_time: float = 0.0
+    servo: Any = None
 
     def __post_init__(self) -> None:
         if self.tracking not in ('limited', 'exact'):
@@ -199,6 +203,8 @@ class Arm:
             raise ValueError(f'{self.name}: initial_jp {q0.tolist()} is outside the joint limits '
                              f'[{k.lower.tolist()}, {k.upper.tolist()}]')
         self._arm = JointMotion(q0, k.lower, k.upper, k.v_max, k.a_max)
+        if config.servo is not None and config.tracking == 'limited':
+            self._arm.servo_loop = ServoLag(config.servo)
         if self._has_jaw:
             jaw0 = float(config.initial_jaw)
             if not k.jaw_lower <= jaw0 <= k.jaw_upper:

@@ -20,6 +20,7 @@ Frames: ``world``; joints in rad / m; ``T_*`` 4x4 poses.
 from collections.abc import Iterable
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import numpy as np
 from sim_bridge.common.validation import check_positive
@@ -41,17 +42,39 @@ class ArmError:
         True joints minus reported joints (rad / m).
     T_believed_true : ndarray, shape (4, 4)
         The registration error: the arm's believed base is ``T_believed_true @ T_world_base``
-        (a translation in ``world``).
+        (a translation in ``world``; with :mod:`sim_bridge.realism.calibration`, a rotation too).
+    transmission : sim_bridge.realism.transmission.JointTransmission or None
+        The arm's cable transmission (backlash, stretch), stateful; None: ideal.
 
     """
 
     joint_offset: np.ndarray
     T_believed_true: np.ndarray
+    transmission: Any = None
 
     @property
     def is_zero(self) -> bool:
         """Whether the arm has no error at all (perfect kinematics)."""
-        return not self.joint_offset.any() and np.array_equal(self.T_believed_true, np.eye(4))
+        return (self.transmission is None and not self.joint_offset.any()
+                and np.array_equal(self.T_believed_true, np.eye(4)))
+
+    def true_jp(self, q: np.ndarray) -> np.ndarray:
+        """
+        Return the joints where the arm truly is when its encoders report ``q``.
+
+        Parameters
+        ----------
+        q : ndarray, shape (n,)
+            Reported (measured) joints (rad / m).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+
+        """
+        if self.transmission is not None:
+            q = self.transmission.apply(q)
+        return q + self.joint_offset
 
 
 def draw_arm_errors(level: float, rng: np.random.Generator, arms: Iterable[str],

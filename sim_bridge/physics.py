@@ -51,6 +51,7 @@ from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.control import Command
 from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
+from sim_bridge.realism.calibration import draw_arm_realism, servo_config
 from sim_bridge.realism.tissue_realism import build_tissue_realism
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
 from sim_bridge.scene.grasp import GraspEvent, GraspManager
@@ -155,6 +156,9 @@ class ScenePhysics:
         self._collision_every = steps_per_period(cfg.loop.collision_period, self._dt,
                                              'collision_period')
         self._rest_steps = max(1, int(round(cfg.loop.rest_time / self._dt)))
+        if kinematic_errors is None and cfg.arm_realism is not None:
+            kinematic_errors = draw_arm_realism(
+                cfg.arm_realism, np.random.default_rng(cfg.kinematic_error_seed), PSMS)
         if kinematic_errors is None:
             kinematic_errors = draw_arm_errors(cfg.kinematic_error_level,
                                                np.random.default_rng(cfg.kinematic_error_seed),
@@ -211,6 +215,8 @@ class ScenePhysics:
         cfg = self.config
         self.client.restoreState(self._thread_world)
         arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
+        if cfg.arm_realism is not None:
+            arm_config = replace(arm_config, servo=servo_config(cfg.arm_realism))
         self.arms.clear()
         for name in ARMS:
             config = arm_config if name in PSMS else replace(arm_config, initial_jaw=0.0)
@@ -363,7 +369,7 @@ class ScenePhysics:
         """Joints where an arm truly is: its measured joints plus its hidden offsets."""
         error = self._errors.get(name)
         q = arm.measured_jp
-        return q if error is None else q + error.joint_offset
+        return q if error is None else error.true_jp(q)
 
     def _follow_camera(self) -> None:
         """

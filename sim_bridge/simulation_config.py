@@ -124,6 +124,9 @@ class SimulationConfig:
     tissue_realism : sim_bridge.realism.tissue_config.TissueRealismConfig or None
         The needle-in-tissue effects (forces, grip, pad, thread drag); None or all levels 0:
         none (the simulation as without them).
+    arm_realism : sim_bridge.realism.calibration.ArmRealismConfig or None
+        The PSMs' realism model (calibration errors, cable transmission), drawn with
+        ``kinematic_error_seed`` in place of the static offsets; None: the static model.
 
     """
 
@@ -141,6 +144,7 @@ class SimulationConfig:
     kinematic_error_seed: int = 0
     endoscope: EndoscopeRealism = field(default_factory=EndoscopeRealism)
     tissue_realism: TissueRealismConfig | None = None
+    arm_realism: Any = None
 
 
 def load_simulation_config(world_path: str | Path | None = None,

@@ -20,6 +20,7 @@ per-step path of every arm, which is kept in one file for speed.
 
 from collections.abc import Sequence
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -342,6 +343,7 @@ class JointMotion:
                                  self.upper.tolist(), (-self.v_max).tolist()))
         self._bounds = tuple(zip(self.lower.tolist(), self.upper.tolist()))
         self.trajectory: JointTrajectory | None = None
+        self.servo_loop: Any = None  # a sim_bridge.realism.servo.ServoLag, or None: ideal tracking
         self._t0 = 0.0
         # (start, goal, start time, interval) of a servo glide
         self._ramp: tuple[Floats, Floats, float, float] | None = None
@@ -405,6 +407,18 @@ class JointMotion:
         ``start + (goal - start) * m`` at ``(goal - start) / interval`` (what :meth:`target`
         gives), formed in the same loop.
         """
+        loop = self.servo_loop
+        if loop is not None:  # sim_bridge.realism.servo: the ideal motion is the loop's reference
+            measured = (self._q, self._qd)
+            if loop.reference is not None:
+                self._q, self._qd = loop.reference
+            self.servo_loop = None
+            try:
+                loop.reference = self._track(target, velocity, dt, glide)
+            finally:
+                self.servo_loop = loop
+                self._q, self._qd = measured
+            return loop.follow(measured, loop.reference, dt, self._bounds)
         # min(x, y) is "y if y < x else x" and max(x, y) "y if y > x else x", written out
         q_out, qd_out = [], []
         tv = self._zeros if velocity is None else velocity

@@ -79,6 +79,7 @@ from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
+from sim_bridge.realism.calibration import load_arm_realism
 from sim_bridge.realism.endoscope import endoscope_preset
 from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.ros import conversions as cv
@@ -172,6 +173,10 @@ class SimulatorConfig:
     tissue : str
         Needle-in-tissue realism preset of ``config/realism_tissue.yaml`` (``none``: off;
         ``tissue``: tissue forces, the needle turning in the jaw, a pad that gives).
+    arm_realism : str
+        ``'static'`` (the offsets of ``kinematic_error_level``) or a preset of
+        ``config/realism_arm.yaml`` (``'dvrk'``: calibration errors, cable transmission, servo
+        lag), drawn with ``kinematic_error_seed``.
 
     """
 
@@ -204,6 +209,7 @@ class SimulatorConfig:
     kinematic_error_seed: int = 0
     camera_realism: str = ''
     tissue: str = 'none'
+    arm_realism: str = 'static'
 
     def __post_init__(self):
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
@@ -311,6 +317,8 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
             kinematic_error_level=float(cfg.kinematic_error_level),
             kinematic_error_seed=int(cfg.kinematic_error_seed),
             endoscope=endoscope_preset(cfg.camera_realism),
+            arm_realism=(None if cfg.arm_realism == 'static'
+                         else load_arm_realism(cfg.arm_realism)),
             camera=replace(sim_config.camera, depth=cfg.camera_depth,
                            width=cfg.camera_width or sim_config.camera.width,
                            height=cfg.camera_height or sim_config.camera.height), **rest)

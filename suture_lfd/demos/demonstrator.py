@@ -670,6 +670,9 @@ def _one_throw(sim: 'Simulation', subject: Subject | SkillProfile, pair_name: st
     seen = None if link is None else link.record().pair
     if seen is not None:  # the recorder's markers: as the robot perceives them
         pair = cast('MarkerPair', seen)
+    elif link is not None:  # physical mode: the truth is not there to fall back on
+        raise DemonstrationError(f'demonstration on {pair_name}: the recorder never saw the '
+                                 f'entry/exit markers (physical mode has no true pair to use)')
     needle = np.array(rows['needle'])
     unseen = int(np.isnan(needle).any(axis=1).sum()) if len(needle) else 0
     if unseen:

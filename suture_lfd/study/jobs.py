@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike
 from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
 from sim_bridge.common.vocabulary import PSMS, SUBTASKS, TASKS
+from sim_bridge.realism.calibration import load_arm_realism
 from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.simulation import Simulation, load_simulation_config
 from sim_bridge.simulation_config import SimulationConfig
@@ -289,10 +290,9 @@ def _physical_simulation(state: WorkerState, phantom: str, step: float,
     and phantom, :func:`suture_lfd.study.physical.robot_key`), kept in ``state.robots`` for
     the next jobs on it.
     """
-    level = float(physical.error_level)
-    if level == 0.0:
+    if not _has_errors(physical):
         return _simulation(state, phantom, step)
-    key = (phantom, float(step), level, int(physical.error_seed))
+    key = _robot_key(phantom, step, physical)
     robots = state.robots
     sim = robots.pop(key, None)
     if sim is None:
@@ -312,21 +312,23 @@ def _physical_simulation(state: WorkerState, phantom: str, step: float,
 REGISTRATIONS = 'physical/registrations'
 
 
-def _registration_path(state: WorkerState, key: tuple[str, float, float, int]) -> Path:
+def _registration_path(state: WorkerState, key: tuple[str, float, float, int, str]) -> Path:
     """Return the file of a robot's registration (``key`` as in ``state.robots``)."""
-    phantom, step, level, seed = key
-    name = f'{phantom}_{step:g}s_{level:g}mm_{seed}.json'
+    phantom, step, level, seed, realism = key
+    model = f'{level:g}mm' if realism == 'static' else realism
+    name = f'{phantom}_{step:g}s_{model}_{seed}.json'
     return Path(state.settings.out) / REGISTRATIONS / name
 
 
-def _registration_key(state: WorkerState, key: tuple[str, float, float, int]
+def _registration_key(state: WorkerState, key: tuple[str, float, float, int, str]
                       ) -> dict[str, Any]:
     """Return what a robot's saved registration is valid for: the robot and the code."""
     if state.code is None:
         state.code = code_digest()
-    phantom, step, level, seed = key
+    phantom, step, level, seed, realism = key
     return {'phantom': phantom, 'physics_step': step, 'error_level': level,
-            'error_seed': seed, 'code': state.code}
+            'error_seed': seed, **({} if realism == 'static' else {'arm_realism': realism}),
+            'code': state.code}
 
 
 def _save_registrations(state: WorkerState) -> None:
@@ -345,7 +347,7 @@ def _save_registrations(state: WorkerState) -> None:
 REGISTRATION_WAIT = 120.0
 
 
-def _registered(state: WorkerState, key: tuple[str, float, float, int], sim: Simulation
+def _registered(state: WorkerState, key: tuple[str, float, float, int, str], sim: Simulation
                 ) -> None:
     """
     Make sure the robot ``key`` (``sim``) has its registration, run once per study.
@@ -387,6 +389,18 @@ def _registered(state: WorkerState, key: tuple[str, float, float, int], sim: Sim
     state.registered.add(key)
 
 
+def _has_errors(physical: RobotErrors) -> bool:
+    """Whether a job's robot differs from the perfect one (a realism preset or a level > 0)."""
+    return physical.arm_realism != 'static' or float(physical.error_level) != 0.0
+
+
+def _robot_key(phantom: str, step: float, physical: RobotErrors
+               ) -> tuple[str, float, float, int, str]:
+    """Return a robot's key: (phantom, physics step, error level, error seed, realism)."""
+    return (phantom, float(step), float(physical.error_level), int(physical.error_seed),
+            physical.arm_realism + ''.join(f'-{k}{v:g}' for k, v in physical.arm_levels))
+
+
 def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
            ) -> Simulation:
     """Build the simulation of a robot with the hidden kinematic errors ``physical``."""
@@ -395,9 +409,11 @@ def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
     config = load_simulation_config()
     loop = replace(config.loop, thread_period=s.thread_period,
                    collision_period=max(s.collision_period, step))
+    realism = None if physical.arm_realism == 'static' else load_arm_realism(
+        physical.arm_realism, levels=dict(physical.arm_levels))
     config = replace(config, world=replace(config.world, physics_step=float(step)), loop=loop,
                      kinematic_error_level=level,
-                     kinematic_error_seed=int(physical.error_seed))
+                     kinematic_error_seed=int(physical.error_seed), arm_realism=realism)
     config = _with_tissue(config, s.tissue)
     return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
 
@@ -490,10 +506,9 @@ def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
         link = None
     else:
         sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
-        if float(physical.error_level) != 0.0:
+        if _has_errors(physical):
             # registered before anything is recorded, as in a lab (once per study)
-            _registered(state, (job.phantom, float(s.demo_physics_step),
-                                float(physical.error_level), int(physical.error_seed)), sim)
+            _registered(state, _robot_key(job.phantom, s.demo_physics_step, physical), sim)
         link = TeleoperatedRobot(sim, job.pair)
     try:
         run = run_demonstration(sim, subject, job.pair, seed=job.seed,
@@ -672,9 +687,8 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
     outcome: ThrowOutcome | RosOutcome
     if physical is not None:
         sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
-        if physical.correction and float(physical.error_level) != 0.0:
-            _registered(state, (job.test_phantom, float(s.physics_step),
-                                float(physical.error_level), int(physical.error_seed)), sim)
+        if physical.correction and _has_errors(physical):
+            _registered(state, _robot_key(job.test_phantom, s.physics_step, physical), sim)
         sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
                                 timeout=s.timeout, control_period=s.control_period,

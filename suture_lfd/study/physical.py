@@ -34,6 +34,7 @@ from dataclasses import replace
 import math
 from typing import Any
 
+from sim_bridge.realism.calibration import load_arm_realism
 from suture_lfd.study import tables
 from suture_lfd.study.records import DemoJob, DemoRecord, RobotErrors, ThrowJob, ThrowRecord
 
@@ -56,6 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--error-level', default='3', metavar='L[,L...]',
                         help='kinematic error class(es) of --physical, mm (default 3; '
                              f'{",".join(_text(v) for v in CURVE_LEVELS)} draws the curve)')
+    parser.add_argument('--arm-realism', default='static', metavar='NAME|static',
+                        help="with --physical: the arms' imperfection, static (default: the "
+                             'constant offsets of class --error-level) or a preset of '
+                             'config/realism_arm.yaml (dvrk: calibration errors, cable '
+                             'hysteresis and stretch, servo lag; the executor does not master it '
+                             'yet)')
     parser.add_argument('--correction', choices=('on', 'off', 'both'), default='on',
                         help='with --physical: the executor closes its loop on what it sees '
                              "(on, default), runs open loop on the arms' kinematics (off), or "
@@ -111,18 +118,41 @@ def physical_config(args: argparse.Namespace) -> dict[str, Any] | None:
     correction = getattr(args, 'correction', 'on')
     corrections = {'on': [True], 'off': [False], 'both': [True, False]}[correction]
     demos = getattr(args, 'physical_demos', 'recorded')
+    realism = str(getattr(args, 'arm_realism', 'static'))
+    if realism != 'static':
+        load_arm_realism(realism)  # a bad name fails here, naming the presets
+        levels = [0.0]  # the static class is unused with a preset
     return {'levels': levels, 'corrections': corrections,
-            **({'demos': demos} if demos != 'recorded' else {})}
+            **({'demos': demos} if demos != 'recorded' else {}),
+            **({'arm_realism': realism} if realism != 'static' else {})}
 
 
-def variant_name(level: float, correction: bool) -> str:
-    """Return the folder name of a variant: ``level-3`` (corrected) or ``level-3-open``."""
-    return f'level-{_text(level)}' + ('' if correction else '-open')
+def variant_name(level: float, correction: bool, realism: str = 'static') -> str:
+    """
+    Return the folder name of a variant: ``level-3`` / ``dvrk`` (corrected) or ``...-open``.
+
+    Parameters
+    ----------
+    level : float
+        Static error class (mm), used with ``realism`` ``'static'``.
+    correction : bool
+        Whether the throws correct from what they see.
+    realism : str
+        The arm model (``'static'`` or a preset name).
+
+    Returns
+    -------
+    str
+
+    """
+    name = f'level-{_text(level)}' if realism == 'static' else realism
+    return name + ('' if correction else '-open')
 
 
 def variants(physical: dict[str, Any]) -> list[tuple[str, float, bool]]:
     """Return ``[(name, level, correction)]`` of a physical configuration, in order."""
-    return [(variant_name(level, c), level, c)
+    realism = physical.get('arm_realism', 'static')
+    return [(variant_name(level, c, realism), level, c)
             for level in physical['levels'] for c in physical['corrections']]
 
 
@@ -176,18 +206,19 @@ def plan_physical(physical: dict[str, Any], demos: Sequence[DemoJob],
     """
     out_demos, out_throws = [], []
     recorded = physical.get('demos', 'recorded') == 'recorded'
+    realism = physical.get('arm_realism', 'static')
     for level in physical['levels'] if recorded else ():
-        where = f'physical/{variant_name(level, True)}'
+        where = f'physical/{variant_name(level, True, realism)}'
         for job in demos:
             key = f'{where}/{job.key}'
             out_demos.append(replace(
                 job, id='', key=key, folder=where, bag=f'{where}/{job.bag}',
                 segments=f'{where}/{job.segments}',
                 physical=RobotErrors(error_level=level, error_seed=job_seed(
-                    seed, robot_key(job.subject, job.phantom)))))
+                    seed, robot_key(job.subject, job.phantom)), arm_realism=realism)))
     for name, level, correction in variants(physical):
         where = f'physical/{name}'
-        demo_where = f'physical/{variant_name(level, True)}'
+        demo_where = f'physical/{variant_name(level, True, realism)}'
         for throw in throws:
             key = f'{where}/{throw.key}'
             trajectories = throw.trajectories
@@ -197,7 +228,7 @@ def plan_physical(physical: dict[str, Any], demos: Sequence[DemoJob],
                 trajectories=f'{where}/{trajectories}' if trajectories else None,
                 physical=RobotErrors(error_level=level, error_seed=job_seed(
                     seed, robot_key(throw.subject, throw.test_phantom)),
-                    correction=correction)))
+                    correction=correction, arm_realism=realism)))
     return out_demos, out_throws
 
 
@@ -223,7 +254,7 @@ def variant_records(records: Sequence[DemoRecord | ThrowRecord], name: str, leve
     list of DemoRecord or ThrowRecord
 
     """
-    demo_prefix = f'physical/{variant_name(level, True)}/'
+    demo_prefix = f'physical/{name.removesuffix("-open")}/'  # its corrected variant's demos
     throw_prefix = f'physical/{name}/'
     out: list[DemoRecord | ThrowRecord] = list(ground_demos or [])
     for r in records:

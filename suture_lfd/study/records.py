@@ -91,12 +91,19 @@ class RobotErrors:
         and phantom).
     correction : bool
         A throw corrects its plan from what the robot perceives (demonstrations: unused).
+    arm_realism : str
+        The arm model: ``'static'`` (offsets of class ``error_level``) or a preset of
+        ``config/realism_arm.yaml`` (``'dvrk'``; ``error_level`` then unused).
+    arm_levels : tuple of (str, float)
+        Per-effect levels overriding the preset's (``(('servo_level', 0.0),)``).
 
     """
 
     error_level: float
     error_seed: int
     correction: bool = False
+    arm_realism: str = 'static'
+    arm_levels: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,8 @@ throw reads the simulation's truth (its truth accessors raise during the throw).
 """
 
 from dataclasses import replace
+import inspect
+import sys
 
 import numpy as np
 import pytest
@@ -56,6 +58,30 @@ def scene():
 
 _TRUTH = ('tool_pose', 'needle_pose', 'needle_tip', 'T_world_base', 'marker_poses',
           'phantom_pose')
+# the facade's private accessors of the truth (what the ground-truth observer reads): blocked
+# for callers in suture_lfd only, as sim_bridge's own observers may use them
+_PRIVATE_TRUTH = ('_tool_pose', '_T_needle', '_T_world_base_true', '_errors')
+
+
+def _guarded(name):
+    original = inspect.getattr_static(Simulation, name)
+
+    def caller_is_the_skill():
+        return sys._getframe(2).f_globals.get('__name__', '').startswith('suture_lfd')
+
+    if isinstance(original, property):
+        def read(self):
+            if caller_is_the_skill():
+                raise AssertionError(f'a physical throw read the simulation truth: '
+                                     f'Simulation.{name}')
+            return original.fget(self)
+        return property(read)
+
+    def call(self, *args, **kwargs):
+        if caller_is_the_skill():
+            raise AssertionError(f'a physical throw read the simulation truth: Simulation.{name}')
+        return original(self, *args, **kwargs)
+    return call
 
 
 def _poisoned(name):
@@ -113,6 +139,8 @@ def test_a_level_3_throw_completes_on_what_the_camera_sees_and_reads_no_truth(
         scene, skill, monkeypatch):
     for name in _TRUTH:
         monkeypatch.setattr(Simulation, name, _poisoned(name))
+    for name in _PRIVATE_TRUTH:
+        monkeypatch.setattr(Simulation, name, _guarded(name))
     monkeypatch.setattr(GroundTruthObserver, 'observe', _poisoned('observer (ground truth)'))
     outcome = execute_throw(scene, skill, 'synth1', seed=0, physical=True, correction=True)
     monkeypatch.undo()

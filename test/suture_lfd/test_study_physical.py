@@ -17,7 +17,8 @@ from suture_lfd.study import report
 
 SMALL = ['--quick', '--subjects', '1', '--phantoms', 'synthetic', '--pairs', '1',
          '--methods', 'pair_frame', '--workers', '2']
-PHYSICAL = ['--physical', '--error-level', '0,3', '--correction', 'both']
+PHYSICAL = ['--physical', '--arm-realism', 'static', '--error-level', '0,3', '--correction',
+            'both']
 TIMEOUT = 1500
 
 
@@ -109,7 +110,8 @@ def test_physical_options_are_checked_and_planned_apart(tmp_path):
     result = study(tmp_path / 'plain', '--plan')
     assert result.returncode == 0, result.stderr
     plain = json.loads((tmp_path / 'plain' / 'jobs.json').read_text())
-    result = study(tmp_path / 'physical', '--plan', '--physical', '--no-correction')
+    result = study(tmp_path / 'physical', '--plan', '--physical', '--arm-realism', 'static',
+                   '--no-correction')
     assert result.returncode == 0, result.stderr
     jobs = json.loads((tmp_path / 'physical' / 'jobs.json').read_text())
     assert jobs[:len(plain)] == plain  # the ground-truth jobs, ids and all, as without it
@@ -127,9 +129,21 @@ def test_physical_options_are_checked_and_planned_apart(tmp_path):
     assert len({next(iter(seeds)) for seeds in robots.values()}) == len(robots) > 1, robots
 
 
+def test_physical_mode_runs_the_dvrk_preset_by_name_and_names_a_bad_preset(tmp_path):
+    result = study(tmp_path / 'dvrk', '--plan', '--physical', '--arm-realism', 'dvrk')
+    assert result.returncode == 0, result.stderr
+    jobs = json.loads((tmp_path / 'dvrk' / 'jobs.json').read_text())
+    extra = [j for j in jobs if j.get('physical') is not None]
+    assert extra and {j['physical']['arm_realism'] for j in extra} == {'dvrk'}
+    assert all(j['key'].startswith('physical/dvrk/') for j in extra)
+    result = study(tmp_path / 'bad', '--plan', '--physical', '--arm-realism', 'nope')
+    assert result.returncode != 0
+    assert "no preset 'nope'" in result.stderr
+
+
 def test_physical_throws_may_learn_from_the_ground_truth_demonstrations(tmp_path):
-    result = study(tmp_path, '--plan', '--physical', '--error-level', '1,5',
-                   '--physical-demos', 'ground-truth')
+    result = study(tmp_path, '--plan', '--physical', '--arm-realism', 'static',
+                   '--error-level', '1,5', '--physical-demos', 'ground-truth')
     assert result.returncode == 0, result.stderr
     jobs = json.loads((tmp_path / 'jobs.json').read_text())
     ground = [j for j in jobs if j.get('physical') is None]
