@@ -43,6 +43,10 @@ ago as a fault, so an enabled MTM nobody moves still publishes well within that 
 would leave no margin: data 20 ms old plus its delivery). The browser's hand poses and grippers
 are read at the start of every cycle, the newest of each (no callback per sample); a new one
 brings the full rate back.
+
+Size: one node, its parameters, the MTMs' commands (state commands held until a client's
+readers get the MTM's poses: :class:`sim_bridge.ros.readers_gate.ReadersGate`) and its cycle;
+the MTM itself, its imperfection and the devices are core modules of :mod:`suture_lfd.teleop`.
 """
 
 from dataclasses import dataclass
