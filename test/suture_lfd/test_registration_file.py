@@ -22,7 +22,7 @@ from suture_lfd.study import jobs
 from suture_lfd.study.records import RobotErrors
 
 ROBOT = RobotErrors(error_level=3.0, error_seed=11, correction=True)
-KEY = ('synthetic', 0.01, 3.0, 11)
+KEY = ('synthetic', 0.01, 3.0, 11, 'static')
 
 
 @pytest.fixture(scope='module')
@@ -116,7 +116,7 @@ def test_a_study_process_with_a_stored_registration_does_not_run_it(registered):
 def test_a_process_waits_for_the_registration_another_has_claimed(registered):
     out, _, _, correction = registered
     other = jobs.init_worker(jobs.JobSettings(out=str(out)))
-    key = ('synthetic', 0.01, 3.0, 13)
+    key = ('synthetic', 0.01, 3.0, 13, 'static')
     try:
         sim = jobs._physical_simulation(other, 'synthetic', 0.01,
                                         RobotErrors(error_level=3.0, error_seed=13))
@@ -146,7 +146,7 @@ def test_a_process_waits_for_the_registration_another_has_claimed(registered):
 def test_an_abandoned_claim_does_not_stop_the_registration(registered):
     out = registered[0]
     other = jobs.init_worker(jobs.JobSettings(out=str(out)))
-    key = ('synthetic', 0.01, 3.0, 14)
+    key = ('synthetic', 0.01, 3.0, 14, 'static')
     try:
         sim = jobs._physical_simulation(other, 'synthetic', 0.01,
                                         RobotErrors(error_level=3.0, error_seed=14))
