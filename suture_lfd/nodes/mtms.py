@@ -310,8 +310,22 @@ class MtmsNode(Node):
         if not held or self._gates[name].holds():
             return
         self._held[name] = []
+        self._publish_poses(name)   # the client's first getter finds a pose, even idle
         for msg in held:
             self._apply_state_command(name, msg)
+        self._wake()
+
+    def _publish_poses(self, name):
+        """Publish an MTM's poses and gripper now (before a state change it announces)."""
+        mtm, pubs, imperfect = self.mtms[name], self._pubs[name], self._imperfect[name]
+        ns = self.get_clock().now().nanoseconds
+        T = mtm.measured_cp(self._now())
+        setpoint = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
+        pubs['measured_cp'].publish(setpoint if imperfect.is_perfect else cdr.pose_stamped(
+            ns, self.frame_id, cv.pose_vector(imperfect.measured(T))))
+        pubs['setpoint_cp'].publish(setpoint)
+        pubs['gripper'].publish(cdr.joint_state(ns, ('gripper',),
+                                                [imperfect.gripper(mtm.gripper)]))
 
     def _apply_state_command(self, name, msg):
         problem = self.mtms[name].state_command(msg.string)

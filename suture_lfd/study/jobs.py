@@ -208,8 +208,8 @@ class WorkerState:
     ros: RosThrows | None = None
     dmp_params: dict[str, DmpParams] | None = None
     base_frames: dict[str, np.ndarray] | None = None
-    robots: dict[tuple[str, float, float, int], Simulation] = field(default_factory=dict)
-    registered: set[tuple[str, float, float, int]] = field(default_factory=set)
+    robots: dict[tuple[str, float, float, int, str], Simulation] = field(default_factory=dict)
+    registered: set[tuple[str, float, float, int, str]] = field(default_factory=set)
     code: str | None = None
 
     def close(self) -> None:

@@ -64,7 +64,7 @@ class MtmRealism:
     gripper_noise: float = math.radians(0.1)
     seed: int = 0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('align_error', 'position_error', 'angle_noise', 'position_noise',
                      'position_quantum', 'gripper_noise'):
             value = getattr(self, name)
@@ -76,7 +76,7 @@ class MtmRealism:
                              f'{self.level!r}')
 
 
-def _small_rotation(rotvec):
+def _small_rotation(rotvec: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector (rad), Rodrigues' formula."""
     angle = math.sqrt(float(rotvec @ rotvec))
     if angle == 0.0:

@@ -192,19 +192,3 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
     # each stale getter would have stopped the dVRK's script
     assert_stale_getters_rare(client, quiet, time.monotonic() - started)
 
-
-def test_the_script_gets_data_before_it_acts_with_the_fast_start_settings(ros, launch):
-    """Homing that takes no time still leaves a new client its data before its first getter."""
-    quiet = machine_is_quiet()
-    launch('simulator', '--ros-args', '-p', 'start_at_home:=true', '-p', 'power_up_time:=0.0')
-    mtms = launch('mtms')
-    node = ros.node('operator')
-    assert wait_for(lambda: all(node.get_publishers_info_by_topic(t) for t in (
-        '/PSM1/operating_state', '/MTMR/operating_state')), 60.0), mtms.log()
-    client = ClientLog(launch(sys.executable, str(CLIENT), 'MTMR', 'PSM1'))
-    assert wait_for(lambda: client.lines('FRAMES') or client.errors(), 30.0), client.proc.log()
-    time.sleep(2.0)                          # aligning: move_cp, getters every 5 ms
-    assert not client.errors(), client.errors()
-    assert client.state() == 'ALIGNING', client.proc.log()[-2000:]
-    assert not [line for line in client.stale() if 'never' in line], client.stale()[:5]
-    assert_stale_getters_rare(client, quiet, 2.0)
