@@ -40,7 +40,7 @@ optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
 """
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import itertools
 import json
 import logging
@@ -57,6 +57,7 @@ from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Command, Controller, Observation
 from suture_lfd.perception import detect_markers, stereo_from_camera_info
 from suture_lfd.perception.instrument import InstrumentView, find_instrument
+from suture_lfd.skill.hysteresis import PlayTracker, plays_at, run_lengths
 
 if TYPE_CHECKING:
     from sim_bridge.kinematics import SerialChain
@@ -69,13 +70,36 @@ _LOG = logging.getLogger(__name__)
 # towards the arm's own side: PSM1 left, PSM2 right), one arm after the other, and how long
 # (s) the arm gets to reach each.
 _SIDE = {'PSM1': -1.0, 'PSM2': 1.0}
+# The last two visit the first two again from other directions: the same reported pose seen
+# with the cables' slack taken up the other way shows the joints' dead band.
 _SPOTS = ((-0.002, 0.002, 0.012), (0.002, 0.010, 0.016), (-0.004, 0.010, 0.012),
-          (0.002, -0.002, 0.018), (-0.006, 0.006, 0.020), (0.004, 0.004, 0.010))
-_REACH_TIME = (1.2, 0.6, 0.6, 0.6, 0.6, 0.6)
+          (0.002, -0.002, 0.018), (-0.006, 0.006, 0.020), (0.004, 0.004, 0.010),
+          (0.002, 0.010, 0.016), (-0.002, 0.002, 0.012))
+_REACH_TIME = (1.2, 0.6, 0.6, 0.6, 0.6, 0.6, 0.6, 0.6)
+_REVISITS = 2
 _RETURN_TIME = 1.2
+# Then, at the last spot, the wrist bent (joint index, rad) and straightened again before each
+# look: straight from either side, the jaws' end shows the wrist's dead band (its roll stays
+# unseen: a straight closed jaw looks the same rolled). Time (s) bent, and back straight.
+_BENDS = ((4, 0.35), (4, -0.35), (5, 0.35), (5, -0.35))
+_BEND_TIME, _BEND_BACK_TIME = 0.4, 0.6
 # Points of the shaft's axis used in the fit: distances (m) behind the wrist-pitch axis.
 _SHAFT_POINTS = (0.010, 0.030)
 _X_SCALE = np.array([0.02, 0.02, 0.002, 0.002, 0.002, 0.002])
+# Dead bands fitted: the joints (outer yaw, pitch, insertion, wrist pitch, wrist yaw), their
+# scale and upper bound (rad, m).
+_BAND_JOINTS = (0, 1, 2, 4, 5)
+_BAND_SCALE = np.array([0.01, 0.01, 0.0005, 0.02, 0.02])
+_BAND_MAX = np.array([0.05, 0.05, 0.002, 0.12, 0.12])
+# Dead bands the fit starts from besides none: a dVRK's order (about 1 deg on the outer joints,
+# half a millimetre on the insertion, a few degrees on the instrument's wrist; Hwang et al.
+# 2020, Miyasaka et al. 2015). From none alone, the play at each pose would be set by the
+# servo's last sub-band settling wiggle, and the fit stays at zero.
+_BAND_START = np.array([0.0175, 0.0175, 0.0005, 0.05, 0.05])
+# Largest offsets (rad, rad, m) and base translation (m, per axis) of a plausible fit: a dVRK's
+# homing leaves a few degrees and millimetres, its camera registration "a 5 mm to 10 mm cube";
+# a fit beyond is one of poses seen wrong.
+_PLAUSIBLE = np.array([0.1, 0.1, 0.012, 0.015, 0.015, 0.015])
 # A pose whose RMS residual (pixels) is above this after a first fit is left out.
 _OUTLIER_PX = 2.0
 # A fit whose image residual (RMS, pixels) is above this is not trusted.
@@ -105,6 +129,10 @@ class ArmCorrection:
         Estimated true minus believed base position (m, ``world``).
     residual_px : float
         RMS image residual of the fit (pixels).
+    backlash : ndarray, shape (6,)
+        Estimated full dead band per joint (rad, m; the instrument's roll not fitted, 0 where
+        no backlash was found): the play (:mod:`suture_lfd.skill.hysteresis`) adds to the
+        offsets, following the direction each joint last moved in.
 
     """
 
@@ -114,8 +142,9 @@ class ArmCorrection:
     joint_offset: np.ndarray
     translation: np.ndarray
     residual_px: float = 0.0
+    backlash: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
-    def tool_pose(self, q: Joints) -> np.ndarray:
+    def tool_pose(self, q: Joints, play: Sequence[float] | None = None) -> np.ndarray:
         """
         Tool-tip pose (4, 4, ``world``) where the corrected kinematics put the joints ``q``.
 
@@ -123,16 +152,22 @@ class ArmCorrection:
         ----------
         q : array_like, shape (6,)
             Reported joints (rad, m).
+        play : sequence of float, optional
+            The joints' backlash play now (rad, m; :class:`~suture_lfd.skill.hysteresis.
+            PlayTracker`), leading joints; default none.
 
         """
         # the reported joints are valid (the arm's own), the offsets a few degrees and
         # millimetres: no check, scalar forward kinematics (it runs every control step)
         qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        if play is not None:
+            for j, p in enumerate(play):
+                qt[j] += p
         T = self.T_world_base @ self.kinematics.fk_unchecked(qt)
         T[:3, 3] += self.translation
         return T
 
-    def error(self, q: Joints) -> np.ndarray:
+    def error(self, q: Joints, play: Sequence[float] | None = None) -> np.ndarray:
         """
         Return the world-frame error ``E`` at joints ``q``: true pose = ``E @`` reported pose.
 
@@ -140,6 +175,8 @@ class ArmCorrection:
         ----------
         q : array_like, shape (6,)
             Reported joints.
+        play : sequence of float, optional
+            The joints' backlash play now (see :meth:`tool_pose`).
 
         Returns
         -------
@@ -147,7 +184,7 @@ class ArmCorrection:
 
         """
         reported = self.T_world_base @ self.kinematics.fk(np.asarray(q, dtype=float))
-        return self.tool_pose(q) @ invert_transform(reported)
+        return self.tool_pose(q, play) @ invert_transform(reported)
 
 
 class KinematicCorrection:
@@ -165,13 +202,21 @@ class KinematicCorrection:
         self.arms = dict(arms)
         # per arm: (joints' bytes, error E) or (joints' bytes, error E, corrected tool pose)
         self._cache: dict[str, tuple[Any, ...]] = {}
+        # the backlash play of the arms with a dead band, advanced by each new report
+        self._plays = {arm: PlayTracker(fit.backlash) for arm, fit in self.arms.items()
+                       if np.any(np.asarray(fit.backlash) > 0.0)}
+
+    def _play(self, arm: str, q: Joints) -> list[float] | None:
+        """Return the arm's play at its new reported joints ``q`` (None: no backlash)."""
+        tracker = self._plays.get(arm)
+        return None if tracker is None else tracker.update(q)
 
     def _error(self, arm: str, q: Joints) -> np.ndarray:
         key = np.asarray(q, dtype=float).tobytes()
         hit = self._cache.get(arm)
         if hit is not None and hit[0] == key:
             return hit[1]
-        E = self.arms[arm].error(q)
+        E = self.arms[arm].error(q, self._play(arm, q))
         self._cache[arm] = (key, E)
         return E
 
@@ -200,7 +245,12 @@ class KinematicCorrection:
                 if hit is None or hit[0] != key or len(hit) < 3:
                     # the corrected pose straight from the joints (one forward kinematics), and
                     # the error against the reported pose at hand, kept for the command
-                    T = fit.tool_pose(q)
+                    # (the play advances once per new report: a report the command already
+                    # took has its play taken)
+                    tracker = self._plays.get(arm)
+                    play = (self._play(arm, q) if hit is None or hit[0] != key
+                            else None if tracker is None else list(tracker.play))
+                    T = fit.tool_pose(q, play)
                     T.flags.writeable = False
                     reported = np.asarray(obs.T_world_tool[arm], dtype=float)
                     hit = (key, T @ invert_transform(reported), T)
@@ -233,8 +283,32 @@ class KinematicCorrection:
         for arm, T in tools.items():
             if T is None or arm not in self.arms or q.get(arm) is None:
                 continue
-            tools[arm] = invert_transform(self._error(arm, q[arm])) @ np.asarray(T, dtype=float)
+            target = invert_transform(self._error(arm, q[arm])) @ np.asarray(T, dtype=float)
+            tracker = self._plays.get(arm)
+            if tracker is not None:
+                target = self._across_play(arm, tracker, q[arm], target, T)
+            tools[arm] = target
         return Command(t=cmd.t, T_world_tool=tools, jaw=cmd.jaw, subtask=cmd.subtask)
+
+    def _across_play(self, arm: str, tracker: PlayTracker, q: Joints, target: np.ndarray,
+                     T: ArrayLike) -> np.ndarray:
+        """
+        Return the command for the pose ``T`` with the play the joints will have on the way.
+
+        ``target`` is the command with the present play; the joints it asks for (the arm's
+        own inverse kinematics) tell each joint's direction, and a joint about to reverse gets
+        its dead band crossed in this command (:meth:`PlayTracker.heading`).
+        """
+        fit = self.arms[arm]
+        try:
+            local = invert_transform(fit.T_world_base) @ target
+            q_to = fit.kinematics.ik_unchecked(local, [float(v) for v in q])
+        except ValueError:
+            return target  # out of reach: the arm will say so for the command itself
+        play = tracker.heading(q, q_to)
+        if play == tracker.play:
+            return target
+        return invert_transform(fit.error(q, play)) @ np.asarray(T, dtype=float)
 
 
 class CorrectedController:
@@ -290,12 +364,57 @@ def _model_points(kinematics: 'SerialChain', T_world_base: np.ndarray, q: ArrayL
     for a, b in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
         local.append(end + R @ np.array([0.5 * a * width, b * thickness, 0.0]))
     pts = np.array(local) @ T_world_base[:3, :3].T + T_world_base[:3, 3]
-    return pts + x[3:]
+    return pts + x[3:6]
+
+
+def _robust_fit(used: list[Any], x_start: np.ndarray, solve: Any, residuals: Any,
+                arm: str) -> tuple[Any, list[Any]]:
+    """
+    Fit ``used`` poses, leaving out those whose image disagrees with the others.
+
+    A pose seen wrong (another dark thing taken for the shaft) is left out and the rest fitted
+    again; when so many disagree that the fit of all of them is the outliers', each subset of
+    three poses is fitted alone and the one the most poses agree with is kept.
+
+    Returns
+    -------
+    tuple
+        The least-squares result and the poses it was fitted to.
+
+    """
+    def per_pose(x: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.mean(residuals(x, used).reshape(len(used), -1) ** 2, axis=1))
+
+    fit = solve(used, x_start)
+    x0 = fit.x
+    errors = per_pose(x0)
+    good = errors <= _OUTLIER_PX
+    _LOG.debug('%s per-pose residuals %s', arm, errors.round(2))
+    if good.sum() < 3 and len(used) > 3:
+        best: tuple[int, float, np.ndarray] | None = None
+        for subset in itertools.combinations(range(len(used)), 3):
+            x = solve([used[i] for i in subset], x_start).x
+            errors = per_pose(x)
+            agree = errors <= _OUTLIER_PX
+            key = (int(agree.sum()), -float(errors[agree].mean()) if agree.any() else 0.0)
+            if best is None or key > best[:2]:
+                best = (*key, x)
+        assert best is not None
+        x0 = best[2]
+        good = per_pose(x0) <= _OUTLIER_PX
+        _LOG.debug('%s: %d of %d poses agree with the best subset', arm, good.sum(), len(used))
+        if good.all():
+            fit = solve(used, x0)
+    if not good.all() and good.sum() >= 3:
+        used = [s for s, g in zip(used, good) if g]
+        fit = solve(used, x0)
+    return fit, used
 
 
 def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.ndarray,
                        samples: Sequence[Sample], stereo: 'StereoModel',
-                       jaw: Sequence[float]) -> ArmCorrection:
+                       jaw: Sequence[float],
+                       paths: Sequence[ArrayLike] | None = None) -> ArmCorrection:
     """
     Fit an arm's joint offsets and base translation to what the camera saw at a few poses.
 
@@ -315,6 +434,11 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
         The camera model.
     jaw : tuple of float
         ``(length, width, thickness)`` (m) of the closed jaws (the instrument's model).
+    paths : sequence of array_like, optional
+        Per sample, the joints the arm reported on its way there (shape ``(m, 6)``, ending at
+        the sample). Given, the dead bands of the outer joints, the insertion and the wrist's
+        pitch and yaw are fitted too: their play at each pose follows from the motion
+        (:func:`suture_lfd.skill.hysteresis.plays_at`).
 
     Returns
     -------
@@ -323,19 +447,37 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
     Raises
     ------
     ValueError
-        With fewer than three poses seen in both images.
+        With fewer than three poses seen in both images, or paths not one per sample.
 
     """
-    # seen in both images: no view is None
-    used = cast(list[tuple[np.ndarray, np.ndarray, InstrumentView, InstrumentView]],
-                [s for s in samples if s[2] is not None and s[3] is not None])
+    if paths is not None and len(paths) != len(samples):
+        raise ValueError(f'{arm}: {len(paths)} motion paths for {len(samples)} registration '
+                         'poses; one per pose is needed')
+    runs = None if paths is None else run_lengths(paths, 6)
+    n_b = len(_BAND_JOINTS)
+    # seen in both images: no view is None; each kept with its pose's index (its play)
+    used = cast(list[tuple[np.ndarray, np.ndarray, InstrumentView, InstrumentView, int]],
+                [(*s, k) for k, s in enumerate(samples)
+                 if s[2] is not None and s[3] is not None])
     if len(used) < 3:
         raise ValueError(f'{arm}: its instrument was seen in both images at {len(used)} of '
                          f'{len(samples)} registration poses; 3 are needed')
+    x_scale = _X_SCALE if runs is None else np.concatenate([_X_SCALE, _BAND_SCALE])
+    bounds = (-np.inf, np.inf) if runs is None else (
+        np.concatenate([np.full(6, -np.inf), np.zeros(n_b)]),
+        np.concatenate([np.full(6, np.inf), _BAND_MAX]))
+
+    def bands(x: np.ndarray) -> np.ndarray:
+        full = np.zeros(6)
+        full[list(_BAND_JOINTS)] = x[6:]
+        return full
 
     def residuals(x: np.ndarray, poses: list[Any]) -> np.ndarray:
         out: list[float] = []
-        for q, T_cw, left, right in poses:
+        plays = None if len(x) == 6 else plays_at(runs, bands(x))
+        for q, T_cw, left, right, k in poses:
+            if plays is not None:
+                q = np.asarray(q, dtype=float) + plays[k]
             pts = _model_points(kinematics, T_world_base, q, x, jaw)
             pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
             uv_l, uv_r = stereo.project(pc)
@@ -347,47 +489,63 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
         return np.asarray(out)
 
     def solve(poses: list[Any], x0: np.ndarray) -> Any:
-        return least_squares(residuals, x0, args=(poses,), x_scale=_X_SCALE, loss='soft_l1',
-                             f_scale=2.0)
+        if len(x0) == 6:
+            return least_squares(residuals, x0, args=(poses,), x_scale=_X_SCALE,
+                                 loss='soft_l1', f_scale=2.0)
+        return least_squares(residuals, x0, args=(poses,), x_scale=x_scale, loss='soft_l1',
+                             f_scale=2.0, bounds=bounds)
 
-    def per_pose(x: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.mean(residuals(x, used).reshape(len(used), -1) ** 2, axis=1))
+    def per_pose(x: np.ndarray, poses: list[Any]) -> np.ndarray:
+        return np.sqrt(np.mean(residuals(x, poses).reshape(len(poses), -1) ** 2, axis=1))
 
-    fit = solve(used, np.zeros(6))
-    # a pose whose image disagrees with the others (another dark thing taken for the shaft)
-    # is left out, and the rest fitted again
-    x0 = fit.x
-    errors = per_pose(x0)
-    good = errors <= _OUTLIER_PX
-    _LOG.debug('%s per-pose residuals %s', arm, errors.round(2))
-    if good.sum() < 3 and len(used) > 3:
-        # so many poses disagree that the fit of all of them is the outliers': fit each
-        # subset of three poses alone, keep the one the most poses agree with
-        best: tuple[int, float, np.ndarray] | None = None
-        for subset in itertools.combinations(range(len(used)), 3):
-            x = solve([used[i] for i in subset], np.zeros(6)).x
-            errors = per_pose(x)
+    def pruned(x0s: Sequence[np.ndarray]) -> Any:
+        """Return the best fit of every pose from the starts ``x0s``, refitted without those off."""
+        best = min((solve(used, x0) for x0 in x0s), key=lambda r: r.cost)
+        good = per_pose(best.x, used) <= _OUTLIER_PX
+        if not good.all() and good.sum() >= 3:
+            best = solve([u for u, g in zip(used, good) if g], best.x)
+        return best
+
+    # Candidates: the offsets and base translation alone, fitted to the spots visited once
+    # with the poses seen wrong left out (the revisits and the bends, at spots seen already,
+    # would let a fit of poses seen wrong agree with many at once); with dead bands, the
+    # bands fitted to every pose from no bands and from a dVRK's, and from the offsets' fit.
+    # Kept: the plausible one (offsets and base within a dVRK's calibration) that the most
+    # poses agree with, then the smaller residual.
+    spots = ([u for u in used if u[4] < len(_SPOTS) - _REVISITS] if runs is not None
+             else used)
+    if len(spots) < 3:
+        spots = used
+    fit, kept = _robust_fit(spots, np.zeros(6), solve, residuals, arm)
+    if runs is None:
+        used = kept
+    else:
+        candidates = [fit,
+                      pruned([np.zeros(6 + n_b), np.concatenate([np.zeros(6), _BAND_START])]),
+                      pruned([np.concatenate([fit.x, np.zeros(n_b)]),
+                              np.concatenate([fit.x, _BAND_START])])]
+
+        def rank(r: Any) -> tuple[bool, int, float]:
+            errors = per_pose(r.x, used)
             agree = errors <= _OUTLIER_PX
-            key = (int(agree.sum()), -float(errors[agree].mean()) if agree.any() else 0.0)
-            if best is None or key > best[:2]:
-                best = (*key, x)
-        assert best is not None
-        x0 = best[2]
-        good = per_pose(x0) <= _OUTLIER_PX
-        _LOG.debug('%s: %d of %d poses agree with the best subset', arm, good.sum(), len(used))
-        if good.all():
-            fit = solve(used, x0)
-    if not good.all() and good.sum() >= 3:
-        used = [s for s, g in zip(used, good) if g]
-        fit = solve(used, x0)
+            plausible = bool(np.all(np.abs(r.x[:6]) <= _PLAUSIBLE))
+            return (plausible, int(agree.sum()),
+                    -float(errors[agree].mean()) if agree.any() else 0.0)
+
+        fit = max(candidates, key=rank)
     rms = float(np.sqrt(np.mean(fit.fun ** 2)))
     offset = np.zeros(6)
     offset[:3] = fit.x[:3]
-    _LOG.info('%s registration: joint offsets %s deg/mm, base %s mm, residual %.2f px', arm,
+    band = np.zeros(6) if len(fit.x) == 6 else bands(fit.x)
+    _LOG.info('%s registration: joint offsets %s deg/mm, base %s mm, dead bands %s deg/mm, '
+              'residual %.2f px', arm,
               np.round([np.degrees(offset[0]), np.degrees(offset[1]), 1e3 * offset[2]], 2),
-              np.round(1e3 * fit.x[3:], 2), rms)
+              np.round(1e3 * fit.x[3:6], 2),
+              np.round([np.degrees(band[0]), np.degrees(band[1]), 1e3 * band[2],
+                        *np.degrees(band[3:])], 2), rms)
     return ArmCorrection(arm=arm, kinematics=kinematics, T_world_base=np.array(T_world_base),
-                         joint_offset=offset, translation=fit.x[3:].copy(), residual_px=rms)
+                         joint_offset=offset, translation=fit.x[3:6].copy(), residual_px=rms,
+                         backlash=band)
 
 
 def _straight_pose(rcm: np.ndarray, tip: np.ndarray, T_now: np.ndarray) -> np.ndarray:
@@ -399,6 +557,31 @@ def _straight_pose(rcm: np.ndarray, tip: np.ndarray, T_now: np.ndarray) -> np.nd
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, tip
     return T
+
+
+def bent_pose(kinematics: 'SerialChain', T_world_base: np.ndarray, straight: np.ndarray,
+              q_ref: Joints, joint: int, angle: float) -> np.ndarray:
+    """
+    Return the tool pose (``world``) of ``straight`` with one wrist joint turned by ``angle``.
+
+    Parameters
+    ----------
+    kinematics : sim_bridge.kinematics.PsmKinematics
+    T_world_base : ndarray, shape (4, 4)
+        The arm's believed base.
+    straight : ndarray, shape (4, 4)
+        A registration pose (wrist straight).
+    q_ref : array_like, shape (6,)
+        Reported joints near it (the inverse kinematics' reference).
+    joint : int
+        Joint index (4: wrist pitch, 5: wrist yaw).
+    angle : float
+        Turn (rad).
+
+    """
+    q = np.array(kinematics.ik(invert_transform(T_world_base) @ straight, q_ref), dtype=float)
+    q[joint] += angle
+    return T_world_base @ kinematics.fk(q)
 
 
 def _markers_centre(sim: 'Simulation', stereo: 'StereoModel') -> np.ndarray | None:
@@ -427,11 +610,48 @@ def _look_at(sim: 'Simulation', arm: str, stereo: 'StereoModel',
     return q, T_cw, views[0], views[1]
 
 
+def _visit(sim: 'Simulation', arm: str, centre: np.ndarray, start: np.ndarray,
+           stereo: 'StereoModel', jaw: Sequence[float]
+           ) -> tuple[list[Sample], list[np.ndarray]]:
+    """Take ``arm`` to the registration poses; return what was seen and the joints on the way."""
+    rcm = sim.believed_base(arm)[:3, 3]
+    samples: list[Sample] = []
+    paths: list[np.ndarray] = []
+    path = [np.array(sim.arms[arm].measured_jp, dtype=float)]
+
+    def go(target: np.ndarray, wait: float) -> None:
+        sim.apply(Command(t=sim.time, T_world_tool={arm: target}, jaw={arm: 0.0},
+                          subtask='registration'))
+        # the joints as reported on the way (the dead bands' play follows from them)
+        for _ in range(int(round(wait / sim.dt))):
+            sim.step()
+            path.append(np.array(sim.arms[arm].measured_jp, dtype=float))
+
+    def look() -> None:
+        paths.append(np.array(path))
+        del path[:-1]
+        samples.append(_look_at(sim, arm, stereo, jaw))
+
+    target = start
+    for spot, wait in zip(_SPOTS, _REACH_TIME):
+        tip = centre + np.array([_SIDE[arm] * spot[0], spot[1], spot[2]])
+        target = _straight_pose(rcm, tip, start)
+        go(target, wait)
+        look()
+    for joint, angle in _BENDS:
+        go(bent_pose(sim.kinematics[arm], sim.believed_base(arm), target,
+                     sim.arms[arm].measured_jp, joint, angle), _BEND_TIME)
+        go(target, _BEND_BACK_TIME)
+        look()
+    return samples, paths
+
+
 _REGISTERED: 'weakref.WeakKeyDictionary[Simulation, KinematicCorrection]' = \
     weakref.WeakKeyDictionary()
 
 
-def register_arms(sim: 'Simulation', seed: int = 0) -> KinematicCorrection:
+def register_arms(sim: 'Simulation', seed: int = 0,
+                  dead_bands: bool = True) -> KinematicCorrection:
     """
     Register both PSMs against the endoscope in-process (once per simulation: kept for it).
 
@@ -446,6 +666,9 @@ def register_arms(sim: 'Simulation', seed: int = 0) -> KinematicCorrection:
     sim : sim_bridge.simulation.Simulation
     seed : int
         Scene seed of the registration run.
+    dead_bands : bool
+        Fit the joints' dead bands too (the correction then follows their play); False: offsets
+        and base translation only (for comparison).
 
     Returns
     -------
@@ -471,15 +694,9 @@ def register_arms(sim: 'Simulation', seed: int = 0) -> KinematicCorrection:
         return correction
     start = {a: sim.reported_tool_pose(a) for a in PSMS}
     samples: dict[str, list[Sample]] = {a: [] for a in PSMS}
+    paths: dict[str, list[np.ndarray]] = {a: [] for a in PSMS}
     for arm in PSMS:
-        rcm = sim.believed_base(arm)[:3, 3]
-        for spot, wait in zip(_SPOTS, _REACH_TIME):
-            tip = centre + np.array([_SIDE[arm] * spot[0], spot[1], spot[2]])
-            target = _straight_pose(rcm, tip, start[arm])
-            sim.apply(Command(t=sim.time, T_world_tool={arm: target}, jaw={arm: 0.0},
-                              subtask='registration'))
-            sim.run(wait)
-            samples[arm].append(_look_at(sim, arm, stereo, jaw))
+        samples[arm], paths[arm] = _visit(sim, arm, centre, start[arm], stereo, jaw)
         sim.apply(Command(t=sim.time, T_world_tool={arm: start[arm]}, jaw={},
                           subtask='registration'))
         sim.run(_RETURN_TIME)
@@ -487,7 +704,8 @@ def register_arms(sim: 'Simulation', seed: int = 0) -> KinematicCorrection:
     for arm in PSMS:
         try:
             fit = fit_arm_correction(arm, sim.kinematics[arm], sim.believed_base(arm),
-                                     samples[arm], stereo, jaw)
+                                     samples[arm], stereo, jaw,
+                                     paths[arm] if dead_bands else None)
         except ValueError as exc:
             _LOG.warning('registration: %s', exc)
             continue
@@ -502,7 +720,7 @@ def register_arms(sim: 'Simulation', seed: int = 0) -> KinematicCorrection:
 
 
 #: Format name and version of a saved registration (:func:`save_registration`).
-REGISTRATION_FORMAT, REGISTRATION_FORMAT_VERSION = 'suture_lfd.registration', 1
+REGISTRATION_FORMAT, REGISTRATION_FORMAT_VERSION = 'suture_lfd.registration', 2
 
 
 def known_registration(sim: 'Simulation') -> KinematicCorrection | None:
@@ -521,7 +739,7 @@ def save_registration(path: str | Path, correction: KinematicCorrection,
         The file (written whole or not at all: a reader never sees a partial file).
     correction : KinematicCorrection
         The registration: per arm its believed base (4x4, ``world``), joint offsets (rad, m),
-        base translation (m, ``world``) and residual (pixels).
+        base translation (m, ``world``), residual (pixels) and dead bands (rad, m).
     key : dict
         What the registration is valid for (e.g. the robot and the code digest): a load with
         another key finds nothing.
@@ -530,7 +748,9 @@ def save_registration(path: str | Path, correction: KinematicCorrection,
     arms = {arm: {'T_world_base': np.asarray(c.T_world_base, dtype=float).tolist(),
                   'joint_offset': np.asarray(c.joint_offset, dtype=float).tolist(),
                   'translation': np.asarray(c.translation, dtype=float).tolist(),
-                  'residual_px': float(c.residual_px)} for arm, c in correction.arms.items()}
+                  'residual_px': float(c.residual_px),
+                  'backlash': np.asarray(c.backlash, dtype=float).tolist()}
+            for arm, c in correction.arms.items()}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f'.{path.name}.{os.getpid()}.tmp')
@@ -583,10 +803,13 @@ def load_registration(path: str | Path, sim: 'Simulation',
             T_world_base=np.array(a['T_world_base'], dtype=float).reshape(4, 4),
             joint_offset=np.array(a['joint_offset'], dtype=float).reshape(6),
             translation=np.array(a['translation'], dtype=float).reshape(3),
-            residual_px=float(a['residual_px'])) for arm, a in data['arms'].items()}
+            residual_px=float(a['residual_px']),
+            backlash=np.array(a['backlash'], dtype=float).reshape(6))
+            for arm, a in data['arms'].items()}
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: 'arms' must map PSM names to T_world_base (4x4), "
-                         f'joint_offset (6), translation (3) and residual_px ({exc!r})') from exc
+                         f'joint_offset (6), translation (3), residual_px and backlash (6) '
+                         f'({exc!r})') from exc
     correction = KinematicCorrection(arms)
     _REGISTERED[sim] = correction
     return correction
@@ -595,5 +818,6 @@ def load_registration(path: str | Path, sim: 'Simulation',
 # The registration's poses and instrument model, for a registration stepped by a node's
 # controller (suture_lfd.skill.registration_run) instead of run on an in-process simulation.
 SPOTS, SIDE, REACH_TIME, RETURN_TIME = _SPOTS, _SIDE, _REACH_TIME, _RETURN_TIME
+BENDS, BEND_TIME, BEND_BACK_TIME = _BENDS, _BEND_TIME, _BEND_BACK_TIME
 model_points = _model_points
 straight_pose = _straight_pose

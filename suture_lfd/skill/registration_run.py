@@ -5,13 +5,15 @@ The camera-to-arm registration as a sequence a controller steps: poses commanded
 simulation by running it; a node has only the arms' reports, its commands and the stereo images
 as they come. :class:`RegistrationRun` is the same registration stepped like a controller: at
 each :meth:`RegistrationRun.step` it is given the arms' reports and, when there is one, the
-newest stereo pair, and returns the command to send. Each PSM in turn goes to the six poses of
+newest stereo pair, and returns the command to send. Each PSM in turn goes to the poses of
 :mod:`~suture_lfd.skill.arm_registration` (around the centre of the markers seen, wrist
-straight, jaw closed), waits the reach time there, takes the first stereo pair stamped after
-that, finds its instrument near where its kinematics put it
+straight, jaw closed; at the last one the wrist bent and straightened again before each look),
+waits the reach time there, takes the first stereo pair stamped after that, finds its
+instrument near where its kinematics put it
 (:func:`suture_lfd.perception.instrument.find_instrument`), and goes back to where it started;
 then each arm's correction is fitted (:func:`~suture_lfd.skill.arm_registration.
-fit_arm_correction`) and :attr:`RegistrationRun.correction` is set.
+fit_arm_correction`, with the joints each arm reported on its way to each pose: the dead
+bands) and :attr:`RegistrationRun.correction` is set.
 
 It reads only what a dVRK provides: the reported joints (``q``), the believed bases, the
 camera's reported pose, the images and their ``camera_info``.
@@ -83,6 +85,8 @@ class RegistrationRun:
         The trusted fits, once done.
     samples : dict of str to list
         Per arm ``(q, T_camera_world, view_left, view_right)`` per pose.
+    paths : dict of str to list
+        Per arm and pose, the joints it reported on its way there (``(m, 6)``).
 
     """
 
@@ -95,9 +99,12 @@ class RegistrationRun:
         self.centre = np.asarray(centre, dtype=float).reshape(3)
         self.arms = tuple(arms)
         self.samples: dict[str, list] = {a: [] for a in self.arms}
+        self.paths: dict[str, list[np.ndarray]] = {a: [] for a in self.arms}
         self.correction: KinematicCorrection | None = None
         self._arm = 0
-        self._spot = 0            # index into the poses; past the last: going back
+        self._spot = 0            # index into the spots, then the bends; past them: going back
+        self._bent = False        # a bend visit: the bent pose reached, going straight again
+        self._path: list[np.ndarray] = []
         self._start: dict[str, np.ndarray] = {}
         self._bases: dict[str, np.ndarray] = {}
         self._sent_at: float | None = None
@@ -136,18 +143,41 @@ class RegistrationRun:
         arm = self.arm
         if arm is None:
             return Command(t=obs.t, T_world_tool={}, jaw={}, subtask='registration')
-        going_back = self._spot >= len(registration.SPOTS)
+        if obs.q is not None and obs.q.get(arm) is not None:
+            self._path.append(np.array(obs.q[arm], dtype=float))
+        n_spots, n_bends = len(registration.SPOTS), len(registration.BENDS)
+        going_back = self._spot >= n_spots + n_bends
+        bending = not going_back and self._spot >= n_spots
         if self._sent_at is None:
             self._sent_at = obs.t
-            self._target = (self._start[arm] if going_back
-                            else self._pose(arm, self._spot))
-        wait = registration.RETURN_TIME if going_back else registration.REACH_TIME[self._spot]
+            if going_back:
+                self._target = self._start[arm]
+            elif bending and not self._bent:
+                joint, angle = registration.BENDS[self._spot - n_spots]
+                assert obs.q is not None, 'the registration needs the reported joints'
+                self._target = registration.bent_pose(
+                    self.kinematics[arm], self._bases[arm], self._pose(arm, n_spots - 1),
+                    obs.q[arm], joint, angle)
+            else:
+                self._target = self._pose(arm, min(self._spot, n_spots - 1))
+        if going_back:
+            wait = registration.RETURN_TIME
+        elif bending:
+            wait = registration.BEND_BACK_TIME if self._bent else registration.BEND_TIME
+        else:
+            wait = registration.REACH_TIME[self._spot]
         if obs.t - self._sent_at >= wait:
             if going_back:
                 self._next_arm()
+            elif bending and not self._bent:
+                self._bent = True
+                self._sent_at = None
             elif look is not None and look.stamp >= self._sent_at + wait:
                 self.samples[arm].append(self._see(arm, obs, look))
+                self.paths[arm].append(np.array(self._path))
+                self._path = self._path[-1:]
                 self._spot += 1
+                self._bent = False
                 self._sent_at = None
         target = self._target
         return Command(t=obs.t, T_world_tool={arm: target},
@@ -177,6 +207,7 @@ class RegistrationRun:
         self._arm += 1
         self._spot = 0
         self._sent_at = None
+        self._path = []
         if self._arm >= len(self.arms):
             self.correction = self._fit()
 
@@ -185,7 +216,8 @@ class RegistrationRun:
         for arm in self.arms:
             try:
                 fit = fit_arm_correction(arm, self.kinematics[arm], self._bases[arm],
-                                         self.samples[arm], self.stereo, self.jaw)
+                                         self.samples[arm], self.stereo, self.jaw,
+                                         self.paths[arm])
             except ValueError as exc:
                 _LOG.warning('registration: %s', exc)
                 continue

@@ -81,7 +81,7 @@ def test_a_bad_registration_file_is_named_with_what_is_wrong(registered, tmp_pat
     path.write_text('{"format": "something else"}')
     with pytest.raises(ValueError, match=r"bad\.json: 'format'"):
         load_registration(path, sim, {})
-    path.write_text(json.dumps({'format': 'suture_lfd.registration', 'version': 1, 'key': {},
+    path.write_text(json.dumps({'format': 'suture_lfd.registration', 'version': 2, 'key': {},
                                 'arms': {'PSM1': {'joint_offset': [0.0]}}}))
     with pytest.raises(ValueError, match=r"bad\.json: 'arms'.*T_world_base"):
         load_registration(path, sim, {})

@@ -15,7 +15,7 @@ from sim_bridge.control import Command
 from sim_bridge.observers import PhysicalObserver
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.perception import stereo_from_camera_info
-from suture_lfd.skill.arm_registration import _markers_centre
+from suture_lfd.skill.arm_registration import BENDS, SPOTS, _markers_centre
 from suture_lfd.skill.registration_run import RegistrationRun, StereoLook
 
 LEVEL = 3.0
@@ -60,7 +60,7 @@ def test_the_stepped_registration_brings_each_tool_within_a_millimetre(scene):
     assert run.done, f'registration not done after {scene.time:.1f} s (arm {run.arm})'
     assert set(run.correction.arms) == {'PSM1', 'PSM2'}
     for arm in run.arms:
-        assert len(run.samples[arm]) == 6
+        assert len(run.samples[arm]) == len(run.paths[arm]) == len(SPOTS) + len(BENDS)
         # back where it started
         assert np.linalg.norm(scene.reported_tool_pose(arm)[:3, 3] - start[arm][:3, 3]) < 1e-3
     # each tool a centimetre above the pair, where the throw works

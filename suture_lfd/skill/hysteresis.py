@@ -1,0 +1,172 @@
+"""
+Cable backlash as the robot's own joint reports reveal it: a play operator run on ``measured_js``.
+
+A cable-driven joint takes up its slack before it moves when its motor reverses, so where the
+joint truly is depends on the direction it last moved in: ``q_true = q_motor + p`` with the play
+``p`` in ``[-b/2, b/2]`` (``b`` the dead band), pushed to ``-b/2`` while the motor turns up and
+to ``+b/2`` while it turns down, unchanged inside the band (a play operator; Hwang et al., RA-L
+2020, model the dVRK's cable hysteresis this way before learning the rest). A physical dVRK's
+encoders sit on the motors, so the play never shows in ``measured_js``; but it is a function of
+the reported joints' history alone, so a controller that knows each joint's dead band can
+follow it from the reports it receives, and a registration that sees the tool at poses reached
+from different directions can fit the band (:mod:`suture_lfd.skill.arm_registration`).
+
+- :class:`PlayTracker` follows the play of one arm's joints from each new report.
+- :func:`run_lengths` and :func:`plays_at` evaluate the play at a registration's poses for a
+  candidate band quickly: a motion's reports are reduced once to their monotone runs (a play
+  operator's output depends only on those), the band then costs a few hundred float operations.
+
+Joints in the arm's ``measured_js`` order, rad (rotary) and m (prismatic). Core module: numpy only.
+"""
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ['PlayTracker', 'plays_at', 'run_lengths']
+
+
+class PlayTracker:
+    """
+    The estimated play of one arm's joints, advanced by each report of its joints.
+
+    The play starts at 0 (unknown: the middle of the band); any motion of a joint longer than
+    its band sets it exactly, as it sets the true one.
+
+    Parameters
+    ----------
+    band : array_like, shape (n,)
+        Full dead band per joint (rad / m, >= 0; 0: a joint without backlash).
+
+    """
+
+    def __init__(self, band: ArrayLike) -> None:
+        self.half = [0.5 * float(b) for b in np.asarray(band, dtype=float).ravel()]
+        self.play = [0.0] * len(self.half)
+        self._last: list[float] | None = None
+
+    @property
+    def active(self) -> bool:
+        """Whether any joint has a dead band."""
+        return any(h > 0.0 for h in self.half)
+
+    def update(self, q: ArrayLike) -> list[float]:
+        """
+        Advance the play to the reported joints ``q`` and return it (rad / m, per joint).
+
+        Parameters
+        ----------
+        q : array_like, shape (n,) or longer
+            Reported joints; the first ``n`` are used.
+
+        """
+        values = [float(v) for v in np.asarray(q, dtype=float).ravel()[:len(self.half)]]
+        last = self._last
+        if last is not None:
+            play = self.play
+            for j, h in enumerate(self.half):
+                if h > 0.0:
+                    p = play[j] - (values[j] - last[j])
+                    play[j] = h if p > h else (-h if p < -h else p)
+        self._last = values
+        return list(self.play)
+
+    def heading(self, q: ArrayLike, q_to: ArrayLike, still: float = 1e-5) -> list[float]:
+        """
+        Return the play the joints will have once moved from ``q`` towards ``q_to``.
+
+        A backlash inverse: a joint about to move up will have taken up its slack at
+        ``-b/2``, one about to move down at ``+b/2``; a joint that moves less than ``still``
+        keeps its play. Commanding the
+        motors with this play instead of the present one crosses a reversal's dead band at
+        once, instead of one command late at every step.
+
+        Parameters
+        ----------
+        q, q_to : array_like, shape (n,) or longer
+            Reported joints now and the joints commanded next (rad / m).
+        still : float
+            Smallest motion (rad / m) that counts as a direction.
+
+        """
+        a = np.asarray(q, dtype=float).ravel()
+        b = np.asarray(q_to, dtype=float).ravel()
+        out = list(self.play)
+        for j, h in enumerate(self.half):
+            d = float(b[j]) - float(a[j])
+            if h > 0.0 and abs(d) > still:
+                out[j] = -h if d > 0.0 else h
+        return out
+
+
+def run_lengths(paths: Sequence[ArrayLike], joints: int) -> list[list[list[float]]]:
+    """
+    Reduce a motion's joint reports to the signed lengths of each joint's monotone runs.
+
+    Parameters
+    ----------
+    paths : sequence of array_like, each shape (m_k, >= joints)
+        The reported joints from one pose to the next, in order; ``paths[k]`` ends at pose
+        ``k`` (its first row may repeat the previous path's last).
+    joints : int
+        How many leading joints to keep.
+
+    Returns
+    -------
+    list
+        ``runs[k][j]``: the signed lengths (rad / m) of joint ``j``'s monotone runs from pose
+        ``k - 1`` (or the first report) to pose ``k``.
+
+    """
+    out: list[list[list[float]]] = []
+    last: np.ndarray | None = None
+    for path in paths:
+        P = np.asarray(path, dtype=float)
+        P = np.zeros((0, joints)) if P.size == 0 else P.reshape(len(P), -1)[:, :joints]
+        if last is not None:
+            P = np.vstack([last[None, :], P])
+        last = P[-1].copy() if len(P) else last
+        runs_k: list[list[float]] = []
+        for j in range(joints):
+            d = np.diff(P[:, j]) if len(P) > 1 else np.zeros(0)
+            d = d[d != 0.0]
+            runs: list[float] = []
+            if len(d):
+                # split where the sign changes, sum each run
+                cut = np.flatnonzero(np.sign(d[1:]) != np.sign(d[:-1])) + 1
+                runs = [float(s.sum()) for s in np.split(d, cut)]
+            runs_k.append(runs)
+        out.append(runs_k)
+    return out
+
+
+def plays_at(runs: list[list[list[float]]], band: ArrayLike) -> np.ndarray:
+    """
+    Return each joint's play at each pose for a candidate dead band (:func:`run_lengths`).
+
+    Parameters
+    ----------
+    runs : list
+        ``run_lengths(paths, joints)``.
+    band : array_like, shape (joints,)
+        Full dead band per joint (rad / m).
+
+    Returns
+    -------
+    ndarray, shape (poses, joints)
+        ``q_true - q_reported`` from the backlash at each pose (the play starts at 0).
+
+    """
+    half = [0.5 * abs(float(b)) for b in np.asarray(band, dtype=float).ravel()]
+    play = [0.0] * len(half)
+    out = np.zeros((len(runs), len(half)))
+    for k, per_joint in enumerate(runs):
+        for j, h in enumerate(half):
+            p = play[j]
+            for r in per_joint[j]:
+                p -= r
+                p = h if p > h else (-h if p < -h else p)
+            play[j] = p
+            out[k, j] = p
+    return out

@@ -1,0 +1,65 @@
+"""
+The play a controller follows from the reported joints is the cable transmission's own.
+
+The simulator's :class:`sim_bridge.realism.transmission.JointTransmission` hides a dead band
+behind the motors' encoders; :class:`suture_lfd.skill.hysteresis.PlayTracker`, knowing the band,
+sees only the reported joints. Once every joint has moved further than its band the two agree
+exactly, whatever the play they started with; :func:`plays_at` agrees with both at the poses of a
+motion reduced to its monotone runs.
+"""
+
+import numpy as np
+from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
+from suture_lfd.skill.hysteresis import PlayTracker, plays_at, run_lengths
+
+BAND = (0.0175, 0.0175, 0.0005, 0.052, 0.052, 0.052)
+
+
+def _motion(rng, n=400):
+    """A joint motion with reversals of every size, some shorter than the bands."""
+    steps = rng.normal(scale=0.004, size=(n, 6)) * np.array([1, 1, 0.05, 2, 2, 2])
+    return np.cumsum(steps, axis=0)
+
+
+def test_the_tracker_follows_the_hidden_play_once_the_joints_have_moved():
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        start = rng.uniform(-0.5, 0.5, 6) * np.array(BAND)
+        truth = JointTransmission(TransmissionConfig(backlash=BAND), start)
+        tracker = PlayTracker(BAND)
+        sweep = np.linspace(0.0, 0.2, 30)[:, None] * np.array([1, 1, 0.01, 1, 1, 1])
+        Q = np.vstack([sweep, sweep[-1] + _motion(rng)])
+        for k, q in enumerate(Q):
+            true_q = truth.apply(q)
+            play = tracker.update(q)
+            if k >= len(sweep):  # past the first long move: the play is known
+                assert np.allclose(np.asarray(play), true_q - q, atol=1e-12)
+
+
+def test_the_play_at_poses_from_run_lengths_equals_the_step_by_step_play():
+    rng = np.random.default_rng(4)
+    Q = _motion(rng, 600)
+    cuts = [50, 120, 121, 300, 420, 599]
+    paths, last = [], 0
+    for c in cuts:
+        paths.append(Q[last:c + 1])
+        last = c
+    tracker = PlayTracker(BAND)
+    expected = []
+    for k, q in enumerate(Q[:cuts[-1] + 1]):
+        play = tracker.update(q)
+        if k in cuts:
+            expected.append(play)
+    got = plays_at(run_lengths(paths, 6), BAND)
+    assert np.allclose(got, np.asarray(expected), atol=1e-12)
+
+
+def test_heading_crosses_the_band_of_a_joint_about_to_reverse_and_keeps_a_still_one():
+    tracker = PlayTracker(BAND)
+    tracker.update(np.zeros(6))
+    tracker.update(np.full(6, 0.1))     # every joint moved up: play at -b/2
+    q = np.full(6, 0.1)
+    q_to = q + np.array([-0.01, 0.01, 0.0, -1e-7, 0.02, -0.02])
+    heading = tracker.heading(q, q_to)
+    half = 0.5 * np.asarray(BAND)
+    assert np.allclose(heading, [half[0], -half[1], -half[2], -half[3], -half[4], half[5]])
