@@ -499,7 +499,7 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
         return np.sqrt(np.mean(residuals(x, poses).reshape(len(poses), -1) ** 2, axis=1))
 
     def pruned(x0s: Sequence[np.ndarray]) -> Any:
-        """Return the best fit of every pose from the starts ``x0s``, refitted without those off."""
+        """Return the best fit of every pose from the starts ``x0s``, refit without those off."""
         best = min((solve(used, x0) for x0 in x0s), key=lambda r: r.cost)
         good = per_pose(best.x, used) <= _OUTLIER_PX
         if not good.all() and good.sum() >= 3:
