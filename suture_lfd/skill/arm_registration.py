@@ -60,7 +60,7 @@ from suture_lfd.perception.instrument import InstrumentView, find_instrument
 from suture_lfd.skill.hysteresis import PlayTracker, plays_at, run_lengths
 
 if TYPE_CHECKING:
-    from sim_bridge.kinematics import SerialChain
+    from sim_bridge.kinematics import PsmKinematics, SerialChain
     from sim_bridge.simulation import Simulation
     from suture_lfd.perception import StereoModel
 
@@ -302,7 +302,8 @@ class KinematicCorrection:
         fit = self.arms[arm]
         try:
             local = invert_transform(fit.T_world_base) @ target
-            q_to = fit.kinematics.ik_unchecked(local, [float(v) for v in q])
+            chain = cast('PsmKinematics', fit.kinematics)  # a PSM's: it has an inverse
+            q_to = chain.ik_unchecked(local, [float(v) for v in q])
         except ValueError:
             return target  # out of reach: the arm will say so for the command itself
         play = tracker.heading(q, q_to)
@@ -474,7 +475,7 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
 
     def residuals(x: np.ndarray, poses: list[Any]) -> np.ndarray:
         out: list[float] = []
-        plays = None if len(x) == 6 else plays_at(runs, bands(x))
+        plays = None if len(x) == 6 or runs is None else plays_at(runs, bands(x))
         for q, T_cw, left, right, k in poses:
             if plays is not None:
                 q = np.asarray(q, dtype=float) + plays[k]
@@ -559,7 +560,7 @@ def _straight_pose(rcm: np.ndarray, tip: np.ndarray, T_now: np.ndarray) -> np.nd
     return T
 
 
-def bent_pose(kinematics: 'SerialChain', T_world_base: np.ndarray, straight: np.ndarray,
+def bent_pose(kinematics: 'PsmKinematics', T_world_base: np.ndarray, straight: np.ndarray,
               q_ref: Joints, joint: int, angle: float) -> np.ndarray:
     """
     Return the tool pose (``world``) of ``straight`` with one wrist joint turned by ``angle``.
@@ -579,7 +580,7 @@ def bent_pose(kinematics: 'SerialChain', T_world_base: np.ndarray, straight: np.
         Turn (rad).
 
     """
-    q = np.array(kinematics.ik(invert_transform(T_world_base) @ straight, q_ref), dtype=float)
+    q = kinematics.ik(invert_transform(T_world_base) @ straight, q_ref).copy()
     q[joint] += angle
     return T_world_base @ kinematics.fk(q)
 
@@ -639,7 +640,7 @@ def _visit(sim: 'Simulation', arm: str, centre: np.ndarray, start: np.ndarray,
         go(target, wait)
         look()
     for joint, angle in _BENDS:
-        go(bent_pose(sim.kinematics[arm], sim.believed_base(arm), target,
+        go(bent_pose(cast('PsmKinematics', sim.kinematics[arm]), sim.believed_base(arm), target,
                      sim.arms[arm].measured_jp, joint, angle), _BEND_TIME)
         go(target, _BEND_BACK_TIME)
         look()
