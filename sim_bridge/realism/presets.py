@@ -9,6 +9,7 @@ expected.
 """
 
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -19,90 +20,42 @@ from sim_bridge.common.paths import config_path
 _T = TypeVar('_T')
 
 
-def preset_file(file_name: str, path: str | Path | None = None) -> tuple[dict[str, Any], str]:
-    """
-    Read a preset file.
-
-    Parameters
-    ----------
-    file_name : str
-        Name of the file in the package's ``config/`` (``'realism_arm.yaml'``).
-    path : str or Path, optional
-        File to read instead.
-
-    Returns
-    -------
-    data : dict
-        The file's top-level mapping.
-    source : str
-        The file's path, for messages.
-
-    Raises
-    ------
-    ConfigError
-        If the file cannot be read or is not a YAML mapping.
-
-    """
-    path = config_path(file_name) if path is None else Path(path)
-    return load_yaml(path), str(path)
-
-
-def build(cls: type[_T], mapping: Mapping[str, Any] | None, *, source: str, key: str) -> _T:
-    """
-    Build ``cls`` from ``mapping``; a value it refuses raises a ConfigError naming the key.
-
-    Parameters
-    ----------
-    cls : type
-        A frozen dataclass.
-    mapping : dict or None
-        Values by field name (None: all defaults).
-    source : str
-        File named in messages.
-    key : str
-        Dotted key of ``mapping`` in the file (``'presets.dvrk'``).
-
-    Returns
-    -------
-    cls
-
-    Raises
-    ------
-    ConfigError
-        On an unknown or missing key, a value of the wrong type, or one the dataclass's own
-        checks refuse (the message names the file, the key and what was expected).
-
-    """
+def _build(cls: type[_T], mapping: Mapping[str, Any], *, source: str, key: str) -> _T:
+    """Build ``cls`` from ``mapping`` (``key`` of ``source``); a refused value names the key."""
     try:
-        return dataclass_from_mapping(cls, dict(mapping or {}), source=source, prefix=key)
+        return dataclass_from_mapping(cls, dict(mapping), source=source, prefix=key)
     except ConfigError:
         raise
     except (TypeError, ValueError) as exc:
         raise ConfigError(f'{source}: {key}: {exc}') from exc
 
 
-def preset_from(cls: type[_T], data: Mapping[str, Any], name: str, *, source: str,
+def read_preset(cls: type[_T], file_name: str, name: str, path: str | Path | None = None, *,
+                shared: Mapping[str, type] | None = None,
                 defaults: Mapping[str, Any] | None = None,
                 overrides: Mapping[str, Any] | None = None, also: Iterable[str] = ()) -> _T:
     """
-    Build ``cls`` from ``presets.<name>`` of a preset file's data.
+    Read ``presets.<name>`` of a preset file into ``cls``.
 
     Parameters
     ----------
     cls : type
         A frozen dataclass.
-    data : dict
-        The file's top-level mapping (:func:`preset_file`).
+    file_name : str
+        Name of the file in the package's ``config/`` (``'realism_arm.yaml'``).
     name : str
         The preset.
-    source : str
-        The file, for messages.
+    path : str or Path, optional
+        File to read instead.
+    shared : dict of str to type, optional
+        Top-level sections every preset shares (``{'magnitudes': TissueMagnitudes}``): each is
+        read into its dataclass and set as the preset's field of the same name.
     defaults : dict, optional
-        Values the preset may set otherwise.
+        Values the preset may set otherwise (``{'name': name}``).
     overrides : dict, optional
-        Values that replace the preset's.
+        Values that replace the preset's (levels given by a caller).
     also : iterable of str
-        Other names the caller accepts besides the presets (named in the message).
+        Other names the caller accepts besides the presets (``'off'``), for the message.
 
     Returns
     -------
@@ -111,10 +64,18 @@ def preset_from(cls: type[_T], data: Mapping[str, Any], name: str, *, source: st
     Raises
     ------
     ConfigError
-        If there is no such preset (the message lists those there are) or a value is not what
-        is expected.
+        If the file cannot be read, has no such preset (the message lists those there are), or
+        a key or value is not what is expected: an unknown or missing key, a value of the wrong
+        type, or one the dataclass's own checks refuse (the message names the file, the dotted
+        key and what was expected).
 
     """
+    path = config_path(file_name) if path is None else Path(path)
+    source = str(path)
+    data = load_yaml(path)
+    parts: dict[str, Any] = {
+        key: _build(kind, section(data, key, source=source), source=source, key=key)
+        for key, kind in (shared or {}).items()}
     presets = section(data, 'presets', source=source)
     if name not in presets:
         expected = sorted(map(str, presets)) + list(also)
@@ -127,41 +88,6 @@ def preset_from(cls: type[_T], data: Mapping[str, Any], name: str, *, source: st
     if not isinstance(preset, dict):
         raise ConfigError(f'{source}: key {key!r} must be a mapping, got '
                           f'{type(preset).__name__}')
-    return build(cls, {**(defaults or {}), **preset, **(overrides or {})}, source=source,
-                 key=key)
-
-
-def read_preset(cls: type[_T], file_name: str, name: str, path: str | Path | None = None, *,
-                defaults: Mapping[str, Any] | None = None,
-                overrides: Mapping[str, Any] | None = None, also: Iterable[str] = ()) -> _T:
-    """
-    Read ``presets.<name>`` of a preset file into ``cls``.
-
-    Parameters
-    ----------
-    cls : type
-        A frozen dataclass.
-    file_name : str
-        Name of the file in the package's ``config/``.
-    name : str
-        The preset.
-    path : str or Path, optional
-        File to read instead.
-    defaults, overrides : dict, optional
-        As for :func:`preset_from`.
-    also : iterable of str
-        As for :func:`preset_from`.
-
-    Returns
-    -------
-    cls
-
-    Raises
-    ------
-    ConfigError
-        If the file, the preset or a value is not as expected (the message names them).
-
-    """
-    data, source = preset_file(file_name, path)
-    return preset_from(cls, data, name, source=source, defaults=defaults, overrides=overrides,
-                       also=also)
+    config = _build(cls, {**(defaults or {}), **preset, **(overrides or {})}, source=source,
+                    key=key)
+    return replace(config, **parts) if parts else config  # type: ignore[type-var]

@@ -16,8 +16,7 @@ Units: N, m, s, rad.
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
-from sim_bridge.common.configfile import section
-from sim_bridge.realism.presets import build, preset_file, preset_from
+from sim_bridge.realism.presets import read_preset
 
 #: Name of the configuration file (in the package's ``config/``).
 CONFIG_FILE = 'realism_tissue.yaml'
@@ -153,8 +152,5 @@ def load_tissue_realism(name: str, path: str | Path | None = None) -> TissueReal
         If the file, the preset or a value is not as expected (the message names them).
 
     """
-    data, source = preset_file(CONFIG_FILE, path)
-    magnitudes = build(TissueMagnitudes, section(data, 'magnitudes', source=source),
-                       source=source, key='magnitudes')
-    config = preset_from(TissueRealismConfig, data, name, source=source)
-    return replace(config, magnitudes=magnitudes)
+    return read_preset(TissueRealismConfig, CONFIG_FILE, name, path,
+                       shared={'magnitudes': TissueMagnitudes})
