@@ -28,7 +28,8 @@ import tempfile
 import threading
 import time
 
-REPO = Path(__file__).resolve().parents[1]
+from before_revision import code_env, measure_before
+
 TOPICS = ('MTMR/measured_cp', 'MTMR/setpoint_cp', 'MTMR/gripper/measured_js',
           'PSM1/setpoint_cp', 'PSM1/jaw/setpoint_js')
 LIMIT = 0.020
@@ -116,9 +117,8 @@ def measure(label, code, seconds, domain):
     """Run the nodes (code of ``code``, None: this checkout) and the client; return the gaps."""
     from sim_bridge.common.processes import popen, stop_group
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    if code is not None:
-        env['PYTHONPATH'] = str(code) + os.pathsep + env.get('PYTHONPATH', '')
+    env = code_env(code, dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                              ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST'))
     bin_dir = Path(sys.executable).parent
     with tempfile.TemporaryDirectory() as tmp:
         procs = [popen([shutil.which(name, path=str(bin_dir))], env=env,
@@ -172,15 +172,8 @@ def main():
           f'({os.cpu_count()} CPUs)')
     results = []
     if args.before:
-        with tempfile.TemporaryDirectory() as tmp:
-            tree = Path(tmp) / 'before'
-            subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', str(tree),
-                            args.before], check=True, capture_output=True)
-            try:
-                results.append(measure('before', tree, args.seconds, domain + 1))
-            finally:
-                subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force',
-                                str(tree)], capture_output=True)
+        results.append(measure_before(
+            args.before, lambda code: measure('before', code, args.seconds, domain + 1)))
     results.append(measure('now', None, args.seconds, domain))
     print(f'load average at the end: {Path("/proc/loadavg").read_text().split()[0]}')
     report(results)

@@ -46,11 +46,12 @@ import sys
 import tempfile
 import time
 
+from before_revision import REPO, code_env, measure_before
+
 QUICK = ['--quick']
 FULL = []
 TARGET_FULL_S = 180.0
 FULL_JOBS = 80 + 1280  # demonstrations + throws of the default study
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _machine():
@@ -86,9 +87,7 @@ def run(label, design, workers, engine='local', code=None, folder=None):
                '--workers', str(workers)]
         if engine != 'local':
             cmd += ['--engine', engine]
-        env = dict(os.environ)
-        if code is not None:
-            env['PYTHONPATH'] = str(code) + os.pathsep + env.get('PYTHONPATH', '')
+        env = code_env(code)
         cpu0, t0 = _children_cpu(), time.perf_counter()
         # ``python -m`` puts the working directory first on sys.path: run in the code's tree
         result = subprocess.run(cmd, capture_output=True, text=True, env=env,
@@ -201,15 +200,9 @@ def main():
     else:
         rows = [run(e, design, args.workers, engine=e) for e in args.engines]
     if args.before:
-        with tempfile.TemporaryDirectory() as tmp:
-            tree = Path(tmp) / 'before'
-            subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', str(tree),
-                            args.before], check=True, capture_output=True)
-            try:
-                rows.append(run(f'before ({args.before})', design, args.workers, code=tree))
-            finally:
-                subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force',
-                                str(tree)], capture_output=True)
+        rows.append(measure_before(
+            args.before, lambda code: run(f'before ({args.before})', design, args.workers,
+                                          code=code)))
     estimate = args.full or args.subjects is not None
     print(f'design: {" ".join(design) or "default"}, {args.workers} workers')
     print(f'machine at the start: {machine}')

@@ -51,12 +51,12 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(10 + os.getpid() % 80))
 os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 os.environ['PYTHONUNBUFFERED'] = '1'
 
+from before_revision import code_env, measure_before  # noqa: E402
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 
-REPO = Path(__file__).resolve().parent.parent
 RATE = 200.0
 SPEED = 0.01          # m/s of the handle (a calm hand): 50 um between samples
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -130,9 +130,7 @@ def measure(label, code, args, domain_id):
     from std_msgs.msg import Float64, String
 
     log_dir = tempfile.mkdtemp(prefix='bench-teleop-')
-    env = {**os.environ, 'ROS_DOMAIN_ID': str(domain_id)}
-    if code is not None:
-        env['PYTHONPATH'] = str(code) + os.pathsep + env.get('PYTHONPATH', '')
+    env = code_env(code, {**os.environ, 'ROS_DOMAIN_ID': str(domain_id)})
     procs = {name: start(argv, log_dir, name, env) for name, argv in graph(log_dir + '/bags')}
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
@@ -340,15 +338,8 @@ def main():
     print(f'load average at the start: {_loadavg()} ({os.cpu_count()} CPUs)')
     results = []
     if args.before:
-        with tempfile.TemporaryDirectory() as tmp:
-            tree = Path(tmp) / 'before'
-            subprocess.run(['git', '-C', str(REPO), 'worktree', 'add', '--detach', str(tree),
-                            args.before], check=True, capture_output=True)
-            try:
-                results.append(measure(f'before ({args.before})', tree, args, domain + 1))
-            finally:
-                subprocess.run(['git', '-C', str(REPO), 'worktree', 'remove', '--force',
-                                str(tree)], capture_output=True)
+        results.append(measure_before(
+            args.before, lambda code: measure(f'before ({args.before})', code, args, domain + 1)))
     results.append(measure('now', None, args, domain))
     print(f'load average at the end: {_loadavg()}')
     report(results)

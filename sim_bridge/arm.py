@@ -19,7 +19,9 @@ Operating-state rules follow the dVRK (cisst ``prmOperatingState``, sawIntuitive
   nothing, ``disable`` stops it) and then emits (ENABLED, idle), the arm holding where it is;
 - ``home`` (ENABLED only) emits busy, runs a trajectory at the joint trajectory limits from
   where the arm is (its rest pose ``initial_jp`` after start-up) to the homing goal (all joints
-  0, insertion 0.12 m) and ends with (ENABLED, homed, idle);
+  0, insertion 0.12 m) and ends with (ENABLED, homed, idle); ``home`` while homed (or homing)
+  is the desired state already reached (or under way): it only re-emits the state, is_homed
+  stays true and the arm does not move;
 - ``move_*`` (and ``jaw_move_jp``) emit busy at the start, ``goal_reached(True)`` and idle at the
   end, also for zero-length moves (at the next step); a move that arrives while another runs
   replaces it; ``servo_*`` supersede any running move of the same part and leave busy false;
@@ -368,6 +370,8 @@ class Arm:
         self._emit_state()
 
     def _command_home(self) -> None:
+        if self._homed or self._homing:
+            return  # homed (or homing) already, as the dVRK: the state has been emitted again
         self._abort_motions()
         self._homed = False
         self._free = False

@@ -16,10 +16,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.common.errors import ConfigError
-from sim_bridge.common.paths import config_path
 from sim_bridge.kinematic_errors import ArmError
+from sim_bridge.realism.presets import read_preset
 from sim_bridge.realism.servo import ServoConfig
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
 
@@ -180,19 +178,5 @@ def load_arm_realism(name: str, path: str | Path | None = None,
         If the file, the preset or a value is wrong (naming the file and key).
 
     """
-    path = config_path('realism_arm.yaml') if path is None else Path(path)
-    source = str(path)
-    presets = section(load_yaml(path), 'presets', source=source)
-    if name not in presets:
-        raise ConfigError(f'{source}: no preset {name!r} under presets; expected one of '
-                          f'{sorted(presets)}')
-    mapping = dict(presets[name] or {})
-    mapping.setdefault('name', name)
-    mapping.update(levels or {})
-    try:
-        return dataclass_from_mapping(ArmRealismConfig, mapping, source=source,
-                                      prefix=f'presets.{name}')
-    except ValueError as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(f'{source}: presets.{name}: {exc}') from exc
+    return read_preset(ArmRealismConfig, 'realism_arm.yaml', name, path, defaults={'name': name},
+                       overrides=levels)

@@ -8,10 +8,9 @@ The endoscope's realism presets (``config/realism_camera.yaml``): a lens and a f
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sim_bridge.common.configfile import ConfigError, load_yaml
-from sim_bridge.common.paths import config_path
 from sim_bridge.realism.frame_timing import FrameTiming
 from sim_bridge.realism.lens import LensConfig
+from sim_bridge.realism.presets import read_preset
 
 PRESET_FILE = 'realism_camera.yaml'
 
@@ -63,17 +62,4 @@ def endoscope_preset(name: str, path: str | Path | None = None) -> EndoscopeReal
     """
     if name in ('', 'off'):
         return EndoscopeRealism()
-    path = Path(path) if path is not None else config_path(PRESET_FILE)
-    presets = load_yaml(path).get('presets') or {}
-    if name not in presets:
-        raise ConfigError(f'{path}: no camera realism preset {name!r}; expected one of '
-                          f'{sorted(presets)} or off')
-    preset = presets[name] or {}
-    parts = {}
-    for key, cls in (('lens', LensConfig), ('timing', FrameTiming)):
-        values = preset.get(key) or {}
-        try:
-            parts[key] = cls(**{k: float(v) for k, v in values.items()})
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f'{path}: presets.{name}.{key}: {exc}') from None
-    return EndoscopeRealism(**parts)
+    return read_preset(EndoscopeRealism, PRESET_FILE, name, path, also=('off',))

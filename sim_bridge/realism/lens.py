@@ -73,7 +73,7 @@ class Lens:
         self.D = np.asarray(D, dtype=np.float64).reshape(5)
         self.size = (int(size[0]), int(size[1]))
         self.is_ideal = not self.D.any()
-        self._raw_maps = self._rect_maps = None
+        self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def distort_points(self, uv: ArrayLike) -> np.ndarray:
         """
@@ -123,23 +123,32 @@ class Lens:
                                       (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
         return out.reshape(-1, 2)
 
-    def _maps_raw(self):
-        """For each raw pixel, where it comes from in the ideal image (built once)."""
-        if self._raw_maps is None:
-            w, h = self.size
-            u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-            ideal = self.undistort_points(np.column_stack([u.ravel(), v.ravel()]))
-            self._raw_maps = cv2.convertMaps(ideal[:, 0].reshape(h, w).astype(np.float32),
-                                             ideal[:, 1].reshape(h, w).astype(np.float32),
-                                             cv2.CV_16SC2)
-        return self._raw_maps
+    def _remap(self, image: np.ndarray, source: str) -> np.ndarray:
+        """
+        Return ``image`` resampled from the ``source`` image (``'ideal'`` or ``'raw'``).
 
-    def _maps_rect(self):
-        """For each rectified pixel, where it comes from in the raw image (built once)."""
-        if self._rect_maps is None:
-            self._rect_maps = cv2.initUndistortRectifyMap(self.K, self.D, np.eye(3), self.K,
-                                                          self.size, cv2.CV_16SC2)
-        return self._rect_maps
+        Each image's point map (for each pixel, where it lies in the other image) is built once:
+        the raw image's from :meth:`undistort_points`, the rectified one's by OpenCV's
+        ``initUndistortRectifyMap`` (the ROS image pipeline's own).
+        """
+        if self.is_ideal:
+            return image
+        maps = self._maps.get(source)
+        if maps is None:
+            if source == 'ideal':
+                w, h = self.size
+                u, v = np.meshgrid(np.arange(w, dtype=np.float64),
+                                   np.arange(h, dtype=np.float64))
+                ideal = self.undistort_points(np.column_stack([u.ravel(), v.ravel()]))
+                maps = cv2.convertMaps(ideal[:, 0].reshape(h, w).astype(np.float32),
+                                       ideal[:, 1].reshape(h, w).astype(np.float32),
+                                       cv2.CV_16SC2)
+            else:
+                maps = cv2.initUndistortRectifyMap(self.K, self.D, np.eye(3), self.K, self.size,
+                                                   cv2.CV_16SC2)
+            self._maps[source] = maps
+        m1, m2 = maps
+        return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
     def distort(self, image: np.ndarray) -> np.ndarray:
         """
@@ -156,10 +165,7 @@ class Lens:
             Raw image, same shape and type (the input itself at level 0).
 
         """
-        if self.is_ideal:
-            return image
-        m1, m2 = self._maps_raw()
-        return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        return self._remap(image, 'ideal')
 
     def rectify(self, raw: np.ndarray) -> np.ndarray:
         """
@@ -176,7 +182,4 @@ class Lens:
             Rectified image, same shape and type (the input itself at level 0).
 
         """
-        if self.is_ideal:
-            return raw
-        m1, m2 = self._maps_rect()
-        return cv2.remap(raw, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        return self._remap(raw, 'raw')

@@ -16,9 +16,7 @@ Units: N, m, s, rad.
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
-from sim_bridge.common.configfile import dataclass_from_mapping, load_yaml, section
-from sim_bridge.common.errors import ConfigError
-from sim_bridge.common.paths import config_path
+from sim_bridge.realism.presets import read_preset
 
 #: Name of the configuration file (in the package's ``config/``).
 CONFIG_FILE = 'realism_tissue.yaml'
@@ -154,17 +152,5 @@ def load_tissue_realism(name: str, path: str | Path | None = None) -> TissueReal
         If the file, the preset or a value is not as expected (the message names them).
 
     """
-    path = config_path(CONFIG_FILE) if path is None else Path(path)
-    source = str(path)
-    data = load_yaml(path)
-    magnitudes = dataclass_from_mapping(TissueMagnitudes, section(data, 'magnitudes',
-                                                                  source=source),
-                                        source=source, prefix='magnitudes')
-    presets = section(data, 'presets', source=source)
-    if name not in presets:
-        raise ConfigError(f'{source}: presets: no preset {name!r}; expected one of '
-                          f'{sorted(map(str, presets))}')
-    levels = section(presets, name, source=source)
-    config = dataclass_from_mapping(TissueRealismConfig, levels, source=source,
-                                    prefix=f'presets.{name}')
-    return replace(config, magnitudes=magnitudes)
+    return read_preset(TissueRealismConfig, CONFIG_FILE, name, path,
+                       shared={'magnitudes': TissueMagnitudes})

@@ -124,6 +124,29 @@ def test_home_pulses_busy_moves_to_the_homing_goal_and_sets_homed(psm_chain):
     np.testing.assert_allclose(arm.measured_jp, HOME, atol=1e-6)
 
 
+def test_home_while_homed_or_homing_only_reemits_the_state(psm_chain):
+    # the dVRK takes home as a desired state: HOMED (or HOMING) already changes nothing
+    arm = ready_psm(psm_chain)
+    goal = HOME + np.array([0.1, -0.05, 0.0, 0.2, 0.0, 0.0])
+    arm.move_jp(goal)
+    run_until_idle(arm)
+    arm.state_command('home')
+    assert states(arm.pop_events()) == [OperatingState('ENABLED', True, False)]
+    assert states(run(arm, 1.0)) == []
+    np.testing.assert_allclose(arm.setpoint_jp, goal)
+    # while homing: the homing motion goes on, not restarted
+    arm = make_psm(psm_chain, initial_jp=(0.0,) * 6)
+    arm.state_command('enable')
+    arm.state_command('home')
+    run(arm, 0.5)
+    arm.pop_events()
+    arm.state_command('home')
+    assert states(arm.pop_events()) == [OperatingState('ENABLED', False, True)]
+    events = run_until_idle(arm)
+    assert states(events) == [OperatingState('ENABLED', True, False)]
+    np.testing.assert_allclose(arm.measured_jp, HOME, atol=1e-6)
+
+
 def test_pause_resume_unhome_and_disable(psm_chain):
     arm = ready_psm(psm_chain)
     arm.state_command('pause')

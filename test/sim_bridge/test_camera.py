@@ -3,15 +3,8 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.bullet import bullet_client, pybullet
+from sim_bridge.bullet import pybullet
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
-
-
-@pytest.fixture()
-def client():
-    c = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
-    yield c
-    c.disconnect()
 
 
 def _red_centroid(rgb):

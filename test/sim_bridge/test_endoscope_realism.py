@@ -6,20 +6,13 @@ interest rendered alone, frames at a rate and stamped late (real PyBullet render
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from sim_bridge.bullet import bullet_client, pybullet
+from sim_bridge.bullet import pybullet
 from sim_bridge.realism.frame_timing import FrameTiming
 from sim_bridge.realism.lens import Lens, LensConfig
 from sim_bridge.scene.camera import CameraConfig, StereoCamera
 
 # barrel distortion of the order a wide-angle rigid endoscope's calibration gives
 BARREL = LensConfig(level=1.0, k1=-0.25, k2=0.08, p1=5e-4, p2=-3e-4, k3=0.0)
-
-
-@pytest.fixture()
-def client():
-    c = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
-    yield c
-    c.disconnect()
 
 
 def _red_centroid(rgb):

@@ -379,6 +379,30 @@ def test_commands_take_effect_in_the_order_they_were_sent(ros, launch):
     assert not any(m.is_busy for m in psm.get('operating_state', start)[-1:])
 
 
+def test_a_second_home_leaves_a_homed_arm_homed_where_it_is(ros, launch):
+    # A dVRK arm takes `home` as a desired state: HOMED when it is HOMED already changes nothing
+    # (dvrk_crtk.md §2: the state is published again, is_homed stays true, nothing moves).
+    # dvrk_teleoperation.py homes both arms at its start and stops on any operating_state with
+    # is_homed false ("puppet (PSM1) is not homed anymore"), so a second home must not unhome.
+    sim = launch('simulator', '--ros-args', '-p', 'power_up_time:=0.0')
+    psm = ArmClient(ros, 'PSM1')
+    assert ros.wait_for(psm.connected, 40.0), sim.log()
+    psm.enable_and_home()  # from the rest pose: a homing motion of seconds
+    homed = time.monotonic()
+    goal = np.array(psm.last('setpoint_js').position) + [0.1, -0.05, 0.0, 0.2, 0.0, 0.0]
+    assert psm.move('move_jp', joints(goal)) == [True]
+    held = np.array(psm.last('setpoint_js').position)
+    sent = time.monotonic()
+    psm.send('state_command', StringStamped(string='home'))
+    time.sleep(2.5)  # longer than the homing motion back would take
+    states = [(m.state, m.is_homed, m.is_busy) for m in psm.get('operating_state', homed)]
+    after = psm.get('operating_state', sent)
+    assert after and (after[0].state, after[0].is_homed) == ('ENABLED', True), states
+    assert all(is_homed for _, is_homed, _ in states), states
+    np.testing.assert_allclose(psm.last('setpoint_js').position, held, atol=1e-9)
+    assert sim.running()
+
+
 def test_bad_commands_are_reported_and_the_arm_holds(ros, launch):
     sim = launch('simulator', '--ros-args', *FAST_ARMS)
     psm = ArmClient(ros, 'PSM2')
