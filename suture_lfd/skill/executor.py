@@ -534,7 +534,7 @@ class ThrowExecutor:
             tau = follower.tau(obs.t)
             label = self.plan_.label(tau)
             if label in TASKS:
-                arm = 'PSM2' if label == 'ii' else 'PSM1'
+                arm = holding_arm(label)
                 seg = self.plan_.segment_at(arm, tau)
                 if isinstance(seg, DmpMove) and arm in obs.holders:
                     N = seg.needle(tau)
