@@ -22,6 +22,7 @@ optical frame, x right, y down, z forward); poses 4x4; metres, seconds (the mess
 """
 
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 import logging
 import math
@@ -282,7 +283,7 @@ class PerceptionFeed(PerceivedScene):
         return NeedleView(self.T_world_camera @ T_c, status)
 
     def look_at_grasp(self, sim: Any, arm: str,
-                      tools: 'dict[str, np.ndarray]') -> np.ndarray | None:
+                      tools: Mapping[str, ArrayLike]) -> np.ndarray | None:
         """
         Measure the grasp of the needle ``arm`` holds again, from the newest look at it.
 
