@@ -11,7 +11,8 @@ All poses are in ``world`` (z up, phantom at the origin; SI units):
   ``/tf_static``: ``world -> <ARM>_base``, ``world -> phantom``, ``world -> <pair>_entry|exit``
   and ``ECM -> ECM_left|right_optical``;
 - ``sim/visualization`` (visualization_msgs/MarkerArray): needle arc, thread, red markers, tool
-  tips;
+  tips; with the needle-in-tissue realism the markers moved with the pad's dimple and ``pad``:
+  points of the deflected surface around the needle's tip (none while the pad is at rest);
 - ``ECM/left|right/image_raw`` (sensor_msgs/Image, rgb8), ``ECM/left|right/camera_info`` (the
   right ``P`` has ``-fx * baseline``; ``D`` the lens's coefficients) and
   ``ECM/left|right/image_rect`` (the rectified images, as the ROS image pipeline publishes them,
@@ -30,6 +31,7 @@ The node calls these publishers from its one executor thread; they skip topics n
 """
 
 from geometry_msgs.msg import PoseStamped
+import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from sim_bridge.common import cdr
 from sim_bridge.ros import conversions as cv
@@ -44,6 +46,7 @@ _RED = (0.85, 0.05, 0.05, 1.0)
 _SILVER = (0.75, 0.75, 0.8, 1.0)
 _THREAD = (0.2, 0.3, 0.9, 1.0)
 _TOOL = (0.1, 0.8, 0.2, 1.0)
+_PAD = (1.0, 0.55, 0.1, 1.0)
 
 
 def truth_topic(name, physical):
@@ -161,6 +164,9 @@ class SceneTopics:
         markers = [p[:3, 3] for p in sim.marker_poses().values()]
         tips = [sim.tool_pose(a)[:3, 3] for a in PSMS]
         diameter = sim.needle_geometry.wire_diameter
+        realism = sim.physics.realism
+        if realism is not None:  # the markers go with the pad's dimple
+            markers = list(realism.moved(np.asarray(markers)))
         msg = MarkerArray(markers=[
             cv.line_strip_marker(needle, 'needle', 0, WORLD, stamp, _SILVER, diameter),
             cv.line_strip_marker(sim.thread_points(), 'thread', 0, WORLD, stamp, _THREAD,
@@ -168,6 +174,9 @@ class SceneTopics:
             cv.sphere_list_marker(markers, 'markers', 0, WORLD, stamp, _RED, 0.002),
             cv.sphere_list_marker(tips, 'tool_tips', 0, WORLD, stamp, _TOOL, 0.003),
         ])
+        if realism is not None:  # the deflected surface around the tip (empty at rest)
+            msg.markers.append(cv.sphere_list_marker(list(realism.surface_patch()), 'pad', 0,
+                                                     WORLD, stamp, _PAD, 0.001))
         self._viz.publish(msg)
 
     def expose_camera(self, t, t_publish):

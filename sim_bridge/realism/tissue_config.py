@@ -63,7 +63,7 @@ class TissueMagnitudes:
     pad_stiffness: float = 2000.0
     lateral_stiffness: float = 1000.0
     friction_per_length: float = 5.0
-    grip_torque: float = 0.01
+    grip_torque: float = 0.0097
     grip_force: float = 10.0
     slip_event_angle: float = 0.0087
     slip_event_slide: float = 0.0002

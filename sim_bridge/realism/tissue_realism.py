@@ -187,6 +187,55 @@ class TissueRealism:
                              in_tissue=bool(tissue.in_tissue), broken=broken)
 
     # ------------------------------------------------------------------ drawing
+    def surface_patch(self, rings: int = 4, per_ring: int = 12) -> np.ndarray:
+        """
+        Points of the pad's surface around the dimple, as deflected (for a viewer).
+
+        Parameters
+        ----------
+        rings : int
+            Circles around the dimple's centre, at 0.5, 1, 1.5 .. times its spread.
+        per_ring : int
+            Points per circle.
+
+        Returns
+        -------
+        ndarray, shape (1 + rings * per_ring, 3) or (0, 3)
+            ``world`` (m): the centre and the circles, each moved by the dimple; empty when the
+            pad is at rest.
+
+        """
+        pad = self.pad
+        if pad.depth == 0.0 or pad.centre is None:
+            return np.zeros((0, 3))
+        u = np.cross(self.normal, (1.0, 0.0, 0.0) if abs(self.normal[0]) < 0.9
+                     else (0.0, 1.0, 0.0))
+        u /= np.linalg.norm(u)
+        v = np.cross(self.normal, u)
+        angles = np.linspace(0.0, 2.0 * np.pi, per_ring, endpoint=False)
+        radii = 0.5 * pad.spread * np.arange(1, rings + 1)
+        ring = (radii[:, None, None] * (np.cos(angles)[None, :, None] * u
+                                        + np.sin(angles)[None, :, None] * v)).reshape(-1, 3)
+        rest = np.vstack([pad.centre, pad.centre + ring])
+        return rest + pad.displacement(rest)
+
+    def moved(self, points: np.ndarray) -> np.ndarray:
+        """
+        Return surface points ``(n, 3)`` (``world``, m) moved with the dimple.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Points of the undeformed surface (the markers' rest positions).
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+
+        """
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        return pts + self.pad.displacement(pts)
+
     def draw(self, world: Any) -> None:
         """
         Move the drawn markers with the dimple (their rest poses when it has relaxed).

@@ -62,8 +62,11 @@ rows ``x, y, z, qx, qy, qz, qw``) while the plan was in that subtask; so a proce
 grasp carries the needle along the rollouts) fails with ``planning_error`` in its outcome. A
 malformed command (unknown pair, a throw already running) is reported on ``~/status`` and in the
 log; the node keeps running. With the parameter ``pair`` the node executes that throw at
-start-up and exits (code 0 for a throw scored 1.0), as a shell script wants. Parameters:
-``config/executor.yaml``.
+start-up and exits (code 0 for a throw scored 1.0), as a shell script wants. With ``tissue``
+(the simulator's needle-in-tissue preset, ``config/realism_tissue.yaml``) the node watches the
+grasp during the DMP subtasks as the in-process executor does: in ground truth the needle turned
+in the jaw is seen every step (as always), in physical mode the held needle is looked at again
+through the perception's newest look. Parameters: ``config/executor.yaml``.
 """
 
 from dataclasses import dataclass
@@ -76,6 +79,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.kinematics import psm_kinematics
+from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.ros import conversions as cv
 from sim_bridge.ros import qos
 from sim_bridge.ros.client import SimClient
@@ -114,6 +118,7 @@ class ExecutorNodeConfig:
     pair_index: int = 0
     correction: bool = True
     camera: str = 'ECM'
+    tissue: str = 'none'
 
     def __post_init__(self):
         if not self.segments and not self.skill:
@@ -125,6 +130,7 @@ class ExecutorNodeConfig:
                 raise ValueError(f'parameter {name} must be > 0, got {getattr(self, name)}')
         if self.settle_time < 0:
             raise ValueError(f'parameter settle_time must be >= 0, got {self.settle_time}')
+        load_tissue_realism(self.tissue)  # a preset the file has (the error names them)
         if self.pair_index < 0:
             raise ValueError(f'parameter pair_index must be >= 0 (0: from the pair name), got '
                              f'{self.pair_index}')
@@ -159,7 +165,8 @@ class ExecutorNode(NodeHooks, Node):
                           prepare_timeout=cfg.prepare_timeout, home=cfg.home,
                           phase_stopping=cfg.phase_stopping, physical=cfg.physical,
                           pair_index=cfg.pair_index, result_file=cfg.result_file,
-                          correction=cfg.correction),
+                          correction=cfg.correction,
+                          tissue=load_tissue_realism(cfg.tissue).active),
             logger=self.get_logger(), on_status=self._publish_status,
             on_result=self._publish_result,
             on_feed=None if self._perceived is None else self._perceived.replay,

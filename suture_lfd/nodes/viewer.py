@@ -12,12 +12,15 @@ reachable from the network unless asked) and open the URL it prints. The page dr
 - the needle (its arc, posed by ``/tf`` ``world -> needle``), the phantom mesh (built from
   ``config/scene.yaml`` for the ``phantom`` parameter, posed by ``world -> phantom``), the
   entry/exit markers (``world -> <pair>_entry|exit``);
-- every ``sim/visualization`` marker (LINE_STRIP, SPHERE_LIST; the thread among them);
+- every ``sim/visualization`` marker (LINE_STRIP, SPHERE_LIST; the thread among them; with the
+  needle-in-tissue realism the markers moved with the pad and the deflected surface around the
+  tip);
 - the ECM's left image in its camera frustum when the simulator renders it
   (``ECM/left/image_raw``, ``camera_rate`` > 0), and with the ``Stereo pair`` button the left
   and right images (``ECM/right/image_raw``) side by side in place of the scene, for a 3-D
   display (:mod:`suture_lfd.viewer.stereo`);
-- ``sim/events`` as they happen, in the side panel;
+- ``sim/events`` as they happen, in the side panel; a ``slip`` (the needle turned in a jaw)
+  also as an orange ball and a label at that arm's tool tip;
 - what the ``perception`` node sees (parameter ``perception``: its namespace, ``''`` = off):
   the estimated needle (``<perception>/needle/measured_cp``, left optical frame, placed in
   ``world`` through ``/tf``) as an orange arc beside the true one, grey while

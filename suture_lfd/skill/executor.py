@@ -44,6 +44,7 @@ from suture_lfd.planning.waypoints import RigidPath, rotation_exp, rotation_log
 from suture_lfd.skill import PairGeometry, ThrowSkill
 from suture_lfd.skill.arm_registration import CorrectedController, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
+from suture_lfd.skill.slip_watch import TISSUE_LOOKS, SlipWatch, holding_arm, slip_checkpoints
 
 if TYPE_CHECKING:
     from sim_bridge.common.needle import NeedleGeometry
@@ -68,8 +69,6 @@ _PRESS_FADE = 0.25
 _LOOK_FACING = 0.6
 _LOOK_FACING_RANGE = (0.3, 0.85)
 _LOOK_STEP = 0.05  # s between the planned instants whose facing is compared
-# Observations of the same new grasp after which a slip in the jaw counts as over.
-_SLIP_SETTLE = 5
 
 
 @dataclass(frozen=True)
@@ -122,7 +121,8 @@ class ExecutorConfig:
         During the DMP subtasks, a grasp observed to differ from the one followed by more than
         this turn (rad) or shift (m) means the needle slipped in the jaw: the observed grasp is
         followed from then on, so the needle -- not the tool -- keeps to the rollout (ground
-        truth: the grasp is observed every step; taken once the slip is over).
+        truth: the grasp is observed every step; taken once the slip is over; see
+        :mod:`suture_lfd.skill.slip_watch`).
     slip_corrections : int
         Most grasps taken again so per DMP subtask in ground truth.
     slip_looks : int
@@ -155,6 +155,17 @@ class ExecutorConfig:
         (``hold_press``).
         """
         return replace(self, start_press=self.physical_start_press, hold_press=True)
+
+    def on_tissue(self) -> 'ExecutorConfig':
+        """
+        Return these settings for a throw on tissue, where the needle can turn in the jaw.
+
+        The one place the tissue realism changes the executor's settings (in-process and in the
+        executor node alike): in physical mode the grasp is looked at again
+        :data:`~suture_lfd.skill.slip_watch.TISSUE_LOOKS` times per DMP subtask, unless
+        ``slip_looks`` already asks for looks.
+        """
+        return self if self.slip_looks else replace(self, slip_looks=TISSUE_LOOKS)
 
 
 class SampledPath:
@@ -315,6 +326,8 @@ class ThrowExecutor:
         self.facing = facing
         self._above: np.ndarray | None = None
         self._checks: list[tuple[float, str]] = []
+        cfg = self.executor_config
+        self.slip_watch = SlipWatch(cfg.slip_turn, cfg.slip_shift, cfg.slip_corrections)
 
     # ------------------------------------------------------------------ planning
     def rollout_paths(self) -> ThrowPaths:
@@ -446,57 +459,28 @@ class ThrowExecutor:
         self._checks = [] if self.look is None else self._checkpoints()
         looks = self.executor_config.slip_looks
         if self.look is not None and looks > 0:
-            self._checks = sorted(self._checks + self._slip_checkpoints(looks))
-        self.slips_noticed = 0
-        self._slip_fixes: dict[str, int] = {}
-        self._slip_seen: tuple[np.ndarray, int] | None = None
+            looks_at = slip_checkpoints(list(self.plan_.labels), looks)
+            self._checks = sorted(self._checks + looks_at)
+        self.slip_watch.reset()
 
-    def _slip_checkpoints(self, looks: int) -> list[tuple[float, str]]:
-        """Plan times (s) and arms of the looks at the grasp during the DMP subtasks."""
-        assert self.plan_ is not None
-        labels = list(self.plan_.labels)
-        out = []
-        for (t0, name), (t1, _) in zip(labels[:-1], labels[1:]):
-            if name in TASKS:
-                arm = 'PSM2' if name == 'ii' else 'PSM1'
-                out += [(t0 + (t1 - t0) * (k + 1) / (looks + 1), arm) for k in range(looks)]
-        return out
+    @property
+    def slips_noticed(self) -> int:
+        """Grasps taken again this throw because the needle turned in the jaw (ground truth)."""
+        return self.slip_watch.noticed
 
     def _notice_slip(self, obs: 'Observation', tau: float) -> None:
-        """
-        Follow the grasp observed once the needle has turned in the jaw and settled (ground truth).
-
-        The grasp is taken again only when it differs from the one followed and has stayed the
-        same for ``_SLIP_SETTLE`` observations (the slip is over), at most ``slip_corrections``
-        times per DMP subtask: pushing the needle back onto its rollout at once would make the
-        tissue turn it again, on and on, until the grasp breaks.
-        """
+        """Follow the grasp observed once the needle turned in the jaw (:class:`SlipWatch`)."""
         assert self.plan_ is not None and self.follower is not None
         label = self.plan_.label(tau)
         if label not in TASKS or obs.T_world_needle is None:
             return
-        arm = 'PSM2' if label == 'ii' else 'PSM1'
-        known = self.follower.grasp(arm)
-        if known is None or arm not in obs.holders:
+        arm = holding_arm(label)
+        if arm not in obs.holders:
             return
-        cfg = self.executor_config
-        if self._slip_fixes.get(label, 0) >= cfg.slip_corrections:
-            return
-        T, N = np.asarray(obs.T_world_tool[arm]), np.asarray(obs.T_world_needle)
-        seen = np.eye(4)
-        seen[:3, :3] = T[:3, :3].T @ N[:3, :3]
-        seen[:3, 3] = T[:3, :3].T @ (N[:3, 3] - T[:3, 3])
-        if not _differs(seen, known, cfg):
-            self._slip_seen = None
-            return
-        last, count = self._slip_seen if self._slip_seen is not None else (None, 0)
-        count = count + 1 if last is not None and not _differs(seen, last, cfg) else 1
-        self._slip_seen = (seen, count)
-        if count >= _SLIP_SETTLE:
-            self.follower.set_grasp(arm, seen)
-            self._slip_fixes[label] = self._slip_fixes.get(label, 0) + 1
-            self._slip_seen = None
-            self.slips_noticed += 1
+        grasp = self.slip_watch.notice(label, self.follower.grasp(arm), obs.T_world_tool[arm],
+                                       obs.T_world_needle)
+        if grasp is not None:
+            self.follower.set_grasp(arm, grasp)
 
     def _checkpoints(self) -> list[tuple[float, str]]:
         """Plan time (s) and arm at which to look at the held needle (see ``facing``)."""
@@ -550,7 +534,7 @@ class ThrowExecutor:
             tau = follower.tau(obs.t)
             label = self.plan_.label(tau)
             if label in TASKS:
-                arm = 'PSM2' if label == 'ii' else 'PSM1'
+                arm = holding_arm(label)
                 seg = self.plan_.segment_at(arm, tau)
                 if isinstance(seg, DmpMove) and arm in obs.holders:
                     N = seg.needle(tau)
@@ -665,13 +649,6 @@ class _Recorder:
             poses = pose_from_transform(np.array([r[1] for r in rows]))
             out[label] = (t, poses)
         return out
-
-
-def _differs(a: np.ndarray, b: np.ndarray, cfg: ExecutorConfig) -> bool:
-    """Whether grasps ``a`` and ``b`` (4x4) differ by more than ``cfg``'s slip thresholds."""
-    c = 0.5 * (float(np.sum(a[:3, :3] * b[:3, :3])) - 1.0)
-    return (math.acos(max(-1.0, min(1.0, c))) > cfg.slip_turn
-            or float(np.linalg.norm(a[:3, 3] - b[:3, 3])) > cfg.slip_shift)
 
 
 def _event_dict(ev: Any) -> dict[str, Any]:
@@ -801,8 +778,8 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
     if physical:
         config = config.in_physical_mode()
     tissue = sim.config.tissue_realism
-    if tissue is not None and tissue.active and config.slip_looks == 0:
-        config = replace(config, slip_looks=2)  # on tissue: look at the grasp while inserting
+    if tissue is not None and tissue.active:
+        config = config.on_tissue()
     nxt = sim.phantom.markers[next_pair] if next_pair is not None else None
     look = facing = None
     if perception is not None:

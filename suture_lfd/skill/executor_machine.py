@@ -119,6 +119,12 @@ class MachineConfig:
     correction : bool
         Physical mode: register the arms against the endoscope before the first throw and run
         on the corrected kinematics (False: open loop on the arms' own kinematics).
+    tissue : bool
+        The simulator runs the needle-in-tissue realism (the needle can turn in the jaw): the
+        executor watches the grasp during the DMP subtasks as in-process
+        (:meth:`ExecutorConfig.on_tissue`; in physical mode it looks at the held needle again
+        through the perception's newest look, :meth:`PerceptionFeed.look_at_grasp`). In ground
+        truth the grasp is watched every step whatever this says.
 
     """
 
@@ -131,6 +137,7 @@ class MachineConfig:
     pair_index: int = 0
     result_file: str = ''
     correction: bool = True
+    tissue: bool = False
 
 
 def throw_time(seconds: float) -> str:
@@ -443,8 +450,16 @@ class ExecutorMachine:
                                     phase_stopping=self.config.phase_stopping)
             if self.config.physical:
                 config = config.in_physical_mode()
+            look = None
+            if self.config.tissue:
+                config = config.on_tissue()
+                feed = self.feed
+                if feed is not None:
+                    def look(arm: str, o: Observation) -> np.ndarray | None:
+                        return feed.look_at_grasp(None, arm, o.T_world_tool)
             self._executor = ThrowExecutor(self.skill, obs.pair, self.scene.needle,
-                                           kinematics=self.kinematics, config=config)
+                                           kinematics=self.kinematics, config=config,
+                                           look=look)
             self._controller = self._executor
             if self.correction is not None and self.correction.arms:
                 self._controller = CorrectedController(self._executor, self.correction)

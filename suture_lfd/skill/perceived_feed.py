@@ -22,6 +22,7 @@ optical frame, x right, y down, z forward); poses 4x4; metres, seconds (the mess
 """
 
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 import logging
 import math
@@ -280,6 +281,44 @@ class PerceptionFeed(PerceivedScene):
             _LOG.info('needle not found: %s', status.reason)
             return NeedleView(None, status)
         return NeedleView(self.T_world_camera @ T_c, status)
+
+    def look_at_grasp(self, sim: Any, arm: str,
+                      tools: Mapping[str, ArrayLike]) -> np.ndarray | None:
+        """
+        Measure the grasp of the needle ``arm`` holds again, from the newest look at it.
+
+        The perception process tracks the needle in the jaw too; its newest look (stamped at or
+        before the arms' state) against the arm's pose gives the grasp as it is now -- on tissue
+        the needle can have turned in the jaw since it closed.
+
+        Parameters
+        ----------
+        sim : None
+            Unused (the looks come from messages).
+        arm : str
+            The holding arm.
+        tools : dict of str to ndarray (4, 4)
+            Tool poses (``world``) of the arms, as observed.
+
+        Returns
+        -------
+        ndarray, shape (4, 4) or None
+            The new grasp ``T_tool_needle``; None (the old one kept) when the arm does not hold
+            the needle, the needle is not seen, or the look is more than
+            :attr:`max_grasp_change` off the grasp held (a look at something else).
+
+        """
+        held = self._held_needle(tools, arm) if arm in self._holders else None
+        seen = self.needle(sim).T_world_needle if held is not None else None
+        if held is None or seen is None:
+            return None
+        if float(np.linalg.norm(seen[:3, 3] - held[:3, 3])) > self.max_grasp_change:
+            _LOG.info('%s: the needle seen is %.1f mm off the one held, its grasp is kept', arm,
+                      1e3 * float(np.linalg.norm(seen[:3, 3] - held[:3, 3])))
+            return None
+        grasp = np.linalg.inv(np.asarray(tools[arm], dtype=float)) @ seen
+        self._grasps[arm] = grasp
+        return grasp
 
     def _fresh_needle(self, after: float) -> np.ndarray | None:
         """Return the needle (``world``) of a look stamped after ``after`` (s), or None."""

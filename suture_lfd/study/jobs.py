@@ -242,7 +242,7 @@ def init_worker(settings: JobSettings, ros: RosSettings | None = None) -> Worker
     logging.getLogger('sim_bridge').setLevel(logging.WARNING)
     state = WorkerState(settings)
     if ros is not None:
-        state.ros = RosThrows(ros, settings.out, settings.timeout)
+        state.ros = RosThrows(ros, settings.out, settings.timeout, settings.tissue)
         parent = multiprocessing.parent_process()
         if parent is not None:   # a worker: stop its nodes on SIGTERM and when the study dies
             state.ros.install_sigterm(parent.pid)

@@ -273,13 +273,19 @@ class RosThrows:
         The study's output folder (skills, logs and outcomes go to its ``ros/`` folder).
     timeout : float
         Longest simulated time (s) of one throw (the executor's ``timeout``).
+    tissue : str
+        Needle-in-tissue preset (``config/realism_tissue.yaml``) both nodes get as their
+        ``tissue`` parameter: the simulator runs it, the executor watches the grasp for it
+        (``'none'``: the parameter is not passed, the nodes run as without it).
 
     """
 
-    def __init__(self, settings: RosSettings, out: str | Path, timeout: float) -> None:
+    def __init__(self, settings: RosSettings, out: str | Path, timeout: float,
+                 tissue: str = 'none') -> None:
         self.settings = settings
         self.folder = Path(out) / 'ros'
         self.timeout = float(timeout)
+        self.tissue = tissue
         self._lease: DomainLease | None = None
         self._markers: dict[str, dict[str, MarkerPair]] = {}
         self._skills: dict[Path, ThrowSkill] = {}
@@ -368,6 +374,7 @@ class RosThrows:
         live.unlink(missing_ok=True)
         env = self.environment()
         started = time.monotonic()
+        tissue = [] if self.tissue == 'none' else ['-p', f'tissue:={self.tissue}']
         sim = executor = None
         try:
             sim = self._start(NodeProcess(
@@ -377,7 +384,7 @@ class RosThrows:
                  # a batch run: arms start at home and power up at once, as in-process
                  '-p', 'power_up_time:=0.0', '-p', 'start_at_home:=true',
                  '-p', 'tf_rate:=0.0', '-p', 'visualization_rate:=0.0', '-p',
-                 'camera_rate:=0.0'], logs / f'{name}.simulator.log', env))
+                 'camera_rate:=0.0', *tissue], logs / f'{name}.simulator.log', env))
             executor = self._start(NodeProcess(
                 [executable('executor'), '--ros-args', '-p', f'skill:={skill_path}', '-p',
                  f'pair:={job.test_pair}', '-p', 'use_sim_time:=true', '-p',
@@ -385,7 +392,7 @@ class RosThrows:
                  f'stale_timeout:={s.stale_timeout:g}', '-p',
                  f'clock_timeout:={s.clock_timeout:g}', '-p',
                  f'prepare_timeout:={s.prepare_timeout:g}', '-p',
-                 f'timeout:={self.timeout:g}'], logs / f'{name}.executor.log', env))
+                 f'timeout:={self.timeout:g}', *tissue], logs / f'{name}.executor.log', env))
             while executor.poll() is None:
                 if sim.poll() is not None:
                     raise RosThrowError(f'simulator node exited with code {sim.poll()} during '

@@ -16,6 +16,7 @@ as it moves and put back there when the mouse orbits away from it.
 from collections.abc import Iterable
 import json
 import logging
+import math
 import threading
 import time
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar, cast
@@ -57,6 +58,15 @@ def format_event(t: float, event: dict[str, Any]) -> str:
     """One line (markdown) of the events panel: ``"12.34 s **grasp** arm=PSM2"``."""
     extra = '  '.join(f'{k}={_short(v)}' for k, v in event.items() if k not in ('kind', 't'))
     return f'{t:.2f} s **{event.get("kind", "?")}** {extra}'.rstrip()
+
+
+def slip_label(event: dict[str, Any]) -> str:
+    """Return the label of a slip event at the jaw: ``"slip 4.2 deg"`` (``", grasp broken"``)."""
+    text = f'slip {math.degrees(abs(float(event.get("angle", 0.0)))):.1f} deg'
+    slide = abs(float(event.get('slide', 0.0)))
+    if slide >= 1e-4:
+        text += f', {1e3 * slide:.1f} mm'
+    return text + (', grasp broken' if event.get('broken') else '')
 
 
 def _short(value: object) -> str:
@@ -233,12 +243,15 @@ class ViewerPage:
             self._events.append(format_event(t, event))
             del self._events[:-200]
             self._events_dirty = True
+        if event.get('kind') == 'slip' and event.get('arm'):
+            self.scene.mark_slip(str(event['arm']), slip_label(event))
 
     def clear_events(self) -> None:
         """Empty the events panel (a replay seeking backwards)."""
         with self._events_lock:
             self._events = []
             self._events_dirty = True
+        self.scene.clear_slips()
 
     def render(self) -> bool:
         """Send what changed (scene and events panel); returns whether the scene changed."""

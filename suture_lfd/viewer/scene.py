@@ -8,10 +8,13 @@ Frames are those of the simulator's ``/tf`` and ``/tf_static`` (``world`` z up, 
 frame (:meth:`SceneView.set_transform`, cheap, any thread) and sends what changed to the page at
 :meth:`SceneView.render` (the caller's frame rate). The arms are drawn as simple shapes: the
 instrument shaft from 12 cm outside the RCM to the tool tip, the tool-tip axes and, for the ECM,
-its camera frustum (with the left image when one arrives).
+its camera frustum (with the left image when one arrives). A slip of the needle in a jaw
+(:meth:`SceneView.mark_slip`, from a ``slip`` event on ``sim/events``) is marked at that arm's
+tool tip by an orange ball and a label for a few seconds.
 """
 
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -26,6 +29,8 @@ SHAFT_DIAMETER = 0.008  # m (an 8 mm instrument)
 NEEDLE_COLOR = (200, 200, 210)
 MARKER_COLOR = (220, 15, 15)
 PHANTOM_COLOR = (230, 170, 160)
+SLIP_COLOR = (255, 140, 0)
+SLIP_SHOWN = 3.0  # s (wall time) a slip stays marked at the jaw
 
 
 def wxyz_from_matrix(T: ArrayLike) -> tuple[float, float, float, float]:
@@ -187,8 +192,37 @@ class SceneView:
                 f'/arms/{arm}/tool', axes_length=0.012, axes_radius=0.0012, origin_radius=0.0025,
                 origin_color=color, visible=False)
         self._frustum: Any = None
+        # arm -> (label text, wall time until which it is shown)
+        self._slips: dict[str, tuple[str, float]] = {}
+        self._slip_handles: dict[str, tuple[Any, Any]] = {}
+        self._slips_dirty = False
 
     # --- inputs (any thread) -------------------------------------------------------------------
+
+    def mark_slip(self, arm: str, text: str, shown: float = SLIP_SHOWN) -> None:
+        """
+        Mark the needle's slip in ``arm``'s jaw: an orange ball and a label at its tool tip.
+
+        Parameters
+        ----------
+        arm : str
+            The arm whose jaw the needle turned in.
+        text : str
+            The label (e.g. ``'slip 4.2 deg'``).
+        shown : float
+            Wall seconds the mark stays (a newer slip of the arm replaces it).
+
+        """
+        with self._lock:
+            self._slips[arm] = (text, time.monotonic() + float(shown))
+            self._slips_dirty = True
+
+    def clear_slips(self) -> None:
+        """Remove every slip mark (a replay seeking backwards)."""
+        with self._lock:
+            for arm in self._slips:
+                self._slips[arm] = (self._slips[arm][0], 0.0)
+            self._slips_dirty = True
 
     def set_transform(self, parent: str, child: str, T: ArrayLike) -> None:
         """Store ``T_parent_child`` (4x4, m); drawn at the next :meth:`render`."""
@@ -278,8 +312,16 @@ class SceneView:
             spheres, self._pending_spheres = self._pending_spheres, {}
             image = self._image if self._image_version != self._image_drawn else None
             self._image_drawn = self._image_version
+            now = time.monotonic()
+            slips_due = self._slips_dirty or any(until <= now for _, until in
+                                                 self._slips.values())
+            self._slips_dirty = False
+            slips = dict(self._slips)
+            for arm in [a for a, (_, until) in slips.items() if until <= now]:
+                del self._slips[arm]
         version = self.tf.version
-        if version == self._drawn_version and not lines and not spheres and image is None:
+        if (version == self._drawn_version and not lines and not spheres and image is None
+                and not slips_due):
             return False
         self._drawn_version = version
         for key, (points, color, width) in lines.items():
@@ -292,6 +334,7 @@ class SceneView:
         for arm in ARMS:
             self._draw_arm(arm)
         self._draw_camera(image)
+        self._draw_slips(slips, now)
         self.frames_rendered += 1
         return True
 
@@ -402,8 +445,39 @@ class SceneView:
             handle.points = segments
             handle.colors = np.broadcast_to(np.array(color, np.uint8), segments.shape).copy()
 
+    def _draw_slips(self, slips: dict[str, tuple[str, float]], now: float) -> None:
+        """Put each live slip mark at its arm's tool tip; remove the expired ones."""
+        for arm in list(self._slip_handles):
+            if arm not in slips or slips[arm][1] <= now:
+                for handle in self._slip_handles.pop(arm):
+                    handle.remove()
+        for arm, (text, until) in slips.items():
+            T = self.tf.world(arm)
+            if until <= now or T is None:
+                continue
+            position = tuple(T[:3, 3].tolist())
+            handles = self._slip_handles.get(arm)
+            if handles is None:
+                ball = self.scene.add_icosphere(f'/slips/{arm}', radius=0.003, color=SLIP_COLOR,
+                                                subdivisions=2, position=position,
+                                                cast_shadow=False, receive_shadow=False)
+                label = self.scene.add_label(f'/slips/{arm}_label', text, position=position,
+                                             anchor='bottom-left')
+                self._slip_handles[arm] = (ball, label)
+                continue
+            ball, label = handles
+            if tuple(ball.position) != position:
+                ball.position = label.position = position
+            if label.text != text:
+                label.text = text
+
     def _draw_spheres(self, key: str, points: Any, color: Any, diameter: float) -> None:
         handle = self._spheres.get(key)
+        if not len(points):  # nothing to draw (a pad at rest): hide what was drawn
+            if handle is not None:
+                handle.remove()
+                del self._spheres[key]
+            return
         if handle is not None and len(handle.points) == len(points):
             handle.points = points.astype(np.float32)
             return
