@@ -735,8 +735,8 @@ class ScenePhysics:
         Render the newest frame the endoscope has delivered: the scene as it was exposed.
 
         The drawn state kept at the frame's exposure (arms, needle, thread, camera pose) is put
-        back for the render and the scene's present restored after it (a falling needle's
-        pose and velocity exactly). What the realism draws (a pad's deflection) is drawn as
+        back for the render and the scene's present restored after it (a falling needle's pose
+        and velocity as PyBullet had them). What the realism draws (a pad's deflection) is drawn as
         it is now.
 
         Parameters
@@ -764,7 +764,7 @@ class ScenePhysics:
         arms, T_needle, thread, T_camera = cast(tuple[Any, ...], state)
         world, client, body = self.world, self.client, self.world.needle_body
         free = self._needle_mode == 'free'
-        if free:  # the falling needle is PyBullet's own: its state is put back exactly
+        if free:  # the falling needle is PyBullet's own: its pose and velocity put back
             saved = client.getBasePositionAndOrientation(body), client.getBaseVelocity(body)
         for name, (q, jaw) in arms.items():
             world.set_arm_joints(name, q, jaw)
