@@ -27,6 +27,9 @@ Image realism (all off by default, seeded): the light's direction jittered per f
 bodies made shiny with :meth:`StereoCamera.make_shiny`), a Gaussian blur (``blur_sigma``, the
 optics' point spread) and Gaussian sensor noise (``noise_std``, grey levels), drawn from
 ``numpy.random.default_rng(seed)`` frame after frame.
+
+Size: the camera's intrinsics, its calibration messages and its renders (whole, a window, through
+the lens) share one projection; the lens's own maps are in :mod:`sim_bridge.realism.lens`.
 """
 
 from collections.abc import Sequence
@@ -476,14 +479,14 @@ class StereoCamera:
         """Render a window of both rectified images through the lens, from what it reads."""
         source = self.lens.window_source(window)
         du, dv = window[0] - source[0], window[1] - source[1]
-        out = []
+        rgbs, depths = [], []
         for T in (T_left, T_right):
             rgb, depth = self.render_view(T, light, source)
-            if depth is not None:
-                depth = depth[dv:dv + window[3], du:du + window[2]]
-            out += [self.lens.rectify_window(rgb, window), depth]
-        return StereoFrame(left_rgb=out[0], left_depth=out[1], right_rgb=out[2],
-                           right_depth=out[3], T_world_left=T_left, T_world_right=T_right)
+            rgbs.append(self.lens.rectify_window(rgb, window))
+            depths.append(None if depth is None
+                          else depth[dv:dv + window[3], du:du + window[2]])
+        return StereoFrame(left_rgb=rgbs[0], left_depth=depths[0], right_rgb=rgbs[1],
+                           right_depth=depths[1], T_world_left=T_left, T_world_right=T_right)
 
     def window_info(self, side: str, window: Sequence[int]) -> CameraInfo:
         """
