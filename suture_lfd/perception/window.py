@@ -93,9 +93,9 @@ def window_stereo(stereo: StereoModel, window: Window) -> StereoModel:
 
 
 def crop(image: np.ndarray, window: Window) -> np.ndarray:
-    """Return the window ``(u0, v0, width, height)`` of a full image (a view, not a copy)."""
+    """Return the window ``(u0, v0, width, height)`` of a full image (a contiguous copy)."""
     u0, v0, w, h = window
-    return image[v0:v0 + h, u0:u0 + w]
+    return np.ascontiguousarray(image[v0:v0 + h, u0:u0 + w])
 
 
 def in_frame(image: np.ndarray, window: Window, stereo: StereoModel) -> np.ndarray:

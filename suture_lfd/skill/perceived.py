@@ -12,6 +12,7 @@ Frames: ``world`` (as the robot believes it), the camera's left optical frame ``
 4x4; metres.
 """
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import logging
@@ -88,6 +89,9 @@ class PerceivedScene:
         # the frame looked at last: its scene time, its renders by window, T_world_camera
         self._frame: tuple[float, dict[Window | None, Any], np.ndarray] | None = None
         self._last_window: Window | None = None
+        # the tools as observed at the latest control steps: (t, {arm: T_world_tool}), to pair a
+        # delayed frame with the arms as they were when it was exposed (its stamp)
+        self._tool_history: deque[tuple[float, Mapping[str, Any]]] = deque(maxlen=64)
         self._pair: MarkerPair | None = None
         self._support_normal: np.ndarray | None = None
         self._support_point: np.ndarray | None = None
@@ -138,6 +142,24 @@ class PerceivedScene:
         points = self._tracker.geometry.points_world(
             np.linalg.inv(T) @ np.asarray(T_world_needle, dtype=float), 24)
         return points_window(self._stereo, points, self.window_margin)
+
+    def _tools_then(self, sim: Any, tools: Mapping[str, ArrayLike]
+                    ) -> Mapping[str, ArrayLike]:
+        """
+        Return the tools as they were when the frame a look gets now was exposed.
+
+        A delayed frame (an endoscope's latency) shows the arms as they were at its scene time:
+        the grasp it measures is taken against the tool poses observed then (the newest control
+        step at or before it), as a robot pairs an image with its state at the image's stamp.
+        An ideal camera's frame is of now: ``tools``.
+        """
+        t_scene = sim.delivered_frame()
+        if t_scene is None or t_scene >= sim.time:
+            return tools
+        for t, then in reversed(self._tool_history):
+            if t <= t_scene + 1e-9:
+                return {arm: then.get(arm, T) for arm, T in tools.items()}
+        return tools
 
     def _look_setup(self, sim: Any) -> None:
         """Read the camera's calibration (once)."""
@@ -259,6 +281,9 @@ class PerceivedScene:
         if self._pair is None:
             self.markers(sim)
         tools = arm_state.T_world_tool
+        if self._tool_history and self._tool_history[-1][0] > arm_state.t:
+            self._tool_history.clear()  # a scene reset turns time back
+        self._tool_history.append((arm_state.t, tools))
         # due unless a look failed less than look_period ago (a scene reset turns time back)
         due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
         if not self._holders and self._free_needle is None and due:
@@ -331,6 +356,9 @@ class PerceivedScene:
                       arm, facing)
             return None
         lying = self._grasp_views.get(arm)
+        tools = self._tools_then(sim, tools)  # the arms as the frame shows them
+        held = self._held_needle(tools, arm)
+        assert held is not None  # the arm holds it: its grasp is known
         if lying is not None:
             return self._fit_grasp(sim, arm, tools, lying)
         view = self.needle(sim, prior=held, tools=list(tools.values()))
