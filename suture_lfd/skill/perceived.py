@@ -105,11 +105,12 @@ class PerceivedScene:
         """
         Return the endoscope's images now, ``T_world_camera`` from the ECM's report, the camera.
 
-        The images are the endoscope's (:meth:`sim_bridge.simulation.Simulation.
-        endoscope_frame`): with a frame timing the newest delivered frame, never the scene
-        now. Looked at twice in the same frame (the markers, then the needle) it is rendered
-        once; a window of a frame already rendered whole is cut from it. ``window``: only that
-        region of both images (:mod:`suture_lfd.perception.window`), with its camera.
+        The images are the endoscope's
+        (:meth:`sim_bridge.simulation.Simulation.endoscope_frame`): with a frame timing the
+        newest delivered frame, never the scene now. Looked at twice in the same frame (the
+        markers, then the needle) it is rendered once; a window of a frame already rendered
+        whole is cut from it. ``window``: only that region of both images
+        (:mod:`suture_lfd.perception.window`), with its camera.
         """
         if self._stereo is None:
             self._look_setup(sim)
