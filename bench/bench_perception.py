@@ -38,6 +38,7 @@ from suture_lfd.perception import (
     estimate_grasp,
 )
 from suture_lfd.perception.evaluation import KINDS, SceneMaker, needle_errors, perturbed
+from suture_lfd.perception.window import points_window, window_stereo
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')  # no ROS here; house rule
 
@@ -48,15 +49,22 @@ ANCHORS = [
 ]
 GRASP_PRIOR = (0.001, math.radians(5.0))  # what is known of a grasp at the pick
 WRONG = 0.003  # a confident estimate with a point farther off than this is wrong
+WINDOW_MARGIN = 0.005  # m around a tracked needle's prior (PerceivedScene.window_margin)
 
 
-def needle_case(tracker, scene, markers, rng):
-    """Estimate the needle of one scene; returns (estimate, CPU s, grasp error or None)."""
+def needle_case(tracker, scene, markers, rng, maker=None):
+    """
+    Estimate the needle of one scene; returns (estimate, CPU s, grasp error or None, window).
+
+    ``window`` (with ``maker``, a tracked needle only): the estimate from the window of the
+    images around the prior (:mod:`suture_lfd.perception.window`, rendered alone) and its CPU
+    (the render's and the estimate's), else None.
+    """
     stereo = scene.stereo
     if scene.kind == 'free':
         start = time.process_time()
         est = tracker.estimate(scene.left, scene.right, stereo, support_normal=markers.normal)
-        return est, time.process_time() - start, None
+        return est, time.process_time() - start, None, None
     G0 = perturbed(scene.grasps['PSM2'], rng, *GRASP_PRIOR)
     tools, ests = [], []
     for frame in scene.history:
@@ -70,10 +78,25 @@ def needle_case(tracker, scene, markers, rng):
         G = G0
     d = np.linalg.norm(G[:3, 3] - scene.grasps['PSM2'][:3, 3])
     cos = np.clip((np.trace(G[:3, :3].T @ scene.grasps['PSM2'][:3, :3]) - 1.0) / 2.0, -1, 1)
+    prior = scene.tools['PSM2'] @ G
     start = time.process_time()
-    est = tracker.estimate(scene.left, scene.right, stereo, prior=scene.tools['PSM2'] @ G,
+    est = tracker.estimate(scene.left, scene.right, stereo, prior=prior,
                            tools=list(scene.tools.values()))
-    return est, time.process_time() - start, (d, math.acos(cos))
+    cpu = time.process_time() - start
+    seen = None
+    if maker is not None:
+        start = time.process_time()
+        window = points_window(stereo, tracker.geometry.points_world(prior, 24), WINDOW_MARGIN)
+        if window is None:
+            seen = est, cpu, 0.0
+        else:
+            frame = maker.sim.render(window=window)
+            mid = time.process_time()
+            seen = (tracker.estimate(frame.left_rgb, frame.right_rgb,
+                                     window_stereo(stereo, window), prior=prior,
+                                     tools=list(scene.tools.values())),
+                    time.process_time() - mid, mid - start)
+    return est, cpu, (d, math.acos(cos)), seen
 
 
 def marker_errors(markers, scene):
@@ -114,10 +137,13 @@ def main():
     parser.add_argument('--camera-realism', default='',
                         help="endoscope preset of config/realism_camera.yaml (dvrk: images "
                              "through a distorting lens, then rectified); '' = ideal")
+    parser.add_argument('--window', action='store_true',
+                        help='also track each held needle in the window of the images around '
+                             'its prior, rendered alone, and print it beside the whole frame')
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     tracker = NeedleTracker()
-    rows, all_markers, all_cpu, marker_cpu = [], [], [], []
+    rows, all_markers, all_cpu, marker_cpu, windowed = [], [], [], [], []
     wall = time.perf_counter()
     for phantom in args.phantoms.split(','):
         maker = SceneMaker(phantom, endoscope=args.camera_realism)
@@ -133,11 +159,17 @@ def main():
                 markers = detect_markers(scene.left, scene.right, scene.stereo)
                 marker_cpu.append(time.process_time() - start)
                 all_markers.append((kind, *marker_errors(markers, scene)))
-                est, cpu, grasp = needle_case(tracker, scene, markers, rng)
+                est, cpu, grasp, seen = needle_case(tracker, scene, markers, rng,
+                                                    maker if args.window else None)
                 all_cpu.append(cpu)
                 err = (needle_errors(est.pose_camera, scene.T_camera_needle, tracker.geometry)
                        if est.found else None)
                 results.append((est, err, cpu, grasp))
+                if seen is not None:
+                    west = seen[0]
+                    windowed.append((kind, err, needle_errors(
+                        west.pose_camera, scene.T_camera_needle, tracker.geometry)
+                        if west.found else None, cpu, seen[1], seen[2]))
             rows.append((phantom, kind, results))
         maker.close()
     wall = time.perf_counter() - wall
@@ -191,6 +223,20 @@ def main():
               f' mm, 90th percentile {1e3 * np.percentile(errors, 90):.3f} mm, max '
               f'{1e3 * np.max(errors):.3f} mm')
     print(f'Markers: CPU {1e3 * np.median(marker_cpu):.1f} ms per pair (median)')
+    if windowed:
+        print('\nTracked needle, the whole frame against the window around the prior '
+              f'(margin {1e3 * WINDOW_MARGIN:g} mm), the same scenes:')
+        for kind in KINDS[1:]:
+            sel = [w for w in windowed if w[0] == kind]
+            if not sel:
+                continue
+            whole = [1e3 * w[1][0] for w in sel if w[1] is not None]
+            part = [1e3 * w[2][0] for w in sel if w[2] is not None]
+            print(f'  {kind:9} n {len(sel):3d}: found {len(whole)}/{len(part)}, median sum '
+                  f'{med(whole)} / {med(part)} mm, p90 {med(whole, 90)} / {med(part, 90)} mm; '
+                  f'CPU {1e3 * np.median([w[3] for w in sel]):.1f} / '
+                  f'{1e3 * np.median([w[4] for w in sel]):.1f} ms (estimate), window render '
+                  f'{1e3 * np.median([w[5] for w in sel]):.1f} ms')
     print('\nAnchors (published)                              sum of 3 points mm   deg   '
           'time per estimate')
     for name, mm, deg, t in ANCHORS:

@@ -40,7 +40,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import replace
 import logging
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -52,6 +52,7 @@ from sim_bridge.control import Command
 from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
 from sim_bridge.realism.calibration import draw_arm_realism, servo_config
+from sim_bridge.realism.frame_timing import Exposures
 from sim_bridge.realism.tissue_realism import build_tissue_realism
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
 from sim_bridge.scene.grasp import GraspEvent, GraspManager
@@ -151,6 +152,7 @@ class ScenePhysics:
                            self.thread_geometry, client)
         self.camera = StereoCamera(cfg.camera, client, lens=cfg.endoscope.lens)
         self.camera.make_shiny(self.world.needle_body)
+        self.exposures = Exposures(cfg.endoscope.timing)
         self._dt = cfg.world.physics_step
         self._thread_every = steps_per_period(cfg.loop.thread_period, self._dt, 'thread_period')
         self._collision_every = steps_per_period(cfg.loop.collision_period, self._dt,
@@ -248,6 +250,7 @@ class ScenePhysics:
         self.world.set_needle_collisions(False)
         thread_nodes = self.thread_geometry.rest_points(self.needle_geometry, self._T_needle)
         self.thread = ThreadChain(thread_nodes, self.thread_geometry.radius, cfg.thread)
+        self.exposures.clear()
         for _ in range(int(round(cfg.loop.needle_start.settle_time / cfg.loop.thread_period))):
             self.thread.follow(cfg.loop.thread_period, thread_nodes[0], self.world.support_height)
 
@@ -415,6 +418,8 @@ class ScenePhysics:
 
         """
         dt = self._dt
+        if self._steps == 0 and self.exposures.active:
+            self._expose(0.0)  # the endoscope's first frame: the scene as it was set up
         self._steps += 1
         t = self._steps * dt
         for arm in self._arm_list:
@@ -439,6 +444,8 @@ class ScenePhysics:
             self.thread.follow(self._thread_every * dt, tail, self.world.support_height)
         if self._steps % self._collision_every == 0:
             self._check_contacts(t)
+        if self.exposures.active and self.exposures.due(t, dt):
+            self._expose(t)
 
     # ------------------------------------------------------------------ grasp and needle
     def _on_grasp_event(self, t: float, ev: GraspEvent) -> None:
@@ -682,9 +689,15 @@ class ScenePhysics:
         """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4) (a copy)."""
         return self._tool_pose('ECM').copy()
 
-    def render(self) -> StereoFrame:
+    def render(self, window: tuple[int, int, int, int] | None = None) -> StereoFrame:
         """
         Render the stereo endoscope images of the scene as it is now.
+
+        Parameters
+        ----------
+        window : tuple of int, optional
+            ``(u0, v0, width, height)``: only this region of both images
+            (:meth:`sim_bridge.scene.camera.StereoCamera.render`).
 
         Returns
         -------
@@ -693,4 +706,75 @@ class ScenePhysics:
 
         """
         self.sync_world()
-        return self.camera.render(self.camera_pose())
+        return self.camera.render(self.camera_pose(), window=window)
+
+    def _expose(self, t: float) -> None:
+        """Keep what the endoscope's frame at ``t`` shows: the drawn state of the scene."""
+        arms = {name: (np.array(self._true_jp(name, arm), dtype=float),
+                       arm.jaw_measured_jp if name in PSMS else None)
+                for name, arm in self.arms.items()}
+        self.exposures.add(t, (arms, self._T_needle.copy(), np.array(self.thread.nodes),
+                               self.camera_pose()))
+
+    def delivered_frame(self) -> float | None:
+        """
+        Return the scene time of the newest frame the endoscope has delivered now.
+
+        None for an ideal camera (an image of any instant, :meth:`render`).
+        """
+        if not self.exposures.active:
+            return None
+        if self._steps == 0:
+            self._expose(0.0)  # the scene as set up: the first frame
+        frame = self.exposures.delivered(self.time)
+        return None if frame is None else frame[0]
+
+    def render_delivered(self, window: tuple[int, int, int, int] | None = None
+                         ) -> tuple[float, StereoFrame]:
+        """
+        Render the newest frame the endoscope has delivered: the scene as it was exposed.
+
+        The drawn state kept at the frame's exposure (arms, needle, thread, camera pose) is put
+        back for the render and the scene's present restored after it (a falling needle's pose
+        and velocity as PyBullet had them). What the realism draws (a pad's deflection) is drawn as
+        it is now.
+
+        Parameters
+        ----------
+        window : tuple of int, optional
+            ``(u0, v0, width, height)``: only this region of both images.
+
+        Returns
+        -------
+        t_scene : float
+            The scene time the frame shows (its stamp is ``t_scene`` plus the latency).
+        frame : sim_bridge.scene.camera.StereoFrame
+
+        Raises
+        ------
+        ValueError
+            For an ideal camera (no frame timing: use :meth:`render`).
+
+        """
+        if self.delivered_frame() is None:
+            raise ValueError('an ideal camera delivers no frames: render() gives the scene now')
+        delivered = self.exposures.delivered(self.time)
+        assert delivered is not None
+        t_scene, state = delivered
+        arms, T_needle, thread, T_camera = cast(tuple[Any, ...], state)
+        world, client, body = self.world, self.client, self.world.needle_body
+        free = self._needle_mode == 'free'
+        if free:  # the falling needle is PyBullet's own: its pose and velocity put back
+            saved = client.getBasePositionAndOrientation(body), client.getBaseVelocity(body)
+        for name, (q, jaw) in arms.items():
+            world.set_arm_joints(name, q, jaw)
+        world.set_needle_pose(T_needle)
+        world.set_thread_points(thread)
+        if self.realism is not None:
+            self.realism.draw(world)
+        frame = self.camera.render(T_camera, window=window)
+        if free:
+            client.resetBasePositionAndOrientation(body, *saved[0])
+            client.resetBaseVelocity(body, *saved[1])
+        self.sync_world()
+        return t_scene, frame

@@ -505,9 +505,14 @@ class Simulation:
         """ECM tool-tip (stereo rig centre) pose in ``world``, shape (4, 4) (a copy)."""
         return self.physics.camera_pose()
 
-    def render(self) -> StereoFrame:
+    def render(self, window: tuple[int, int, int, int] | None = None) -> StereoFrame:
         """
         Render the stereo endoscope images of the scene as it is now.
+
+        Parameters
+        ----------
+        window : tuple of int, optional
+            ``(u0, v0, width, height)``: only this region of both images.
 
         Returns
         -------
@@ -515,4 +520,29 @@ class Simulation:
             Left/right colour and metric depth images and camera poses.
 
         """
-        return self.physics.render()
+        return self.physics.render(window)
+
+    def delivered_frame(self) -> float | None:
+        """Scene time of the newest frame the endoscope has delivered (None: ideal camera)."""
+        return self.physics.delivered_frame()
+
+    def render_delivered(self, window: tuple[int, int, int, int] | None = None
+                         ) -> tuple[float, StereoFrame]:
+        """
+        Render the newest frame the endoscope has delivered: ``(scene time, frame)``.
+
+        :meth:`sim_bridge.physics.ScenePhysics.render_delivered`; an ideal camera has no frames.
+        """
+        return self.physics.render_delivered(window)
+
+    def endoscope_frame(self, window: tuple[int, int, int, int] | None = None
+                        ) -> tuple[float, StereoFrame]:
+        """
+        Return what the endoscope gives a look now: ``(scene time, frame)``.
+
+        The newest delivered frame (:meth:`render_delivered`) of an endoscope with a frame
+        timing; for an ideal camera, the scene now (:meth:`render`).
+        """
+        if self.physics.delivered_frame() is None:
+            return self.time, self.physics.render(window)
+        return self.physics.render_delivered(window)

@@ -67,3 +67,65 @@ class FrameTiming:
         if scene < 0.0:
             return None
         return scene, scene + self.latency
+
+
+class Exposures:
+    """
+    The scene states an endoscope exposed, kept until newer frames have been delivered.
+
+    In-process, an image is rendered only when someone looks (rendering is the costly part),
+    yet the image a look gets must be the endoscope's: the newest frame whose scene is at or
+    before now minus the latency. At each frame instant the scene's drawn state (a few poses,
+    cheap to copy) is kept; a look renders the newest delivered one, lazily. A frame is exposed
+    at the first physics step at or after its instant (the scene does not exist between
+    steps), shows the scene then and is delivered ``latency`` later.
+
+    Parameters
+    ----------
+    timing : FrameTiming
+        The endoscope's frame rate and latency (ideal: nothing is kept).
+
+    """
+
+    def __init__(self, timing: FrameTiming) -> None:
+        self.timing = timing
+        self.active = not timing.is_ideal
+        # frames still to be delivered, plus the newest delivered one
+        rate = timing.rate
+        self._keep = 2 + (math.ceil(timing.latency * rate) if rate else 1000)
+        self._frames: list[tuple[float, object]] = []
+
+    def clear(self) -> None:
+        """Forget every exposure (the scene starts again)."""
+        self._frames.clear()
+
+    def due(self, t: float, dt: float) -> bool:
+        """Whether a frame instant lies in the step ``(t - dt, t]`` (every step at rate 0)."""
+        rate = self.timing.rate
+        if not rate:
+            return True
+        return math.floor(t * rate + 1e-9) > math.floor((t - dt) * rate + 1e-9)
+
+    def add(self, t: float, state: object) -> None:
+        """Keep the scene's state ``state`` exposed at ``t``."""
+        frames = self._frames
+        if frames and frames[-1][0] == t:
+            frames.pop()  # the same instant exposed again (the scene set up anew at t = 0)
+        frames.append((float(t), state))
+        if len(frames) > self._keep:
+            del frames[:len(frames) - self._keep]
+
+    def delivered(self, now: float) -> tuple[float, object] | None:
+        """
+        Return the newest frame delivered at ``now``: (scene time it shows, the state then).
+
+        Before the first frame has arrived (the first ``latency`` of a scene), the first
+        frame: the scene has just been set up and stands still.
+        """
+        frames = self._frames
+        if not frames:
+            return None
+        for t, state in reversed(frames):
+            if t + self.timing.latency <= now + 1e-9:
+                return t, state
+        return frames[0]

@@ -123,16 +123,14 @@ class Lens:
                                       (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
         return out.reshape(-1, 2)
 
-    def _remap(self, image: np.ndarray, source: str) -> np.ndarray:
+    def _map(self, source: str) -> tuple[np.ndarray, np.ndarray]:
         """
-        Return ``image`` resampled from the ``source`` image (``'ideal'`` or ``'raw'``).
+        Return the point map that resamples an image from the ``source`` one (built once).
 
-        Each image's point map (for each pixel, where it lies in the other image) is built once:
-        the raw image's from :meth:`undistort_points`, the rectified one's by OpenCV's
-        ``initUndistortRectifyMap`` (the ROS image pipeline's own).
+        ``'ideal'``: for each raw pixel, where it lies in the ideal image (from
+        :meth:`undistort_points`); ``'raw'``: for each rectified pixel, where it lies in the raw
+        image (OpenCV's ``initUndistortRectifyMap``, the ROS image pipeline's own).
         """
-        if self.is_ideal:
-            return image
         maps = self._maps.get(source)
         if maps is None:
             if source == 'ideal':
@@ -147,7 +145,13 @@ class Lens:
                 maps = cv2.initUndistortRectifyMap(self.K, self.D, np.eye(3), self.K, self.size,
                                                    cv2.CV_16SC2)
             self._maps[source] = maps
-        m1, m2 = maps
+        return maps
+
+    def _remap(self, image: np.ndarray, source: str) -> np.ndarray:
+        """Return ``image`` resampled from the ``source`` image (``'ideal'`` or ``'raw'``)."""
+        if self.is_ideal:
+            return image
+        m1, m2 = self._map(source)
         return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
     def distort(self, image: np.ndarray) -> np.ndarray:
@@ -183,3 +187,76 @@ class Lens:
 
         """
         return self._remap(raw, 'raw')
+
+    def _regions(self, window: tuple[int, int, int, int]
+                 ) -> tuple[tuple[int, int, int, int], tuple[int, int, int, int]]:
+        """
+        Return the raw and the ideal regions a window of ``image_rect`` is made from.
+
+        Each is ``(u0, v0, width, height)`` inside the image: the pixels the rectification's
+        remap reads (bilinear: one more on each side) for the window, then those the lens's
+        remap reads for them.
+        """
+        w, h = self.size
+
+        def reach(m1: np.ndarray, u0: int, v0: int, uw: int, vh: int
+                  ) -> tuple[int, int, int, int]:
+            sub = m1[v0:v0 + vh, u0:u0 + uw].reshape(-1, 2)
+            lo = np.maximum(sub.min(axis=0), 0)
+            hi = np.minimum(sub.max(axis=0) + 1, (w - 1, h - 1))
+            hi = np.maximum(hi, lo + 1)
+            return int(lo[0]), int(lo[1]), int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+
+        raw = reach(self._map('raw')[0], *window)
+        return raw, reach(self._map('ideal')[0], *raw)
+
+    def window_source(self, window: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+        """
+        Return the region of the ideal image a window of ``image_rect`` is made from.
+
+        Parameters
+        ----------
+        window : tuple of int
+            ``(u0, v0, width, height)`` of the rectified image.
+
+        Returns
+        -------
+        tuple of int
+            ``(u0, v0, width, height)`` of the ideal image (the window itself for an ideal lens).
+
+        """
+        return tuple(window) if self.is_ideal else self._regions(window)[1]  # type: ignore
+
+    def rectify_window(self, ideal: np.ndarray, window: tuple[int, int, int, int]
+                       ) -> np.ndarray:
+        """
+        Return a window of ``image_rect`` from the ideal image's :meth:`window_source` region.
+
+        The same two remaps as :meth:`distort` then :meth:`rectify` on the whole image, done on
+        the pixels they read for the window only: the window of the whole image's
+        ``image_rect``, pixel for pixel.
+
+        Parameters
+        ----------
+        ideal : ndarray, shape (height, width, ...)
+            The ideal image of ``window_source(window)``.
+        window : tuple of int
+            ``(u0, v0, width, height)`` of the rectified image.
+
+        Returns
+        -------
+        ndarray, shape (window height, window width, ...)
+
+        """
+        u0, v0, w, h = window
+        if self.is_ideal:
+            return ideal
+        (ru, rv, rw, rh), (iu, iv, _, _) = self._regions(window)
+        m1, m2 = self._map('ideal')
+        raw = cv2.remap(ideal, m1[rv:rv + rh, ru:ru + rw] - np.array([iu, iv], np.int16),
+                        m2[rv:rv + rh, ru:ru + rw], cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT)
+        m1, m2 = self._map('raw')
+        return cv2.remap(raw, m1[v0:v0 + h, u0:u0 + w] - np.array([ru, rv], np.int16),
+                         m2[v0:v0 + h, u0:u0 + w], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT)

@@ -27,6 +27,9 @@ Image realism (all off by default, seeded): the light's direction jittered per f
 bodies made shiny with :meth:`StereoCamera.make_shiny`), a Gaussian blur (``blur_sigma``, the
 optics' point spread) and Gaussian sensor noise (``noise_std``, grey levels), drawn from
 ``numpy.random.default_rng(seed)`` frame after frame.
+
+Size: the camera's intrinsics, its calibration messages and its renders (whole, a window, through
+the lens) share one projection; the lens's own maps are in :mod:`sim_bridge.realism.lens`.
 """
 
 from collections.abc import Sequence
@@ -430,25 +433,36 @@ class StereoCamera:
                              f'{c.width}x{c.height} image (at least 2x2 pixels)')
         return u0, v0, w, h
 
-    def render(self, T_world_tip: ArrayLike) -> StereoFrame:
+    def render(self, T_world_tip: ArrayLike,
+               window: tuple[int, int, int, int] | None = None) -> StereoFrame:
         """
-        Render the stereo pair at the ECM tool-tip pose.
+        Render the stereo pair at the ECM tool-tip pose, or one window of both images.
 
         Parameters
         ----------
         T_world_tip : array_like, shape (4, 4)
             ECM tool-tip pose in ``world``.
+        window : tuple of int, optional
+            ``(u0, v0, width, height)``: only these pixels of both images (the same window in
+            each, :meth:`render_view`; its camera is :meth:`window_info`'s). Through a lens the
+            window is the rectified image's (``image_rect``), made by the lens and the
+            rectification from the region of the ideal image they read
+            (:meth:`sim_bridge.realism.lens.Lens.rectify_window`); no raw images then, and the
+            depth is the ideal image's.
 
         Returns
         -------
         StereoFrame
-            Left and right colour and depth images and the two camera poses.
+            Left and right colour and depth images (the window's size with ``window``) and the
+            two camera poses.
 
         """
         T_left, T_right = self.camera_poses(T_world_tip)
         light = self._light_direction()  # one light for both eyes
-        left_rgb, left_depth = self.render_view(T_left, light)
-        right_rgb, right_depth = self.render_view(T_right, light)
+        if window is not None and not self.lens.is_ideal:
+            return self._lens_window(T_left, T_right, light, self.check_window(window))
+        left_rgb, left_depth = self.render_view(T_left, light, window)
+        right_rgb, right_depth = self.render_view(T_right, light, window)
         if self.lens.is_ideal:
             return StereoFrame(left_rgb=left_rgb, left_depth=left_depth, right_rgb=right_rgb,
                                right_depth=right_depth, T_world_left=T_left,
@@ -459,3 +473,40 @@ class StereoCamera:
                            right_rgb=self.lens.rectify(right_raw), right_depth=right_depth,
                            T_world_left=T_left, T_world_right=T_right, left_raw=left_raw,
                            right_raw=right_raw)
+
+    def _lens_window(self, T_left: np.ndarray, T_right: np.ndarray, light: list[float],
+                     window: tuple[int, int, int, int]) -> StereoFrame:
+        """Render a window of both rectified images through the lens, from what it reads."""
+        source = self.lens.window_source(window)
+        du, dv = window[0] - source[0], window[1] - source[1]
+        rgbs, depths = [], []
+        for T in (T_left, T_right):
+            rgb, depth = self.render_view(T, light, source)
+            rgbs.append(self.lens.rectify_window(rgb, window))
+            depths.append(None if depth is None
+                          else depth[dv:dv + window[3], du:du + window[2]])
+        return StereoFrame(left_rgb=rgbs[0], left_depth=depths[0], right_rgb=rgbs[1],
+                           right_depth=depths[1], T_world_left=T_left, T_world_right=T_right)
+
+    def window_info(self, side: str, window: Sequence[int]) -> CameraInfo:
+        """
+        Calibration of a window ``(u0, v0, width, height)`` of one rectified image.
+
+        The same camera with its principal point moved by the window's corner, as a camera's
+        region of interest reports it.
+
+        Raises
+        ------
+        ValueError
+            If the side or the window is not valid (:meth:`check_window`).
+
+        """
+        u0, v0, w, h = self.check_window(window)
+        info = self.camera_info(side)
+        K, P = info.K.copy(), info.P.copy()
+        K[0, 2] -= u0
+        K[1, 2] -= v0
+        P[0, 2] -= u0
+        P[1, 2] -= v0
+        return CameraInfo(width=w, height=h, distortion_model='plumb_bob', D=np.zeros(5), K=K,
+                          R=np.eye(3), P=P)

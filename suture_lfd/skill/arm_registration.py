@@ -40,7 +40,7 @@ optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
 """
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import itertools
 import json
 import logging
@@ -57,6 +57,7 @@ from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.control import Command, Controller, Observation
 from suture_lfd.perception import detect_markers, stereo_from_camera_info
 from suture_lfd.perception.instrument import InstrumentView, find_instrument
+from suture_lfd.perception.window import points_window
 from suture_lfd.skill.hysteresis import PlayTracker, plays_at, run_lengths
 
 if TYPE_CHECKING:
@@ -587,7 +588,7 @@ def bent_pose(kinematics: 'PsmKinematics', T_world_base: np.ndarray, straight: n
 
 def _markers_centre(sim: 'Simulation', stereo: 'StereoModel') -> np.ndarray | None:
     """Centre (m, ``world``) of every marker seen in the stereo pair, or None."""
-    frame = sim.render()
+    _, frame = sim.endoscope_frame()  # searched for: the whole frame
     found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
     points = np.vstack([np.asarray(found.entries, dtype=float).reshape(-1, 3),
                         np.asarray(found.exits, dtype=float).reshape(-1, 3)])
@@ -598,16 +599,35 @@ def _markers_centre(sim: 'Simulation', stereo: 'StereoModel') -> np.ndarray | No
     return T[:3, :3] @ points.mean(axis=0) + T[:3, 3]
 
 
+#: m: how far an instrument may be from where its kinematics put it at a registration pose (a
+#: dVRK's arms are within a 5-10 mm cube of it): the window looked at is widened by it.
+LOOK_MARGIN = 0.012
+
+
 def _look_at(sim: 'Simulation', arm: str, stereo: 'StereoModel',
              jaw: Sequence[float]) -> Sample:
-    """Render the stereo pair and find ``arm``'s instrument near where its kinematics put it."""
-    frame = sim.render()
+    """
+    Look at ``arm``'s instrument near where its kinematics put it.
+
+    The endoscope's images (:meth:`sim_bridge.simulation.Simulation.endoscope_frame`: the
+    delivered frame, with a frame timing) in the window around the instrument's expected
+    projection and :data:`LOOK_MARGIN` (the whole frame when that window is most of it); the
+    views found there are given in the whole frame's pixels.
+    """
     T_cw = invert_transform(sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left)
     q = np.array(sim.arms[arm].measured_jp, dtype=float)
     pts = _model_points(sim.kinematics[arm], sim.believed_base(arm), q, np.zeros(6), jaw)
-    uv_l, uv_r = stereo.project(pts @ T_cw[:3, :3].T + T_cw[:3, 3])
-    views = [find_instrument(img, uv[:2], uv[2])
-             for img, uv in ((frame.left_rgb, uv_l), (frame.right_rgb, uv_r))]
+    pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
+    uv_l, uv_r = stereo.project(pc)
+    # the shaft's axis (its points fitted), the jaws and the margin
+    window = points_window(stereo, pc, LOOK_MARGIN)
+    _, frame = sim.endoscope_frame(window)
+    offset = np.zeros(2) if window is None else np.array(window[:2], dtype=float)
+    views = []
+    for img, uv in ((frame.left_rgb, uv_l), (frame.right_rgb, uv_r)):
+        view = find_instrument(img, uv[:2] - offset, uv[2] - offset)
+        views.append(None if view is None else replace(
+            view, point=view.point + offset, end=view.end + offset))
     return q, T_cw, views[0], views[1]
 
 

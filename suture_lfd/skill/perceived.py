@@ -12,6 +12,7 @@ Frames: ``world`` (as the robot believes it), the camera's left optical frame ``
 4x4; metres.
 """
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import logging
@@ -19,9 +20,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from sim_bridge.scene.camera import StereoFrame
 from sim_bridge.scene.markers import MarkerPair
 from suture_lfd.perception import HeldView, NeedleTracker, detect_markers, stereo_from_camera_info
 from suture_lfd.perception.markers import pair_normal
+from suture_lfd.perception.window import Window, crop, in_frame, points_window, window_stereo
 
 if TYPE_CHECKING:
     from sim_bridge.common.needle import NeedleGeometry
@@ -83,7 +86,12 @@ class PerceivedScene:
         self.refit_facing = None if refit_facing is None else float(refit_facing)
         self._tracker = NeedleTracker(needle_geometry)
         self._stereo: Any = None
-        self._frame: tuple[float, Any, np.ndarray] | None = None
+        # the frame looked at last: its scene time, its renders by window, T_world_camera
+        self._frame: tuple[float, dict[Window | None, Any], np.ndarray] | None = None
+        self._last_window: Window | None = None
+        # the tools as observed at the latest control steps: (t, {arm: T_world_tool}), to pair a
+        # delayed frame with the arms as they were when it was exposed (its stamp)
+        self._tool_history: deque[tuple[float, Mapping[str, Any]]] = deque(maxlen=64)
         self._pair: MarkerPair | None = None
         self._support_normal: np.ndarray | None = None
         self._support_point: np.ndarray | None = None
@@ -92,24 +100,73 @@ class PerceivedScene:
         self.reset()
 
     # ------------------------------------------------------------------ images
-    def _look(self, sim: Any) -> tuple[Any, np.ndarray]:
+    def _look(self, sim: Any, window: Window | None = None
+              ) -> tuple[Any, np.ndarray, Any]:
         """
-        Render the stereo pair; return it with ``T_world_camera`` from the ECM's report.
+        Return the endoscope's images now, ``T_world_camera`` from the ECM's report, the camera.
 
-        Looked at twice at the same instant (the markers, then the needle), the scene is
-        rendered once.
+        The images are the endoscope's
+        (:meth:`sim_bridge.simulation.Simulation.endoscope_frame`): with a frame timing the
+        newest delivered frame, never the scene now. Looked at twice in the same frame (the
+        markers, then the needle) it is rendered once; a window of a frame already rendered
+        whole is cut from it. ``window``: only that region of both images
+        (:mod:`suture_lfd.perception.window`), with its camera.
         """
         if self._stereo is None:
-            camera = sim.camera
-            self._stereo = stereo_from_camera_info(camera.camera_info('left'),
-                                                   camera.camera_info('right'))
-        if self._frame is not None and self._frame[0] == sim.time:
-            return self._frame[1], self._frame[2]  # the same instant: the same images
-        frame = sim.render()
-        self.renders += 1
-        T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
-        self._frame = (sim.time, frame, T_world_camera)
-        return frame, T_world_camera
+            self._look_setup(sim)
+        key = sim.delivered_frame()
+        key = sim.time if key is None else key
+        if self._frame is None or self._frame[0] != key:
+            T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+            self._frame = (key, {}, T_world_camera)
+        _, views, T_world_camera = self._frame
+        frame = views.get(window)
+        if frame is None and window is not None and None in views:
+            whole = views[None]
+            frame = StereoFrame(left_rgb=crop(whole.left_rgb, window), left_depth=None,
+                                right_rgb=crop(whole.right_rgb, window), right_depth=None,
+                                T_world_left=whole.T_world_left,
+                                T_world_right=whole.T_world_right)
+        if frame is None:
+            _, frame = sim.endoscope_frame(window)
+            self.renders += 1
+        views[window] = frame
+        self._last_window = window
+        stereo = self._stereo if window is None else window_stereo(self._stereo, window)
+        return frame, T_world_camera, stereo
+
+    def _needle_window(self, sim: Any, T_world_needle: ArrayLike) -> Window | None:
+        """Return the window of the images around a needle expected at ``T_world_needle``."""
+        if self._stereo is None:
+            self._look_setup(sim)
+        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        points = self._tracker.geometry.points_world(
+            np.linalg.inv(T) @ np.asarray(T_world_needle, dtype=float), 24)
+        return points_window(self._stereo, points, self.window_margin)
+
+    def _tools_then(self, sim: Any, tools: Mapping[str, ArrayLike]
+                    ) -> Mapping[str, ArrayLike]:
+        """
+        Return the tools as they were when the frame a look gets now was exposed.
+
+        A delayed frame (an endoscope's latency) shows the arms as they were at its scene time:
+        the grasp it measures is taken against the tool poses observed then (the newest control
+        step at or before it), as a robot pairs an image with its state at the image's stamp.
+        An ideal camera's frame is of now: ``tools``.
+        """
+        t_scene = sim.delivered_frame()
+        if t_scene is None or t_scene >= sim.time:
+            return tools
+        for t, then in reversed(self._tool_history):
+            if t <= t_scene + 1e-9:
+                return {arm: then.get(arm, T) for arm, T in tools.items()}
+        return tools
+
+    def _look_setup(self, sim: Any) -> None:
+        """Read the camera's calibration (once)."""
+        camera = sim.camera
+        self._stereo = stereo_from_camera_info(camera.camera_info('left'),
+                                               camera.camera_info('right'))
 
     # ------------------------------------------------------------------ markers
     def markers(self, sim: Any) -> MarkerPair | None:
@@ -126,8 +183,8 @@ class PerceivedScene:
             The perceived pair in ``world``; None when it is not seen.
 
         """
-        frame, T = self._look(sim)
-        found = detect_markers(frame.left_rgb, frame.right_rgb, self._stereo)
+        frame, T, stereo = self._look(sim)  # searched for: the whole frame
+        found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
         i = self.pair_index - 1
         if not 0 <= i < found.n_pairs:
             _LOG.warning('pair %s: %d marker pairs seen, pair %d is not among them',
@@ -167,12 +224,16 @@ class PerceivedScene:
             :attr:`close_ambiguity` is taken (the better fit): either is within a jaw's reach,
             and the grasp is fitted again once the needle is held and turned.
 
+        With a prior the needle is tracked in the window of the images around it
+        (:attr:`window_margin`); without one it is searched for in the whole frame.
+
         """
-        frame, T = self._look(sim)
+        window = None if prior is None else self._needle_window(sim, prior)
+        frame, T, stereo = self._look(sim, window)
         T_camera_world = np.linalg.inv(T)
         prior_c = None if prior is None else T_camera_world @ np.asarray(prior, dtype=float)
         tools_c = [T_camera_world @ np.asarray(t, dtype=float) for t in tools]
-        estimate = self._tracker.estimate(frame.left_rgb, frame.right_rgb, self._stereo,
+        estimate = self._tracker.estimate(frame.left_rgb, frame.right_rgb, stereo,
                                           prior=prior_c, tools=tools_c,
                                           support_normal=self._support_normal,
                                           support_point=self._support_point)
@@ -221,6 +282,9 @@ class PerceivedScene:
         if self._pair is None:
             self.markers(sim)
         tools = arm_state.T_world_tool
+        if self._tool_history and self._tool_history[-1][0] > arm_state.t:
+            self._tool_history.clear()  # a scene reset turns time back
+        self._tool_history.append((arm_state.t, tools))
         # due unless a look failed less than look_period ago (a scene reset turns time back)
         due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
         if not self._holders and self._free_needle is None and due:
@@ -293,6 +357,9 @@ class PerceivedScene:
                       arm, facing)
             return None
         lying = self._grasp_views.get(arm)
+        tools = self._tools_then(sim, tools)  # the arms as the frame shows them
+        held = self._held_needle(tools, arm)
+        assert held is not None  # the arm holds it: its grasp is known
         if lying is not None:
             return self._fit_grasp(sim, arm, tools, lying)
         view = self.needle(sim, prior=held, tools=list(tools.values()))
@@ -314,10 +381,16 @@ class PerceivedScene:
         :attr:`max_grasp_change`.
         """
         (left, right, T_world_camera0, tools0), T_world_tool0 = lying
-        frame, T_world_camera = self._look(sim)
+        held = self._held_needle(tools, arm)
+        window = None if held is None else self._needle_window(sim, held)
+        frame, T_world_camera, _ = self._look(sim, window)
+        left_now, right_now = frame.left_rgb, frame.right_rgb
+        if window is not None:  # one camera for both pairs: the window in its frame
+            left_now = in_frame(left_now, window, self._stereo)
+            right_now = in_frame(right_now, window, self._stereo)
         inv0, inv = np.linalg.inv(T_world_camera0), np.linalg.inv(T_world_camera)
         views = [HeldView(left, right, inv0 @ T_world_tool0, tuple(inv0 @ T for T in tools0)),
-                 HeldView(frame.left_rgb, frame.right_rgb,
+                 HeldView(left_now, right_now,
                           inv @ np.asarray(tools[arm], dtype=float),
                           tuple(inv @ np.asarray(T, dtype=float) for T in tools.values()))]
         old = self._grasps[arm]
@@ -356,6 +429,9 @@ class PerceivedScene:
         norm = float(np.linalg.norm(sight))
         return abs(float(N[:3, 2] @ sight)) / norm if norm > 0.0 else 0.0
 
+    #: m: how far a tracked needle may be from where it is expected (a grasp's error, a few
+    #: millimetres of fall when let go): the window of the images looked at is widened by it.
+    window_margin = 0.005
     #: A held needle facing the camera less than this (:meth:`facing`) is not looked at: edge
     #: on, 2-3 % of its wire shows, far below what the tracker needs.
     min_facing = 0.2
@@ -412,6 +488,10 @@ class PerceivedScene:
         """Return the pair just looked at and the tools then in view, if the needle was seen."""
         if seen is None or self._frame is None:
             return None
-        _, frame, T_world_camera = self._frame
-        return (frame.left_rgb, frame.right_rgb, T_world_camera,
-                [np.asarray(T, dtype=float) for T in tools.values()])
+        _, views, T_world_camera = self._frame
+        window = self._last_window
+        left, right = views[window].left_rgb, views[window].right_rgb
+        if window is not None:  # kept in the whole frame's camera
+            left = in_frame(left, window, self._stereo)
+            right = in_frame(right, window, self._stereo)
+        return (left, right, T_world_camera, [np.asarray(T, dtype=float) for T in tools.values()])

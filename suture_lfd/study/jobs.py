@@ -50,6 +50,7 @@ from sim_bridge.common.archive import save_archive
 from sim_bridge.common.geometry import quaternion_angle
 from sim_bridge.common.vocabulary import PSMS, SUBTASKS, TASKS
 from sim_bridge.realism.calibration import load_arm_realism
+from sim_bridge.realism.endoscope import endoscope_preset
 from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.simulation import Simulation, load_simulation_config
 from sim_bridge.simulation_config import SimulationConfig
@@ -142,7 +143,13 @@ class JobSettings:
         10 ms step they cost about a sixth of a throw).
     tissue : str
         Preset of ``config/realism_tissue.yaml`` for every simulation of the study (the
-        needle in tissue); ``'none'``: without those effects.
+        needle in tissue); ``'none'``: without those effects. A job's own ``tissue`` (a
+        sweep's cell) overrides it.
+    camera : str
+        Preset of ``config/realism_camera.yaml`` of the endoscope every simulation of the study
+        renders through (physical mode looks at its images; ground truth renders none);
+        ``'none'``: an ideal camera. A physical-mode job's ``camera`` (a sweep's cell)
+        overrides it.
 
     """
 
@@ -159,6 +166,7 @@ class JobSettings:
     thread_period: float = 0.5
     collision_period: float = 0.05
     tissue: str = 'none'
+    camera: str = 'none'
 
 
 @dataclass(eq=False)
@@ -171,7 +179,9 @@ class WorkerState:
     settings : JobSettings
         The study's job settings.
     sims : dict
-        ``(phantom, physics step) -> Simulation``, built on first use.
+        ``(phantom, physics step) -> Simulation`` (the study's tissue and camera), or
+        ``(phantom, physics step, tissue, camera) -> Simulation`` for a job's own, built on
+        first use.
     data : dict
         Training data of demonstrations, by key.
     skills : dict
@@ -201,7 +211,7 @@ class WorkerState:
     """
 
     settings: JobSettings
-    sims: dict[tuple[str, float], Simulation] = field(default_factory=dict)
+    sims: dict[tuple[Any, ...], Simulation] = field(default_factory=dict)
     data: dict[str, Any] = field(default_factory=dict)
     skills: dict[tuple[str, str, tuple[Any, ...]], ThrowSkill] = field(default_factory=dict)
     subjects: dict[int, dict[str, Subject]] | None = None
@@ -250,29 +260,34 @@ def init_worker(settings: JobSettings, ros: RosSettings | None = None) -> Worker
 
 
 def _simulation(state: WorkerState, phantom: str, step: float | None = None,
-                spec: Mapping[str, Any] | None = None) -> Simulation:
+                spec: Mapping[str, Any] | None = None, tissue: str | None = None,
+                camera: str | None = None) -> Simulation:
     """
     Return the worker's simulation of a phantom at ``step`` (default: the throws' step).
 
     ``spec`` (a held-out phantom's configuration, :mod:`suture_lfd.study.held_out`): ``phantom`` is
-    then the key of that geometry.
+    then the key of that geometry. ``tissue``, ``camera``: a job's presets (default: the
+    study's).
     """
     s = state.settings
     dt = s.physics_step if step is None else float(step)
+    tissue = s.tissue if tissue is None else tissue
+    camera = s.camera if camera is None else camera
     sims = state.sims
-    if (phantom, dt) not in sims:
+    key: tuple[Any, ...] = (phantom, dt) if (tissue, camera) == (s.tissue, s.camera) \
+        else (phantom, dt, tissue, camera)
+    if key not in sims:
         config = load_simulation_config()
         loop = replace(config.loop, thread_period=s.thread_period,
                        collision_period=max(s.collision_period, dt))
         config = replace(config, world=replace(config.world, physics_step=dt), loop=loop)
-        config = _with_tissue(config, s.tissue)
+        config = _with_camera(_with_tissue(config, tissue), camera)
         if spec is not None:
-            sims[phantom, dt] = Simulation(config, phantom=phantom_config(spec),
-                                           rng=np.random.default_rng(0))
+            sims[key] = Simulation(config, phantom=phantom_config(spec),
+                                   rng=np.random.default_rng(0))
         else:
-            sims[phantom, dt] = Simulation(config, phantom=phantom,
-                                           rng=np.random.default_rng(0))
-    return sims[phantom, dt]
+            sims[key] = Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
+    return sims[key]
 
 
 #: Physical-mode robots a study process keeps between jobs (the jobs of one subject on one
@@ -281,22 +296,24 @@ ROBOTS_KEPT = 4
 
 
 def _physical_simulation(state: WorkerState, phantom: str, step: float,
-                         physical: RobotErrors) -> Simulation:
+                         physical: RobotErrors, tissue: str | None = None) -> Simulation:
     """
     Return the simulation of a phantom for a physical-mode job (the worker's: kept).
 
-    ``physical``: the job's robot errors. Level 0 is the worker's shared simulation (perfect
-    kinematics: nothing to draw); any other level the robot of those errors (drawn per subject
-    and phantom, :func:`suture_lfd.study.physical.robot_key`), kept in ``state.robots`` for
-    the next jobs on it.
+    ``physical``: the job's robot errors (and its camera). Level 0 is the worker's shared
+    simulation (perfect kinematics: nothing to draw); any other level the robot of those errors
+    (drawn per subject and phantom, :func:`suture_lfd.study.physical.robot_key`), kept in
+    ``state.robots`` for the next jobs on it. ``tissue``: the job's preset (default: the
+    study's).
     """
     if not _has_errors(physical):
-        return _simulation(state, phantom, step)
-    key = _robot_key(phantom, step, physical)
+        return _simulation(state, phantom, step, tissue=tissue,
+                           camera=_camera(state, physical))
+    key = _robot_key(phantom, step, physical, *_presets(state, physical, tissue))
     robots = state.robots
     sim = robots.pop(key, None)
     if sim is None:
-        sim = _robot(state, phantom, step, physical)
+        sim = _robot(state, phantom, step, physical, tissue)
         state.registered.discard(key)
         if load_registration(_registration_path(state, key), sim,
                              _registration_key(state, key)) is not None:
@@ -394,15 +411,33 @@ def _has_errors(physical: RobotErrors) -> bool:
     return physical.arm_realism != 'static' or float(physical.error_level) != 0.0
 
 
-def _robot_key(phantom: str, step: float, physical: RobotErrors
-               ) -> tuple[str, float, float, int, str]:
-    """Return a robot's key: (phantom, physics step, error level, error seed, realism)."""
-    return (phantom, float(step), float(physical.error_level), int(physical.error_seed),
-            physical.arm_realism + ''.join(f'-{k}{v:g}' for k, v in physical.arm_levels))
+def _camera(state: WorkerState, physical: RobotErrors | None) -> str:
+    """Return a job's camera preset: its own (a sweep's cell) or the study's."""
+    own = None if physical is None else physical.camera
+    return state.settings.camera if own is None else own
 
 
-def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
-           ) -> Simulation:
+def _presets(state: WorkerState, physical: RobotErrors, tissue: str | None) -> tuple[str, str]:
+    """Return a physical-mode job's (tissue, camera) presets, its own or the study's."""
+    return (state.settings.tissue if tissue is None else tissue), _camera(state, physical)
+
+
+def _robot_key(phantom: str, step: float, physical: RobotErrors, tissue: str = 'none',
+               camera: str = 'none') -> tuple[str, float, float, int, str]:
+    """
+    Return a robot's key: (phantom, physics step, error level, error seed, model).
+
+    The model is the arm realism with its levels, then the tissue and camera presets other than
+    ``none`` (``dvrk-servo_level0.5-camera-dvrk``).
+    """
+    model = physical.arm_realism + ''.join(f'-{k}{v:g}' for k, v in physical.arm_levels)
+    model += ''.join(f'-{what}-{name}' for what, name in (('tissue', tissue), ('camera', camera))
+                     if name != 'none')
+    return (phantom, float(step), float(physical.error_level), int(physical.error_seed), model)
+
+
+def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors,
+           tissue: str | None = None) -> Simulation:
     """Build the simulation of a robot with the hidden kinematic errors ``physical``."""
     level = float(physical.error_level)
     s = state.settings
@@ -414,7 +449,8 @@ def _robot(state: WorkerState, phantom: str, step: float, physical: RobotErrors
     config = replace(config, world=replace(config.world, physics_step=float(step)), loop=loop,
                      kinematic_error_level=level,
                      kinematic_error_seed=int(physical.error_seed), arm_realism=realism)
-    config = _with_tissue(config, s.tissue)
+    tissue, camera = _presets(state, physical, tissue)
+    config = _with_camera(_with_tissue(config, tissue), camera)
     return Simulation(config, phantom=phantom, rng=np.random.default_rng(0))
 
 
@@ -432,6 +468,13 @@ def _with_tissue(config: SimulationConfig, preset: str) -> SimulationConfig:
     if preset == 'none':
         return config
     return replace(config, tissue_realism=load_tissue_realism(preset))
+
+
+def _with_camera(config: SimulationConfig, preset: str) -> SimulationConfig:
+    """Return ``config`` with the endoscope preset ``preset`` (unchanged for none)."""
+    if preset == 'none':
+        return config
+    return replace(config, endoscope=endoscope_preset(preset))
 
 
 def _subject(state: WorkerState, name: str, seed: int | None = None) -> Subject:
@@ -502,13 +545,15 @@ def demo_job(job: DemoJob, state: WorkerState) -> DemoRecord:
     subject = _subject(state, job.subject, job.cohort_seed)
     physical = job.physical
     if physical is None:
-        sim = _simulation(state, job.phantom, s.demo_physics_step)
+        sim = _simulation(state, job.phantom, s.demo_physics_step, tissue=job.tissue)
         link = None
     else:
-        sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical)
+        sim = _physical_simulation(state, job.phantom, s.demo_physics_step, physical,
+                                   job.tissue)
         if _has_errors(physical):
             # registered before anything is recorded, as in a lab (once per study)
-            _registered(state, _robot_key(job.phantom, s.demo_physics_step, physical), sim)
+            _registered(state, _robot_key(job.phantom, s.demo_physics_step, physical,
+                                          *_presets(state, physical, job.tissue)), sim)
         link = TeleoperatedRobot(sim, job.pair)
     try:
         run = run_demonstration(sim, subject, job.pair, seed=job.seed,
@@ -686,9 +731,11 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
     replay: str | None = name
     outcome: ThrowOutcome | RosOutcome
     if physical is not None:
-        sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical)
+        sim = _physical_simulation(state, job.test_phantom, s.physics_step, physical,
+                                   job.tissue)
         if physical.correction and _has_errors(physical):
-            _registered(state, _robot_key(job.test_phantom, s.physics_step, physical), sim)
+            _registered(state, _robot_key(job.test_phantom, s.physics_step, physical,
+                                          *_presets(state, physical, job.tissue)), sim)
         sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
                                 timeout=s.timeout, control_period=s.control_period,
@@ -699,8 +746,10 @@ def throw_job(job: ThrowJob, state: WorkerState) -> ThrowRecord:
         replay_bytes = sampler.save(out / replay, job.test_pair, outcome.events,
                                     outcome.subtask_times)
     elif ros is None:
-        sim = (_simulation(state, job.test_key or job.test_phantom, spec=job.test_config)
-               if job.test_config is not None else _simulation(state, job.test_phantom))
+        sim = (_simulation(state, job.test_key or job.test_phantom, spec=job.test_config,
+                           tissue=job.tissue)
+               if job.test_config is not None
+               else _simulation(state, job.test_phantom, tissue=job.tissue))
         sampler = ThrowSampler(sim)
         outcome = execute_throw(sim, skill, job.test_pair, seed=job.seed,
                                 timeout=s.timeout, control_period=s.control_period,

@@ -54,6 +54,12 @@ def add_study_arguments(parser: argparse.ArgumentParser) -> None:
                         help='needle-in-tissue realism preset of config/realism_tissue.yaml '
                              '(tissue forces, the needle turning in the jaw, a pad that gives, '
                              'thread drag): none (default) or tissue')
+    parser.add_argument('--camera', default='none',
+                        help='endoscope realism preset of config/realism_camera.yaml that '
+                             "physical mode's perception looks through (dvrk: a distorting "
+                             'lens and its rectification, 30 frames per second reaching the '
+                             'robot 50 ms after the scene they show): none (default, an ideal '
+                             'camera) or dvrk')
     held_out.add_arguments(parser)
     physical.add_arguments(parser)
     parser.add_argument('--plan', action='store_true',

@@ -13,6 +13,9 @@ Paths in jobs and records are relative to the study's output folder. Units: time
 (simulated, except ``wall_s`` and ``cpu_s``), position errors mm, orientation errors deg. A
 value that is not a finite number is stored as None (JSON has no NaN), so a record read back
 from the store equals the one stored.
+
+Size: the two jobs and their two records are one schema (a record's fields are its job's plus
+its results, read and written in one place); split it when a third kind of job comes.
 """
 
 from collections.abc import Mapping
@@ -96,6 +99,9 @@ class RobotErrors:
         ``config/realism_arm.yaml`` (``'dvrk'``; ``error_level`` then unused).
     arm_levels : tuple of (str, float)
         Per-effect levels overriding the preset's (``(('servo_level', 0.0),)``).
+    camera : str or None
+        The endoscope's preset of ``config/realism_camera.yaml`` (``'none'``: an ideal
+        camera); None: the study's (``--camera``).
 
     """
 
@@ -104,6 +110,7 @@ class RobotErrors:
     correction: bool = False
     arm_realism: str = 'static'
     arm_levels: tuple[tuple[str, float], ...] = ()
+    camera: str | None = None
 
 
 @dataclass(frozen=True)
@@ -136,6 +143,9 @@ class DemoJob:
         Demonstrated on a robot with these hidden errors (None: ground truth).
     folder : str or None
         The physical-mode variant's folder.
+    tissue : str or None
+        The needle-in-tissue preset of its simulation (a sweep's cell); None: the study's
+        (``--tissue``).
 
     """
 
@@ -153,6 +163,7 @@ class DemoJob:
     cohort_seed: int | None = None
     physical: RobotErrors | None = None
     folder: str | None = None
+    tissue: str | None = None
     kind: str = 'demo'
 
     def failed(self, error: str) -> 'DemoRecord':
@@ -205,6 +216,9 @@ class ThrowJob:
         Executed on a robot with these hidden errors (None: ground truth).
     folder : str or None
         The physical-mode variant's folder.
+    tissue : str or None
+        The needle-in-tissue preset of its simulation (a sweep's cell); None: the study's
+        (``--tissue``).
 
     """
 
@@ -233,6 +247,7 @@ class ThrowJob:
     cohort_seed: int | None = None
     physical: RobotErrors | None = None
     folder: str | None = None
+    tissue: str | None = None
 
     def failed(self, error: str) -> 'ThrowRecord':
         """Return this job's record stored as an error (it runs again in a later run)."""
@@ -297,6 +312,7 @@ class DemoRecord:
     cohort_seed: int | None = None
     physical: RobotErrors | None = None
     folder: str | None = None
+    tissue: str | None = None
     error: str = ''
     wall_s: float | None = None
     cpu_s: float | None = None
@@ -400,6 +416,7 @@ class ThrowRecord:
     cohort_seed: int | None = None
     physical: RobotErrors | None = None
     folder: str | None = None
+    tissue: str | None = None
     replay: str | None = None
     replay_bytes: int | None = None
     error: str = ''

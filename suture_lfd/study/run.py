@@ -143,8 +143,13 @@ def build_config(args: argparse.Namespace) -> dict[str, Any]:
         from sim_bridge.realism.tissue_config import load_tissue_realism
 
         load_tissue_realism(tissue)  # a bad name stops here, with the names there are
+    camera = str(getattr(args, 'camera', 'none'))
+    if camera != 'none':
+        from sim_bridge.realism.endoscope import endoscope_preset
+
+        endoscope_preset(camera)  # a bad name stops here, with the names there are
     settings = JobSettings(out='', cohort_path=str(cohort_path), cohort_seed=args.seed,
-                           tissue=tissue)
+                           tissue=tissue, camera=camera)
     files = {name: file_digest(config_path(name))
              for name in ('scene.yaml', 'world.yaml', 'dmp.yaml', 'kinematics.yaml')
              if config_path(name).exists()}
@@ -373,7 +378,8 @@ def run_study(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
         return 2
     settings = JobSettings(out=str(out), cohort_path=config['cohort_file'],
                            cohort_seed=config['seed'],
-                           tissue=config['settings'].get('tissue', 'none'))
+                           tissue=config['settings'].get('tissue', 'none'),
+                           camera=config['settings'].get('camera', 'none'))
     status = 0
     with stop_on_signals('study') as stop, ResultStore(out) as store:
         reused = stored_note('study', store, jobs, stream)

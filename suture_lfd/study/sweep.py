@@ -11,15 +11,24 @@ vary (keys of ``config/dmp.yaml``, for both learnt subtasks or one)::
       dmp:
         n_bfs: [50, 100]             # both tasks (ii and iv)
         task_iv.alpha_y: [20.0, 25.0]  # one task
+      tissue: [none, tissue]         # optional: needle-in-tissue presets
       physical:                      # optional: cells in physical mode
         error_level: [0, 1, 3, 5]    # mm class of the hidden kinematic errors
         correction: [true, false]    # the executor's correction on what it sees
+        arm_realism: [static, dvrk]  # the arm model: static offsets or a realism preset
+        servo_level: [0, 1]          # a level of the preset's effects (also calibration_level,
+                                     # transmission_level)
+        camera: [none, dvrk]         # the endoscope's preset
 
-The grid is every combination of the ``dmp`` and ``physical`` values (a *cell*), each studied
-with every seed and method. A cell with a ``physical`` value runs in physical mode
-(:mod:`suture_lfd.study.physical`; ``error_level`` 3 and ``correction`` true unless swept): its
-demonstrations are its seed's and level's physical-mode ones, shared by every cell of that seed
-and level. Demonstrations depend on the seed only (the DMP hyper-parameters act when a skill
+The grid is every combination of the ``dmp``, ``tissue`` and ``physical`` values (a *cell*),
+each studied with every seed and method. A cell with a ``physical`` value runs in physical mode
+(:mod:`suture_lfd.study.physical`; ``error_level`` 3, ``correction`` true, ``arm_realism``
+static and ``camera`` none unless swept; with an arm realism preset the static ``error_level``
+is unused, and a static cell ignores the preset's levels): its demonstrations are its seed's
+and robot's (level, arm model, camera, tissue) physical-mode ones, shared by every cell of that
+seed and robot. A ``tissue`` preset other than ``none`` gives its cells their own
+demonstrations too (the needle in tissue changes them). Demonstrations depend on nothing else
+(the DMP hyper-parameters act when a skill
 is learnt from a segment file: the segment file keeps the installed ``n_pts`` and a cell
 resamples it to its own), so every cell of a seed shares that seed's demonstrations: a
 2 x 2 sweep over two seeds records two sets of demonstrations, not eight.
@@ -55,11 +64,21 @@ from typing import IO, Any
 import numpy as np
 from sim_bridge.common.configfile import ConfigError, load_yaml
 from sim_bridge.common.vocabulary import TASKS
+from sim_bridge.realism.calibration import load_arm_realism
+from sim_bridge.realism.endoscope import endoscope_preset
 from suture_lfd.study import physical
 from suture_lfd.study.engine import parse_engine
 from suture_lfd.study.jobs import JobSettings
 from suture_lfd.study.keys import demo_ids, with_ids
-from suture_lfd.study.records import DemoJob, DemoRecord, Record, ThrowJob, ThrowRecord, plan_json
+from suture_lfd.study.records import (
+    DemoJob,
+    DemoRecord,
+    Record,
+    RobotErrors,
+    ThrowJob,
+    ThrowRecord,
+    plan_json,
+)
 from suture_lfd.study.run import (
     attach_demos,
     build_config,
@@ -90,8 +109,15 @@ METRICS = (
     ('iv_goal_deg', ('regeneration', 'errors', 'iv/ori/goal', 'mean')),
 )
 PLOTTED = ('generality_overall', 'regeneration_success', 'ii_goal_mm', 'iv_goal_mm')
-#: Physical-mode keys of a sweep file (``sweep.physical``) and their value when not swept.
-PHYSICAL_AXES = {'error_level': 3.0, 'correction': True}
+#: Physical-mode keys of a sweep file (``sweep.physical``) and their value when not swept
+#: (None: the arm realism preset's own level).
+PHYSICAL_AXES: dict[str, Any] = {
+    'error_level': 3.0, 'correction': True, 'arm_realism': 'static', 'calibration_level': None,
+    'transmission_level': None, 'servo_level': None, 'camera': 'none'}
+#: The per-effect levels of an arm realism preset (``config/realism_arm.yaml``).
+ARM_LEVELS = ('calibration_level', 'transmission_level', 'servo_level')
+#: Top-level keys of a sweep file's ``sweep`` mapping.
+SWEEP_KEYS = ('design', 'seeds', 'methods', 'dmp', 'tissue', 'physical')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,7 +164,7 @@ def dmp_overrides(point: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """Return a cell's DMP values as ``{task: {key: value}}`` (what a throw job carries)."""
     out: dict[str, dict[str, Any]] = {task: {} for task in TASKS}
     for name, value in point.items():
-        if name in PHYSICAL_AXES:
+        if name in PHYSICAL_AXES or name == 'tissue':
             continue
         task, _, key = name.rpartition('.')
         for t in ([task[len('task_'):]] if task else TASKS):
@@ -164,10 +190,10 @@ def load_sweep(path: str | Path) -> Sweep:
     if not isinstance(data, dict) or not isinstance(data.get('sweep'), dict):
         raise ConfigError(f'{path}: expected a mapping with the key "sweep"')
     body = data['sweep']
-    unknown = sorted(set(body) - {'design', 'seeds', 'methods', 'dmp', 'physical'})
+    unknown = sorted(set(body) - set(SWEEP_KEYS))
     if unknown:
-        raise ConfigError(f'{path}: sweep.{unknown[0]}: unknown key (expected design, seeds, '
-                          'methods, dmp, physical)')
+        raise ConfigError(f'{path}: sweep.{unknown[0]}: unknown key (expected '
+                          f'{", ".join(SWEEP_KEYS)})')
     design = body.get('design') or {}
     if not isinstance(design, dict) or set(design) - set(DESIGN_KEYS):
         bad = sorted(set(design) - set(DESIGN_KEYS)) if isinstance(design, dict) else ['']
@@ -195,6 +221,7 @@ def load_sweep(path: str | Path) -> Sweep:
             raise ConfigError(f'{path}: sweep.dmp.{name}: expected a non-empty list of values, '
                               f'got {values!r}')
         axes.append((str(name), tuple(values)))
+    axes += _tissue_axis(path, body.get('tissue'))
     axes += _physical_axes(path, body.get('physical'))
     sweep = Sweep(dict(design), tuple(seeds), tuple(methods), tuple(axes))
     for _, point in sweep.cells():  # every value must make valid parameters
@@ -205,6 +232,33 @@ def load_sweep(path: str | Path) -> Sweep:
     return sweep
 
 
+def _presets(path: str | Path, key: str, values: Any, off: str, kind: str,
+             load: Any) -> tuple[str, ...]:
+    """Return a swept list of preset names, each checked with ``load`` (``off``: none)."""
+    if (not isinstance(values, list) or not values
+            or not all(isinstance(v, str) for v in values)):
+        raise ConfigError(f'{path}: sweep.{key}: expected a non-empty list of {off} or presets '
+                          f'of {kind}, got {values!r}')
+    for name in values:
+        if name != off:
+            try:
+                load(name)
+            except (ConfigError, ValueError) as exc:
+                raise ConfigError(f'{path}: sweep.{key}: expected {off} or presets of {kind}, '
+                                  f'got {name!r} ({exc})') from None
+    return tuple(values)
+
+
+def _tissue_axis(path: str | Path, values: Any) -> list[tuple[str, tuple[Any, ...]]]:
+    """Return the swept needle-in-tissue presets of a sweep file (``sweep.tissue``)."""
+    if values is None:
+        return []
+    from sim_bridge.realism.tissue_config import load_tissue_realism
+
+    return [('tissue', _presets(path, 'tissue', values, 'none', 'config/realism_tissue.yaml',
+                                load_tissue_realism))]
+
+
 def _physical_axes(path: str | Path, section: Any) -> list[tuple[str, tuple[Any, ...]]]:
     """Return the swept physical-mode axes of a sweep file's ``physical`` section."""
     if section is None:
@@ -213,7 +267,7 @@ def _physical_axes(path: str | Path, section: Any) -> list[tuple[str, tuple[Any,
         bad = sorted(set(section) - set(PHYSICAL_AXES)) if isinstance(section, dict) else ['']
         raise ConfigError(f'{path}: sweep.physical{"." + bad[0] if bad[0] else ""}: expected a '
                           f'mapping with keys from {", ".join(PHYSICAL_AXES)}')
-    axes = []
+    axes: list[tuple[str, tuple[Any, ...]]] = []
     levels = section.get('error_level')
     if levels is not None:
         if (not isinstance(levels, list) or not levels
@@ -229,15 +283,138 @@ def _physical_axes(path: str | Path, section: Any) -> list[tuple[str, tuple[Any,
             raise ConfigError(f'{path}: sweep.physical.correction: expected a non-empty list '
                               f'of true / false, got {corrections!r}')
         axes.append(('correction', tuple(corrections)))
+    if 'arm_realism' in section:
+        axes.append(('arm_realism', _presets(
+            path, 'physical.arm_realism', section['arm_realism'], 'static',
+            'config/realism_arm.yaml', load_arm_realism)))
+    for key in ARM_LEVELS:
+        values = section.get(key)
+        if values is None:
+            continue
+        if 'arm_realism' not in section:
+            raise ConfigError(f'{path}: sweep.physical.{key}: a level of the arm realism needs '
+                              'sweep.physical.arm_realism (presets of config/realism_arm.yaml)')
+        if (not isinstance(values, list) or not values
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                           and math.isfinite(v) and v >= 0 for v in values)):
+            raise ConfigError(f'{path}: sweep.physical.{key}: expected a non-empty list of '
+                              f'numbers >= 0 (0: the effect off, 1: the preset), got {values!r}')
+        axes.append((key, tuple(float(v) for v in values)))
+    if 'camera' in section:
+        axes.append(('camera', _presets(path, 'physical.camera', section['camera'], 'none',
+                                        'config/realism_camera.yaml', endoscope_preset)))
     return axes
 
 
-def physical_point(point: Mapping[str, Any]) -> tuple[float, bool] | None:
-    """Return a cell's physical mode as ``(level, correction)``, or None for ground truth."""
+@dataclasses.dataclass(frozen=True)
+class CellMode:
+    """
+    How a cell's jobs run, beside its DMP values.
+
+    Attributes
+    ----------
+    tissue : str
+        Needle-in-tissue preset (``'none'``: without).
+    physical : RobotErrors or None
+        The robot of a physical-mode cell (its error seed left 0: drawn per subject and
+        phantom when planned); None: ground truth.
+
+    """
+
+    tissue: str = 'none'
+    physical: RobotErrors | None = None
+
+    def demo_folder(self) -> str:
+        """Return the folder (``''`` or ending in ``/``) of the cell's demonstrations."""
+        extra = f'tissue-{self.tissue}' if self.tissue != 'none' else ''
+        if self.physical is None:
+            return f'{extra}/' if extra else ''
+        return f'physical/{self._robot(True)}/'
+
+    def throw_folder(self) -> str:
+        """Return the folder (``''`` or ending in ``/``) of the cell's throws in its own."""
+        if self.physical is None:
+            return ''
+        return f'physical/{self._robot(self.physical.correction)}/'
+
+    def _robot(self, correction: bool) -> str:
+        p = self.physical
+        assert p is not None
+        name = physical.variant_name(p.error_level, True, p.arm_realism)
+        name += ''.join(f'-{k}{v:g}' for k, v in p.arm_levels)
+        name += f'-camera-{p.camera}' if p.camera is not None else ''
+        name += f'-tissue-{self.tissue}' if self.tissue != 'none' else ''
+        return name + ('' if correction else '-open')
+
+    def _mark(self, job: Any, where: str, old: str) -> Any:
+        """Return a planned physical-mode job moved from ``old`` to this cell's folders."""
+        p = self.physical
+        assert p is not None
+
+        def moved(value: str | None, to: str = where) -> str | None:
+            return value.replace(old, to, 1) if value and value.startswith(old) else value
+
+        fields = {'key': moved(job.key), 'folder': moved(job.folder),
+                  'physical': dataclasses.replace(job.physical, arm_levels=p.arm_levels,
+                                                  camera=p.camera),
+                  'tissue': self.tissue if self.tissue != 'none' else None}
+        if isinstance(job, DemoJob):
+            fields.update(bag=moved(job.bag), segments=moved(job.segments))
+        else:
+            fields.update(trajectories=moved(job.trajectories))
+        return dataclasses.replace(job, **fields)
+
+    def demos(self, demos: Sequence[DemoJob], seed: int) -> list[DemoJob]:
+        """Return the cell's demonstrations made from a seed's ground-truth ones."""
+        if self.physical is None:
+            folder = self.demo_folder()
+            return [dataclasses.replace(job, key=folder + job.key, bag=folder + job.bag,
+                                        segments=folder + job.segments, tissue=self.tissue)
+                    for job in demos] if folder else list(demos)
+        p = self.physical
+        planned, _ = physical.plan_physical(
+            {'levels': [p.error_level], 'corrections': [True], 'arm_realism': p.arm_realism},
+            demos, [], job_seed, seed)
+        old = f'physical/{physical.variant_name(p.error_level, True, p.arm_realism)}/'
+        return [self._mark(job, self.demo_folder(), old) for job in planned]
+
+    def throws(self, throws: Sequence[ThrowJob], seed: int) -> list[ThrowJob]:
+        """Return the cell's throws made from a seed's ground-truth ones."""
+        if self.physical is None:
+            folder = self.demo_folder()
+            return [dataclasses.replace(job, demo_key=folder + job.demo_key,
+                                        tissue=self.tissue) for job in throws] \
+                if folder else list(throws)
+        p = self.physical
+        _, planned = physical.plan_physical(
+            {'levels': [p.error_level], 'corrections': [p.correction],
+             'arm_realism': p.arm_realism}, [], throws, job_seed, seed)
+        old = f'physical/{physical.variant_name(p.error_level, p.correction, p.arm_realism)}/'
+        old_demos = f'physical/{physical.variant_name(p.error_level, True, p.arm_realism)}/'
+        out = []
+        for job in planned:
+            job = dataclasses.replace(job, demo_key=job.demo_key.replace(
+                old_demos, self.demo_folder(), 1))
+            out.append(self._mark(job, self.throw_folder(), old))
+        return out
+
+
+def cell_mode(point: Mapping[str, Any]) -> CellMode:
+    """Return how a cell (``{parameter: value}``) runs: its tissue and, in physical mode, robot."""
+    tissue = str(point.get('tissue', 'none'))
     if not any(k in point for k in PHYSICAL_AXES):
-        return None
-    return (float(point.get('error_level', PHYSICAL_AXES['error_level'])),
-            bool(point.get('correction', PHYSICAL_AXES['correction'])))
+        return CellMode(tissue)
+    realism = str(point.get('arm_realism', PHYSICAL_AXES['arm_realism']))
+    # a preset's robot has no static class; a static robot no preset levels
+    level = float(point.get('error_level', PHYSICAL_AXES['error_level'])) \
+        if realism == 'static' else 0.0
+    levels = () if realism == 'static' else tuple(
+        (k, float(point[k])) for k in ARM_LEVELS if point.get(k) is not None)
+    camera = str(point.get('camera', PHYSICAL_AXES['camera']))
+    return CellMode(tissue, RobotErrors(
+        error_level=level, error_seed=0,
+        correction=bool(point.get('correction', PHYSICAL_AXES['correction'])),
+        arm_realism=realism, arm_levels=levels, camera=None if camera == 'none' else camera))
 
 
 def _check_point(point: Mapping[str, Any]) -> None:
@@ -275,36 +452,32 @@ def plan_sweep(sweep: Sweep) -> tuple[dict[str, Any], list[DemoJob], list[ThrowJ
     """
     studies, demos, throws = {}, [], []
     cells = sweep.cells()
-    modes = {name: physical_point(point) for name, point in cells}
-    levels = sorted({mode[0] for mode in modes.values() if mode is not None})
+    modes = {name: cell_mode(point) for name, point in cells}
+    # one set of demonstrations per demonstration folder: ground truth (per tissue) first,
+    # then the physical robots by error level
+    kept: dict[str, CellMode] = {}
+    for mode in sorted(modes.values(), key=lambda m: (
+            m.physical is not None, m.physical.error_level if m.physical else 0.0)):
+        kept.setdefault(mode.demo_folder(), mode)
     for seed in sweep.seeds:
         config = build_config(_study_args(sweep, seed))
         studies[str(seed)] = config
         seed_demos, seed_throws = plan_jobs(config)
         prefix = f'seed-{seed}'
-        phys_demos, _ = physical.plan_physical({'levels': levels, 'corrections': [True]},
-                                               seed_demos, [], job_seed, seed)
-        ground = seed_demos if any(m is None for m in modes.values()) else []
         placed = [dataclasses.replace(job, id='', key=f'{prefix}/{job.key}',
                                       cohort_seed=int(seed), bag=f'{prefix}/{job.bag}',
                                       segments=f'{prefix}/{job.segments}')
-                  for job in [*ground, *phys_demos]]
-        seed_demos = with_ids(placed, config)
-        demos += seed_demos
+                  for mode in kept.values() for job in mode.demos(seed_demos, seed)]
+        placed_demos = with_ids(placed, config)
+        demos += placed_demos
         for name, point in cells:
             where = f'cells/{name}/{prefix}'
-            cell_throws = seed_throws
-            mode = modes[name]
-            if mode is not None:
-                level, correction = mode
-                _, cell_throws = physical.plan_physical(
-                    {'levels': [level], 'corrections': [correction]}, [], seed_throws,
-                    job_seed, seed)
             throws += with_ids([dataclasses.replace(
                 job, id='', key=f'{name}/{prefix}/{job.key}', cell=name,
                 dmp=dmp_overrides(point), demo_key=f'{prefix}/{job.demo_key}',
                 trajectories=f'{where}/{job.trajectories}' if job.trajectories else None)
-                for job in cell_throws], config, demo_ids(seed_demos))
+                for job in modes[name].throws(seed_throws, seed)], config,
+                demo_ids(placed_demos))
     config = {'format': SWEEP_FORMAT, 'studies': studies, 'cells': dict(cells),
               'axes': [[a, list(v)] for a, v in sweep.axes], 'seeds': list(sweep.seeds)}
     return config, demos, throws
@@ -315,18 +488,16 @@ def _hashed_sweep(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def _cell_records(records: Sequence[Record], name: str, seed: int,
-                  mode: tuple[float, bool] | None = None) -> list[Record]:
+                  mode: CellMode | None = None) -> list[Record]:
     """
     Return the records of one cell and seed, keyed and pathed as a study's own.
 
-    ``mode``: the cell's ``(level, correction)`` in physical mode (its demonstrations are that
-    level's), None for ground truth.
+    ``mode``: how the cell runs (:func:`cell_mode`; its demonstrations are its folder's);
+    None: ground truth without tissue.
     """
-    prefix, where = f'seed-{seed}/', f'cells/{name}/seed-{seed}/'
-    variant = ''
-    if mode is not None:
-        variant = f'physical/{physical.variant_name(*mode)}/'
-        prefix += f'physical/{physical.variant_name(mode[0], True)}/'
+    mode = mode or CellMode()
+    prefix, where = f'seed-{seed}/' + mode.demo_folder(), f'cells/{name}/seed-{seed}/'
+    variant = mode.throw_folder()
     out: list[Record] = []
     for r in records:
         if isinstance(r, DemoRecord) and r.key.startswith(prefix + 'demo/'):
@@ -452,13 +623,18 @@ def _plot_axis(folder: str | Path, axis: str, tables: Mapping[str, Any]) -> Path
 
     fig, panels = plt.subplots(1, len(tables), figsize=(3.6 * len(tables), 3.2),
                                squeeze=False)
+    values = {v for table in tables.values() for series in table.values() for v, *_ in series}
+    # a parameter that is not a number (a preset's name): its values side by side
+    names = sorted(str(v) for v in values) if any(isinstance(v, str) for v in values) else []
     for ax, (metric, table) in zip(panels[0], tables.items()):
         for method, series in table.items():
-            x = [float(v) for v, *_ in series]
+            x = [names.index(str(v)) if names else float(v) for v, *_ in series]
             y = [m for _, m, _, _ in series]
             e = [s for _, _, s, _ in series]
             ax.errorbar(x, y, yerr=e, marker='o', capsize=3, label=method)
         ax.set_xlabel(axis)
+        if names:
+            ax.set_xticks(range(len(names)), names)
         ax.set_title(metric, fontsize=9)
         ax.grid(alpha=0.3)
     panels[0][0].legend(fontsize=8)
@@ -528,7 +704,7 @@ def run_sweep(args: argparse.Namespace, stream: IO[str] | None = None) -> int:
             folder.mkdir(parents=True, exist_ok=True)
             study = copy.deepcopy(config['studies'][str(seed)])
             study['dmp'] = dmp_overrides(config['cells'][name])
-            cell = _cell_records(records, name, seed, physical_point(config['cells'][name]))
+            cell = _cell_records(records, name, seed, cell_mode(config['cells'][name]))
             report_writer.write_report(folder, cell, study, run_info)
             summaries[name, seed] = json.loads((folder / 'summary.json').read_text())
     path = write_sweep_report(out, config, sweep_rows(config, summaries), run_info)

@@ -184,3 +184,29 @@ def test_a_study_process_builds_and_registers_each_robot_once(tmp_path):
     finally:
         state.close()
     assert not state.robots
+
+
+def test_the_camera_option_names_its_preset_and_reaches_the_simulations(tmp_path):
+    from sim_bridge.realism.endoscope import EndoscopeRealism, endoscope_preset
+    from suture_lfd.study import jobs
+    from suture_lfd.study.records import RobotErrors
+
+    result = study(tmp_path / 'bad', '--plan', '--camera', 'nope')
+    assert result.returncode == 2
+    assert 'realism_camera.yaml' in result.stderr and "'nope'" in result.stderr
+    result = study(tmp_path / 'dvrk', '--plan', '--physical', '--camera', 'dvrk')
+    assert result.returncode == 0, result.stderr
+    config = json.loads((tmp_path / 'dvrk' / 'config.json').read_text())
+    assert config['settings']['camera'] == 'dvrk'
+    state = jobs.init_worker(jobs.JobSettings(out=str(tmp_path), camera='dvrk'))
+    try:
+        dvrk = endoscope_preset('dvrk')
+        assert jobs._simulation(state, 'synthetic', 0.01).config.endoscope == dvrk
+        # a job's own camera (a sweep's cell) overrides the study's
+        own = jobs._physical_simulation(state, 'synthetic', 0.01,
+                                        RobotErrors(error_level=0.0, error_seed=1,
+                                                    camera='none'))
+        assert own.config.endoscope == EndoscopeRealism()
+        assert own is not jobs._simulation(state, 'synthetic', 0.01)
+    finally:
+        state.close()

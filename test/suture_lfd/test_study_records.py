@@ -107,5 +107,5 @@ def test_the_plan_file_lists_the_fields_a_job_sets():
     assert 'physical' not in plan and 'segments' not in plan and plan['kind'] == 'throw'
     assert plan_json(throw_job(physical=RobotErrors(1.0, 2)))['physical'] == {
         'error_level': 1.0, 'error_seed': 2, 'correction': False, 'arm_realism': 'static',
-        'arm_levels': []}
+        'arm_levels': [], 'camera': None}
     assert not any(isinstance(v, float) and math.isnan(v) for v in plan.values())

@@ -94,6 +94,13 @@ def test_sweep_values_for_both_tasks_or_one():
     ('sweep:\n  physical:\n    error_level: [-1]\n', 'sweep.physical.error_level'),
     ('sweep:\n  physical:\n    correction: [maybe]\n', 'sweep.physical.correction'),
     ('sweep:\n  physical:\n    noise: [1]\n', 'sweep.physical.noise'),
+    ('sweep:\n  tissue: [soft]\n', 'sweep.tissue'),
+    ('sweep:\n  tissue: none\n', 'sweep.tissue'),
+    ('sweep:\n  physical:\n    camera: [hd]\n', 'sweep.physical.camera'),
+    ('sweep:\n  physical:\n    arm_realism: [wobbly]\n', 'sweep.physical.arm_realism'),
+    ('sweep:\n  physical:\n    arm_realism: [dvrk]\n    servo_level: [-1]\n',
+     'sweep.physical.servo_level'),
+    ('sweep:\n  physical:\n    calibration_level: [0]\n', 'sweep.physical.calibration_level'),
 ])
 def test_a_bad_sweep_file_names_the_file_and_key(tmp_path, body, named):
     path = tmp_path / 'bad.yaml'
@@ -131,3 +138,59 @@ def test_error_level_and_correction_are_sweep_keys_with_demonstrations_per_level
     for j in throws:  # each learns from its level's demonstration
         assert by_key[j['demo_key']]['physical']['error_level'] == j['physical']['error_level']
     assert len({j['id'] for j in jobs}) == len(jobs)
+
+
+REALISM_SWEEP = """\
+sweep:
+  design: {subjects: 1, pairs: 1, phantoms: [synthetic]}
+  methods: [pair_frame]
+  tissue: [none, tissue]
+  physical:
+    arm_realism: [dvrk]
+    transmission_level: [0, 1]
+    camera: [none, dvrk]
+"""
+
+
+def test_tissue_camera_and_arm_realism_are_sweep_keys_with_their_own_robots(tmp_path):
+    (tmp_path / 'sweep.yaml').write_text(REALISM_SWEEP)
+    sweep = load_sweep(tmp_path / 'sweep.yaml')
+    assert [a for a, _ in sweep.axes] == ['tissue', 'arm_realism', 'transmission_level',
+                                          'camera']
+    result = cli('sweep', str(tmp_path / 'sweep.yaml'), '--plan', '--out', str(tmp_path / 'o'))
+    assert result.returncode == 0, result.stderr[-3000:]
+    jobs = json.loads((tmp_path / 'o' / 'jobs.json').read_text())
+    demos = [j for j in jobs if j['kind'] == 'demo']
+    throws = [j for j in jobs if j['kind'] == 'throw']
+    robot = ('arm_realism', 'arm_levels', 'camera')
+
+    def made(j):
+        return (j.get('tissue'), *(json.dumps(j['physical'][k]) for k in robot))
+
+    # one demonstration per robot and tissue (8 cells, 8 robots), each throw learns from its own
+    assert len(demos) == len({made(j) for j in demos}) == 8
+    assert len(throws) == 8
+    by_key = {j['key']: j for j in demos}
+    for j in throws:
+        assert made(by_key[j['demo_key']]) == made(j)
+    assert {j['physical']['camera'] for j in throws} == {None, 'dvrk'}
+    assert {j.get('tissue') for j in throws} == {None, 'tissue'}
+    assert {json.dumps(j['physical']['arm_levels']) for j in throws} == {
+        '[["transmission_level", 0.0]]', '[["transmission_level", 1.0]]'}
+    assert {j['physical']['error_level'] for j in jobs} == {0.0}  # a preset: no static class
+    assert len({j['id'] for j in jobs}) == len(jobs)
+
+
+def test_a_ground_truth_cell_in_tissue_records_its_own_demonstrations(tmp_path):
+    from suture_lfd.study.sweep import cell_mode, plan_sweep
+
+    (tmp_path / 'sweep.yaml').write_text(
+        'sweep:\n  design: {subjects: 1, pairs: 1, phantoms: [synthetic]}\n'
+        '  methods: [pair_frame]\n  tissue: [none, tissue]\n')
+    config, demos, throws = plan_sweep(load_sweep(tmp_path / 'sweep.yaml'))
+    assert cell_mode({}).demo_folder() == cell_mode({'tissue': 'none'}).demo_folder() == ''
+    assert sorted((j.key, j.tissue) for j in demos) == [
+        ('seed-0/demo/S01/synth1', None), ('seed-0/tissue-tissue/demo/S01/synth1', 'tissue')]
+    assert sorted((j.cell, j.demo_key, j.tissue) for j in throws) == [
+        ('tissue=none', 'seed-0/demo/S01/synth1', None),
+        ('tissue=tissue', 'seed-0/tissue-tissue/demo/S01/synth1', 'tissue')]
