@@ -599,6 +599,9 @@ class RobotLink(Protocol):
         Return the :class:`~sim_bridge.control.Observation` the recorder writes now (its
         ``T_world_needle`` None when the needle is not seen).
 
+    A link may also have ``lag_tolerance``: ``(m, rad)``, how far a tool may be from the
+    subject's command for the subject to take it as arrived (default: the Demonstrator's).
+
     """
 
     def start(self) -> None:
@@ -652,10 +655,13 @@ def _one_throw(sim: 'Simulation', subject: Subject | SkillProfile, pair_name: st
     sim.pop_events()
     if link is not None:
         link.start()
+    # a person at a robot's console judges a tool arrived within what the link says it can
+    # see (a robot's own error never settles to a simulation's half millimetre)
+    lag = getattr(link, 'lag_tolerance', (DEFAULT_LAG_TOLERANCE, DEFAULT_LAG_TOLERANCE_RAD))
     dem = Demonstrator(subject, pair, sim.needle_geometry,
                        kinematics=cast('PsmKinematics', sim.kinematics['PSM2']),
                        rng=_pair_rng(subject, pair_name, seed, attempt), next_pair=next_pair,
-                       expert_config=config)
+                       expert_config=config, lag_tolerance=lag[0], lag_tolerance_rad=lag[1])
     recorder = _Recorder(dem, per_command, link)
     # between the subject's commands the recorder returns None, which run_episode's
     # stop_at_done loop skips (the arms keep gliding to the last command)

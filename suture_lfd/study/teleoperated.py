@@ -13,10 +13,17 @@ watching the scene, and each of its targets is sent through the arm's own frame,
 
 the displacement the subject wants from where it sees the tool, applied to where the robot
 believes the tool is (a person's visual loop: the arm's error is taken up command after
-command). What is recorded is what a recorder on the robot gets
-(:class:`sim_bridge.observers.PhysicalObserver` with :class:`suture_lfd.skill.perceived.
-PerceivedScene`): the arms' reports, the jaws, and the needle, its holders and the markers as the
-endoscope's images give them (images are looked at only when the estimator needs them).
+command). A person does not see the error at once nor take it up whole: the subject acts on
+the error ``E = T_seen @ inv(T_reported)`` as seen ``SEE_LATENCY`` ago (a visually guided
+correction takes about two tenths of a second, Keele and Posner 1968, plus the endoscope's
+frame delay) and takes it up gradually, with time constant ``CORRECTION_TIME`` (a gain of
+``dt / CORRECTION_TIME`` per command): ``T_command = inv(C) @ T_target`` with ``C`` that
+filtered error. Against a cable's dead band, whose error jumps when a joint reverses, an
+instant and whole correction chases the jump on and on; a person's settles. What is recorded
+is what a recorder on the robot gets (:class:`sim_bridge.observers.PhysicalObserver` with
+:class:`suture_lfd.skill.perceived.PerceivedScene`): the arms' reports, the jaws, and the
+needle, its holders and the markers as the endoscope's images give them (images are looked at
+only when the estimator needs them).
 
 As in a lab, the robot is registered before anything is recorded
 (:func:`suture_lfd.skill.arm_registration.register_arms`, once per simulation, before the first
@@ -28,10 +35,13 @@ before the demonstration's episode starts, never between its start and its first
 Frames: ``world`` (the robot's believed one for what is recorded); poses 4x4; metres.
 """
 
+from collections import deque
 from dataclasses import replace
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sim_bridge.common.geometry import invert_transform
 from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.observers import PhysicalObserver
 from suture_lfd.skill.arm_registration import KinematicCorrection, register_arms
@@ -46,6 +56,31 @@ if TYPE_CHECKING:
 #: (:class:`suture_lfd.skill.perceived.PerceivedScene` ``refit_facing``): turned from how it
 #: lay, its tilt shows (the executor looks at about the same facing, 0.6, chosen from its plan).
 REFIT_FACING = 0.7
+#: How long ago (s) the tool's error the subject acts on was seen, and the time constant (s)
+#: with which the subject takes it up (see the module's docstring).
+SEE_LATENCY = 0.2
+CORRECTION_TIME = 0.3
+#: How far (m, rad) a tool may be from the subject's command for the subject to take it as
+#: arrived: what a person sees of a tool in the endoscope, not a simulation's half millimetre
+#: (a robot's own error, and a cable's dead band, never settle to that).
+LAG_TOLERANCE = (0.002, 0.1)
+
+
+def _blend(C: np.ndarray, E: np.ndarray, gain: float) -> np.ndarray:
+    """Return ``C`` moved a share ``gain`` of the way to ``E`` (4x4 rigid transforms)."""
+    out = np.array(C, dtype=float)
+    out[:3, 3] += gain * (E[:3, 3] - C[:3, 3])
+    R = C[:3, :3].T @ E[:3, :3]
+    angle = math.acos(max(-1.0, min(1.0, 0.5 * (float(np.trace(R)) - 1.0))))
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    norm = float(np.linalg.norm(axis))
+    if angle > 1e-9 and norm > 1e-12:
+        axis /= norm
+        a = gain * angle
+        K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                      [-axis[1], axis[0], 0.0]])
+        out[:3, :3] = C[:3, :3] @ (np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * K @ K)
+    return out
 
 
 class TeleoperatedRobot:
@@ -86,6 +121,10 @@ class TeleoperatedRobot:
         self._observer: PhysicalObserver | None = None
         self._perception: PerceivedScene | None = None
         self.renders = 0
+        self.lag_tolerance = LAG_TOLERANCE
+        # the subject's view of each tool's error: seen errors (t, E) and the one acted on
+        self._seen: dict[str, deque[tuple[float, np.ndarray]]] = {}
+        self._acted: dict[str, tuple[float, np.ndarray]] = {}
         # before any episode: the registration run resets the scene and moves the arms
         self.correction: KinematicCorrection | None = register_arms(sim) if register else None
 
@@ -93,6 +132,7 @@ class TeleoperatedRobot:
         """Begin an attempt: the recorder's perception forgets the needle and its grasps."""
         if self._perception is not None:
             self.renders += self._perception.renders
+        self._seen, self._acted = {}, {}
         self._perception = PerceivedScene(self._pair_name, self._index,
                                           self._sim.needle_geometry,
                                           refit_facing=self._refit_facing)
@@ -117,16 +157,30 @@ class TeleoperatedRobot:
         targets = cmd.T_world_tool or {}
         if not targets:
             return cmd
-        sim = self._sim
         out: dict[str, Any] = {}
         for arm, T in targets.items():
             if T is None or arm not in PSMS:
                 out[arm] = T
                 continue
-            T_seen = sim.tool_pose(arm)
-            T_reported = sim.reported_tool_pose(arm)
-            out[arm] = T_reported @ np.linalg.solve(T_seen, np.asarray(T, dtype=float))
+            out[arm] = invert_transform(self._error(arm, float(cmd.t))) @ np.asarray(
+                T, dtype=float)
         return replace(cmd, T_world_tool=out)
+
+    def _error(self, arm: str, t: float) -> np.ndarray:
+        """Return the tool's error as the subject acts on it at ``t`` (seen late, taken slowly)."""
+        sim = self._sim
+        seen = self._seen.setdefault(arm, deque())
+        seen.append((t, sim.tool_pose(arm) @ invert_transform(sim.reported_tool_pose(arm))))
+        while len(seen) > 1 and seen[1][0] <= t - SEE_LATENCY:
+            seen.popleft()
+        E = seen[0][1]
+        last = self._acted.get(arm)
+        if last is None:
+            C = E  # at the start the subject lines the tool up with what it sees
+        else:
+            C = _blend(last[1], E, min(1.0, max(0.0, t - last[0]) / CORRECTION_TIME))
+        self._acted[arm] = (t, C)
+        return C
 
     def record(self) -> 'Observation':
         """
