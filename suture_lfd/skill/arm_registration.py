@@ -11,7 +11,9 @@ PSM to a few poses in the endoscope's view, see the tool, fit a correction. Here
 
 - **Poses.** Each PSM goes to six poses a centimetre or two above the phantom (around the
   markers the camera sees), wrist straight and jaw closed, so the instrument is a straight
-  stick: a dark shaft ending in the bright wrist and jaws.
+  stick: a dark shaft ending in the bright wrist and jaws; then to two of them again from
+  other directions, and at the last one bends its wrist each way and straightens it before a
+  look (the same reported pose, the cables' slack taken up the other way).
 - **Seen.** In both images, the shaft's axis and the distal end
   (:func:`suture_lfd.perception.instrument.find_instrument`).
 - **Model.** The dVRK's error sources, as the robot's kinematics see them: offsets on the first
@@ -20,10 +22,14 @@ PSM to a few poses in the endoscope's view, see the tool, fit a correction. Here
   fitted (:func:`scipy.optimize.least_squares`, soft-L1 loss) to the image residuals of the
   model's projected shaft axis and jaw tips over the six poses -- a bundle adjustment of the
   instrument, needing no depth and no fiducial. Where a robot has other error sources (a base
-  rotation, link lengths) the same fit takes more parameters.
+  rotation, link lengths) the same fit takes more parameters. Given the joints the arm
+  reported on its way to each pose, it also fits the dead bands of the cable-driven joints
+  (outer yaw, pitch, insertion, wrist pitch and yaw): their play at each pose follows from the
+  motion (:mod:`suture_lfd.skill.hysteresis`).
 - **Used.** An :class:`ArmCorrection` gives the tool pose the corrected kinematics put the
   reported joints at (what the controller observes) and turns a tool target into the target to
-  command so that the tool truly gets there.
+  command so that the tool truly gets there; :class:`KinematicCorrection` follows each joint's
+  play from the reports it sees and crosses a reversing joint's dead band in the command.
 
 It reads only what a physical dVRK provides: the reported joints, the believed bases, the ECM's
 reported pose, the stereo pair and its ``camera_info``.

@@ -391,6 +391,9 @@ def test_a_second_home_leaves_a_homed_arm_homed_where_it_is(ros, launch):
     homed = time.monotonic()
     goal = np.array(psm.last('setpoint_js').position) + [0.1, -0.05, 0.0, 0.2, 0.0, 0.0]
     assert psm.move('move_jp', joints(goal)) == [True]
+    # the setpoint stream's newest sample at the goal (the move's last one may still be on its way)
+    assert ros.wait_for(lambda: np.allclose(psm.last('setpoint_js').position, goal,
+                                            atol=1e-9), 10.0)
     held = np.array(psm.last('setpoint_js').position)
     sent = time.monotonic()
     psm.send('state_command', StringStamped(string='home'))
