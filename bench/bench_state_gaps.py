@@ -10,9 +10,11 @@ each message's arrival for ``--seconds`` twice: at rest (the MTM kept alive at 1
 simulator at 100 Hz) and following (the client streams PSM1 ``servo_cp`` and ``jaw/servo_jp`` every
 5 ms, as the script does while it follows), and prints per topic: the median and 99th percentile
 gap, the largest, and how many gaps exceeded 20 ms (each one a getter that would have stopped the
-script if the script had asked at the wrong moment). ``--before REV`` runs the same with the code
-of git revision ``REV`` first (a temporary worktree imported before this checkout's), so both are
-measured in one run on the same machine; the load average is printed at the start and the end.
+script if the script had asked at the wrong moment), and each node's CPU per wall second (a node
+that takes less leaves a two-core machine's scheduler room to run the others on time).
+``--before REV`` runs the same with the code of git revision ``REV`` first (a temporary worktree
+imported before this checkout's), so both are measured in one run on the same machine; the load
+average is printed at the start and the end.
 
 Run: ``.venv/bin/python bench/bench_state_gaps.py [--before main] [--seconds 20]``
 """
@@ -126,8 +128,12 @@ def measure(label, code, seconds, domain):
                  for name in ('simulator', 'mtms')]
         out = Path(tmp) / 'arrivals.json'
         try:
+            started = time.monotonic()
             subprocess.run([sys.executable, __file__, '--client', str(out),
                             '--seconds', str(seconds)], env=env, check=True, timeout=seconds + 120)
+            wall = time.monotonic() - started
+            cpu = {name: cpu_seconds(proc.pid) / wall for name, proc in
+                   zip(('simulator', 'mtms'), procs)}
             data = json.loads(out.read_text())
         finally:
             for proc in procs:
@@ -135,7 +141,13 @@ def measure(label, code, seconds, domain):
     gaps = {phase: {topic: [b - a for a, b in zip(times, times[1:])]
                     for topic, times in arrivals.items()}
             for phase, arrivals in data['phases'].items()}
-    return {'label': label, 'ready': data['ready'], 'gaps': gaps}
+    return {'label': label, 'ready': data['ready'], 'gaps': gaps, 'cpu': cpu}
+
+
+def cpu_seconds(pid):
+    """CPU seconds (user + system) a process has used so far (``/proc/PID/stat``)."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def percentile(values, q):
@@ -154,6 +166,8 @@ def report(results):
                   f'{percentile(g, 50) * 1e3:>8.1f}{percentile(g, 99) * 1e3:>8.1f}'
                   f'{(max(g) if g else float("nan")) * 1e3:>8.1f}'
                   f'{sum(x > LIMIT for x in g):>8}')
+        print(f'{r["label"]}: CPU per wall second while the client ran: ' + ', '.join(
+            f'{name} {share:.2f}' for name, share in r['cpu'].items()))
         if not r['ready']:
             print(f'{r["label"]}: the arms did not become ready')
 

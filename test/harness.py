@@ -76,8 +76,21 @@ class RosHarness:
         self._thread = None
 
     def node(self, name, **kwargs):
-        """Create a node in this context and spin it."""
-        node = self._rclpy.create_node(name, context=self.context, **kwargs)
+        """
+        Create a node in this context and spin it.
+
+        Its endpoints carry no QoS-event handlers (:class:`sim_bridge.ros.qos.QuietEndpoints`),
+        as the project's busy nodes: the test's executor would visit each at every message,
+        and a test watching a few 100 Hz streams took a third of a core on a two-core machine
+        that the nodes under test need.
+        """
+        from rclpy.node import Node
+        from sim_bridge.ros.qos import QuietEndpoints
+
+        class QuietNode(QuietEndpoints, Node):
+            pass
+
+        node = QuietNode(name, context=self.context, **kwargs)
         self.nodes.append(node)
         self.executor.add_node(node)
         if self._thread is None:

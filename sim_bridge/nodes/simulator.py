@@ -70,7 +70,6 @@ import traceback
 
 from crtk_msgs.msg import StringStamped
 import numpy as np
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge.common.validation import check_positive
@@ -93,11 +92,6 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 STATS_PERIOD = 1.0  # s of wall time between sim/stats messages
-# No QoS-event handlers on the ~160 endpoints of the simulator and pedal nodes: rclpy's executor
-# visits each handler at every wake-up (1 kHz with a streaming client), which cost more than the
-# simulation itself; a client with incompatible QoS or type is still warned by its own endpoints.
-_QUIET_PUBLISHER = PublisherEventCallbacks(use_default_callbacks=False)
-_QUIET_SUBSCRIPTION = SubscriptionEventCallbacks(use_default_callbacks=False)
 
 
 @dataclass(frozen=True)
@@ -263,19 +257,7 @@ class _Every:
         return False
 
 
-class _QuietEndpoints:
-    """Node mix-in: publishers and subscriptions without the default QoS-event handlers."""
-
-    def create_publisher(self, *args, **kwargs):
-        kwargs.setdefault('event_callbacks', _QUIET_PUBLISHER)
-        return super().create_publisher(*args, **kwargs)
-
-    def create_subscription(self, *args, **kwargs):
-        kwargs.setdefault('event_callbacks', _QUIET_SUBSCRIPTION)
-        return super().create_subscription(*args, **kwargs)
-
-
-class _FootPedals(_QuietEndpoints, FootPedals):
+class _FootPedals(qos.QuietEndpoints, FootPedals):
     """The console foot pedals, sharing the simulator's executor."""
 
 
@@ -297,7 +279,7 @@ class _Locked:
         self.node.lock.release()
 
 
-class Simulator(_QuietEndpoints, NodeHooks, Node):
+class Simulator(qos.QuietEndpoints, NodeHooks, Node):
     """The simulated dVRK: CRTK arms, scene ground truth, events, time."""
 
     def __init__(self):

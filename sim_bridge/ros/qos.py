@@ -6,6 +6,7 @@ A subscription matches a publisher when it asks for no more than the publisher o
 ``KEEP_LAST`` history: how many messages wait for a slow reader before the oldest is dropped.
 """
 
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 # Values that describe a state and change rarely (operating state, base frames, markers, a
@@ -104,3 +105,23 @@ SENSOR = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
 # moment takes the newest sample at once instead of the 10 queued before it.
 LATEST = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.VOLATILE)
+
+
+# No QoS-event handlers on a busy node's endpoints (the simulator's ~160, the pedals', the
+# virtual MTMs'): rclpy's executor visits each handler at every wake-up (1 kHz with a streaming
+# client), which cost more than the simulation itself, and half of the MTMs node's CPU; a client
+# with incompatible QoS or type is still warned by its own endpoints.
+_QUIET_PUBLISHER = PublisherEventCallbacks(use_default_callbacks=False)
+_QUIET_SUBSCRIPTION = SubscriptionEventCallbacks(use_default_callbacks=False)
+
+
+class QuietEndpoints:
+    """Node mix-in: publishers and subscriptions without the default QoS-event handlers."""
+
+    def create_publisher(self, *args, **kwargs):
+        kwargs.setdefault('event_callbacks', _QUIET_PUBLISHER)
+        return super().create_publisher(*args, **kwargs)  # type: ignore[misc]
+
+    def create_subscription(self, *args, **kwargs):
+        kwargs.setdefault('event_callbacks', _QUIET_SUBSCRIPTION)
+        return super().create_subscription(*args, **kwargs)  # type: ignore[misc]

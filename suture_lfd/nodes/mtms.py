@@ -167,7 +167,7 @@ class MtmsConfig:
                              f'{self.realism_level}')
 
 
-class MtmsNode(Node):
+class MtmsNode(qos.QuietEndpoints, Node):
     """Virtual MTMs and foot pedals driven by one input device."""
 
     def __init__(self):

@@ -17,6 +17,7 @@ being starved (every topic, from both nodes, stale at once), and the test says i
 assert them.
 """
 
+from collections import Counter
 import math
 import os
 from pathlib import Path
@@ -92,8 +93,9 @@ def assert_stale_getters_rare(client, quiet, seconds):
     """
     ages = client.stale()
     cycles = seconds / 0.005
+    topics = Counter(age.split(':', 1)[0] for age in ages)
     print(f'\ngetters that found data older than 20 ms or none at all: {len(ages)} in about '
-          f'{cycles:.0f} cycles' + (f', e.g. {ages[0]}' if ages else ''))
+          f'{cycles:.0f} cycles' + (f', e.g. {ages[0]}; by topic: {dict(topics)}' if ages else ''))
     if quiet:
         assert len(ages) <= 0.01 * cycles, client.proc.log()[-20000:]
     else:
