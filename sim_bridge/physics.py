@@ -388,6 +388,11 @@ class ScenePhysics:
             return self._tool_pose(name).copy()
         return self._T_world_base[name] @ self.arms[name].local_measured_cp_view
 
+    @property
+    def has_encoders(self) -> bool:
+        """Whether the arms read their joints through encoders (``encoder_level`` above 0)."""
+        return bool(self._encoders)
+
     def reported_jp(self, name: str) -> np.ndarray:
         """
         Joints of an arm as its encoders report them (``measured_js``).

@@ -375,7 +375,9 @@ class Simulator(_QuietEndpoints, NodeHooks, Node):
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
                                    lock=self.locked, stamp_floor_ns=wall,
-                                   T_world_base=self.sim.believed_base(name), suj=cart)
+                                   T_world_base=self.sim.believed_base(name), suj=cart,
+                                   read_jp=(lambda n=name: self.sim.reported_jp(n))
+                                   if self.sim.physics.has_encoders else None)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim, depth=cfg.camera_depth, physical=cfg.physical)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)

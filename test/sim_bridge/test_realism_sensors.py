@@ -119,3 +119,20 @@ def test_with_the_new_levels_zero_the_preset_is_the_model_without_them():
         assert np.array_equal(off['offset'], other['offset'])
     # without encoders the PSM's motion is the same with or without the ECM/intrinsics errors
     assert np.array_equal(off['tool'], runs[1]['tool'])
+
+
+def test_the_simulators_measured_js_and_measured_cp_are_what_the_encoders_read():
+    from sim_bridge.nodes.crtk_arm import ArmSnapshot  # the simulator node's state publication
+    sim = _scene(1)
+    try:
+        sim.run(0.05)
+        arm = sim.arms['PSM2']
+        state = ArmSnapshot(arm, lambda: sim.reported_jp('PSM2'))
+        assert np.array_equal(state.measured_jp, sim.reported_jp('PSM2'))
+        assert not np.array_equal(state.measured_jp, arm.measured_jp)
+        assert np.allclose(sim.believed_base('PSM2') @ state.local_measured_cp,
+                           sim.reported_tool_pose('PSM2'), atol=1e-12)
+        # without encoders: the arm's own
+        assert np.array_equal(ArmSnapshot(arm).measured_jp, arm.measured_jp)
+    finally:
+        sim.close()
