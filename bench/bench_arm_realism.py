@@ -64,7 +64,8 @@ def main():
     parser.add_argument('--pairs', default='synth1,synth2,synth3,synth4')
     parser.add_argument('--rows',
                         default='all,calibration,transmission,servo,encoder,ecm,intrinsics',
-                        help='dvrk rows: all effects, or one effect alone')
+                        help='dvrk rows: all effects, one effect alone, or effects joined '
+                        "by '+' (calibration+transmission+servo)")
     parser.add_argument('--corrections', default='bands,offsets,open',
                         help='for the all-effects row: the registrations compared')
     args = parser.parse_args()
@@ -102,7 +103,9 @@ def main():
 
     physical('static offsets, level 1', 'offsets', static_level=1.0)
     for row in args.rows.split(','):
-        levels = None if row == 'all' else {k: float(k.startswith(row)) for k in LEVELS}
+        # 'all', one effect ('servo'), or effects joined by '+' (the others at 0)
+        levels = None if row == 'all' else {
+            k: float(any(k.startswith(part) for part in row.split('+'))) for k in LEVELS}
         realism = load_arm_realism('dvrk', levels=levels)
         for correction in (args.corrections.split(',') if row == 'all' else ['bands']):
             physical(f'dvrk {row}, {correction}', correction, realism=realism)
