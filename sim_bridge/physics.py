@@ -369,7 +369,8 @@ class ScenePhysics:
 
         ``T_world_base_believed @ local_measured_cp``: what ``measured_cp`` says, consistent
         with the arm's commands; the true pose (:meth:`tool_pose`) differs by the hidden
-        kinematic error.
+        kinematic error. With encoders, the forward kinematics of what they read
+        (:meth:`reported_jp`).
 
         Parameters
         ----------
