@@ -4,7 +4,9 @@ and without the executor's correction, and what the preset costs in CPU.
 
 Ours: :func:`suture_lfd.skill.executor.execute_throw` in physical mode (markers and needle from
 the rendered stereo pair, the arms' own reports) on robots drawn at the ``dvrk`` preset of
-``config/realism_arm.yaml``: every effect together, and each alone (the other levels at 0), with
+``config/realism_arm.yaml``: every effect together, and each alone (the other levels at 0: the
+arm's calibration, transmission and servo, the encoders, the ECM's reported pose, the
+endoscope's intrinsics), with
 the registration that fits the joints' dead bands (``bands``), with one that fits offsets only
 (``offsets``), and open loop (``open``). Anchors measured in the same run: ground-truth mode
 (the simulation's truth) with the ground-truth executor settings and with the physical ones
@@ -17,7 +19,7 @@ throw and its ratio to the static-offset mode (the issue's target: at most 1.2x)
 registration's CPU apart (once per robot).
 
 Run: ``.venv/bin/python bench/bench_arm_realism.py [--seeds 1,2] [--pairs synth1,synth2]
-[--rows all,calibration,transmission,servo]``
+[--rows all,calibration,transmission,servo,encoder,ecm,intrinsics]``
 """
 
 import argparse
@@ -28,14 +30,14 @@ import time
 
 from bench_physical import _config, _skill  # noqa: I100 (the bench folder's own helpers)
 import numpy as np
-from sim_bridge.realism.calibration import load_arm_realism
+from sim_bridge.realism.calibration import ARM_LEVELS, load_arm_realism
 from sim_bridge.simulation import Simulation
 from suture_lfd.skill.arm_registration import register_arms
 from suture_lfd.skill.executor import ExecutorConfig, execute_throw
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
-LEVELS = ('calibration_level', 'transmission_level', 'servo_level')
+LEVELS = ARM_LEVELS
 
 
 def _robot(seed, realism=None, static_level=0.0):
@@ -60,8 +62,10 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', default='1,2', help='robots (error seeds) per row')
     parser.add_argument('--pairs', default='synth1,synth2,synth3,synth4')
-    parser.add_argument('--rows', default='all,calibration,transmission,servo',
-                        help='dvrk rows: all effects, or one effect alone')
+    parser.add_argument('--rows',
+                        default='all,calibration,transmission,servo,encoder,ecm,intrinsics',
+                        help='dvrk rows: all effects, one effect alone, or effects joined '
+                        "by '+' (calibration+transmission+servo)")
     parser.add_argument('--corrections', default='bands,offsets,open',
                         help='for the all-effects row: the registrations compared')
     args = parser.parse_args()
@@ -99,7 +103,9 @@ def main():
 
     physical('static offsets, level 1', 'offsets', static_level=1.0)
     for row in args.rows.split(','):
-        levels = None if row == 'all' else {k: float(k.startswith(row)) for k in LEVELS}
+        # 'all', one effect ('servo'), or effects joined by '+' (the others at 0)
+        levels = None if row == 'all' else {
+            k: float(any(k.startswith(part) for part in row.split('+'))) for k in LEVELS}
         realism = load_arm_realism('dvrk', levels=levels)
         for correction in (args.corrections.split(',') if row == 'all' else ['bands']):
             physical(f'dvrk {row}, {correction}', correction, realism=realism)

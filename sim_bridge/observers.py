@@ -68,6 +68,9 @@ class ObservedScene(Protocol):
     def believed_base(self, arm: str) -> np.ndarray:
         """Return the arm's base as the robot believes it (its registration)."""
 
+    def reported_jp(self, name: str) -> np.ndarray:
+        """Return the joints the arm's encoders report (``measured_js``)."""
+
 
 class GroundTruthObserver:
     """
@@ -156,7 +159,8 @@ class PhysicalObserver:
         sim_bridge.control.Observation
             ``T_world_tool``: each PSM's ``measured_cp`` through its believed base (moved by
             the correction, when there is one);
-            ``T_world_base``: the believed bases; ``q``: the measured joints.
+            ``T_world_base``: the believed bases; ``q``: the measured joints (as the encoders
+            report them).
 
         """
         sim = self._sim
@@ -165,7 +169,7 @@ class PhysicalObserver:
                           jaw={n: sim.arms[n].jaw_measured_jp for n in PSMS},
                           T_world_needle=None, holders=(), pair=None,
                           T_world_base={n: sim.believed_base(n) for n in sim.arms},
-                          q={n: sim.arms[n].measured_jp for n in PSMS})
+                          q={n: sim.reported_jp(n) for n in PSMS})
         return obs if self._correction is None else self._correction.observe(obs)
 
     def observe(self) -> Observation:

@@ -51,7 +51,13 @@ from sim_bridge.common.vocabulary import ARMS, PSMS
 from sim_bridge.control import Command
 from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
-from sim_bridge.realism.calibration import draw_arm_realism, servo_config
+from sim_bridge.realism.calibration import (
+    build_encoders,
+    draw_arm_realism,
+    draw_ecm_error,
+    draw_intrinsics_error,
+    servo_config,
+)
 from sim_bridge.realism.frame_timing import Exposures
 from sim_bridge.realism.tissue_realism import build_tissue_realism
 from sim_bridge.scene.camera import StereoCamera, StereoFrame
@@ -158,9 +164,20 @@ class ScenePhysics:
         self._collision_every = steps_per_period(cfg.loop.collision_period, self._dt,
                                              'collision_period')
         self._rest_steps = max(1, int(round(cfg.loop.rest_time / self._dt)))
+        # The joint encoders (None: the arms report their motor-side joints as they are).
+        seed = int(cfg.kinematic_error_seed)
+        self._encoders = ({} if cfg.arm_realism is None
+                          else build_encoders(cfg.arm_realism, seed, ARMS))
+        if cfg.arm_realism is not None:
+            intrinsics = draw_intrinsics_error(cfg.arm_realism, seed)
+            if intrinsics is not None:
+                self.camera.report_calibration(*intrinsics)
         if kinematic_errors is None and cfg.arm_realism is not None:
             kinematic_errors = draw_arm_realism(
                 cfg.arm_realism, np.random.default_rng(cfg.kinematic_error_seed), PSMS)
+            ecm = draw_ecm_error(cfg.arm_realism, int(cfg.kinematic_error_seed))
+            if ecm is not None:
+                kinematic_errors = {**kinematic_errors, 'ECM': ecm}
         if kinematic_errors is None:
             kinematic_errors = draw_arm_errors(cfg.kinematic_error_level,
                                                np.random.default_rng(cfg.kinematic_error_seed),
@@ -352,7 +369,8 @@ class ScenePhysics:
 
         ``T_world_base_believed @ local_measured_cp``: what ``measured_cp`` says, consistent
         with the arm's commands; the true pose (:meth:`tool_pose`) differs by the hidden
-        kinematic error.
+        kinematic error. With encoders, the forward kinematics of what they read
+        (:meth:`reported_jp`).
 
         Parameters
         ----------
@@ -364,9 +382,39 @@ class ScenePhysics:
         ndarray, shape (4, 4)
 
         """
+        if name in self._encoders:
+            return self._T_world_base[name] @ self.kinematics[name].fk_unchecked(
+                self.reported_jp(name).tolist())
         if name not in self._errors:
             return self._tool_pose(name).copy()
         return self._T_world_base[name] @ self.arms[name].local_measured_cp_view
+
+    @property
+    def has_encoders(self) -> bool:
+        """Whether the arms read their joints through encoders (``encoder_level`` above 0)."""
+        return bool(self._encoders)
+
+    def reported_jp(self, name: str) -> np.ndarray:
+        """
+        Joints of an arm as its encoders report them (``measured_js``).
+
+        The motor-side joints on the encoders' counts plus their noise, sampled once a physics
+        step; without encoders (level 0) the motor-side joints themselves.
+
+        Parameters
+        ----------
+        name : str
+            Arm name.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            A new array (rad / m).
+
+        """
+        q = self.arms[name].measured_jp
+        encoder = self._encoders.get(name)
+        return np.array(q, dtype=float) if encoder is None else encoder.read(q, self._steps)
 
     def _true_jp(self, name: str, arm: Arm) -> np.ndarray:
         """Joints where an arm truly is: its measured joints plus its hidden offsets."""
@@ -384,7 +432,10 @@ class ScenePhysics:
         if local is self._camera_local:
             return
         self._camera_local = local
-        T = self._tool_pose('ECM')
+        # the camera as the ECM reports it (its believed base, its kinematics): a PSM's pose in
+        # the camera frame is off by the ECM's error as on a robot
+        T = (self._T_world_base['ECM'] @ local if 'ECM' in self._errors
+             else self._tool_pose('ECM'))
         T_camera_world = np.eye(4)
         R_t = T[:3, :3].T
         T_camera_world[:3, :3] = R_t

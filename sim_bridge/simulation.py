@@ -480,6 +480,10 @@ class Simulation:
         """Tool-tip pose of an arm in ``world`` as the robot reports it (its kinematics)."""
         return self.physics.reported_tool_pose(name)
 
+    def reported_jp(self, name: str) -> np.ndarray:
+        """Joints of an arm as its encoders report them (``measured_js``): a new array."""
+        return self.physics.reported_jp(name)
+
     # what the ground-truth observer (sim_bridge.observers) reads of the scene: the physics' own
     def _tool_pose(self, name: str) -> np.ndarray:
         return self.physics._tool_pose(name)

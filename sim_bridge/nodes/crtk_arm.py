@@ -122,14 +122,15 @@ class ArmSnapshot:
     to the next while it does not move, so an arm at rest costs no kinematics at all.
     """
 
-    def __init__(self, arm):
+    def __init__(self, arm, read_jp=None):
         self.arm = arm
         self.kinematics = arm.kinematics
         self.reference_frame = arm.reference_frame
+        self._read_jp = read_jp  # the joints the encoders report; None: the arm's own
 
     @cached_property
     def measured_jp(self):
-        return self.arm.measured_jp
+        return self.arm.measured_jp if self._read_jp is None else self._read_jp()
 
     @cached_property
     def setpoint_jp(self):
@@ -141,6 +142,8 @@ class ArmSnapshot:
 
     @cached_property
     def local_measured_cp(self):
+        if self._read_jp is not None:  # the FK of what the encoders read
+            return self.kinematics.fk(self.measured_jp)
         return self.arm.local_measured_cp  # kept by the arm while it does not move
 
     @cached_property
@@ -202,6 +205,9 @@ class CrtkArm:
     suj : bool, optional
         Publish the patient cart's set-up joint topics ``SUJ/<ARM>/*`` (needs
         ``T_world_base``).
+    read_jp : callable, optional
+        Returns the joints the arm's encoders report (``measured_js``; ``measured_cp`` is their
+        forward kinematics) (default: the arm's own joints).
     stamp_floor_ns : callable, optional
         Returns a time (int ns) that ``operating_state`` stamps must not fall behind: the wall
         clock when the simulator clock stands for it. A client without ``use_sim_time`` takes
@@ -216,8 +222,9 @@ class CrtkArm:
     """
 
     def __init__(self, node, name, get_arm, now_ns, on_command=None, poll_servo=False,
-                 lock=None, stamp_floor_ns=None, T_world_base=None, suj=False):
+                 lock=None, stamp_floor_ns=None, T_world_base=None, suj=False, read_jp=None):
         self.name = name
+        self._read_jp = read_jp
         self._T_world_base = None if T_world_base is None else np.array(T_world_base,
                                                                          dtype=float)
         self._T_base_world = None if T_world_base is None else np.linalg.inv(
@@ -500,7 +507,7 @@ class CrtkArm:
         state = None
         for pub, build in self._state.values():
             if pub.get_subscription_count():
-                state = state or ArmSnapshot(self._get_arm())
+                state = state or ArmSnapshot(self._get_arm(), self._read_jp)
                 pub.publish(build(state, ns))
 
     def _state_stamp(self):

@@ -78,7 +78,7 @@ from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
 from sim_bridge.nodes.robot_description import RobotDescriptions
 from sim_bridge.nodes.scene_topics import SceneTopics, truth_topic
-from sim_bridge.realism.calibration import load_arm_realism
+from sim_bridge.realism.calibration import ARM_LEVELS, load_arm_realism
 from sim_bridge.realism.endoscope import endoscope_preset
 from sim_bridge.realism.tissue_config import load_tissue_realism
 from sim_bridge.ros import conversions as cv
@@ -170,7 +170,11 @@ class SimulatorConfig:
     arm_realism : str
         ``'static'`` (the offsets of ``kinematic_error_level``) or a preset of
         ``config/realism_arm.yaml`` (``'dvrk'``: calibration errors, cable transmission, servo
-        lag), drawn with ``kinematic_error_seed``.
+        lag, encoders, the ECM's reported pose, the endoscope's intrinsics), drawn with
+        ``kinematic_error_seed``.
+    arm_realism_levels : str
+        Levels overriding the preset's, ``'encoder_level=0,ecm_level=0.5'`` (keys of
+        :data:`sim_bridge.realism.calibration.ARM_LEVELS`); ``''``: the preset's own.
 
     """
 
@@ -204,8 +208,10 @@ class SimulatorConfig:
     camera_realism: str = ''
     tissue: str = 'none'
     arm_realism: str = 'static'
+    arm_realism_levels: str = ''
 
     def __post_init__(self):
+        self.levels()  # a malformed arm_realism_levels stops the node here, naming it
         if not (math.isfinite(self.real_time_factor) and self.real_time_factor >= 0):
             raise ValueError(f'parameter real_time_factor must be >= 0 (0: as fast as possible), '
                              f'got {self.real_time_factor}')
@@ -238,6 +244,31 @@ class SimulatorConfig:
         if self.tracking not in ('limited', 'exact'):
             raise ValueError(f"parameter tracking must be 'limited' or 'exact', "
                              f'got {self.tracking!r}')
+
+    def levels(self) -> dict[str, float]:
+        """
+        Return ``arm_realism_levels`` as ``{level key: value}``.
+
+        Raises
+        ------
+        ValueError
+            If an entry is not ``key=number`` with a key of ``ARM_LEVELS`` and a number >= 0.
+
+        """
+        out = {}
+        for entry in filter(None, (e.strip() for e in self.arm_realism_levels.split(','))):
+            key, _, value = entry.partition('=')
+            key = key.strip()
+            try:
+                number = float(value)
+            except ValueError:
+                number = math.nan
+            if key not in ARM_LEVELS or not (math.isfinite(number) and number >= 0.0):
+                raise ValueError(f'parameter arm_realism_levels must be key=level entries '
+                                 f'separated by commas, the keys among {", ".join(ARM_LEVELS)} '
+                                 f'and the levels >= 0, got {entry!r}')
+            out[key] = number
+        return out
 
 
 class _Every:
@@ -300,7 +331,7 @@ class Simulator(qos.QuietEndpoints, NodeHooks, Node):
             kinematic_error_seed=int(cfg.kinematic_error_seed),
             endoscope=endoscope_preset(cfg.camera_realism),
             arm_realism=(None if cfg.arm_realism == 'static'
-                         else load_arm_realism(cfg.arm_realism)),
+                         else load_arm_realism(cfg.arm_realism, levels=cfg.levels())),
             camera=replace(sim_config.camera, depth=cfg.camera_depth,
                            width=cfg.camera_width or sim_config.camera.width,
                            height=cfg.camera_height or sim_config.camera.height), **rest)
@@ -357,7 +388,9 @@ class Simulator(qos.QuietEndpoints, NodeHooks, Node):
         self.arms = {name: CrtkArm(self, name, lambda n=name: self.sim.arms[n], self.now_ns,
                                    on_command=self._flush_arm_events, poll_servo=True,
                                    lock=self.locked, stamp_floor_ns=wall,
-                                   T_world_base=self.sim.believed_base(name), suj=cart)
+                                   T_world_base=self.sim.believed_base(name), suj=cart,
+                                   read_jp=(lambda n=name: self.sim.reported_jp(n))
+                                   if self.sim.physics.has_encoders else None)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim, depth=cfg.camera_depth, physical=cfg.physical)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)

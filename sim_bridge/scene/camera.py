@@ -219,6 +219,33 @@ class StereoCamera:
         self._light = np.asarray(c.light_direction, dtype=float)
         self._realistic = bool(c.noise_std or c.blur_sigma or c.light_jitter)
         self.lens = Lens(self.K, (lens or LensConfig()).D, (c.width, c.height))
+        # The calibration camera_info reports (a calibration's result): the true one unless
+        # report_calibration says otherwise; the render always uses the true K and baseline.
+        self.K_reported = self.K
+        self.baseline_reported = c.baseline
+
+    def report_calibration(self, fx_scale: float, fy_scale: float, dcx: float, dcy: float,
+                           baseline_scale: float) -> None:
+        """
+        Let ``camera_info`` report a calibration that is off the true intrinsics by this much.
+
+        Parameters
+        ----------
+        fx_scale, fy_scale : float
+            Reported over true focal length.
+        dcx, dcy : float
+            Reported minus true principal point (px).
+        baseline_scale : float
+            Reported over true stereo baseline.
+
+        """
+        K = self.K.copy()
+        K[0, 0] *= fx_scale
+        K[1, 1] *= fy_scale
+        K[0, 2] += dcx
+        K[1, 2] += dcy
+        self.K_reported = K
+        self.baseline_reported = self.config.baseline * baseline_scale
 
     def make_shiny(self, body: int, link: int = -1) -> None:
         """
@@ -263,15 +290,19 @@ class StereoCamera:
         Returns
         -------
         CameraInfo
-            Intrinsics, rectification and projection matrices.
+            Intrinsics, rectification and projection matrices: the calibration's
+            (:meth:`report_calibration`), which the render need not share.
 
         """
         if side not in ('left', 'right'):
             raise ValueError(f"camera side must be 'left' or 'right', got {side!r}")
-        P = self.P_left if side == 'left' else self.P_right
+        K = self.K_reported
+        P = np.hstack([K, np.zeros((3, 1))])
+        if side == 'right':
+            P[0, 3] = -K[0, 0] * self.baseline_reported
         D = self.lens.D.copy() if raw else np.zeros(5)
         return CameraInfo(width=self.config.width, height=self.config.height,
-                          distortion_model='plumb_bob', D=D, K=self.K.copy(),
+                          distortion_model='plumb_bob', D=D, K=K.copy(),
                           R=np.eye(3), P=P)
 
     def camera_poses(self, T_world_tip: ArrayLike) -> tuple[np.ndarray, np.ndarray]:

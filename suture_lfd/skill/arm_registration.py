@@ -621,7 +621,7 @@ def _look_at(sim: 'Simulation', arm: str, stereo: 'StereoModel',
     views found there are given in the whole frame's pixels.
     """
     T_cw = invert_transform(sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left)
-    q = np.array(sim.arms[arm].measured_jp, dtype=float)
+    q = np.array(sim.reported_jp(arm), dtype=float)
     pts = _model_points(sim.kinematics[arm], sim.believed_base(arm), q, np.zeros(6), jaw)
     pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
     uv_l, uv_r = stereo.project(pc)
@@ -644,7 +644,7 @@ def _visit(sim: 'Simulation', arm: str, centre: np.ndarray, start: np.ndarray,
     rcm = sim.believed_base(arm)[:3, 3]
     samples: list[Sample] = []
     paths: list[np.ndarray] = []
-    path = [np.array(sim.arms[arm].measured_jp, dtype=float)]
+    path = [np.array(sim.reported_jp(arm), dtype=float)]
 
     def go(target: np.ndarray, wait: float) -> None:
         sim.apply(Command(t=sim.time, T_world_tool={arm: target}, jaw={arm: 0.0},
@@ -652,7 +652,7 @@ def _visit(sim: 'Simulation', arm: str, centre: np.ndarray, start: np.ndarray,
         # the joints as reported on the way (the dead bands' play follows from them)
         for _ in range(int(round(wait / sim.dt))):
             sim.step()
-            path.append(np.array(sim.arms[arm].measured_jp, dtype=float))
+            path.append(np.array(sim.reported_jp(arm), dtype=float))
 
     def look() -> None:
         paths.append(np.array(path))

@@ -17,7 +17,8 @@ vary (keys of ``config/dmp.yaml``, for both learnt subtasks or one)::
         correction: [true, false]    # the executor's correction on what it sees
         arm_realism: [static, dvrk]  # the arm model: static offsets or a realism preset
         servo_level: [0, 1]          # a level of the preset's effects (also calibration_level,
-                                     # transmission_level)
+                                     # transmission_level, encoder_level, ecm_level,
+                                     # intrinsics_level)
         camera: [none, dvrk]         # the endoscope's preset
 
 The grid is every combination of the ``dmp``, ``tissue`` and ``physical`` values (a *cell*),
@@ -64,7 +65,7 @@ from typing import IO, Any
 import numpy as np
 from sim_bridge.common.configfile import ConfigError, load_yaml
 from sim_bridge.common.vocabulary import TASKS
-from sim_bridge.realism.calibration import load_arm_realism
+from sim_bridge.realism.calibration import ARM_LEVELS, load_arm_realism
 from sim_bridge.realism.endoscope import endoscope_preset
 from suture_lfd.study import physical
 from suture_lfd.study.engine import parse_engine
@@ -112,10 +113,8 @@ PLOTTED = ('generality_overall', 'regeneration_success', 'ii_goal_mm', 'iv_goal_
 #: Physical-mode keys of a sweep file (``sweep.physical``) and their value when not swept
 #: (None: the arm realism preset's own level).
 PHYSICAL_AXES: dict[str, Any] = {
-    'error_level': 3.0, 'correction': True, 'arm_realism': 'static', 'calibration_level': None,
-    'transmission_level': None, 'servo_level': None, 'camera': 'none'}
-#: The per-effect levels of an arm realism preset (``config/realism_arm.yaml``).
-ARM_LEVELS = ('calibration_level', 'transmission_level', 'servo_level')
+    'error_level': 3.0, 'correction': True, 'arm_realism': 'static',
+    **dict.fromkeys(ARM_LEVELS), 'camera': 'none'}
 #: Top-level keys of a sweep file's ``sweep`` mapping.
 SWEEP_KEYS = ('design', 'seeds', 'methods', 'dmp', 'tissue', 'physical')
 

@@ -18,7 +18,8 @@ from sim_bridge.realism.calibration import draw_arm_realism, load_arm_realism
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
 from sim_bridge.simulation import PSMS, Simulation, load_simulation_config
 
-ZERO = {'calibration_level': 0.0, 'transmission_level': 0.0, 'servo_level': 0.0}
+ZERO = {'calibration_level': 0.0, 'transmission_level': 0.0, 'servo_level': 0.0,
+        'encoder_level': 0.0, 'ecm_level': 0.0, 'intrinsics_level': 0.0}
 
 
 def _scene(seed=0, levels=None):

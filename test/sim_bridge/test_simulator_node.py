@@ -726,3 +726,39 @@ def test_a_bad_parameter_stops_the_node_with_a_message_naming_it(launch):
     assert sim.popen.wait(30.0) == 2
     log = sim.log_path.read_text()
     assert 'real_time_factor must be >= 0' in log and 'Traceback' not in log
+
+
+def test_at_the_dvrk_preset_measured_js_is_what_the_encoders_read(ros, launch):
+    sim = launch('simulator', '--ros-args', '-p', 'arm_realism:=dvrk')
+    psm = ArmClient(ros, 'PSM1')
+    assert ros.wait_for(lambda: psm.connected(), 40.0), sim.log()
+    t = time.monotonic()
+    assert ros.wait_for(lambda: len(psm.get('measured_js', t)) >= 20, 20.0)
+    # the arm at rest: its motor-side joints are its setpoint; what it reports is within a few
+    # encoder counts (1e-4 rad, 2 um) of them and changes from one message to the next
+    setpoint = np.array(psm.last('setpoint_js').position)
+    measured = np.array([m.position for m in psm.get('measured_js', t)])
+    count = np.array([1e-4, 1e-4, 2e-6, 1e-4, 1e-4, 1e-4])
+    off = np.abs(measured - setpoint) / count
+    assert np.all(off < 4.0), off.max(axis=0)
+    assert np.any(off > 0.0) and np.any(measured[1:] != measured[:-1])
+    assert sim.stop() == SIGINT_EXIT
+    assert 'Traceback' not in sim.log_path.read_text()
+
+
+def test_the_presets_levels_are_node_parameters(ros, launch):
+    sim = launch('simulator', '--ros-args', '-p', 'arm_realism:=dvrk',
+                 '-p', 'arm_realism_levels:=encoder_level=0, servo_level=0')
+    psm = ArmClient(ros, 'PSM1')
+    assert ros.wait_for(lambda: psm.connected(), 40.0), sim.log()
+    t = time.monotonic()
+    assert ros.wait_for(lambda: len(psm.get('measured_js', t)) >= 5, 20.0)
+    # no encoders: the arm at rest reports its motor-side joints, its setpoint, exactly
+    setpoint = psm.last('setpoint_js').position
+    assert all(list(m.position) == list(setpoint) for m in psm.get('measured_js', t))
+    assert sim.stop() == SIGINT_EXIT
+    bad = launch('simulator', '--ros-args', '-p', 'arm_realism:=dvrk',
+                 '-p', 'arm_realism_levels:=encoders=1')
+    assert bad.popen.wait(30.0) == 2
+    log = bad.log_path.read_text()
+    assert 'arm_realism_levels must be key=level' in log and 'Traceback' not in log
