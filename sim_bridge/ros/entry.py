@@ -50,7 +50,7 @@ from sim_bridge.ros.dds import use_project_profile
 HELP_FLAGS = ('-h', '--help')
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _STARTUP_ERRORS = (ValueError, OSError, LookupError)
-SWITCH_INTERVAL = 0.0005  # s a thread may hold the interpreter while another waits for it
+SWITCH_INTERVAL = 0.0005  # s a thread holds the interpreter while one waits (Python: 5 ms)
 _VALUE_WIDTH = 28  # characters of a default shown in --help
 _LINE = 99  # characters per line of --help
 
@@ -373,19 +373,6 @@ def _keep_start_up_objects():
     gc.freeze()
 
 
-def _share_the_interpreter_finely():
-    """
-    Let a thread that wakes take the interpreter within 0.5 ms instead of Python's 5 ms.
-
-    A node with a thread of its own (the simulator's stepping thread, the MTMs' loop) shares the
-    interpreter with its executor thread: a stepping round due while the executor runs Python
-    (a wait-set rebuild, a command's callback) waited up to the switch interval, 5 ms by
-    default, before it could step and publish, half of the 10 ms between two state samples that
-    a dVRK client allows itself. Switching more often costs a few microseconds per switch.
-    """
-    sys.setswitchinterval(SWITCH_INTERVAL)
-
-
 def _run(make_node, name, argv, ros_args, state, spin_period):
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -417,7 +404,7 @@ def _run(make_node, name, argv, ros_args, state, spin_period):
         for each in nodes:
             executor.add_node(each)
         _keep_start_up_objects()
-        _share_the_interpreter_finely()
+        sys.setswitchinterval(SWITCH_INTERVAL)
         hooks.on_start()
         with state.deferred():
             try:
