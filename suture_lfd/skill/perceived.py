@@ -440,10 +440,7 @@ class PerceivedScene:
     look_period = 0.5
     #: m: a lying needle's detection tied with another pose at most this far away (mean of
     #: tail, middle and tip) is taken, the better fit: both lie within a jaw's reach of the wire
-    #: (:attr:`grasp_reach`), and the grasp is fitted again once the needle is held and turned.
-    #: Seen nearly face on, the pad's lying needles tie with a pose 1.6-1.8 mm away (a tilt the
-    #: images hardly show) while the better fit is within 1.1-1.3 mm of the needle (3-point
-    #: sum); such a tie stopped a throw at its start ("not seen: the needle").
+    #: (:attr:`grasp_reach`); seen face on, a tilt 1.6-1.8 mm away can tie with the truth.
     close_ambiguity = 0.002
     #: m: a grasp fitted to the lying and the held needle together is kept only when it moved
     #: the arc (mean of its tail, middle and tip) less than this from the grasp taken lying.
