@@ -291,6 +291,12 @@ class ThrowExecutor:
         of the carry where the needle faces the camera nearest ``0.6`` (turned from how it lay,
         its tilt shows); without it, or when no instant is in ``0.3``-``0.85``, above the
         insertion start.
+    frame_time : callable, optional
+        ``frame_time() -> float or None``: the scene time (s, the observations' clock) of the
+        newest frame the endoscope has delivered; None for a camera whose images are of now.
+        Given, a look falls due at its planned instant and is taken once a frame of that
+        instant or later has arrived (an endoscope's latency later), so that the images show
+        the needle as planned for the look, not as it was a few frames before.
 
     Attributes
     ----------
@@ -307,7 +313,8 @@ class ThrowExecutor:
                  kinematics: Any = None, config: 'ExecutorConfig | None' = None,
                  next_pair: 'MarkerPair | None' = None,
                  look: 'Callable[[str, Observation], np.ndarray | None] | None' = None,
-                 facing: 'Callable[[np.ndarray], float] | None' = None) -> None:
+                 facing: 'Callable[[np.ndarray], float] | None' = None,
+                 frame_time: 'Callable[[], float | None] | None' = None) -> None:
         self.executor_config = ExecutorConfig() if config is None else config
         self.config = self.executor_config.script
         if not isinstance(skill, ThrowSkill):
@@ -324,6 +331,8 @@ class ThrowExecutor:
         self.follower: PlanFollower | None = None
         self.look = look
         self.facing = facing
+        self.frame_time = frame_time
+        self._due: float | None = None  # when the next look fell due (observations' clock)
         self._above: np.ndarray | None = None
         self._checks: list[tuple[float, str]] = []
         cfg = self.executor_config
@@ -457,6 +466,7 @@ class ThrowExecutor:
         self.follower = PlanFollower(self.plan_, None, self.config.gate_timeout)
         self._sent: dict[str, np.ndarray] = {}
         self._checks = [] if self.look is None else self._checkpoints()
+        self._due = None
         looks = self.executor_config.slip_looks
         if self.look is not None and looks > 0:
             looks_at = slip_checkpoints(list(self.plan_.labels), looks)
@@ -502,6 +512,13 @@ class ThrowExecutor:
                     best = (abs(f - _LOOK_FACING), float(t))
         return [(above if best is None else best[1], 'PSM2')]
 
+    def _shown(self, obs: 'Observation') -> bool:
+        """Whether the endoscope has delivered a frame of the instant the due look fell due."""
+        if self._due is None:
+            self._due = float(obs.t)
+        shown = None if self.frame_time is None else self.frame_time()
+        return shown is None or shown >= self._due - 1e-9
+
     @property
     def done(self) -> bool:
         """Whether the plan has run to its end."""
@@ -546,8 +563,9 @@ class ThrowExecutor:
                     follower.offset += dt * (1.0 - 1.0 / slow)
         if self.look is None:
             self._notice_slip(obs, follower.tau(obs.t))
-        if self._checks and follower.tau(obs.t) >= self._checks[0][0]:
+        if self._checks and follower.tau(obs.t) >= self._checks[0][0] and self._shown(obs):
             _, arm = self._checks.pop(0)
+            self._due = None
             assert self.look is not None  # checkpoints are set only with look
             grasp = self.look(arm, obs) if arm in obs.holders else None
             if grasp is not None:
@@ -789,7 +807,8 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
         def facing(T_world_needle: np.ndarray) -> float:
             return perception.facing(sim, T_world_needle)
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
-                             config=config, next_pair=nxt, look=look, facing=facing)
+                             config=config, next_pair=nxt, look=look, facing=facing,
+                             frame_time=None if perception is None else sim.delivered_frame)
     controller = executor if kinematic is None else CorrectedController(executor, kinematic)
     recorder = _Recorder(controller, observer)
     t_start = sim.time

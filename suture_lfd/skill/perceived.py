@@ -439,8 +439,9 @@ class PerceivedScene:
     #: learning needs (the recorder's perception rate, 2 Hz), not every control sample.
     look_period = 0.5
     #: m: a lying needle's detection tied with another pose at most this far away (mean of
-    #: tail, middle and tip) is taken: both lie within a jaw's reach of the wire.
-    close_ambiguity = 0.0015
+    #: tail, middle and tip) is taken, the better fit: both lie within a jaw's reach of the wire
+    #: (:attr:`grasp_reach`); seen face on, a tilt 1.6-1.8 mm away can tie with the truth.
+    close_ambiguity = 0.002
     #: m: a grasp fitted to the lying and the held needle together is kept only when it moved
     #: the arc (mean of its tail, middle and tip) less than this from the grasp taken lying.
     max_grasp_change = 0.005
