@@ -22,6 +22,7 @@ Frames: ``world``; poses 4x4 ``T_world_needle``; metres.
 """
 
 from collections.abc import Sequence
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -94,42 +95,61 @@ def aim_along_arc(times: np.ndarray, poses: np.ndarray, needle: 'NeedleGeometry'
     """
     poses = np.array(poses, dtype=float)
     n = np.asarray(normal, dtype=float)
-    entry, exit_ = np.asarray(entry, dtype=float), np.asarray(exit_, dtype=float)
-    tip_local = needle.point_at(1.0)
-    known = [np.asarray(p, dtype=float) for p in punctures]
-    offset = np.zeros(3)
-    prev_tip = None
+    # plain floats: a few hundred samples, one or two punctures, on every throw's plan
+    raw = np.einsum('kij,j->ki', poses[:, :3, :3], needle.point_at(1.0)) + poses[:, :3, 3]
+    entry_depth = ((raw - np.asarray(entry, dtype=float)) @ n).tolist()
+    exit_depth = ((raw - np.asarray(exit_, dtype=float)) @ n).tolist()
+    tips, rots, origins = raw.tolist(), poses[:, :3, :3].tolist(), poses[:, :3, 3].tolist()
+    nx, ny, nz = n.tolist()
+    radius, arc = needle.radius, needle.arc
+    mid = math.pi - 0.5 * arc
+    known = [np.asarray(p, dtype=float).tolist() for p in punctures]
+    ox = oy = oz = 0.0
+    prev: tuple[list[float], float, float] | None = None
+    shifts = np.zeros((len(poses), 3))
     for k in range(len(poses)):
-        T = poses[k]
-        T[:3, 3] += offset
-        tip = T[:3, :3] @ tip_local + T[:3, 3]
-        below_entry = float((tip - entry) @ n)
-        below_exit = float((tip - exit_) @ n)
-        if prev_tip is None:
-            if not known and below_entry < 0.0:
-                known.append(tip - below_entry * n)  # punctured straight above, as lowered
+        lift = ox * nx + oy * ny + oz * nz
+        tip = [tips[k][0] + ox, tips[k][1] + oy, tips[k][2] + oz]
+        below_entry, below_exit = entry_depth[k] + lift, exit_depth[k] + lift
+        if prev is None:
+            if not known and below_entry < 0.0:  # punctured straight above, as lowered
+                known.append([tip[0] - below_entry * nx, tip[1] - below_entry * ny,
+                              tip[2] - below_entry * nz])
         else:
-            was_entry = float((prev_tip - entry) @ n)
-            was_exit = float((prev_tip - exit_) @ n)
+            was, was_entry, was_exit = prev
+            u = None
             if was_entry > 0.0 >= below_entry:
                 u = was_entry / (was_entry - below_entry)
-                known.append(prev_tip + u * (tip - prev_tip))
             elif was_exit < 0.0 <= below_exit:
                 u = -was_exit / (below_exit - was_exit)
-                known.append(prev_tip + u * (tip - prev_tip))
-        prev_tip = tip
-        if not known or k == 0:
-            continue
-        d, phi = circle_offsets(T, needle.radius, np.asarray(known))
-        s = np.asarray(needle.s_of_angle(phi))
-        occupied = (s >= 0.0) & (s <= 1.0)
-        if occupied.any():
-            shift = d[occupied].mean(axis=0)
-            most = speed * float(times[k] - times[k - 1])
-            size = float(np.linalg.norm(shift))
-            if size > most:
-                shift *= most / size
-            T[:3, 3] += shift
-            offset += shift
-            prev_tip = prev_tip + shift
-    return poses, known
+            if u is not None:
+                known.append([was[i] + u * (tip[i] - was[i]) for i in range(3)])
+        if known and k > 0:
+            (r00, r01, _), (r10, r11, _), (r20, r21, _) = rots[k]
+            t0, t1, t2 = origins[k][0] + ox, origins[k][1] + oy, origins[k][2] + oz
+            sx = sy = sz = 0.0
+            m = 0
+            for p in known:
+                d0, d1, d2 = p[0] - t0, p[1] - t1, p[2] - t2
+                phi = math.atan2(r01 * d0 + r11 * d1 + r21 * d2, r00 * d0 + r10 * d1 + r20 * d2)
+                s = 0.5 - (math.fmod(phi - mid + 3.0 * math.pi, 2.0 * math.pi) - math.pi) / arc
+                if 0.0 <= s <= 1.0:  # the wire occupies it
+                    c, sn = radius * math.cos(phi), radius * math.sin(phi)
+                    sx += d0 - (r00 * c + r01 * sn)
+                    sy += d1 - (r10 * c + r11 * sn)
+                    sz += d2 - (r20 * c + r21 * sn)
+                    m += 1
+            if m:
+                sx, sy, sz = sx / m, sy / m, sz / m
+                most = speed * float(times[k] - times[k - 1])
+                size = math.sqrt(sx * sx + sy * sy + sz * sz)
+                if size > most:
+                    sx, sy, sz = sx * most / size, sy * most / size, sz * most / size
+                ox, oy, oz = ox + sx, oy + sy, oz + sz
+                tip = [tip[0] + sx, tip[1] + sy, tip[2] + sz]
+                lift = ox * nx + oy * ny + oz * nz
+                below_entry, below_exit = entry_depth[k] + lift, exit_depth[k] + lift
+        shifts[k] = ox, oy, oz
+        prev = (tip, below_entry, below_exit)
+    poses[:, :3, 3] += shifts
+    return poses, [np.array(p) for p in known]
