@@ -11,7 +11,8 @@ skill's DMPs: the needle start and goal on the target pair are derived from the 
 streamed to the arm are ``T_world_needle(t) @ inv(T_tool_needle)`` with the grasp
 ``T_tool_needle`` **measured** when the arm took the needle. With phase stopping on, the plan
 clock of a DMP subtask slows by ``1 + k_p |e_p|^2 + k_o e_o^2`` (Ijspeert et al. 2013) when the
-measured needle pose lags the rollout.
+measured needle pose lags the rollout. On tissue the rollouts are aimed along the needle's
+arc (:mod:`suture_lfd.skill.arc_aim`) so the needle pushes the tissue less sideways.
 
 :class:`ThrowExecutor` is a controller (``reset(obs)``, ``step(obs) -> Command``, ``done``) for
 :meth:`sim_bridge.simulation.Simulation.run` or for a ROS node; :func:`execute_throw` runs one
