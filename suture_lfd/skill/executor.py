@@ -11,7 +11,8 @@ skill's DMPs: the needle start and goal on the target pair are derived from the 
 streamed to the arm are ``T_world_needle(t) @ inv(T_tool_needle)`` with the grasp
 ``T_tool_needle`` **measured** when the arm took the needle. With phase stopping on, the plan
 clock of a DMP subtask slows by ``1 + k_p |e_p|^2 + k_o e_o^2`` (Ijspeert et al. 2013) when the
-measured needle pose lags the rollout.
+measured needle pose lags the rollout. On tissue the rollouts are aimed along the needle's
+arc (:mod:`suture_lfd.skill.arc_aim`) so the needle pushes the tissue less sideways.
 
 :class:`ThrowExecutor` is a controller (``reset(obs)``, ``step(obs) -> Command``, ``done``) for
 :meth:`sim_bridge.simulation.Simulation.run` or for a ROS node; :func:`execute_throw` runs one
@@ -42,6 +43,7 @@ from suture_lfd.planning.throw_geometry import ThrowArc
 from suture_lfd.planning.tracks import TimedNeedleMove, translated
 from suture_lfd.planning.waypoints import RigidPath, rotation_exp, rotation_log
 from suture_lfd.skill import PairGeometry, ThrowSkill
+from suture_lfd.skill.arc_aim import aim_along_arc
 from suture_lfd.skill.arm_registration import CorrectedController, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
 from suture_lfd.skill.slip_watch import TISSUE_LOOKS, SlipWatch, holding_arm, slip_checkpoints
@@ -125,6 +127,14 @@ class ExecutorConfig:
         :mod:`suture_lfd.skill.slip_watch`).
     slip_corrections : int
         Most grasps taken again so per DMP subtask in ground truth.
+    arc_aim : bool
+        Aim the needle along its own arc inside the tissue: the planned insertion and
+        extraction are shifted so the needle's circle keeps through the punctures the planned
+        tip makes (:mod:`suture_lfd.skill.arc_aim`; on the executor's belief of the pair and of
+        the rollout), so the needle pushes the tissue less sideways.
+    aim_on_tissue : bool
+        Switch ``arc_aim`` on for throws on tissue (:meth:`on_tissue`): off, a throw without
+        tissue realism is planned as before.
     slip_looks : int
         In physical mode, how many times the holding arm's grasp is looked at again during each
         DMP subtask (evenly spread; 0: never; on tissue the needle can turn in the jaw).
@@ -145,6 +155,8 @@ class ExecutorConfig:
     slip_shift: float = 0.0001
     slip_looks: int = 0
     slip_corrections: int = 1
+    arc_aim: bool = False
+    aim_on_tissue: bool = True
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -163,9 +175,11 @@ class ExecutorConfig:
         The one place the tissue realism changes the executor's settings (in-process and in the
         executor node alike): in physical mode the grasp is looked at again
         :data:`~suture_lfd.skill.slip_watch.TISSUE_LOOKS` times per DMP subtask, unless
-        ``slip_looks`` already asks for looks.
+        ``slip_looks`` already asks for looks; with ``aim_on_tissue`` the needle is aimed along
+        its arc (``arc_aim``).
         """
-        return self if self.slip_looks else replace(self, slip_looks=TISSUE_LOOKS)
+        return replace(self, slip_looks=self.slip_looks or TISSUE_LOOKS,
+                       arc_aim=self.arc_aim or self.aim_on_tissue)
 
 
 class SampledPath:
@@ -385,6 +399,10 @@ class ThrowExecutor:
                            1.0)[:, None]
         P2 = P2 - press * fade * normal
         R2 = _transforms(P2, Q2)
+        aim = self.executor_config.arc_aim
+        if aim:
+            R2, punctures = aim_along_arc(T2, R2, g, pair.entry, pair.exit, normal)
+            P2 = R2[:, :3, 3].copy()
         S2 = R2[0]
         S2_hi = translated(S2, self.executor_config.start_lift * normal)
         N_ins = R2[-1]
@@ -392,6 +410,9 @@ class ThrowExecutor:
         T4, P4, Q4 = skill.rollout('iv', pair, start=pose_from_transform(N_ins), goal=goal4,
                                    needle=g, targets=(start4, goal4))
         R4 = _transforms(P4, Q4)
+        if aim:
+            R4, _ = aim_along_arc(T4, R4, g, pair.entry, pair.exit, normal, punctures)
+            P4 = R4[:, :3, 3].copy()
         N_lift = R4[-1]
         self.rollouts = {'ii': (T2, P2, Q2), 'iv': (T4, P4, Q4)}
         self.targets = {'ii': (start2, goal2), 'iv': (pose_from_transform(N_ins), goal4)}

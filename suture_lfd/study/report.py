@@ -11,6 +11,8 @@ The study's report folder: ``report.md``, CSV files, PNG figures and ``summary.j
   ``filmstrip_demo_<method>.png`` and ``filmstrip_throw_<method>.png`` (ECM frames of the
   Fig. 7 subject's demonstration and of its skill executed on another pair),
 - ``summary.json``: the numbers of the tables, machine-readable,
+- with the needle-in-tissue realism, a section on the needle turning in the jaw
+  (:mod:`suture_lfd.study.slips`),
 - ``assessment.csv`` and ``assessment/``: the skill assessment of every demonstration and the
   section on learning only from the accepted ones (:mod:`suture_lfd.study.assessed`).
 
@@ -29,7 +31,7 @@ from typing import Any
 
 import numpy as np
 from sim_bridge.common.archive import load_archive
-from suture_lfd.study import figures, tables
+from suture_lfd.study import figures, slips, tables
 from suture_lfd.study.records import DemoRecord, Record, ThrowRecord, columns
 
 #: ``throws.csv``'s columns: the first fields of a throw's record.
@@ -407,6 +409,7 @@ def write_report(folder: str | Path, records: Sequence[Record], config: Mapping[
                         (_f(100.0 * s['table4']['v'][2] / s['table4']['total'], 1) + ' %')
                         if s['table4']['total'] else '–']
                        for m, s in summary.items()]), '']
+    md += slips.report_section(records, config)
     mode = config.get('assessment', 'subject')
     if mode != 'off':
         from suture_lfd.study.assessed import report_section
