@@ -194,14 +194,7 @@ def draw_arm_realism(config: ArmRealismConfig, rng: np.random.Generator,
         neutral=config.transmission.neutral)
     out = {}
     for name in arms:
-        magnitudes = cl * np.asarray(cal.joint_offset, dtype=float)
-        offset = rng.uniform(-1.0, 1.0, magnitudes.size) * magnitudes
-        T = np.eye(4)
-        T[:3, 3] = rng.uniform(-1.0, 1.0, 3) * cl * cal.base_translation
-        angle = rng.uniform(-1.0, 1.0) * cl * cal.base_rotation
-        axis = rng.normal(size=3)
-        if angle != 0.0:
-            T[:3, :3] = _rotation(axis, angle)
+        offset, T = _draw_calibration(cal, cl, rng)
         start = rng.uniform(-0.5, 0.5, len(trans_cfg.backlash)) * np.asarray(trans_cfg.backlash)
         transmission = None if trans_cfg.is_zero else JointTransmission(trans_cfg, start)
         offset.flags.writeable = False

@@ -22,7 +22,7 @@ ZERO = {'calibration_level': 0.0, 'transmission_level': 0.0, 'servo_level': 0.0,
         'encoder_level': 0.0, 'ecm_level': 0.0, 'intrinsics_level': 0.0}
 
 
-def _scene(seed=0, levels=None):
+def dvrk_scene(seed=0, levels=None):
     realism = load_arm_realism('dvrk', levels=levels)
     config = replace(load_simulation_config(), arm_realism=realism, kinematic_error_seed=seed)
     sim = Simulation(config)
@@ -45,7 +45,7 @@ def _error(sim):
 def test_the_tool_tip_error_at_the_preset_is_of_barragans_order_over_a_sweep_of_poses():
     positions, angles = [], []
     for seed in (0, 1):
-        sim = _scene(seed)
+        sim = dvrk_scene(seed)
         try:
             home = sim.reported_tool_pose('PSM1')
             rng = np.random.default_rng(seed)
@@ -68,7 +68,7 @@ def test_the_tool_tip_error_at_the_preset_is_of_barragans_order_over_a_sweep_of_
 
 
 def test_the_same_reported_pose_reached_from_two_sides_leaves_the_tool_in_two_places():
-    sim = _scene(2)
+    sim = dvrk_scene(2)
     try:
         target = sim.reported_tool_pose('PSM1')
         reached = []
@@ -86,7 +86,7 @@ def test_the_same_reported_pose_reached_from_two_sides_leaves_the_tool_in_two_pl
 
 
 def test_measured_js_lags_setpoint_js_during_a_move_jp_and_settles_on_it():
-    sim = _scene(0, levels={'calibration_level': 0.0, 'transmission_level': 0.0})
+    sim = dvrk_scene(0, levels={'calibration_level': 0.0, 'transmission_level': 0.0})
     try:
         arm = sim.arms['PSM1']
         goal = arm.measured_jp.copy()

@@ -7,28 +7,19 @@ pose off the true one by the cited ~2 mm; ``camera_info`` reports intrinsics off
 by the cited amount; each at level 0 leaves the rest of the model exactly as it was.
 """
 
-from dataclasses import replace
 
 import numpy as np
 from sim_bridge.control import Command
 from sim_bridge.realism.calibration import draw_intrinsics_error, load_arm_realism
-from sim_bridge.simulation import Simulation, load_simulation_config
+from test_realism_arm import dvrk_scene
 
 NEW_OFF = {'encoder_level': 0.0, 'ecm_level': 0.0, 'intrinsics_level': 0.0}
-
-
-def _scene(seed=0, levels=None):
-    realism = load_arm_realism('dvrk', levels=levels)
-    config = replace(load_simulation_config(), arm_realism=realism, kinematic_error_seed=seed)
-    sim = Simulation(config)
-    sim.enable_and_home_all()
-    return sim
 
 
 def test_measured_js_is_the_motor_side_joints_on_the_encoder_counts_plus_noise():
     preset = load_arm_realism('dvrk')
     count = np.asarray(preset.encoder.psm)
-    sim = _scene(3)
+    sim = dvrk_scene(3)
     try:
         arm = sim.arms['PSM1']
         residuals = []
@@ -56,7 +47,7 @@ def test_measured_js_is_the_motor_side_joints_on_the_encoder_counts_plus_noise()
 def test_the_ecm_reports_a_camera_pose_off_the_true_one_by_the_cited_order():
     errors = []
     for seed in range(4):
-        sim = _scene(seed, levels={'encoder_level': 0.0})
+        sim = dvrk_scene(seed, levels={'encoder_level': 0.0})
         try:
             true, reported = sim.camera_pose(), sim.reported_tool_pose('ECM')
             R = true[:3, :3].T @ reported[:3, :3]
@@ -72,7 +63,7 @@ def test_the_ecm_reports_a_camera_pose_off_the_true_one_by_the_cited_order():
 
 def test_camera_info_reports_intrinsics_off_the_renders_by_the_cited_amount():
     preset = load_arm_realism('dvrk')
-    sim = _scene(5, levels={'encoder_level': 0.0, 'ecm_level': 0.0})
+    sim = dvrk_scene(5, levels={'encoder_level': 0.0, 'ecm_level': 0.0})
     try:
         camera = sim.camera
         K_true, baseline = camera.K, camera.config.baseline
@@ -97,7 +88,7 @@ def test_camera_info_reports_intrinsics_off_the_renders_by_the_cited_amount():
 def test_with_the_new_levels_zero_the_preset_is_the_model_without_them():
     runs = []
     for levels in (NEW_OFF, {'encoder_level': 0.0}, None):
-        sim = _scene(2, levels=levels)
+        sim = dvrk_scene(2, levels=levels)
         try:
             goal = sim.reported_tool_pose('PSM1')
             goal[:3, 3] += [0.01, -0.005, 0.004]
@@ -123,7 +114,7 @@ def test_with_the_new_levels_zero_the_preset_is_the_model_without_them():
 
 def test_the_simulators_measured_js_and_measured_cp_are_what_the_encoders_read():
     from sim_bridge.nodes.crtk_arm import ArmSnapshot  # the simulator node's state publication
-    sim = _scene(1)
+    sim = dvrk_scene(1)
     try:
         sim.run(0.05)
         arm = sim.arms['PSM2']
