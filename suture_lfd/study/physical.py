@@ -275,9 +275,7 @@ def _f(value: float | None, digits: int = 3) -> str:
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
-    lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
-    lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
-    return lines
+    return tables.markdown(header, rows).split('\n')
 
 
 def _cumulative(t4: dict[str, Any], task: str) -> str:

@@ -72,10 +72,7 @@ def _f(value: float | np.floating[Any] | None, digits: int = 2) -> str:
     return f'{value:.{digits}f}'
 
 
-def _table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
-    lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
-    lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
-    return '\n'.join(lines)
+_table = tables.markdown
 
 
 def _table2(reg: Mapping[str, Any]) -> str:

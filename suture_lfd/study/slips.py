@@ -80,13 +80,7 @@ def report_section(records: Sequence[Record], config: Mapping[str, Any]) -> list
             'needle in the jaw past the reporting threshold; counted by the arm that held it: '
             'PSM2 (puncture and insertion, i-ii) or PSM1 (extraction, iii-iv). "Complete" '
             'slipped throws completed all the same.', '',
-            tables_markdown(['method', 'throws', 'slipped', 'in i-ii', 'in iii-iv',
+            tables.markdown(['method', 'throws', 'slipped', 'in i-ii', 'in iii-iv',
                              'slip episodes', 'complete', 'failed (failure: throws)',
                              'grasps broken'], out), '']
 
-
-def tables_markdown(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """Return a Markdown table."""
-    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
-    lines += ['| ' + ' | '.join(str(v) for v in row) + ' |' for row in rows]
-    return '\n'.join(lines)

@@ -268,3 +268,10 @@ def calibration(rows: Sequence[ThrowRecord]) -> list[tuple[str, float, float, fl
         ours = t4['v'][2] / t4['total']
         out.append(('suturing success (experienced)', target, ours, ours - target))
     return out
+
+
+def markdown(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """Return a Markdown table of ``header`` and ``rows`` (each cell written with ``str``)."""
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
+    lines += ['| ' + ' | '.join(str(c) for c in row) + ' |' for row in rows]
+    return '\n'.join(lines)
