@@ -42,7 +42,7 @@ otherwise. The keep-alive rate is the dVRK's own state rate (100 Hz): a client s
 ago as a fault, so an enabled MTM nobody moves still publishes well within that age (50 Hz
 would leave no margin: data 20 ms old plus its delivery). The browser's hand poses and grippers
 are read at the start of every cycle, the newest of each (no callback per sample); a new one
-brings the full rate back.
+brings the full rate back. A state stream nobody reads is not written.
 
 Size: one node, its parameters, the MTMs' commands (state commands held until a client's
 readers get the MTM's poses: :class:`sim_bridge.ros.readers_gate.ReadersGate`) and its cycle;
@@ -76,6 +76,8 @@ from suture_lfd.teleop.mtm_realism import MtmImperfection, MtmRealism
 from suture_lfd.teleop.virtual_mtm import DISPLAY_FRAME, VirtualMtm
 from tf2_msgs.msg import TFMessage
 
+# an MTM's pose streams, written at each cycle to those that have readers (measured_cv too)
+POSE_STREAMS = ('measured_cp', 'setpoint_cp', 'gripper')
 CONSOLE = {'clutch': 'clutch', 'coag': 'operator_present', 'camera': 'camera'}
 
 
@@ -317,15 +319,31 @@ class MtmsNode(qos.QuietEndpoints, Node):
 
     def _publish_poses(self, name):
         """Publish an MTM's poses and gripper now (before a state change it announces)."""
-        mtm, pubs, imperfect = self.mtms[name], self._pubs[name], self._imperfect[name]
-        ns = self.get_clock().now().nanoseconds
-        T = mtm.measured_cp(self._now())
-        setpoint = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
-        pubs['measured_cp'].publish(setpoint if imperfect.is_perfect else cdr.pose_stamped(
-            ns, self.frame_id, cv.pose_vector(imperfect.measured(T))))
-        pubs['setpoint_cp'].publish(setpoint)
-        pubs['gripper'].publish(cdr.joint_state(ns, ('gripper',),
-                                                [imperfect.gripper(mtm.gripper)]))
+        self._write_poses(name, self.mtms[name].measured_cp(self._now()),
+                          self.get_clock().now().nanoseconds)
+
+    def _write_poses(self, name, T, ns):
+        """
+        Write an MTM's pose ``T`` and gripper, stamped ``ns``, on the streams that have readers.
+
+        A stream nobody reads is not written: an MTM left alone (MTML while MTMR teleoperates)
+        costs its node a reader count per cycle. The messages are CDR bytes (common.cdr): a
+        fraction of building them, on a cycle a teleoperation client wants every 5 ms.
+        """
+        pubs, imperfect = self._pubs[name], self._imperfect[name]
+        measured, setpoint, gripper = (pubs[topic] if pubs[topic].get_subscription_count()
+                                       else None for topic in POSE_STREAMS)
+        if measured is not None or setpoint is not None:
+            pose = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
+            if measured is not None:
+                # what the encoders read (level 0: the pose itself, one message for both)
+                measured.publish(pose if imperfect.is_perfect else cdr.pose_stamped(
+                    ns, self.frame_id, cv.pose_vector(imperfect.measured(T))))
+            if setpoint is not None:
+                setpoint.publish(pose)
+        if gripper is not None:
+            gripper.publish(cdr.joint_state(ns, ('gripper',),
+                                            [imperfect.gripper(self.mtms[name].gripper)]))
 
     def _apply_state_command(self, name, msg):
         problem = self.mtms[name].state_command(msg.string)
@@ -482,29 +500,21 @@ class MtmsNode(qos.QuietEndpoints, Node):
                     mtm.set_gripper(arm.gripper)
             T = mtm.measured_cp(t)
             pubs = self._pubs[name]
-            # written as CDR bytes (common.cdr): a fraction of building the messages, on a
-            # cycle that a teleoperation client wants every 5 ms
-            setpoint = cdr.pose_stamped(ns, self.frame_id, cv.pose_vector(T))
-            imperfect = self._imperfect[name]
-            # what the encoders read (level 0: the pose itself, one message for both)
-            pubs['measured_cp'].publish(setpoint if imperfect.is_perfect else cdr.pose_stamped(
-                ns, self.frame_id, cv.pose_vector(imperfect.measured(T))))
-            pubs['setpoint_cp'].publish(setpoint)
-            v = w = np.zeros(3)
+            self._write_poses(name, T, ns)
             last = self._last_cp.get(name)
-            if last is not None and dt > 0:
-                v = (T[:3, 3] - last[:3, 3]) / dt
-                dR = T[:3, :3] @ last[:3, :3].T
-                w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0],
-                              dR[1, 0] - dR[0, 1]]) * 0.5 / dt
+            velocity = pubs['measured_cv']
+            if velocity.get_subscription_count():
+                v = w = np.zeros(3)
+                if last is not None and dt > 0:
+                    v = (T[:3, 3] - last[:3, 3]) / dt
+                    dR = T[:3, :3] @ last[:3, :3].T
+                    w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0],
+                                  dR[1, 0] - dR[0, 1]]) * 0.5 / dt
+                velocity.publish(cdr.vector6_stamped(ns, self.frame_id, np.concatenate([v, w])))
             changed = changed or last is None or not np.array_equal(T, last) \
                 or mtm.gripper != self._last_gripper.get(name)
             self._last_cp[name] = T
             self._last_gripper[name] = mtm.gripper
-            pubs['measured_cv'].publish(cdr.vector6_stamped(ns, self.frame_id,
-                                                            np.concatenate([v, w])))
-            pubs['gripper'].publish(cdr.joint_state(ns, ('gripper',),
-                                                    [imperfect.gripper(mtm.gripper)]))
             busy = mtm.is_busy(t)
             changed = changed or busy
             if busy != self._busy[name]:

@@ -11,9 +11,8 @@ operator's roll is ``math.acos`` of the dot product of the MTM's and the PSM's y
 (an MTM that lands exactly on the PSM's orientation gives 1 + 2e-16 and a ValueError); every
 getter refuses data older than four 5 ms periods, the gripper's and the jaw's too; nothing waits
 for data after homing. The getters' data-age errors, which would stop the script, are counted
-and asserted to be rare (at most 1 % of the cycles) on a quiet machine; on an oversubscribed one
-(load average above half the CPUs when the test starts) they come from the client's own process
-being starved (every topic, from both nodes, stale at once), and the test says it does not
+and asserted to be none when the machine is quiet (other processes took at most a quarter of a
+CPU while the test ran); when it is not, they are reported and the test says it does not
 assert them.
 """
 
@@ -76,35 +75,78 @@ class Setpoints:
         return cv.matrix_from_pose(self.measured.pose)
 
 
-def machine_is_quiet():
-    """Whether the 1-minute load average leaves half the CPUs free (the stale count's check)."""
-    return os.getloadavg()[0] < 0.5 * (os.cpu_count() or 1)
-
-
-def assert_stale_getters_rare(client, quiet, seconds):
+class OtherWork:
     """
-    The getters that found stale data: reported, and at most 1 % of the client's 5 ms cycles
-    on a quiet machine.
+    How much of the machine other processes than this test's took while it ran (its check).
+
+    The machine's busy time (``/proc/stat``: user, nice, system, interrupts and the time a
+    hypervisor stole) less this process's and its children's (``/proc/<pid>/stat``), as CPUs
+    on average since it was made. The load average is not used: a heavy test that ran just
+    before leaves it high for minutes on a machine that is quiet now.
+    """
+
+    def __init__(self):
+        self.t0, self.busy0, self.own0 = time.monotonic(), self._busy(), self._own()
+
+    @staticmethod
+    def _busy():
+        with open('/proc/stat') as f:
+            fields = [int(x) for x in f.readline().split()[1:]]
+        user, nice, system, _idle, _iowait, irq, softirq, steal = fields[:8]
+        return (user + nice + system + irq + softirq + steal) / os.sysconf('SC_CLK_TCK')
+
+    @staticmethod
+    def _own():
+        """CPU s of this process and every process below it."""
+        stats = {}
+        for entry in os.listdir('/proc'):
+            if entry.isdigit():
+                try:
+                    with open(f'/proc/{entry}/stat') as f:
+                        fields = f.read().rsplit(')', 1)[1].split()
+                except OSError:
+                    continue
+                stats[int(entry)] = (int(fields[1]), int(fields[11]) + int(fields[12]))
+        mine, total = {os.getpid()}, 0
+        for _ in range(8):   # children, grandchildren, ...
+            mine |= {pid for pid, (ppid, _) in stats.items() if ppid in mine}
+        total = sum(stats[pid][1] for pid in mine if pid in stats)
+        return total / os.sysconf('SC_CLK_TCK')
+
+    def cpus(self):
+        """Other processes' CPU use since the start, in CPUs (0.25: a quarter of one)."""
+        span = time.monotonic() - self.t0
+        return max(0.0, (self._busy() - self.busy0) - (self._own() - self.own0)) / span
+
+
+# other processes may take this much of the machine and the stale getters are still asserted
+QUIET = 0.25
+
+
+def assert_no_stale_getters(client, others, seconds):
+    """
+    The getters that found stale data: reported, and none while the machine was quiet.
 
     A publisher that stalls (stepping, discovery, garbage collection) makes every cycle of the
-    stall stale, tens in a row; a two-core machine running the simulator, the virtual MTMs, this
-    client and the test's operator leaves a few isolated ones (about 10 in a minute at a load
-    average of 1), which the dVRK's own console on its real-time loop does not.
+    stall stale, tens in a row; the dVRK's own console on its real-time loop never does. Other
+    work on the machine (more than ``QUIET`` CPUs while the test ran) starves one of the four
+    processes now and then, and the count is reported, not asserted.
     """
     ages = client.stale()
     cycles = seconds / 0.005
     topics = Counter(age.split(':', 1)[0] for age in ages)
     print(f'\ngetters that found data older than 20 ms or none at all: {len(ages)} in about '
-          f'{cycles:.0f} cycles' + (f', e.g. {ages[0]}; by topic: {dict(topics)}' if ages else ''))
-    if quiet:
-        assert len(ages) <= 0.01 * cycles, client.proc.log()[-20000:]
+          f'{cycles:.0f} cycles' + (f', e.g. {ages[0]}; by topic: {dict(topics)}' if ages else '')
+          + f'; other processes took {others:.2f} CPUs')
+    if others <= QUIET:
+        assert not ages, client.proc.log()[-20000:]
     else:
-        print('the machine was loaded when the test started: the stale getters are reported, '
-              'not asserted')
+        print(f'other work took more than {QUIET} CPUs while the test ran: the stale getters '
+              'are reported, not asserted')
 
 
 def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(ros, launch):
-    quiet = machine_is_quiet()
+    others = OtherWork()
     sim = launch('simulator')                                  # the default configuration
     mtms = launch('mtms')
     node = ros.node('operator')
@@ -112,8 +154,10 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
     assert wait_for(lambda: all(node.get_publishers_info_by_topic(t) for t in (
         '/PSM1/operating_state', '/MTMR/operating_state')), 60.0), sim.log() + mtms.log()
     client = ClientLog(launch(sys.executable, str(CLIENT), 'MTMR', 'PSM1'))
-    watch = SceneWatch(node, teleops=())
-    op = BrowserOperator(node)
+    # the operator's hand on MTMR only, its eyes on PSM1 only: the test's own process takes no
+    # more of the machine than a person at the viewer would
+    watch = SceneWatch(node, psms=('PSM1',), teleops=())
+    op = BrowserOperator(node, mtms=('MTMR',))
     psm = Setpoints(node)
     assert wait_for(lambda: watch.ready() and op.connected(), timeout=30)
 
@@ -124,7 +168,6 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
 
     # the operator at the viewer's input: the hand on PSM1's tool, gripper half open
     op.handles['MTMR'] = watch.world('PSM1')
-    op.handles['MTML'] = watch.world('PSM2') if 'PSM2' in watch.base else np.eye(4)
     op.grippers['MTMR'] = 0.6
     started = time.monotonic()
 
@@ -192,5 +235,5 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
     assert client.proc.running() and sim.running() and mtms.running()
     assert homed <= 5.0, f'both arms enabled and homed after {homed:.2f} s'
     # each stale getter would have stopped the dVRK's script
-    assert_stale_getters_rare(client, quiet, time.monotonic() - started)
+    assert_no_stale_getters(client, others.cpus(), time.monotonic() - started)
 
