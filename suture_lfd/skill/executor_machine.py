@@ -450,16 +450,18 @@ class ExecutorMachine:
                                     phase_stopping=self.config.phase_stopping)
             if self.config.physical:
                 config = config.in_physical_mode()
-            look = None
+            look = frame_time = None
             if self.config.tissue:
                 config = config.on_tissue()
                 feed = self.feed
                 if feed is not None:
                     def look(arm: str, o: Observation) -> np.ndarray | None:
                         return feed.look_at_grasp(None, arm, o.T_world_tool)
+                    # a look at the grasp waits for the perception's look of its instant
+                    frame_time = feed.needle_stamp
             self._executor = ThrowExecutor(self.skill, obs.pair, self.scene.needle,
                                            kinematics=self.kinematics, config=config,
-                                           look=look)
+                                           look=look, frame_time=frame_time)
             self._controller = self._executor
             if self.correction is not None and self.correction.arms:
                 self._controller = CorrectedController(self._executor, self.correction)

@@ -208,6 +208,16 @@ class PerceptionFeed(PerceivedScene):
         T = None if T_camera_needle is None else np.asarray(T_camera_needle, dtype=float)
         self._needle_looks.append((float(stamp), T, status))
 
+    def needle_stamp(self) -> float | None:
+        """
+        Return the stamp (s) of the look at the needle the last observation uses, or None.
+
+        The executor's ``frame_time``: a look at the grasp that falls due at ``t`` is taken once
+        a look stamped at or after ``t`` has come (the perception's latency behind the arms).
+        """
+        look = self._needle_c
+        return None if look is None else look[0]
+
     def seen_since(self, stamp: float) -> list[str]:
         """Return what was not seen at or after ``stamp`` (``'markers'``, ``'needle'``)."""
         missing = []

@@ -149,11 +149,13 @@ def test_an_observation_takes_only_looks_stamped_at_or_before_the_arms_state():
     # the arms' state of 1.0 arrives after the look of 1.1 (queued behind the images)
     first = feed.observe(arms(1.0, 0.8, 0.8))
     np.testing.assert_allclose(first.T_world_needle[:3, 3], [0.02, 0.0, 0.0], atol=1e-12)
+    assert feed.needle_stamp() == 0.9           # the executor's frame_time: the look it uses
     # nothing of a known stamp yet: no needle rather than one seen later
     empty = PerceptionFeed('synth1', 1)
     empty.camera_moved(camera_pose())
     empty.markers_seen(0.0, [[0, 0.004, 0.1]], [[0, -0.004, 0.1]], [0, 0, -1])
     empty.needle_seen(1.1, later, NeedleStatus(True))
     assert empty.observe(arms(1.0, 0.8, 0.8)).T_world_needle is None
+    assert empty.needle_stamp() is None        # no look of the arms' instant yet: a look waits
     seen = empty.observe(arms(1.1, 0.8, 0.8)).T_world_needle
     np.testing.assert_allclose(seen[:3, 3], [0.03, 0.0, 0.0], atol=1e-12)
