@@ -6,7 +6,7 @@ Ours: :func:`suture_lfd.skill.executor.execute_throw` in physical mode (markers 
 the rendered stereo pair, the arms' own reports) on robots drawn at the ``dvrk`` preset of
 ``config/realism_arm.yaml``: every effect together, and each alone (the other levels at 0: the
 arm's calibration, transmission and servo, the encoders, the ECM's reported pose, the
-endoscope's intrinsics), with
+endoscope's intrinsics, the jaw's reading on a held needle), with
 the registration that fits the joints' dead bands (``bands``), with one that fits offsets only
 (``offsets``), and open loop (``open``). Anchors measured in the same run: ground-truth mode
 (the simulation's truth) with the ground-truth executor settings and with the physical ones
@@ -19,7 +19,7 @@ throw and its ratio to the static-offset mode (the issue's target: at most 1.2x)
 registration's CPU apart (once per robot).
 
 Run: ``.venv/bin/python bench/bench_arm_realism.py [--seeds 1,2] [--pairs synth1,synth2]
-[--rows all,calibration,transmission,servo,encoder,ecm,intrinsics]``
+[--rows all,calibration,transmission,servo,encoder,ecm,intrinsics,jaw]``
 """
 
 import argparse
@@ -63,7 +63,7 @@ def main():
     parser.add_argument('--seeds', default='1,2', help='robots (error seeds) per row')
     parser.add_argument('--pairs', default='synth1,synth2,synth3,synth4')
     parser.add_argument('--rows',
-                        default='all,calibration,transmission,servo,encoder,ecm,intrinsics',
+                        default='all,calibration,transmission,servo,encoder,ecm,intrinsics,jaw',
                         help='dvrk rows: all effects, one effect alone, or effects joined '
                         "by '+' (calibration+transmission+servo)")
     parser.add_argument('--corrections', default='bands,offsets,open',

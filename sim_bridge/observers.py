@@ -166,7 +166,7 @@ class PhysicalObserver:
         sim = self._sim
         obs = Observation(t=sim.time,
                           T_world_tool={n: sim.reported_tool_pose(n) for n in PSMS},
-                          jaw={n: sim.arms[n].jaw_measured_jp for n in PSMS},
+                          jaw={n: sim.reported_jaw(n)[0] for n in PSMS},
                           T_world_needle=None, holders=(), pair=None,
                           T_world_base={n: sim.believed_base(n) for n in sim.arms},
                           q={n: sim.reported_jp(n) for n in PSMS})

@@ -53,6 +53,7 @@ from sim_bridge.kinematic_errors import ArmError, draw_arm_errors
 from sim_bridge.kinematics import EcmKinematics, PsmKinematics, ecm_kinematics, psm_kinematics
 from sim_bridge.realism.calibration import (
     build_encoders,
+    build_jaw_stall,
     draw_arm_realism,
     draw_ecm_error,
     draw_intrinsics_error,
@@ -168,6 +169,8 @@ class ScenePhysics:
         seed = int(cfg.kinematic_error_seed)
         self._encoders = ({} if cfg.arm_realism is None
                           else build_encoders(cfg.arm_realism, seed, ARMS))
+        # What a jaw closed on the needle reads (None: every jaw reads its own angle).
+        self._jaw_stall = None if cfg.arm_realism is None else build_jaw_stall(cfg.arm_realism)
         if cfg.arm_realism is not None:
             intrinsics = draw_intrinsics_error(cfg.arm_realism, seed)
             if intrinsics is not None:
@@ -388,6 +391,26 @@ class ScenePhysics:
         if name not in self._errors:
             return self._tool_pose(name).copy()
         return self._T_world_base[name] @ self.arms[name].local_measured_cp_view
+
+    def reported_jaw(self, name: str) -> tuple[float, float]:
+        """
+        Return a PSM's jaw as ``jaw/measured_js`` reports it: angle (rad), velocity (rad/s).
+
+        A jaw that holds the needle reads where its motors stalled on the wire
+        (:mod:`sim_bridge.realism.jaw`), not its command; any other jaw, and every jaw at
+        ``jaw_level`` 0, reads its own angle.
+        """
+        arm = self.arms[name]
+        angle, velocity = arm.jaw_measured_jp, arm.jaw_measured_jv
+        stall = self._jaw_stall
+        if stall is None or name not in self.grasp.holders:
+            return angle, velocity
+        return stall.read(angle), stall.read_velocity(angle, velocity)
+
+    @property
+    def has_jaw_stall(self) -> bool:
+        """Whether a jaw closed on the needle reads short of its command (``jaw_level`` > 0)."""
+        return self._jaw_stall is not None
 
     @property
     def has_encoders(self) -> bool:

@@ -484,6 +484,10 @@ class Simulation:
         """Joints of an arm as its encoders report them (``measured_js``): a new array."""
         return self.physics.reported_jp(name)
 
+    def reported_jaw(self, name: str) -> tuple[float, float]:
+        """Return a PSM's jaw angle and velocity as ``jaw/measured_js`` reports them."""
+        return self.physics.reported_jaw(name)
+
     # what the ground-truth observer (sim_bridge.observers) reads of the scene: the physics' own
     def _tool_pose(self, name: str) -> np.ndarray:
         return self.physics._tool_pose(name)

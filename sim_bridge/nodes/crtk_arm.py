@@ -122,11 +122,19 @@ class ArmSnapshot:
     to the next while it does not move, so an arm at rest costs no kinematics at all.
     """
 
-    def __init__(self, arm, read_jp=None):
+    def __init__(self, arm, read_jp=None, read_jaw=None):
         self.arm = arm
         self.kinematics = arm.kinematics
         self.reference_frame = arm.reference_frame
         self._read_jp = read_jp  # the joints the encoders report; None: the arm's own
+        self._read_jaw = read_jaw  # the jaw's (angle, velocity) reported; None: the arm's own
+
+    @cached_property
+    def jaw(self):
+        """The jaw's measured angle and velocity (rad, rad/s)."""
+        if self._read_jaw is None:
+            return self.arm.jaw_measured_jp, self.arm.jaw_measured_jv
+        return self._read_jaw()
 
     @cached_property
     def measured_jp(self):
@@ -208,6 +216,9 @@ class CrtkArm:
     read_jp : callable, optional
         Returns the joints the arm's encoders report (``measured_js``; ``measured_cp`` is their
         forward kinematics) (default: the arm's own joints).
+    read_jaw : callable, optional
+        Returns the jaw's angle and velocity ``jaw/measured_js`` reports (default: the arm's
+        own jaw).
     stamp_floor_ns : callable, optional
         Returns a time (int ns) that ``operating_state`` stamps must not fall behind: the wall
         clock when the simulator clock stands for it. A client without ``use_sim_time`` takes
@@ -222,9 +233,11 @@ class CrtkArm:
     """
 
     def __init__(self, node, name, get_arm, now_ns, on_command=None, poll_servo=False,
-                 lock=None, stamp_floor_ns=None, T_world_base=None, suj=False, read_jp=None):
+                 lock=None, stamp_floor_ns=None, T_world_base=None, suj=False, read_jp=None,
+                 read_jaw=None):
         self.name = name
         self._read_jp = read_jp
+        self._read_jaw = read_jaw
         self._T_world_base = None if T_world_base is None else np.array(T_world_base,
                                                                          dtype=float)
         self._T_base_world = None if T_world_base is None else np.linalg.inv(
@@ -285,7 +298,7 @@ class CrtkArm:
                 prefix=f'SUJ/{name}')
         if self._has_jaw:
             add('jaw/measured_js', JointState, lambda s, t: cdr.joint_state(
-                t, ('jaw',), [s.arm.jaw_measured_jp], [s.arm.jaw_measured_jv], [0.0]))
+                t, ('jaw',), [s.jaw[0]], [s.jaw[1]], [0.0]))
             add('jaw/setpoint_js', JointState, lambda s, t: cdr.joint_state(
                 t, ('jaw',), [s.arm.jaw_setpoint_jp], effort=[0.0]))
 
@@ -507,7 +520,7 @@ class CrtkArm:
         state = None
         for pub, build in self._state.values():
             if pub.get_subscription_count():
-                state = state or ArmSnapshot(self._get_arm(), self._read_jp)
+                state = state or ArmSnapshot(self._get_arm(), self._read_jp, self._read_jaw)
                 pub.publish(build(state, ns))
 
     def _state_stamp(self):

@@ -73,6 +73,7 @@ import numpy as np
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sim_bridge.common.validation import check_positive
+from sim_bridge.common.vocabulary import PSMS
 from sim_bridge.nodes import executables
 from sim_bridge.nodes.crtk_arm import CrtkArm
 from sim_bridge.nodes.footpedals import FootPedals
@@ -390,7 +391,9 @@ class Simulator(qos.QuietEndpoints, NodeHooks, Node):
                                    lock=self.locked, stamp_floor_ns=wall,
                                    T_world_base=self.sim.believed_base(name), suj=cart,
                                    read_jp=(lambda n=name: self.sim.reported_jp(n))
-                                   if self.sim.physics.has_encoders else None)
+                                   if self.sim.physics.has_encoders else None,
+                                   read_jaw=(lambda n=name: self.sim.reported_jaw(n))
+                                   if self.sim.physics.has_jaw_stall and name in PSMS else None)
                      for name in ARMS}
         self.scene = SceneTopics(self, self.sim, depth=cfg.camera_depth, physical=cfg.physical)
         self.create_subscription(String, 'sim/target_pair', self._on_target_pair, qos.COMMANDS)

@@ -24,13 +24,14 @@ from pathlib import Path
 import numpy as np
 from sim_bridge.kinematic_errors import ArmError
 from sim_bridge.realism.encoder import EncoderConfig, JointEncoder
+from sim_bridge.realism.jaw import JawConfig, JawStall
 from sim_bridge.realism.presets import read_preset
 from sim_bridge.realism.servo import ServoConfig
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
 
 #: The per-effect levels of an :class:`ArmRealismConfig` (keys of a preset and of a sweep).
 ARM_LEVELS = ('calibration_level', 'transmission_level', 'servo_level', 'encoder_level',
-              'ecm_level', 'intrinsics_level')
+              'ecm_level', 'intrinsics_level', 'jaw_level')
 #: Streams of the seeded draws besides the PSMs' own (``default_rng([seed, stream])``).
 _ECM_STREAM, _INTRINSICS_STREAM, _ENCODER_STREAM = 1, 2, 3
 
@@ -112,12 +113,14 @@ class ArmRealismConfig:
         The ECM's calibration errors (four joint offsets, its base): the camera's reported pose.
     intrinsics : IntrinsicsConfig
         The endoscope's calibration errors.
+    jaw : JawConfig
+        What a PSM jaw closed on the needle reads (:mod:`sim_bridge.realism.jaw`).
     calibration_level, transmission_level : float
         Scale of each effect (>= 0).
     servo_level : float
         0: ideal tracking; ``L > 0``: the servo loop with its natural frequency divided by ``L``
         (more lag).
-    encoder_level, ecm_level, intrinsics_level : float
+    encoder_level, ecm_level, intrinsics_level, jaw_level : float
         Scale of each (>= 0); the encoder's noise and counts both scale.
 
     """
@@ -129,12 +132,14 @@ class ArmRealismConfig:
     encoder: EncoderConfig = EncoderConfig()
     ecm: CalibrationConfig = CalibrationConfig(joint_offset=(0.0,) * 4)
     intrinsics: IntrinsicsConfig = IntrinsicsConfig()
+    jaw: JawConfig = JawConfig()
     calibration_level: float = 1.0
     transmission_level: float = 1.0
     servo_level: float = 1.0
     encoder_level: float = 1.0
     ecm_level: float = 1.0
     intrinsics_level: float = 1.0
+    jaw_level: float = 1.0
 
     def __post_init__(self) -> None:
         for key in ARM_LEVELS:
@@ -298,6 +303,13 @@ def build_encoders(config: ArmRealismConfig, seed: int, arms: Iterable[str]
         out[name] = JointEncoder(resolution, c.noise,
                                  np.random.default_rng([int(seed), _ENCODER_STREAM, i]))
     return out
+
+
+def build_jaw_stall(config: ArmRealismConfig) -> JawStall | None:
+    """Return the PSM jaws' reading of a held needle at ``config``'s jaw level (None at 0)."""
+    if config.jaw_level == 0.0:
+        return None
+    return JawStall(config.jaw, config.jaw_level)
 
 
 def load_arm_realism(name: str, path: str | Path | None = None,

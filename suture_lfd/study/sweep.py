@@ -18,7 +18,7 @@ vary (keys of ``config/dmp.yaml``, for both learnt subtasks or one)::
         arm_realism: [static, dvrk]  # the arm model: static offsets or a realism preset
         servo_level: [0, 1]          # a level of the preset's effects (also calibration_level,
                                      # transmission_level, encoder_level, ecm_level,
-                                     # intrinsics_level)
+                                     # intrinsics_level, jaw_level)
         camera: [none, dvrk]         # the endoscope's preset
 
 The grid is every combination of the ``dmp``, ``tissue`` and ``physical`` values (a *cell*),

@@ -127,3 +127,39 @@ def test_the_simulators_measured_js_and_measured_cp_are_what_the_encoders_read()
         assert np.array_equal(ArmSnapshot(arm).measured_jp, arm.measured_jp)
     finally:
         sim.close()
+
+
+def test_a_jaw_closed_on_the_needle_reads_where_its_motors_stalled_not_its_command():
+    jaw = load_arm_realism('dvrk').jaw
+    sim = dvrk_scene(4)
+    try:
+        sim.attach_needle('PSM2')
+        for arm in ('PSM1', 'PSM2'):   # both grip as a client does, PSM1 on nothing
+            sim.apply(Command(t=sim.time, T_world_tool={}, jaw={arm: -0.349066}, subtask='i'))
+        sim.run(1.0)
+        assert sim.grasp.holders == ('PSM2',)
+        held = sim.arms['PSM2']
+        angle, velocity = sim.reported_jaw('PSM2')
+        assert held.jaw_setpoint_jp == held.jaw_measured_jp == -0.349066
+        # stalled on the wire short of the -20 deg command, a fifth of the rest beyond it
+        assert abs(angle - (jaw.stall + jaw.compliance * (-0.349066 - jaw.stall))) < 1e-12
+        assert abs(angle - held.jaw_setpoint_jp) > 0.19 and velocity == 0.0
+        # the grasp holds all the same: it reads the jaws themselves
+        assert angle <= sim.config.grasp.close_angle
+        # a jaw on nothing reads its angle, its command
+        assert sim.reported_jaw('PSM1') == (sim.arms['PSM1'].jaw_measured_jp, 0.0) \
+            and sim.arms['PSM1'].jaw_measured_jp == -0.349066
+    finally:
+        sim.close()
+    # level 0: every jaw reads its own angle, bit for bit
+    sim = dvrk_scene(4, levels={'jaw_level': 0.0})
+    try:
+        sim.attach_needle('PSM2')
+        sim.apply(Command(t=sim.time, T_world_tool={}, jaw={'PSM2': -0.349066}, subtask='i'))
+        sim.run(1.0)
+        assert sim.grasp.holders == ('PSM2',)
+        assert sim.reported_jaw('PSM2') == (sim.arms['PSM2'].jaw_measured_jp,
+                                            sim.arms['PSM2'].jaw_measured_jv)
+        assert not sim.physics.has_jaw_stall
+    finally:
+        sim.close()

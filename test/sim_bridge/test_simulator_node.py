@@ -742,6 +742,11 @@ def test_at_the_dvrk_preset_measured_js_is_what_the_encoders_read(ros, launch):
     off = np.abs(measured - setpoint) / count
     assert np.all(off < 4.0), off.max(axis=0)
     assert np.any(off > 0.0) and np.any(measured[1:] != measured[:-1])
+    # a jaw that holds nothing reads its own angle, initial_jaw (the preset's jaw stall is for
+    # a held needle)
+    assert ros.wait_for(lambda: psm.get('jaw/measured_js', t), 10.0)
+    jaw = psm.last('jaw/measured_js')
+    assert list(jaw.position) == [0.0] and list(jaw.velocity) == [0.0]
     assert sim.stop() == SIGINT_EXIT
     assert 'Traceback' not in sim.log_path.read_text()
 
