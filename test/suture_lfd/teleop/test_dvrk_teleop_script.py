@@ -11,9 +11,9 @@ operator's roll is ``math.acos`` of the dot product of the MTM's and the PSM's y
 (an MTM that lands exactly on the PSM's orientation gives 1 + 2e-16 and a ValueError); every
 getter refuses data older than four 5 ms periods, the gripper's and the jaw's too; nothing waits
 for data after homing. The getters' data-age errors, which would stop the script, are counted
-and asserted to be none when the machine is quiet (other processes took at most a quarter of a
-CPU while the test ran); when it is not, they are reported and the test says it does not
-assert them.
+and asserted to be none when the machine is quiet (while the test ran, other processes took at
+most a quarter of a CPU and the machine, these processes included, at most three quarters of
+its CPUs); when it is not, they are reported and the test says it does not assert them.
 """
 
 from collections import Counter
@@ -75,14 +75,14 @@ class Setpoints:
         return cv.matrix_from_pose(self.measured.pose)
 
 
-class OtherWork:
+class MachineUse:
     """
-    How much of the machine other processes than this test's took while it ran (its check).
+    How busy the machine was while the test ran, in CPUs: all of it, and other processes.
 
     The machine's busy time (``/proc/stat``: user, nice, system, interrupts and the time a
-    hypervisor stole) less this process's and its children's (``/proc/<pid>/stat``), as CPUs
-    on average since it was made. The load average is not used: a heavy test that ran just
-    before leaves it high for minutes on a machine that is quiet now.
+    hypervisor stole), and that less this process's and its children's (``/proc/<pid>/stat``),
+    averaged since it was made. The load average is not used: a heavy test that ran just before
+    leaves it high for minutes on a machine that is quiet now.
     """
 
     def __init__(self):
@@ -107,46 +107,50 @@ class OtherWork:
                 except OSError:
                     continue
                 stats[int(entry)] = (int(fields[1]), int(fields[11]) + int(fields[12]))
-        mine, total = {os.getpid()}, 0
+        mine = {os.getpid()}
         for _ in range(8):   # children, grandchildren, ...
             mine |= {pid for pid, (ppid, _) in stats.items() if ppid in mine}
-        total = sum(stats[pid][1] for pid in mine if pid in stats)
-        return total / os.sysconf('SC_CLK_TCK')
+        return sum(stats[pid][1] for pid in mine if pid in stats) / os.sysconf('SC_CLK_TCK')
 
     def cpus(self):
-        """Other processes' CPU use since the start, in CPUs (0.25: a quarter of one)."""
+        """Return (all, others): the machine's CPUs in use since the start, on average."""
         span = time.monotonic() - self.t0
-        return max(0.0, (self._busy() - self.busy0) - (self._own() - self.own0)) / span
+        busy = self._busy() - self.busy0
+        return busy / span, max(0.0, busy - (self._own() - self.own0)) / span
 
 
-# other processes may take this much of the machine and the stale getters are still asserted
-QUIET = 0.25
+# The stale getters are asserted to be none when other processes took at most OTHERS CPUs and
+# the machine as a whole (this test's four processes included) at most BUSY of its CPUs: on a
+# machine slower than ours the four take a larger share, and at some point no Python process
+# is scheduled within 20 ms every time.
+OTHERS, BUSY = 0.25, 0.75
 
 
-def assert_no_stale_getters(client, others, seconds):
+def assert_no_stale_getters(client, use, seconds):
     """
     The getters that found stale data: reported, and none while the machine was quiet.
 
     A publisher that stalls (stepping, discovery, garbage collection) makes every cycle of the
-    stall stale, tens in a row; the dVRK's own console on its real-time loop never does. Other
-    work on the machine (more than ``QUIET`` CPUs while the test ran) starves one of the four
-    processes now and then, and the count is reported, not asserted.
+    stall stale, tens in a row; the dVRK's own console on its real-time loop never does.
     """
+    busy, others = use.cpus()
     ages = client.stale()
     cycles = seconds / 0.005
     topics = Counter(age.split(':', 1)[0] for age in ages)
     print(f'\ngetters that found data older than 20 ms or none at all: {len(ages)} in about '
           f'{cycles:.0f} cycles' + (f', e.g. {ages[0]}; by topic: {dict(topics)}' if ages else '')
-          + f'; other processes took {others:.2f} CPUs')
-    if others <= QUIET:
+          + f'; the machine was busy on {busy:.2f} of {os.cpu_count()} CPUs, other processes '
+          f'on {others:.2f}')
+    if others <= OTHERS and busy <= BUSY * (os.cpu_count() or 1):
         assert not ages, client.proc.log()[-20000:]
     else:
-        print(f'other work took more than {QUIET} CPUs while the test ran: the stale getters '
-              'are reported, not asserted')
+        print(f'the machine was not quiet (other processes on more than {OTHERS} CPUs, or '
+              f'more than {BUSY:.0%} of them busy): the stale getters are reported, not '
+              'asserted')
 
 
 def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(ros, launch):
-    others = OtherWork()
+    use = MachineUse()
     sim = launch('simulator')                                  # the default configuration
     mtms = launch('mtms')
     node = ros.node('operator')
@@ -235,5 +239,5 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
     assert client.proc.running() and sim.running() and mtms.running()
     assert homed <= 5.0, f'both arms enabled and homed after {homed:.2f} s'
     # each stale getter would have stopped the dVRK's script
-    assert_no_stale_getters(client, others.cpus(), time.monotonic() - started)
+    assert_no_stale_getters(client, use, time.monotonic() - started)
 
