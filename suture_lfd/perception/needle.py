@@ -321,9 +321,11 @@ class NeedleTracker:
         index = np.concatenate([np.arange(n), [0, n - 1]])
         steps = self._steps
         out = []
+        # both images' pixels of the points and of the points a little ahead, projected once
+        seen, seen_ahead = stereo.project(points), stereo.project(ahead)
         for side, field in enumerate(fields):
-            uv = stereo.project(points)[side]
-            direction = stereo.project(ahead)[side] - uv
+            uv = seen[side]
+            direction = seen_ahead[side] - uv
             direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
             normal = np.column_stack([-direction[:, 1], direction[:, 0]])
             dirs = np.vstack([normal, -direction[:1], direction[-1:]])
@@ -388,8 +390,12 @@ class NeedleTracker:
             dv = np.column_stack([np.zeros_like(z), fy / z, -fy * y / z ** 2])
             d = dirs[valid]
             g = d[:, :1] * du + d[:, 1:] * dv  # d(offset along the direction)/dX
-            # dX/domega = -[lever]_x, dX/dtau = I
-            rows.append(np.hstack([np.cross(lever, g), g]))
+            # dX/domega = -[lever]_x, dX/dtau = I; lever x g by its components (np.cross's
+            # products and differences, without its axis handling on this hot path)
+            lx, ly, lz = lever[:, 0], lever[:, 1], lever[:, 2]
+            gx, gy, gz = g[:, 0], g[:, 1], g[:, 2]
+            rows.append(np.column_stack([ly * gz - lz * gy, lz * gx - lx * gz,
+                                         lx * gy - ly * gx, g]))
             r = offset[valid]
             rhs.append(r)
             weights.append(weight[valid] * np.minimum(1.0, c.huber / np.maximum(np.abs(r),

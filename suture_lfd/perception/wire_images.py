@@ -91,8 +91,11 @@ def sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     u0 = u.astype(np.intp)
     v0 = v.astype(np.intp)
     a, b = u - u0, v - v0
-    f = (image[v0, u0] * (1 - a) * (1 - b) + image[v0, u0 + 1] * a * (1 - b)
-         + image[v0 + 1, u0] * (1 - a) * b + image[v0 + 1, u0 + 1] * a * b)
+    # the four neighbours gathered by flat index (the same values as image[v, u], cheaper)
+    flat = image.reshape(-1)
+    k = v0 * w + u0
+    f = (flat.take(k) * (1 - a) * (1 - b) + flat.take(k + 1) * a * (1 - b)
+         + flat.take(k + w) * (1 - a) * b + flat.take(k + w + 1) * a * b)
     return np.where(inside, f, np.nan)
 
 

@@ -164,3 +164,35 @@ def test_both_psms_reach_every_marker_pair_through_a_whole_drive(kind, prefix):
                         if ok[0]:
                             best = min(best, np.abs(Q[0, 4:]).max())
                     assert best < np.radians(60.0), (arm, pair.name, s)
+
+
+def test_the_drape_draws_the_table_as_its_box_did(world):
+    """The table's tiled top, built last, gives the images the table's box gave (cheaper)."""
+    from sim_bridge.scene.camera import CameraConfig, StereoCamera
+
+    c = world.client
+    camera = StereoCamera(CameraConfig(width=160, height=120, vertical_fov=0.8), c)
+    centre = world.phantom.T_world_phantom[:3, 3]
+    # looking down on the pad from 12 cm, the table all around it
+    T_world_tip = np.eye(4)
+    T_world_tip[:3, :3] = Rotation.from_euler('x', 180.0, degrees=True).as_matrix()
+    T_world_tip[:3, 3] = centre + [0.0, 0.0, 0.12]
+    drawn = camera.render(T_world_tip)
+    cfg = world.config
+    half = [0.5 * cfg.table_size[0], 0.5 * cfg.table_size[1], 0.0005]
+    box = c.createMultiBody(0.0, -1, c.createVisualShape(
+        pybullet.GEOM_BOX, halfExtents=half, rgbaColor=list(cfg.table_rgba),
+        visualFramePosition=[0.0, 0.0, -0.0005]), [float(centre[0]), float(centre[1]),
+                                                  world.table_height])
+    place = c.getBasePositionAndOrientation(world.drape_body)
+    c.resetBasePositionAndOrientation(world.drape_body, [10.0, 10.0, 10.0], [0, 0, 0, 1])
+    try:
+        boxed = camera.render(T_world_tip)
+    finally:
+        c.removeBody(box)
+        c.resetBasePositionAndOrientation(world.drape_body, *place)
+    assert world.drape_body == c.getBodyUniqueId(c.getNumBodies() - 1)
+    table = np.abs(drawn.left_rgb.astype(int) - np.array(cfg.table_rgba[:3]) * 255).max(axis=2)
+    assert (table <= 30).mean() > 0.2  # the table is in view
+    assert np.array_equal(drawn.left_rgb, boxed.left_rgb)
+    assert np.array_equal(drawn.right_rgb, boxed.right_rgb)
