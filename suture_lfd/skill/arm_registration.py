@@ -131,7 +131,8 @@ class ArmCorrection:
     T_world_base : ndarray, shape (4, 4)
         The arm's believed base (its registration, as it reports poses).
     joint_offset : ndarray, shape (6,)
-        Estimated true minus reported joints (rad, m; only the first three nonzero).
+        Estimated true minus reported joints (rad, m): the first three from the registration,
+        the wrist's roll and pitch from the held needle (:meth:`with_wrist_offset`).
     translation : ndarray, shape (3,)
         Estimated true minus believed base position (m, ``world``).
     residual_px : float
@@ -194,6 +195,36 @@ class ArmCorrection:
         return self.tool_pose(q, play) @ invert_transform(reported)
 
 
+    def wrist_change(self, q: Joints, offsets: Sequence[float]) -> np.ndarray:
+        """
+        Return the tool-frame change (4, 4) of the wrist's joints ``offsets`` more than now.
+
+        The tool truly at ``T`` (``world``) with its wrist's first joints (the instrument's
+        roll, then the wrist pitch, ...) ``offsets`` (rad) further is at ``T @`` this: the arm's
+        outer joints and base do not move.
+
+        Parameters
+        ----------
+        q : array_like, shape (6,)
+            Reported joints.
+        offsets : sequence of float
+            Offsets (rad) of joints 4, 5, ... (indices 3, 4, ...).
+
+        """
+        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        moved = list(qt)
+        for j, d in enumerate(offsets):
+            moved[3 + j] += float(d)
+        return invert_transform(self.kinematics.fk_unchecked(qt)) \
+            @ self.kinematics.fk_unchecked(moved)
+
+    def with_wrist_offset(self, offsets: Sequence[float]) -> 'ArmCorrection':
+        """Return this correction with ``offsets`` (rad) added to joints 4, 5, ... ."""
+        joint_offset = np.array(self.joint_offset, dtype=float)
+        joint_offset[3:3 + len(offsets)] += np.asarray(offsets, dtype=float)
+        return replace(self, joint_offset=joint_offset)
+
+
 class KinematicCorrection:
     """
     The PSMs' corrections: observations as the tools truly are, commands that get them there.
@@ -212,6 +243,11 @@ class KinematicCorrection:
         # the backlash play of the arms with a dead band, advanced by each new report
         self._plays = {arm: PlayTracker(fit.backlash) for arm, fit in self.arms.items()
                        if np.any(np.asarray(fit.backlash) > 0.0)}
+
+    def set_arm(self, fit: ArmCorrection) -> None:
+        """Correct ``fit.arm`` with ``fit`` from now on (its dead bands' play kept)."""
+        self.arms[fit.arm] = fit
+        self._cache.pop(fit.arm, None)
 
     def _play(self, arm: str, q: Joints) -> list[float] | None:
         """Return the arm's play at its new reported joints ``q`` (None: no backlash)."""
