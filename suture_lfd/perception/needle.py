@@ -416,7 +416,8 @@ class NeedleTracker:
 
     def fit_grasp(self, views: Sequence[HeldView], stereo: StereoModel,
                   T_tool_needle: ArrayLike, offsets: int = 0,
-                  offset_sigma: float = 0.05) -> GraspFit:
+                  offset_sigma: float = 0.05,
+                  offset_prior: ArrayLike | None = None) -> GraspFit:
         """
         Fit the grasp ``T_tool_needle`` to several stereo pairs of one grasp at once.
 
@@ -443,8 +444,11 @@ class NeedleTracker:
         offsets : int
             How many wrist offsets to fit with the grasp (0: the grasp alone).
         offset_sigma : float
-            Prior spread (rad) of each offset about 0 (a soft pull, for poses that hardly tell
-            an offset).
+            Prior spread (rad) of each offset about ``offset_prior``: an offset this far costs
+            as much as every edge a quarter of a pixel further off (a pull that keeps offsets
+            the poses hardly tell near the prior, and gives way to what they tell well).
+        offset_prior : array_like, shape (offsets,), optional
+            The offsets' prior centre (default 0).
 
         Returns
         -------
@@ -460,6 +464,7 @@ class NeedleTracker:
         G = _pose(T_tool_needle, 'grasp').copy()
         k = int(offsets)
         delta = np.zeros(k)
+        centre = np.zeros(k) if offset_prior is None else np.asarray(offset_prior, dtype=float)
         prepared = []
         for v in views:
             fields, capsules = self._seen(v.left, v.right, stereo, v.tools)
@@ -485,10 +490,11 @@ class NeedleTracker:
                 rows.append(np.hstack(columns))
                 rhs.append(r)
                 weights.append(w)
-            if k:  # the prior: each offset about 0, spread offset_sigma
+            if k:  # the prior: each offset about its centre, spread offset_sigma
+                n = sum(len(r) for r in rhs)
                 rows.append(np.hstack([np.zeros((k, 6)), np.eye(k) / offset_sigma]))
-                rhs.append(-delta / offset_sigma)
-                weights.append(np.ones(k))
+                rhs.append((centre - delta) / offset_sigma)
+                weights.append(np.full(k, 0.0625 * max(n, 1)))
             J, r = np.vstack(rows), np.concatenate(rhs)
             if len(r) <= k:
                 break

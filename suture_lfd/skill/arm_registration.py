@@ -25,7 +25,10 @@ PSM to a few poses in the endoscope's view, see the tool, fit a correction. Here
   rotation, link lengths) the same fit takes more parameters. Given the joints the arm
   reported on its way to each pose, it also fits the dead bands of the cable-driven joints
   (outer yaw, pitch, insertion, wrist pitch and yaw): their play at each pose follows from the
-  motion (:mod:`suture_lfd.skill.hysteresis`).
+  motion (:mod:`suture_lfd.skill.hysteresis`). The wrist's own offsets (the instrument's roll
+  and wrist pitch), seen too weakly here (a straight closed jaw), are fitted later from the held
+  needle, a 10 mm lever (:meth:`ArmCorrection.with_wrist_offset`;
+  :meth:`suture_lfd.skill.perceived.PerceivedScene.look_at_grasp`).
 - **Used.** An :class:`ArmCorrection` gives the tool pose the corrected kinematics put the
   reported joints at (what the controller observes) and turns a tool target into the target to
   command so that the tool truly gets there; :class:`KinematicCorrection` follows each joint's

@@ -142,10 +142,10 @@ class ExecutorConfig:
         In physical mode with the registration, fit the carrying arm's wrist roll and pitch
         offsets with its grasp (:meth:`suture_lfd.skill.perceived.PerceivedScene.
         look_at_grasp`), from the needle seen lying and held at two wrist poses of the carry
-        (a second look above the insertion start), and correct the arm with them from then on:
-        the registration sees the wrist too weakly to fit them, and a grasp alone takes them up
-        at the wrist pose it was seen at only, so the insertion's turning wrist would carry the
-        needle off its arc.
+        (a second look where the wrist has turned furthest from the first), and correct the
+        arm with them from then on: the registration sees the wrist too weakly to fit them, and
+        a grasp alone takes them up at the wrist pose it was seen at only. Off by default: at
+        the ``dvrk`` preset it did not raise the score (``doc/explanation/realism_arm.md``).
 
     """
 
@@ -165,7 +165,7 @@ class ExecutorConfig:
     slip_corrections: int = 1
     arc_aim: bool = False
     aim_on_tissue: bool = True
-    fit_wrist: bool = True
+    fit_wrist: bool = False
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -848,7 +848,7 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
             if fit is None:
                 return perception.look_at_grasp(sim, arm, obs.T_world_tool)
             grasp = perception.look_at_grasp(sim, arm, obs.T_world_tool, obs.q,
-                                             fit.wrist_change)
+                                             fit.wrist_change, fit.joint_offset[3:5])
             offsets = perception.wrist_offsets(arm)
             if offsets is not None:  # the grasp is against the tool so corrected
                 kinematic.set_arm(fit.with_wrist_offset(offsets))

@@ -8,6 +8,9 @@ simulation's stereo pair (only when asked: rendering is the costly part), runs
 reported pose -- never through the simulation's ground truth. It is the estimator of a
 :class:`sim_bridge.observers.PhysicalObserver`.
 
+Size: the looks share one frame cache, the arms' history a delayed frame is paired with, and
+each grasp's pairs (lying and held) its fits return to; split, each part would need all three.
+
 Frames: ``world`` (as the robot believes it), the camera's left optical frame ``camera``; poses
 4x4; metres.
 """
@@ -343,8 +346,8 @@ class PerceivedScene:
 
     def look_at_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
                       joints: Mapping[str, Any] | None = None,
-                      wrist: 'Callable[[Any, np.ndarray], np.ndarray] | None' = None
-                      ) -> np.ndarray | None:
+                      wrist: 'Callable[[Any, np.ndarray], np.ndarray] | None' = None,
+                      wrist_now: ArrayLike = (0.0, 0.0)) -> np.ndarray | None:
         """
         Look at the needle ``arm`` holds and measure its grasp again.
 
@@ -368,6 +371,9 @@ class PerceivedScene:
             ``wrist(q, offsets) -> (4, 4)``: the tool-frame change of the arm's wrist joints
             4 and 5 ``offsets`` (rad) further than the correction puts them at reported joints
             ``q`` (:meth:`suture_lfd.skill.arm_registration.ArmCorrection.wrist_change`).
+        wrist_now : array_like, shape (2,)
+            The wrist offsets (rad) the arm's correction has now: the fit's prior is about
+            none at all (a fit that drifts is pulled back, not built on).
 
         Returns
         -------
@@ -393,7 +399,7 @@ class PerceivedScene:
             q_now = self._joints_then(sim, joints)
             q_now = None if q_now is None else q_now.get(arm)
             if wrist is not None and q_now is not None and lying[2] is not None:
-                grasp = self._fit_grasp(sim, arm, tools, lying, (wrist, q_now))
+                grasp = self._fit_grasp(sim, arm, tools, lying, (wrist, q_now, wrist_now))
                 if grasp is not None:
                     return grasp
             return self._fit_grasp(sim, arm, tools, lying)
@@ -443,7 +449,7 @@ class PerceivedScene:
             views = [HeldView(left, right, inv0 @ T_world_tool0, tuple(inv0 @ T for T in tools0)),
                      HeldView(left_now, right_now, inv @ T_tool, tuple(inv @ T for T in now[4]))]
         else:
-            change, q_now = wrist
+            change, q_now, wrist_now = wrist
             fitted = self._wrist_fitted.get(arm, np.zeros(2))
             pairs = [((left, right, T_world_camera0, T_world_tool0, tools0), q0, np.zeros(2))]
             pairs += self._held_views.get(arm, [])
@@ -453,7 +459,9 @@ class PerceivedScene:
         # the offsets only from two held pairs on: with the lying pair alone, seen face on, a
         # roll of the wrist and a tilt of the needle in the jaw look alike
         offsets = 2 if wrist is not None and self._held_views.get(arm) else 0
-        fit = self._tracker.fit_grasp(views, self._stereo, old, offsets=offsets)
+        fit = self._tracker.fit_grasp(
+            views, self._stereo, old, offsets=offsets,
+            offset_prior=None if wrist is None else -np.asarray(wrist_now, dtype=float))
         c = self._tracker.config
         residual, share = fit.residual_px[-1], fit.visible_share[-1]
         moved = self._tracker.arc_distance(old, fit.T_tool_needle)
@@ -464,7 +472,8 @@ class PerceivedScene:
             return None
         if wrist is not None:
             total = self._wrist_fitted.get(arm, np.zeros(2)) + np.resize(fit.offsets, 2)
-            if np.any(np.abs(total) > self.max_wrist_offset):
+            if np.any(np.abs(np.asarray(wrist_now) + np.resize(fit.offsets, 2))
+                      > self.max_wrist_offset):
                 _LOG.info('%s: wrist offsets %s deg fitted with the grasp are not plausible',
                           arm, np.round(np.degrees(total), 1))
                 return None
