@@ -7,7 +7,8 @@ the rendered stereo pair, the arms' own reports) on robots drawn at the ``dvrk``
 ``config/realism_arm.yaml``: every effect together, and each alone (the other levels at 0: the
 arm's calibration, transmission and servo, the encoders, the ECM's reported pose, the
 endoscope's intrinsics, the jaw's reading on a held needle), with
-the registration that fits the joints' dead bands (``bands``), with one that fits offsets only
+the registration that fits the joints' dead bands (``bands``; ``bands-wrist``: and the wrist's
+offsets fitted with the grasp during the carry), with one that fits offsets only
 (``offsets``), and open loop (``open``). Anchors measured in the same run: ground-truth mode
 (the simulation's truth) with the ground-truth executor settings and with the physical ones
 (the held start press), and the static-offset robots of ``--error-level`` (the wave-3 physical
@@ -67,7 +68,10 @@ def main():
                         help='dvrk rows: all effects, one effect alone, or effects joined '
                         "by '+' (calibration+transmission+servo)")
     parser.add_argument('--corrections', default='bands,offsets,open',
-                        help='for the all-effects row: the registrations compared')
+                        help='for the all-effects row: the registrations compared '
+                        '(bands, bands-wrist, offsets, open)')
+    parser.add_argument('--row-corrections', default='bands',
+                        help='for the other rows: the registrations compared')
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     pairs = args.pairs.split(',')
@@ -91,9 +95,11 @@ def main():
             sim = _robot(seed, **robot)
             if correction != 'open':
                 start = time.process_time()
-                register_arms(sim, dead_bands=correction == 'bands')
+                register_arms(sim, dead_bands=correction.startswith('bands'))
                 reg.append(time.process_time() - start)
-            s, c, f = _throws(sim, skill, pairs, physical=True, correction=correction != 'open')
+            config = ExecutorConfig(script=script, fit_wrist=correction == 'bands-wrist')
+            s, c, f = _throws(sim, skill, pairs, physical=True, correction=correction != 'open',
+                              config=config)
             scores += s
             cpu += c
             fails += f
@@ -107,7 +113,8 @@ def main():
         levels = None if row == 'all' else {
             k: float(any(k.startswith(part) for part in row.split('+'))) for k in LEVELS}
         realism = load_arm_realism('dvrk', levels=levels)
-        for correction in (args.corrections.split(',') if row == 'all' else ['bands']):
+        compared = args.corrections if row == 'all' else args.row_corrections
+        for correction in compared.split(','):
             physical(f'dvrk {row}, {correction}', correction, realism=realism)
 
     anchor = float(np.mean(rows[1][1]))

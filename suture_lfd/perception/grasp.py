@@ -18,8 +18,8 @@ pair of the needle lying where the jaw then closed on it (:class:`GraspFit`).
 Frames: camera = the left optical frame; tool = the PSM tool-tip frame (``measured_cp``'s); metres.
 """
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -69,6 +69,11 @@ class HeldView:
     tools : tuple of ndarray (4, 4)
         Poses (camera frame) of the instruments in view when the pair was taken: where their
         jaws, wrist or shaft cover the arc it is not looked for.
+    tool_at : callable, optional
+        ``tool_at(offsets) -> T_camera_tool``: the holding tool's pose had its arm's wrist
+        joints ``offsets`` (rad) more than believed (``tool_at(0)`` is ``T_camera_tool``); given,
+        :meth:`~suture_lfd.perception.needle.NeedleTracker.fit_grasp` can fit those offsets,
+        shared by every pair, with the grasp.
 
     """
 
@@ -76,6 +81,7 @@ class HeldView:
     right: np.ndarray
     T_camera_tool: np.ndarray
     tools: tuple = ()
+    tool_at: 'Callable[[np.ndarray], np.ndarray] | None' = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,12 +98,15 @@ class GraspFit:
         needle's centre line (``inf`` when none is seen).
     visible_share : tuple of float
         Per pair, the share of the arc seen in both images.
+    offsets : ndarray, shape (k,)
+        The wrist offsets (rad) fitted with the grasp (empty when none were fitted).
 
     """
 
     T_tool_needle: np.ndarray
     residual_px: tuple
     visible_share: tuple
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def estimate_grasp(tool_poses: Sequence[ArrayLike],

@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 from sim_bridge.common.needle import NeedleGeometry
 from suture_lfd.perception.arc_poses import flip_transform, kabsch, mirrored, rotvec_matrix
 from suture_lfd.perception.arc_stereo import (
@@ -420,7 +421,9 @@ class NeedleTracker:
         return T
 
     def fit_grasp(self, views: Sequence[HeldView], stereo: StereoModel,
-                  T_tool_needle: ArrayLike) -> GraspFit:
+                  T_tool_needle: ArrayLike, offsets: int = 0,
+                  offset_sigma: float = 0.05,
+                  offset_prior: ArrayLike | None = None) -> GraspFit:
         """
         Fit the grasp ``T_tool_needle`` to several stereo pairs of one grasp at once.
 
@@ -429,6 +432,11 @@ class NeedleTracker:
         the truth). The grasp is the same in every pair while the tool turns the needle
         between them, so the tilt one pair cannot see another shows: the edges of all pairs
         are fitted together (Gauss-Newton on the tool-frame grasp).
+
+        With ``offsets``, the wrist's own joint offsets are fitted too: the pairs whose view
+        has ``tool_at`` see the tool where its wrist joints are ``offsets`` (rad) more than
+        believed. A grasp alone takes up a wrist offset at one wrist pose only; pairs of other
+        wrist poses tell the two apart (the needle, a 10 mm lever, turns with the wrist).
 
         Parameters
         ----------
@@ -439,6 +447,14 @@ class NeedleTracker:
         stereo : suture_lfd.perception.stereo.StereoModel
         T_tool_needle : array_like, shape (4, 4)
             Starting grasp.
+        offsets : int
+            How many wrist offsets to fit with the grasp (0: the grasp alone).
+        offset_sigma : float
+            Prior spread (rad) of each offset about ``offset_prior``: an offset this far costs
+            as much as every edge a quarter of a pixel further off (a pull that keeps offsets
+            the poses hardly tell near the prior, and gives way to what they tell well).
+        offset_prior : array_like, shape (offsets,), optional
+            The offsets' prior centre (default 0).
 
         Returns
         -------
@@ -452,38 +468,56 @@ class NeedleTracker:
         """
         c = self.config
         G = _pose(T_tool_needle, 'grasp').copy()
+        k = int(offsets)
+        delta = np.zeros(k)
+        centre = np.zeros(k) if offset_prior is None else np.asarray(offset_prior, dtype=float)
         prepared = []
         for v in views:
             fields, capsules = self._seen(v.left, v.right, stereo, v.tools)
-            prepared.append((fields, _pose(v.T_camera_tool, 'tool pose'), capsules))
+            prepared.append((fields, _pose(v.T_camera_tool, 'tool pose'), capsules,
+                             v.tool_at if k else None))
 
         def hidden(T: np.ndarray, capsules: list[Any]) -> np.ndarray:
             return hidden_in_images(self._model @ T[:3, :3].T + T[:3, 3], capsules, stereo)
 
+        def tool(T_ct: np.ndarray, tool_at: Any) -> np.ndarray:
+            return T_ct if tool_at is None else _pose(tool_at(delta), 'tool pose')
+
         for _ in range(c.refine_iterations):
             rows, rhs, weights = [], [], []
-            for fields, T_ct, capsules in prepared:
+            for fields, T_ct, capsules, tool_at in prepared:
+                T_ct = tool(T_ct, tool_at)
                 T = T_ct @ G
                 J, r, w = self.edge_rows(T, stereo, fields, hidden(T, capsules))
                 R = T_ct[:3, :3]  # a tool-frame change of the grasp, seen in this camera
-                rows.append(np.hstack([J[:, :3] @ R, J[:, 3:] @ R]))
+                columns = [J[:, :3] @ R, J[:, 3:] @ R]
+                if k:
+                    columns.append(_offset_columns(J, T_ct, G, tool_at, delta))
+                rows.append(np.hstack(columns))
                 rhs.append(r)
                 weights.append(w)
+            if k:  # the prior: each offset about its centre, spread offset_sigma
+                n = sum(len(r) for r in rhs)
+                rows.append(np.hstack([np.zeros((k, 6)), np.eye(k) / offset_sigma]))
+                rhs.append((centre - delta) / offset_sigma)
+                weights.append(np.full(k, 0.0625 * max(n, 1)))
             J, r = np.vstack(rows), np.concatenate(rhs)
-            if not len(r):
+            if len(r) <= k:
                 break
             step = _gauss_newton_step(J, r, np.concatenate(weights))
             G[:3, :3] = rotvec_matrix(step[:3]) @ G[:3, :3]
-            G[:3, 3] = G[:3, 3] + step[3:]
-            if np.linalg.norm(step[3:]) < 2e-6 and np.linalg.norm(step[:3]) < 2e-4:
+            G[:3, 3] = G[:3, 3] + step[3:6]
+            delta = delta + step[6:]
+            if (np.linalg.norm(step[3:6]) < 2e-6 and np.linalg.norm(step[:3]) < 2e-4
+                    and np.all(np.abs(step[6:]) < 2e-4)):
                 break
         scores = []
-        for fields, T_ct, capsules in prepared:
-            T = T_ct @ G
+        for fields, T_ct, capsules, tool_at in prepared:
+            T = tool(T_ct, tool_at) @ G
             residual, share, _, _ = self._score(T, stereo, fields, hidden(T, capsules))
             scores.append((residual, share))
         return GraspFit(T_tool_needle=G, residual_px=tuple(k[0] for k in scores),
-                        visible_share=tuple(k[1] for k in scores))
+                        visible_share=tuple(k[1] for k in scores), offsets=delta)
 
     def _score(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
                hidden: np.ndarray) -> tuple[float, float, float, float]:
@@ -824,8 +858,33 @@ class NeedleTracker:
 def _gauss_newton_step(J: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Return the weighted least-squares step of rows ``J`` to offsets ``r`` (damped a little)."""
     A = J.T @ (w[:, None] * J)
-    A += 1e-6 * np.trace(A) * np.eye(6)
+    A += 1e-6 * np.trace(A) * np.eye(len(A))
     return np.linalg.solve(A, J.T @ (w * r))
+
+
+def _offset_columns(J: np.ndarray, T_ct: np.ndarray, G: np.ndarray, tool_at: Any,
+                    delta: np.ndarray, eps: float = 1e-4) -> np.ndarray:
+    """
+    Columns of the edge rows ``J`` (needle pose, camera frame) for the wrist offsets ``delta``.
+
+    A wrist offset turns and shifts the tool in its own frame, by the twist ``(w, u)`` per
+    radian (a finite difference of ``tool_at``); a tool-frame point ``x`` moves by
+    ``w x x + u``, the needle's pose (rotation about its origin, translation; camera frame) by
+    ``R w`` and ``R u + (R w) x (R g)``, ``R`` the tool's rotation and ``g`` the grasp's origin.
+    """
+    out = np.zeros((len(J), len(delta)))
+    if tool_at is None:
+        return out
+    R, g = T_ct[:3, :3], T_ct[:3, :3] @ G[:3, 3]
+    inv = np.linalg.inv(T_ct)
+    for i in range(len(delta)):
+        moved = delta.copy()
+        moved[i] += eps
+        D = inv @ np.asarray(tool_at(moved), dtype=float)
+        w = R @ Rotation.from_matrix(D[:3, :3]).as_rotvec() / eps
+        v = R @ D[:3, 3] / eps + np.cross(w, g)
+        out[:, i] = J[:, :3] @ w + J[:, 3:] @ v
+    return out
 
 
 def _pose(T: ArrayLike, what: str) -> np.ndarray:

@@ -25,7 +25,10 @@ PSM to a few poses in the endoscope's view, see the tool, fit a correction. Here
   rotation, link lengths) the same fit takes more parameters. Given the joints the arm
   reported on its way to each pose, it also fits the dead bands of the cable-driven joints
   (outer yaw, pitch, insertion, wrist pitch and yaw): their play at each pose follows from the
-  motion (:mod:`suture_lfd.skill.hysteresis`).
+  motion (:mod:`suture_lfd.skill.hysteresis`). The wrist's own offsets (the instrument's roll
+  and wrist pitch), seen too weakly here (a straight closed jaw), are fitted later from the held
+  needle, a 10 mm lever (:meth:`ArmCorrection.with_wrist_offset`;
+  :meth:`suture_lfd.skill.perceived.PerceivedScene.look_at_grasp`).
 - **Used.** An :class:`ArmCorrection` gives the tool pose the corrected kinematics put the
   reported joints at (what the controller observes) and turns a tool target into the target to
   command so that the tool truly gets there; :class:`KinematicCorrection` follows each joint's
@@ -131,7 +134,8 @@ class ArmCorrection:
     T_world_base : ndarray, shape (4, 4)
         The arm's believed base (its registration, as it reports poses).
     joint_offset : ndarray, shape (6,)
-        Estimated true minus reported joints (rad, m; only the first three nonzero).
+        Estimated true minus reported joints (rad, m): the first three from the registration,
+        the wrist's roll and pitch from the held needle (:meth:`with_wrist_offset`).
     translation : ndarray, shape (3,)
         Estimated true minus believed base position (m, ``world``).
     residual_px : float
@@ -194,6 +198,36 @@ class ArmCorrection:
         return self.tool_pose(q, play) @ invert_transform(reported)
 
 
+    def wrist_change(self, q: Joints, offsets: Sequence[float]) -> np.ndarray:
+        """
+        Return the tool-frame change (4, 4) of the wrist's joints ``offsets`` more than now.
+
+        The tool truly at ``T`` (``world``) with its wrist's first joints (the instrument's
+        roll, then the wrist pitch, ...) ``offsets`` (rad) further is at ``T @`` this: the arm's
+        outer joints and base do not move.
+
+        Parameters
+        ----------
+        q : array_like, shape (6,)
+            Reported joints.
+        offsets : sequence of float
+            Offsets (rad) of joints 4, 5, ... (indices 3, 4, ...).
+
+        """
+        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        moved = list(qt)
+        for j, d in enumerate(offsets):
+            moved[3 + j] += float(d)
+        return invert_transform(self.kinematics.fk_unchecked(qt)) \
+            @ self.kinematics.fk_unchecked(moved)
+
+    def with_wrist_offset(self, offsets: Sequence[float]) -> 'ArmCorrection':
+        """Return this correction with ``offsets`` (rad) added to joints 4, 5, ... ."""
+        joint_offset = np.array(self.joint_offset, dtype=float)
+        joint_offset[3:3 + len(offsets)] += np.asarray(offsets, dtype=float)
+        return replace(self, joint_offset=joint_offset)
+
+
 class KinematicCorrection:
     """
     The PSMs' corrections: observations as the tools truly are, commands that get them there.
@@ -212,6 +246,11 @@ class KinematicCorrection:
         # the backlash play of the arms with a dead band, advanced by each new report
         self._plays = {arm: PlayTracker(fit.backlash) for arm, fit in self.arms.items()
                        if np.any(np.asarray(fit.backlash) > 0.0)}
+
+    def set_arm(self, fit: ArmCorrection) -> None:
+        """Correct ``fit.arm`` with ``fit`` from now on (its dead bands' play kept)."""
+        self.arms[fit.arm] = fit
+        self._cache.pop(fit.arm, None)
 
     def _play(self, arm: str, q: Joints) -> list[float] | None:
         """Return the arm's play at its new reported joints ``q`` (None: no backlash)."""

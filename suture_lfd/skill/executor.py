@@ -138,6 +138,14 @@ class ExecutorConfig:
     slip_looks : int
         In physical mode, how many times the holding arm's grasp is looked at again during each
         DMP subtask (evenly spread; 0: never; on tissue the needle can turn in the jaw).
+    fit_wrist : bool
+        In physical mode with the registration, fit the carrying arm's wrist roll and pitch
+        offsets with its grasp (:meth:`suture_lfd.skill.perceived.PerceivedScene.
+        look_at_grasp`), from the needle seen lying and held at two wrist poses of the carry
+        (a second look where the wrist has turned furthest from the first), and correct the
+        arm with them from then on: the registration sees the wrist too weakly to fit them, and
+        a grasp alone takes them up at the wrist pose it was seen at only. Off by default: at
+        the ``dvrk`` preset it did not raise the score (``doc/explanation/realism_arm.md``).
 
     """
 
@@ -157,6 +165,7 @@ class ExecutorConfig:
     slip_corrections: int = 1
     arc_aim: bool = False
     aim_on_tissue: bool = True
+    fit_wrist: bool = False
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -526,12 +535,24 @@ class ThrowExecutor:
             return [(above, 'PSM2')]
         lo, hi = _LOOK_FACING_RANGE
         best: tuple[float, float] | None = None
+        seen = []  # the instants the needle can be looked at
         for seg in segments:
             for t in np.arange(seg.t0, min(seg.t1, above), _LOOK_STEP):
                 f = self.facing(seg.needle(float(t)))
-                if lo <= f <= hi and (best is None or abs(f - _LOOK_FACING) < best[0]):
-                    best = (abs(f - _LOOK_FACING), float(t))
-        return [(above if best is None else best[1], 'PSM2')]
+                if lo <= f <= hi:
+                    seen.append(float(t))
+                    if best is None or abs(f - _LOOK_FACING) < best[0]:
+                        best = (abs(f - _LOOK_FACING), float(t))
+        if best is None:
+            return [(above, 'PSM2')]
+        looks = [(best[1], 'PSM2')]
+        if self.executor_config.fit_wrist:
+            # a second look where the wrist has turned furthest from the first: the wrist's
+            # offsets show between the two
+            far = max(seen, key=lambda t: abs(t - best[1]))
+            if abs(far - best[1]) >= 2 * _LOOK_STEP:
+                looks = sorted(looks + [(far, 'PSM2')])
+        return looks
 
     def _shown(self, obs: 'Observation') -> bool:
         """Whether the endoscope has delivered a frame of the instant the due look fell due."""
@@ -823,7 +844,15 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
     look = facing = None
     if perception is not None:
         def look(arm: str, obs: 'Observation') -> np.ndarray | None:
-            return perception.look_at_grasp(sim, arm, obs.T_world_tool)
+            fit = None if kinematic is None or not config.fit_wrist else kinematic.arms.get(arm)
+            if fit is None:
+                return perception.look_at_grasp(sim, arm, obs.T_world_tool)
+            grasp = perception.look_at_grasp(sim, arm, obs.T_world_tool, obs.q,
+                                             fit.wrist_change, fit.joint_offset[3:5])
+            offsets = perception.wrist_offsets(arm)
+            if offsets is not None:  # the grasp is against the tool so corrected
+                kinematic.set_arm(fit.with_wrist_offset(offsets))
+            return grasp
 
         def facing(T_world_needle: np.ndarray) -> float:
             return perception.facing(sim, T_world_needle)

@@ -8,12 +8,15 @@ simulation's stereo pair (only when asked: rendering is the costly part), runs
 reported pose -- never through the simulation's ground truth. It is the estimator of a
 :class:`sim_bridge.observers.PhysicalObserver`.
 
+Size: the looks share one frame cache, the arms' history a delayed frame is paired with, and
+each grasp's pairs (lying and held) its fits return to; split, each part would need all three.
+
 Frames: ``world`` (as the robot believes it), the camera's left optical frame ``camera``; poses
 4x4; metres.
 """
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import logging
 from typing import TYPE_CHECKING, Any
@@ -91,7 +94,7 @@ class PerceivedScene:
         self._last_window: Window | None = None
         # the tools as observed at the latest control steps: (t, {arm: T_world_tool}), to pair a
         # delayed frame with the arms as they were when it was exposed (its stamp)
-        self._tool_history: deque[tuple[float, Mapping[str, Any]]] = deque(maxlen=64)
+        self._tool_history: deque[tuple[float, Mapping[str, Any], Any]] = deque(maxlen=64)
         self._pair: MarkerPair | None = None
         self._support_normal: np.ndarray | None = None
         self._support_point: np.ndarray | None = None
@@ -157,10 +160,20 @@ class PerceivedScene:
         t_scene = sim.delivered_frame()
         if t_scene is None or t_scene >= sim.time:
             return tools
-        for t, then in reversed(self._tool_history):
+        for t, then, _ in reversed(self._tool_history):
             if t <= t_scene + 1e-9:
                 return {arm: then.get(arm, T) for arm, T in tools.items()}
         return tools
+
+    def _joints_then(self, sim: Any, joints: Mapping[str, Any] | None) -> Mapping[str, Any] | None:
+        """Return the arms' reported joints when the frame a look gets now was exposed."""
+        t_scene = sim.delivered_frame()
+        if t_scene is None or t_scene >= sim.time:
+            return joints
+        for t, _, then in reversed(self._tool_history):
+            if t <= t_scene + 1e-9:
+                return then
+        return joints
 
     def _look_setup(self, sim: Any) -> None:
         """Read the camera's calibration (once)."""
@@ -255,8 +268,14 @@ class PerceivedScene:
         # the pair the free needle was last seen in: (left, right, T_world_camera, tools)
         self._free_view: tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]] | None \
             = None
-        # per holder that took the needle from where it lay: that pair and its tool at the grasp
-        self._grasp_views: dict[str, tuple[tuple[Any, ...], np.ndarray]] = {}
+        # per holder that took the needle from where it lay: that pair, its tool and its
+        # reported joints at the grasp; the pairs it was seen held in since (a grasp fitted
+        # with the wrist's offsets), the offsets fitted so far (rad)
+        self._grasp_views: dict[str, tuple[tuple[Any, ...], np.ndarray, Any]] = {}
+        self._held_views: dict[str, list[tuple[Any, ...]]] = {}
+        self._wrist_fitted: dict[str, np.ndarray] = {}
+        # per arm, the wrist offsets (rad) a look has fitted and not yet taken (wrist_offsets)
+        self._wrist_new: dict[str, np.ndarray] = {}
         self._next_look = -np.inf
 
     def estimate(self, sim: Any, arm_state: 'Observation'
@@ -284,7 +303,7 @@ class PerceivedScene:
         tools = arm_state.T_world_tool
         if self._tool_history and self._tool_history[-1][0] > arm_state.t:
             self._tool_history.clear()  # a scene reset turns time back
-        self._tool_history.append((arm_state.t, tools))
+        self._tool_history.append((arm_state.t, tools, arm_state.q))
         # due unless a look failed less than look_period ago (a scene reset turns time back)
         due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
         if not self._holders and self._free_needle is None and due:
@@ -297,12 +316,14 @@ class PerceivedScene:
             was = self._closed.get(arm, closed)
             self._closed[arm] = closed
             if closed and not was and arm not in self._holders:
-                self._check_grasp(sim, arm, tools)
+                self._check_grasp(sim, arm, tools, (arm_state.q or {}).get(arm))
             elif not closed and arm in self._holders:
                 held = self._held_needle(tools, arm)
                 self._holders.remove(arm)
                 self._grasps.pop(arm, None)
                 self._grasp_views.pop(arm, None)
+                self._held_views.pop(arm, None)
+                self._wrist_fitted.pop(arm, None)
                 self._free_view = None
                 if not self._holders and self.look_again:
                     view = self.needle(sim, prior=held, tools=list(tools.values()))
@@ -323,14 +344,19 @@ class PerceivedScene:
             needle = self._held_needle(tools, self._holders[0])
         return needle, tuple(self._holders), self._pair
 
-    def look_at_grasp(self, sim: Any, arm: str,
-                      tools: Mapping[str, ArrayLike]) -> np.ndarray | None:
+    def look_at_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
+                      joints: Mapping[str, Any] | None = None,
+                      wrist: 'Callable[[Any, np.ndarray], np.ndarray] | None' = None,
+                      wrist_now: ArrayLike = (0.0, 0.0)) -> np.ndarray | None:
         """
         Look at the needle ``arm`` holds and measure its grasp again.
 
         The grasp taken when the jaw closed is the needle's last pose seen lying, against the
         tool; seen in the jaw, the needle gives the grasp as it really is (the tool's pose is
-        the corrected report).
+        the corrected report). With ``wrist``, the wrist's roll and pitch offsets are fitted
+        with the grasp to every pair of this grasp (lying, and each earlier look that was
+        trusted): a grasp alone takes up a wrist offset at the wrist pose it was seen at only.
+        The offsets fitted are then :meth:`wrist_offsets`'s.
 
         Parameters
         ----------
@@ -339,6 +365,15 @@ class PerceivedScene:
             The holding arm.
         tools : dict of str to ndarray (4, 4)
             Tool poses (``world``) of the arms, as observed.
+        joints : dict of str to ndarray (6,), optional
+            The arms' reported joints now (needed with ``wrist``).
+        wrist : callable, optional
+            ``wrist(q, offsets) -> (4, 4)``: the tool-frame change of the arm's wrist joints
+            4 and 5 ``offsets`` (rad) further than the correction puts them at reported joints
+            ``q`` (:meth:`suture_lfd.skill.arm_registration.ArmCorrection.wrist_change`).
+        wrist_now : array_like, shape (2,)
+            The wrist offsets (rad) the arm's correction has now: the fit's prior is about
+            none at all (a fit that drifts is pulled back, not built on).
 
         Returns
         -------
@@ -361,6 +396,12 @@ class PerceivedScene:
         held = self._held_needle(tools, arm)
         assert held is not None  # the arm holds it: its grasp is known
         if lying is not None:
+            q_now = self._joints_then(sim, joints)
+            q_now = None if q_now is None else q_now.get(arm)
+            if wrist is not None and q_now is not None and lying[2] is not None:
+                grasp = self._fit_grasp(sim, arm, tools, lying, (wrist, q_now, wrist_now))
+                if grasp is not None:
+                    return grasp
             return self._fit_grasp(sim, arm, tools, lying)
         view = self.needle(sim, prior=held, tools=list(tools.values()))
         if view.T_world_needle is None:
@@ -370,17 +411,29 @@ class PerceivedScene:
         self._grasps[arm] = grasp
         return grasp
 
+    def wrist_offsets(self, arm: str) -> np.ndarray | None:
+        """
+        Return the wrist offsets (rad, joints 4 and 5) the last look fitted, once.
+
+        They are to be added to the arm's correction before its next observation: the grasp
+        the look returned is against the tool so corrected. None when the look fitted none.
+        """
+        return self._wrist_new.pop(arm, None)
+
     def _fit_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
-                   lying: tuple[tuple[Any, ...], np.ndarray]) -> np.ndarray | None:
+                   lying: tuple[tuple[Any, ...], np.ndarray, Any],
+                   wrist: tuple[Any, Any] | None = None) -> np.ndarray | None:
         """
         Fit the grasp to the pair of the needle lying and the pair seen now, together.
 
         The lying needle, seen nearly face on, leaves its tilt open (on a sloping pad 10-15
         degrees, 2 mm at the tip); carried and turned, the same grasp shows it. The fit is kept
         when the needle is seen well enough in the new pair and the grasp moved less than
-        :attr:`max_grasp_change`.
+        :attr:`max_grasp_change`. With ``wrist`` (the wrist's change and the joints now), the
+        wrist's offsets are fitted too, to these pairs and the held ones trusted before, and
+        kept within :attr:`max_wrist_offset`.
         """
-        (left, right, T_world_camera0, tools0), T_world_tool0 = lying
+        (left, right, T_world_camera0, tools0), T_world_tool0, q0 = lying
         held = self._held_needle(tools, arm)
         window = None if held is None else self._needle_window(sim, held)
         frame, T_world_camera, _ = self._look(sim, window)
@@ -389,12 +442,26 @@ class PerceivedScene:
             left_now = in_frame(left_now, window, self._stereo)
             right_now = in_frame(right_now, window, self._stereo)
         inv0, inv = np.linalg.inv(T_world_camera0), np.linalg.inv(T_world_camera)
-        views = [HeldView(left, right, inv0 @ T_world_tool0, tuple(inv0 @ T for T in tools0)),
-                 HeldView(left_now, right_now,
-                          inv @ np.asarray(tools[arm], dtype=float),
-                          tuple(inv @ np.asarray(T, dtype=float) for T in tools.values()))]
+        T_tool = np.asarray(tools[arm], dtype=float)
+        now = (left_now, right_now, T_world_camera, T_tool,
+               [np.asarray(T, dtype=float) for T in tools.values()])
+        if wrist is None:
+            views = [HeldView(left, right, inv0 @ T_world_tool0, tuple(inv0 @ T for T in tools0)),
+                     HeldView(left_now, right_now, inv @ T_tool, tuple(inv @ T for T in now[4]))]
+        else:
+            change, q_now, wrist_now = wrist
+            fitted = self._wrist_fitted.get(arm, np.zeros(2))
+            pairs = [((left, right, T_world_camera0, T_world_tool0, tools0), q0, np.zeros(2))]
+            pairs += self._held_views.get(arm, [])
+            pairs.append((now, np.asarray(q_now, dtype=float), fitted))
+            views = [_wrist_view(seen, q, then - fitted, change) for seen, q, then in pairs]
         old = self._grasps[arm]
-        fit = self._tracker.fit_grasp(views, self._stereo, old)
+        # the offsets only from two held pairs on: with the lying pair alone, seen face on, a
+        # roll of the wrist and a tilt of the needle in the jaw look alike
+        offsets = 2 if wrist is not None and self._held_views.get(arm) else 0
+        fit = self._tracker.fit_grasp(
+            views, self._stereo, old, offsets=offsets,
+            offset_prior=None if wrist is None else -np.asarray(wrist_now, dtype=float))
         c = self._tracker.config
         residual, share = fit.residual_px[-1], fit.visible_share[-1]
         moved = self._tracker.arc_distance(old, fit.T_tool_needle)
@@ -403,6 +470,18 @@ class PerceivedScene:
                       '(seen %.0f %%, residual %.2f px, moved %.1f mm), it is kept', arm,
                       100.0 * share, residual, 1e3 * moved)
             return None
+        if wrist is not None:
+            total = self._wrist_fitted.get(arm, np.zeros(2)) + np.resize(fit.offsets, 2)
+            if np.any(np.abs(np.asarray(wrist_now) + np.resize(fit.offsets, 2))
+                      > self.max_wrist_offset):
+                _LOG.info('%s: wrist offsets %s deg fitted with the grasp are not plausible',
+                          arm, np.round(np.degrees(total), 1))
+                return None
+            self._wrist_fitted[arm] = total
+            if offsets:
+                self._wrist_new[arm] = fit.offsets
+            self._held_views.setdefault(arm, []).append((now, np.asarray(q_now, dtype=float),
+                                                        total))
         self._grasps[arm] = fit.T_tool_needle
         return fit.T_tool_needle
 
@@ -445,6 +524,9 @@ class PerceivedScene:
     #: m: a grasp fitted to the lying and the held needle together is kept only when it moved
     #: the arc (mean of its tail, middle and tip) less than this from the grasp taken lying.
     max_grasp_change = 0.005
+    #: rad: wrist offsets fitted with a grasp beyond this are a fit of pairs seen wrong (a
+    #: dVRK instrument's homing leaves a few degrees).
+    max_wrist_offset = 0.12
     closed_below = 0.15  # rad: a jaw closed this far holds whatever is between its halves
     grasp_reach = 0.003  # m: a jaw closed with its bite this close to the wire holds it
 
@@ -452,8 +534,8 @@ class PerceivedScene:
         grasp = self._grasps.get(arm)
         return None if grasp is None else np.asarray(tools[arm]) @ grasp
 
-    def _check_grasp(self, sim: Any, arm: str,
-                     tools: Mapping[str, ArrayLike]) -> None:
+    def _check_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
+                     q: ArrayLike | None = None) -> None:
         """
         Decide whether the jaw that just closed holds the needle, and measure its grasp.
 
@@ -480,7 +562,8 @@ class PerceivedScene:
             _LOG.info('%s closed %.1f mm from the needle: not holding it', arm, 1e3 * gap)
             return
         if not self._holders and self._free_view is not None:
-            self._grasp_views[arm] = (self._free_view, T_tool.copy())
+            self._grasp_views[arm] = (self._free_view, T_tool.copy(),
+                                      None if q is None else np.array(q, dtype=float))
         self._holders.append(arm)
         self._grasps[arm] = np.linalg.inv(T_tool) @ prior
 
@@ -496,3 +579,24 @@ class PerceivedScene:
             left = in_frame(left, window, self._stereo)
             right = in_frame(right, window, self._stereo)
         return (left, right, T_world_camera, [np.asarray(T, dtype=float) for T in tools.values()])
+
+
+def _wrist_view(seen: tuple[Any, ...], q: np.ndarray, behind: np.ndarray,
+                change: 'Callable[[Any, np.ndarray], np.ndarray]') -> HeldView:
+    """
+    Return a pair of a grasp, its holding tool's pose a function of the wrist offsets to fit.
+
+    ``seen``: the images, ``T_world_camera``, the holding tool's pose as observed then, the
+    tools in view; ``q``: the reported joints then; ``behind``: the wrist offsets (rad) the
+    correction then had minus the ones it has now (the tool observed then is
+    ``inv(change(q, behind))`` of where the present correction puts it).
+    """
+    left, right, T_world_camera, T_world_tool, tools = seen
+    inv = np.linalg.inv(T_world_camera)
+    T_now = inv @ np.asarray(T_world_tool, dtype=float) @ np.linalg.inv(change(q, behind))
+
+    def tool_at(offsets: np.ndarray) -> np.ndarray:
+        return T_now @ change(q, offsets)
+
+    return HeldView(left, right, T_now, tuple(inv @ np.asarray(T, dtype=float) for T in tools),
+                    tool_at=tool_at)

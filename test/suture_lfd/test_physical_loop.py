@@ -21,8 +21,8 @@ from suture_lfd.demos.scripted_demo import record_scripted_demonstration
 from suture_lfd.demos.segment_file import make_segment_file
 from suture_lfd.segmentation import segment_demonstration
 from suture_lfd.skill import learn_skill, training_data
-from suture_lfd.skill.arm_registration import register_arms
-from suture_lfd.skill.executor import execute_throw
+from suture_lfd.skill.arm_registration import known_registration, register_arms
+from suture_lfd.skill.executor import ExecutorConfig, execute_throw
 
 LEVEL = 3.0
 ERROR_SEED = 1
@@ -135,18 +135,25 @@ def test_a_registration_whose_poses_half_disagree_is_fitted_to_those_that_agree(
         sim.close()
 
 
+@pytest.mark.parametrize('fit_wrist', [False, True])
 def test_a_level_3_throw_completes_on_what_the_camera_sees_and_reads_no_truth(
-        scene, skill, monkeypatch):
+        scene, skill, monkeypatch, fit_wrist):
+    # fit_wrist: the wrist's offsets fitted with the grasp during the carry, from the images
+    config = ExecutorConfig(script=scene.config.scene.expert, fit_wrist=fit_wrist)
     for name in _TRUTH:
         monkeypatch.setattr(Simulation, name, _poisoned(name))
     for name in _PRIVATE_TRUTH:
         monkeypatch.setattr(Simulation, name, _guarded(name))
     monkeypatch.setattr(GroundTruthObserver, 'observe', _poisoned('observer (ground truth)'))
-    outcome = execute_throw(scene, skill, 'synth1', seed=0, physical=True, correction=True)
+    outcome = execute_throw(scene, skill, 'synth1', seed=0, physical=True, correction=True,
+                            config=config)
     monkeypatch.undo()
     assert outcome.score >= 0.8, outcome.failure
     assert outcome.subtasks['i'] and outcome.subtasks['ii']
     assert outcome.entry_error_mm < 1.5
+    wrist = known_registration(scene).arms['PSM2'].joint_offset[3:5]
+    assert np.any(wrist != 0.0) == fit_wrist, wrist  # fitted from the images, plausible
+    assert np.all(np.abs(wrist) < 0.12), wrist
 
 
 def test_a_needle_out_of_view_stops_the_throw_with_a_reason(skill):
@@ -168,7 +175,7 @@ def test_physical_mode_holds_the_start_press_until_the_rollout_is_as_deep(skill)
     # skills). Held, the planned tip stays the press below the rollout's own (less what the
     # rollout has already gone down) until the rollout is that deep, then follows it.
     from sim_bridge.common.geometry import matrix_from_quaternion
-    from suture_lfd.skill.executor import ExecutorConfig, ThrowExecutor
+    from suture_lfd.skill.executor import ThrowExecutor
 
     sim = Simulation()
     try:
