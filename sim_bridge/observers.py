@@ -71,6 +71,9 @@ class ObservedScene(Protocol):
     def reported_jp(self, name: str) -> np.ndarray:
         """Return the joints the arm's encoders report (``measured_js``)."""
 
+    def reported_jaw(self, name: str) -> tuple[float, float]:
+        """Return a PSM's jaw angle and velocity as ``jaw/measured_js`` reports them."""
+
 
 class GroundTruthObserver:
     """

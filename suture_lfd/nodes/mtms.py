@@ -76,7 +76,7 @@ from suture_lfd.teleop.mtm_realism import MtmImperfection, MtmRealism
 from suture_lfd.teleop.virtual_mtm import DISPLAY_FRAME, VirtualMtm
 from tf2_msgs.msg import TFMessage
 
-# an MTM's pose streams, written at each cycle to those that have readers (measured_cv too)
+# an MTM's pose and gripper streams, written at each cycle to those that have readers
 POSE_STREAMS = ('measured_cp', 'setpoint_cp', 'gripper')
 CONSOLE = {'clutch': 'clutch', 'coag': 'operator_present', 'camera': 'camera'}
 

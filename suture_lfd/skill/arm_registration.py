@@ -221,7 +221,7 @@ class ArmCorrection:
         return invert_transform(self.kinematics.fk_unchecked(qt)) \
             @ self.kinematics.fk_unchecked(moved)
 
-    def with_wrist_offset(self, offsets: Sequence[float]) -> 'ArmCorrection':
+    def with_wrist_offset(self, offsets: 'Sequence[float] | np.ndarray') -> 'ArmCorrection':
         """Return this correction with ``offsets`` (rad) added to joints 4, 5, ... ."""
         joint_offset = np.array(self.joint_offset, dtype=float)
         joint_offset[3:3 + len(offsets)] += np.asarray(offsets, dtype=float)

@@ -850,7 +850,8 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
             grasp = perception.look_at_grasp(sim, arm, obs.T_world_tool, obs.q,
                                              fit.wrist_change, fit.joint_offset[3:5])
             offsets = perception.wrist_offsets(arm)
-            if offsets is not None:  # the grasp is against the tool so corrected
+            # the grasp is against the tool so corrected
+            if offsets is not None and kinematic is not None:
                 kinematic.set_arm(fit.with_wrist_offset(offsets))
             return grasp
 

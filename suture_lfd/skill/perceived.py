@@ -346,7 +346,7 @@ class PerceivedScene:
 
     def look_at_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
                       joints: Mapping[str, Any] | None = None,
-                      wrist: 'Callable[[Any, np.ndarray], np.ndarray] | None' = None,
+                      wrist: 'Callable[..., np.ndarray] | None' = None,
                       wrist_now: ArrayLike = (0.0, 0.0)) -> np.ndarray | None:
         """
         Look at the needle ``arm`` holds and measure its grasp again.
@@ -422,7 +422,7 @@ class PerceivedScene:
 
     def _fit_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
                    lying: tuple[tuple[Any, ...], np.ndarray, Any],
-                   wrist: tuple[Any, Any] | None = None) -> np.ndarray | None:
+                   wrist: tuple[Any, Any, Any] | None = None) -> np.ndarray | None:
         """
         Fit the grasp to the pair of the needle lying and the pair seen now, together.
 

@@ -22,7 +22,7 @@ optical frame, x right, y down, z forward); poses 4x4; metres, seconds (the mess
 """
 
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 import logging
 import math
@@ -292,8 +292,10 @@ class PerceptionFeed(PerceivedScene):
             return NeedleView(None, status)
         return NeedleView(self.T_world_camera @ T_c, status)
 
-    def look_at_grasp(self, sim: Any, arm: str,
-                      tools: Mapping[str, ArrayLike]) -> np.ndarray | None:
+    def look_at_grasp(self, sim: Any, arm: str, tools: Mapping[str, ArrayLike],
+                      joints: Mapping[str, Any] | None = None,
+                      wrist: 'Callable[..., np.ndarray] | None' = None,
+                      wrist_now: ArrayLike = (0.0, 0.0)) -> np.ndarray | None:
         """
         Measure the grasp of the needle ``arm`` holds again, from the newest look at it.
 
@@ -309,6 +311,9 @@ class PerceptionFeed(PerceivedScene):
             The holding arm.
         tools : dict of str to ndarray (4, 4)
             Tool poses (``world``) of the arms, as observed.
+        joints, wrist, wrist_now
+            Unused: the wrist's offsets are fitted in process only
+            (:meth:`suture_lfd.skill.perceived.PerceivedScene.look_at_grasp`).
 
         Returns
         -------
