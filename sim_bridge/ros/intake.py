@@ -12,7 +12,8 @@ fills both readers, hence the margin), and a burst is queued, never dropped.
 
 Once. A latched publisher's sample reaches both subscriptions; it is applied the first time, and
 the second copy is recognised by its sender's source timestamp, publication sequence number and
-serialized bytes.
+fields. Not by its serialized bytes: CDR's alignment padding is not initialised, so two
+serializations of one message can differ (a copy applied twice, once in a few runs).
 
 Order. One reader delivers one publisher's samples in order, and the transient-local reader also
 delivers a latched publisher's history before its live samples. But the volatile reader may get a
@@ -41,7 +42,6 @@ from collections import deque
 import time
 
 from rclpy.qos import DurabilityPolicy
-from rclpy.serialization import serialize_message
 from sim_bridge.ros import qos
 from sim_bridge.ros.peer import process_start_ns
 
@@ -153,8 +153,7 @@ class CommandIntake:
 
     @staticmethod
     def _key(msg, info):
-        return (info.get('source_timestamp'), info.get('publication_sequence_number'),
-                serialize_message(msg))
+        return (info.get('source_timestamp'), info.get('publication_sequence_number'), repr(msg))
 
     def _latched_publishers(self):
         """Return whether a transient-local publisher is on the topic (graph, no I/O)."""
