@@ -267,4 +267,3 @@ def test_state_gaps_stay_within_the_dvrk_teleop_limit_with_a_client_running(ros,
     assert 0.8 / rate < np.median(gaps) < 1.2 / rate, summary
     assert np.mean(gaps > 0.020) <= late_share, summary
     assert gaps.max() < 1.0, summary
-
