@@ -26,15 +26,26 @@ ground-truth job's, and the ground-truth jobs are planned exactly as without ``-
 ``physical/<variant>/``; the main report gets a "Physical mode" section: Tables II-IV of each
 variant beside ground-truth mode and the paper, and, with more than one level or correction, the
 curve of generality against the error level (``physical_curve.png``, ``physical_curve.csv``).
+
+With an arm realism preset (``--arm-realism dvrk``), ``--arm-levels`` sets its effects' levels
+(``servo_level=0,jaw_level=0.5``) and ``--arm-ablation`` adds, beside the preset with every
+effect, one variant per effect alone (the others at level 0: ``dvrk-only-servo``, each with its
+own robots' demonstrations unless ``--physical-demos ground-truth``); the report then shows the
+ablation table (``physical_ablation.csv``): generality with each effect alone and all together,
+with and without the executor's correction (``--correction both``), so a reader sees which
+imperfection costs the skill most.
+
+Size: the options, the plan and the report of physical mode read one configuration (its
+variants, their curve and their ablation); the report's part is the one to split off next.
 """
 
 import argparse
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
-from sim_bridge.realism.calibration import load_arm_realism
+from sim_bridge.realism.calibration import ARM_LEVELS, load_arm_realism
 from suture_lfd.study import tables
 from suture_lfd.study.records import DemoJob, DemoRecord, RobotErrors, ThrowJob, ThrowRecord
 
@@ -46,6 +57,38 @@ CURVE_LEVELS = (0.0, 1.0, 3.0, 5.0)
 CURVE_COLUMNS = ('method', 'correction', 'error_level', 'generality_experienced',
                  'generality_naive', 'generality_overall', 'ground_truth_overall', 'ratio',
                  'regeneration_success', 'throws')
+ABLATION_COLUMNS = ('method', 'effects', 'correction', 'generality_experienced',
+                    'generality_naive', 'generality_overall', 'ground_truth_overall', 'ratio',
+                    'regeneration_success', 'throws')
+#: The ablation's row of every effect together.
+ALL_EFFECTS = 'all'
+
+
+class Variant(NamedTuple):
+    """
+    One physical-mode variant: a robot model and whether the throws correct.
+
+    Attributes
+    ----------
+    name : str
+        Its folder under ``physical/`` (:func:`variant_name`).
+    level : float
+        Static error class (mm; 0 with a preset).
+    correction : bool
+        Whether the throws correct from what they see.
+    arm_levels : tuple of (str, float)
+        The preset's effect levels it overrides (empty: the preset's own, or static).
+    effects : str
+        With ``--arm-ablation``: the effect it keeps (``'servo'``) or :data:`ALL_EFFECTS`;
+        otherwise ``''``.
+
+    """
+
+    name: str
+    level: float
+    correction: bool
+    arm_levels: tuple[tuple[str, float], ...] = ()
+    effects: str = ''
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -63,6 +106,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'config/realism_arm.yaml (dvrk: calibration errors, cable '
                              'hysteresis and stretch, servo lag; the executor does not master it '
                              'yet)')
+    parser.add_argument('--arm-levels', default='', metavar='KEY=V[,KEY=V...]',
+                        help='with --arm-realism PRESET: levels of its effects (0: off, 1: the '
+                             f'preset), keys {", ".join(ARM_LEVELS)} (e.g. servo_level=0)')
+    parser.add_argument('--arm-ablation', action='store_true',
+                        help='with --arm-realism PRESET: also run one variant per effect alone '
+                             '(the others at 0) and report the ablation table; with '
+                             '--correction both, with and without the correction')
     parser.add_argument('--correction', choices=('on', 'off', 'both'), default='on',
                         help='with --physical: the executor closes its loop on what it sees '
                              "(on, default), runs open loop on the arms' kinematics (off), or "
@@ -119,15 +169,53 @@ def physical_config(args: argparse.Namespace) -> dict[str, Any] | None:
     corrections = {'on': [True], 'off': [False], 'both': [True, False]}[correction]
     demos = getattr(args, 'physical_demos', 'recorded')
     realism = str(getattr(args, 'arm_realism', 'static'))
+    arm_levels = parse_arm_levels(str(getattr(args, 'arm_levels', '') or ''))
+    ablation = bool(getattr(args, 'arm_ablation', False))
     if realism != 'static':
-        load_arm_realism(realism)  # a bad name fails here, naming the presets
+        load_arm_realism(realism, levels=arm_levels)  # a bad name fails here, naming the presets
         levels = [0.0]  # the static class is unused with a preset
+    elif arm_levels or ablation:
+        raise ValueError('--arm-levels and --arm-ablation need --arm-realism PRESET (a preset '
+                         'of config/realism_arm.yaml, e.g. dvrk)')
     return {'levels': levels, 'corrections': corrections,
             **({'demos': demos} if demos != 'recorded' else {}),
-            **({'arm_realism': realism} if realism != 'static' else {})}
+            **({'arm_realism': realism} if realism != 'static' else {}),
+            **({'arm_levels': arm_levels} if arm_levels else {}),
+            **({'ablation': True} if ablation else {})}
 
 
-def variant_name(level: float, correction: bool, realism: str = 'static') -> str:
+def parse_arm_levels(text: str) -> dict[str, float]:
+    """
+    Return the effect levels of ``--arm-levels`` (``'servo_level=0,jaw_level=0.5'``).
+
+    Raises
+    ------
+    ValueError
+        A key not in :data:`ARM_LEVELS` or a level that is not a finite number >= 0.
+
+    """
+    out: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(','))):
+        key, sep, value = part.partition('=')
+        key = key.strip()
+        try:
+            level = float(value) if sep else math.nan
+        except ValueError:
+            level = math.nan
+        if key not in ARM_LEVELS or not (math.isfinite(level) and level >= 0.0):
+            raise ValueError(f'--arm-levels takes KEY=LEVEL separated by commas, KEY one of '
+                             f'{", ".join(ARM_LEVELS)} and LEVEL a number >= 0, got {part!r}')
+        out[key] = level
+    return out
+
+
+def effect_name(key: str) -> str:
+    """Return an effect's short name: ``'servo'`` for ``'servo_level'``."""
+    return key.removesuffix('_level')
+
+
+def variant_name(level: float, correction: bool, realism: str = 'static',
+                 effects: str = '') -> str:
     """
     Return the folder name of a variant: ``level-3`` / ``dvrk`` (corrected) or ``...-open``.
 
@@ -139,6 +227,9 @@ def variant_name(level: float, correction: bool, realism: str = 'static') -> str
         Whether the throws correct from what they see.
     realism : str
         The arm model (``'static'`` or a preset name).
+    effects : str
+        An ablation's effect alone (``'servo'``: ``dvrk-only-servo``); ``''`` or
+        :data:`ALL_EFFECTS`: the preset as configured.
 
     Returns
     -------
@@ -146,13 +237,25 @@ def variant_name(level: float, correction: bool, realism: str = 'static') -> str
 
     """
     name = f'level-{_text(level)}' if realism == 'static' else realism
+    if effects and effects != ALL_EFFECTS:
+        name += f'-only-{effects}'
     return name + ('' if correction else '-open')
 
 
-def variants(physical: dict[str, Any]) -> list[tuple[str, float, bool]]:
-    """Return ``[(name, level, correction)]`` of a physical configuration, in order."""
+def variants(physical: dict[str, Any]) -> list[Variant]:
+    """Return the variants of a physical configuration, in order."""
     realism = physical.get('arm_realism', 'static')
-    return [(variant_name(level, c, realism), level, c)
+    base = dict(physical.get('arm_levels', {}))
+    models: list[tuple[str, tuple[tuple[str, float], ...]]] = [
+        (ALL_EFFECTS if physical.get('ablation') else '', tuple(sorted(base.items())))]
+    if physical.get('ablation'):
+        preset = load_arm_realism(realism, levels=base)
+        for key in ARM_LEVELS:
+            if getattr(preset, key) > 0.0:  # an effect the preset has
+                models.append((effect_name(key), tuple(
+                    (k, getattr(preset, key) if k == key else 0.0) for k in ARM_LEVELS)))
+    return [Variant(variant_name(level, c, realism, effects), level, c, arm_levels, effects)
+            for effects, arm_levels in models
             for level in physical['levels'] for c in physical['corrections']]
 
 
@@ -207,18 +310,22 @@ def plan_physical(physical: dict[str, Any], demos: Sequence[DemoJob],
     out_demos, out_throws = [], []
     recorded = physical.get('demos', 'recorded') == 'recorded'
     realism = physical.get('arm_realism', 'static')
-    for level in physical['levels'] if recorded else ():
-        where = f'physical/{variant_name(level, True, realism)}'
+    every = variants(physical)
+    # one set of demonstrations per robot model, in its corrected variant's folder
+    models = {(v.level, v.arm_levels, v.effects): None for v in every}
+    for level, arm_levels, effects in models if recorded else ():
+        where = f'physical/{variant_name(level, True, realism, effects)}'
         for job in demos:
             key = f'{where}/{job.key}'
             out_demos.append(replace(
                 job, id='', key=key, folder=where, bag=f'{where}/{job.bag}',
                 segments=f'{where}/{job.segments}',
                 physical=RobotErrors(error_level=level, error_seed=job_seed(
-                    seed, robot_key(job.subject, job.phantom)), arm_realism=realism)))
-    for name, level, correction in variants(physical):
-        where = f'physical/{name}'
-        demo_where = f'physical/{variant_name(level, True, realism)}'
+                    seed, robot_key(job.subject, job.phantom)), arm_realism=realism,
+                    arm_levels=arm_levels)))
+    for v in every:
+        where = f'physical/{v.name}'
+        demo_where = f'physical/{variant_name(v.level, True, realism, v.effects)}'
         for throw in throws:
             key = f'{where}/{throw.key}'
             trajectories = throw.trajectories
@@ -226,9 +333,9 @@ def plan_physical(physical: dict[str, Any], demos: Sequence[DemoJob],
                 throw, id='', key=key, folder=where,
                 demo_key=f'{demo_where}/{throw.demo_key}' if recorded else throw.demo_key,
                 trajectories=f'{where}/{trajectories}' if trajectories else None,
-                physical=RobotErrors(error_level=level, error_seed=job_seed(
+                physical=RobotErrors(error_level=v.level, error_seed=job_seed(
                     seed, robot_key(throw.subject, throw.test_phantom)),
-                    correction=correction, arm_realism=realism)))
+                    correction=v.correction, arm_realism=realism, arm_levels=v.arm_levels)))
     return out_demos, out_throws
 
 
@@ -283,11 +390,31 @@ def _cumulative(t4: dict[str, Any], task: str) -> str:
     return (_f(100.0 * t4[task][2] / t4['total'], 1) + ' %') if t4['total'] else '–'
 
 
-def _variant_label(level: float, correction: bool) -> str:
-    return f'L{_text(level)} ' + ('corrected' if correction else 'open loop')
+def _variant_label(v: Variant, realism: str = 'static') -> str:
+    if realism == 'static':
+        name = f'L{_text(v.level)}'
+    elif v.effects and v.effects != ALL_EFFECTS:
+        name = f'{realism} {v.effects} alone'
+    else:
+        name = realism
+    return f'{name} ' + ('corrected' if v.correction else 'open loop')
 
 
-def curve_rows(summaries: dict[tuple[float, bool], dict[str, Any]],
+def _generality_row(method: str, s: dict[str, Any], ground_truth: dict[str, Any]
+                    ) -> dict[str, Any]:
+    gen = s['generality']['group_mean']
+    gt = ground_truth.get(method, {}).get('generality', {}).get('group_mean', {})
+    gt_overall = gt.get('overall', math.nan)
+    overall = gen['overall']
+    return {'method': method, 'generality_experienced': gen['experienced'],
+            'generality_naive': gen['naive'], 'generality_overall': overall,
+            'ground_truth_overall': gt_overall,
+            'ratio': overall / gt_overall if gt_overall else math.nan,
+            'regeneration_success': s['regeneration']['rate'],
+            'throws': s['generality']['n']['overall']}
+
+
+def curve_rows(summaries: dict[Variant, dict[str, Any]],
                ground_truth: dict[str, Any]) -> list[dict[str, Any]]:
     """
     Return one row per method, correction and level: generality in physical mode.
@@ -295,7 +422,8 @@ def curve_rows(summaries: dict[tuple[float, bool], dict[str, Any]],
     Parameters
     ----------
     summaries : dict
-        ``(level, correction) -> summary`` (:func:`suture_lfd.study.report.summarise`).
+        :class:`Variant` -> summary (:func:`suture_lfd.study.report.summarise`); an
+        ablation's variants of one effect alone are left out.
     ground_truth : dict
         The ground-truth summary.
 
@@ -306,24 +434,45 @@ def curve_rows(summaries: dict[tuple[float, bool], dict[str, Any]],
 
     """
     rows = []
-    for (level, correction), summary in sorted(summaries.items(),
-                                               key=lambda kv: (not kv[0][1], kv[0][0])):
+    for v, summary in summaries.items():
+        if v.effects not in ('', ALL_EFFECTS):
+            continue
         for method, s in summary.items():
-            gen = s['generality']['group_mean']
-            gt = ground_truth.get(method, {}).get('generality', {}).get('group_mean', {})
-            gt_overall = gt.get('overall', math.nan)
-            overall = gen['overall']
-            rows.append({'method': method, 'correction': correction, 'error_level': level,
-                         'generality_experienced': gen['experienced'],
-                         'generality_naive': gen['naive'], 'generality_overall': overall,
-                         'ground_truth_overall': gt_overall,
-                         'ratio': overall / gt_overall if gt_overall else math.nan,
-                         'regeneration_success': s['regeneration']['rate'],
-                         'throws': s['generality']['n']['overall']})
+            rows.append({**_generality_row(method, s, ground_truth),
+                         'correction': v.correction, 'error_level': v.level})
     return sorted(rows, key=lambda r: (r['method'], not r['correction'], r['error_level']))
 
 
-def report_section(summaries: dict[tuple[float, bool], dict[str, Any]],
+def ablation_rows(summaries: dict[Variant, dict[str, Any]],
+                  ground_truth: dict[str, Any]) -> list[dict[str, Any]]:
+    """
+    Return one row per method, effect (alone, then :data:`ALL_EFFECTS`) and correction.
+
+    Parameters
+    ----------
+    summaries : dict
+        :class:`Variant` -> summary of an ``--arm-ablation`` study.
+    ground_truth : dict
+        The ground-truth summary.
+
+    Returns
+    -------
+    list of dict
+        Columns :data:`ABLATION_COLUMNS`.
+
+    """
+    order = [effect_name(k) for k in ARM_LEVELS] + [ALL_EFFECTS]
+    rows = []
+    for v, summary in summaries.items():
+        if v.effects:
+            for method, s in summary.items():
+                rows.append({**_generality_row(method, s, ground_truth),
+                             'effects': v.effects, 'correction': v.correction})
+    return sorted(rows, key=lambda r: (r['method'], order.index(r['effects']),
+                                       not r['correction']))
+
+
+def report_section(summaries: dict[Variant, dict[str, Any]],
                    ground_truth: dict[str, Any], physical: dict[str, Any],
                    curve_png: str | None = None) -> list[str]:
     """
@@ -332,7 +481,7 @@ def report_section(summaries: dict[tuple[float, bool], dict[str, Any]],
     Parameters
     ----------
     summaries : dict
-        ``(level, correction) -> summary`` of each variant.
+        :class:`Variant` -> summary of each variant.
     ground_truth : dict
         The ground-truth summary (same design, same scene seeds).
     physical : dict
@@ -345,26 +494,37 @@ def report_section(summaries: dict[tuple[float, bool], dict[str, Any]],
     list of str
 
     """
+    realism = physical.get('arm_realism', 'static')
+    if realism == 'static':
+        errors = ("the PSMs' kinematic errors hidden in the simulation (joints 1-2 up to ±L deg, "
+                  'insertion ±L mm, base registration ±L mm per axis')
+    else:
+        levels = ', '.join(f'{k}={_text(v)}'
+                           for k, v in sorted(physical.get('arm_levels', {}).items()))
+        errors = (f'arms of the `{realism}` preset of `config/realism_arm.yaml` hidden in the '
+                  'simulation (calibration errors with base rotation and wrist offsets, cable '
+                  'backlash and stretch, servo lag, encoders, a hand-eye error of the ECM, '
+                  'endoscope intrinsics a calibration leaves off, a jaw that stalls on the '
+                  'needle' + (f'; levels {levels}' if levels else ''))
     md = ['## Physical mode', '',
-          "The same design run on what a physical dVRK provides: the PSMs' kinematic errors "
-          'hidden in the simulation (joints 1-2 up to ±L deg, insertion ±L mm, base '
-          'registration ±L mm per axis, drawn per subject and phantom: one robot per '
-          'setup, registered once), demonstrations teleoperated through the robot and '
-          'recorded as it reports them, with the needle and the markers from '
-          "the endoscope's images; throws executed on the arms' reports and perception. The "
-          "scoring reads the simulation's truth, as an observer of the real robot would. Each "
-          'variant has its full report in `physical/<variant>/`.', '']
+          f'The same design run on what a physical dVRK provides: {errors}; drawn per subject '
+          'and phantom: one robot per setup, registered once), demonstrations teleoperated '
+          'through the robot and recorded as it reports them, with the needle and the markers '
+          "from the endoscope's images; throws executed on the arms' reports and perception. "
+          "The scoring reads the simulation's truth, as an observer of the real robot would. "
+          'Each variant has its full report in `physical/<variant>/`.', '']
     if physical.get('demos') == 'ground-truth':
         md += ['**The throws here learn from the ground-truth demonstrations** '
                '(`--physical-demos ground-truth`): only their execution is in physical '
                'mode.', '']
-    keys = [(level, c) for level in physical['levels'] for c in physical['corrections']]
+    keys = [v for v in variants(physical) if v.effects in ('', ALL_EFFECTS)]
     methods = list(ground_truth)
     for method in methods:
         gt = ground_truth[method]
         shown = [(k, summaries[k][method]) for k in keys
                  if k in summaries and method in summaries[k]]
-        header = ['', 'ground truth'] + [_variant_label(*k) for k, _ in shown] + ['paper']
+        header = (['', 'ground truth'] + [_variant_label(k, realism) for k, _ in shown]
+                  + ['paper'])
         md += [f'### Method `{method}`', '', '#### Table II: regeneration errors (mean)', '']
         rows = []
         for task in tables.TASKS:
@@ -398,7 +558,9 @@ def report_section(summaries: dict[tuple[float, bool], dict[str, Any]],
                         + [_cumulative(s['table4'], task) for _, s in shown]
                         + [f'{100.0 * paper:.1f} %'])
         md += _table(header, rows) + ['']
-    if len(keys) > 1:
+    if physical.get('ablation'):
+        md += ablation_section(ablation_rows(summaries, ground_truth), realism)
+    if len(keys) > 1 and realism == 'static':
         curve = curve_rows(summaries, ground_truth)
         md += ['### Generality against the error level', '',
                'Overall generality in physical mode per error level (mm class), with the '
@@ -415,6 +577,24 @@ def report_section(summaries: dict[tuple[float, bool], dict[str, Any]],
         if curve_png:
             md += [f'![generality against the error level]({curve_png})', '']
     return md
+
+
+def ablation_section(rows: Sequence[dict[str, Any]], realism: str) -> list[str]:
+    """Return the report's ablation table: generality per effect alone and all together."""
+    md = ["### Ablation: each of the arm's imperfections alone", '',
+          f'Overall generality in physical mode with one effect of the `{realism}` preset at '
+          'its level and the others off, then with every effect, beside ground-truth mode '
+          "(`physical_ablation.csv`); \"corrected\": the executor closes its loop on what it "
+          "sees, \"open loop\": it runs on the arms' own kinematics.", '']
+    md += _table(['method', 'effects', 'correction', 'experienced', 'naive', 'overall',
+                  'ground truth', 'overall / ground truth', 'regeneration', 'throws'],
+                 [[r['method'], r['effects'] if r['effects'] != ALL_EFFECTS else 'all together',
+                   'on' if r['correction'] else 'off', _f(r['generality_experienced']),
+                   _f(r['generality_naive']), _f(r['generality_overall']),
+                   _f(r['ground_truth_overall']), _f(r['ratio']),
+                   _f(100.0 * r['regeneration_success'], 1) + ' %', r['throws']]
+                  for r in rows])
+    return md + ['']
 
 
 def curve_figure(rows: Sequence[dict[str, Any]], path: Any) -> Any:

@@ -469,19 +469,23 @@ def _write_physical(out: Path, report: Path, ground_records: Sequence[Record],
     ground_truth = summarise(ground_records)
     variant_config = {**config, 'assessment': 'off'}
     summaries = {}
-    for name, level, correction in physical.variants(config['physical']):
-        folder = out / 'physical' / name
+    for v in physical.variants(config['physical']):
+        folder = out / 'physical' / v.name
         folder.mkdir(parents=True, exist_ok=True)
         ground_demos = ([r for r in ground_records if isinstance(r, DemoRecord)]
                         if config['physical'].get('demos') == 'ground-truth' else None)
-        mine = physical.variant_records(records, name, level, ground_demos)
+        mine = physical.variant_records(records, v.name, v.level, ground_demos)
         write_report(folder, mine, variant_config, run_info)
-        summaries[level, correction] = summarise(mine)
+        summaries[v] = summarise(mine)
     curve = None
-    if len(summaries) > 1:
-        rows = physical.curve_rows(summaries, ground_truth)
+    rows = physical.curve_rows(summaries, ground_truth)
+    if (len({(r['error_level'], r['correction']) for r in rows}) > 1
+            and config['physical'].get('arm_realism', 'static') == 'static'):
         write_csv(out / 'physical_curve.csv', rows, physical.CURVE_COLUMNS)
         curve = physical.curve_figure(rows, out / 'physical_curve.png').name
+    if config['physical'].get('ablation'):
+        write_csv(out / 'physical_ablation.csv', physical.ablation_rows(summaries, ground_truth),
+                  physical.ABLATION_COLUMNS)
     lines = physical.report_section(summaries, ground_truth, config['physical'], curve)
     with open(report, 'a') as f:
         f.write('\n' + '\n'.join(lines) + '\n')

@@ -210,3 +210,38 @@ def test_the_camera_option_names_its_preset_and_reaches_the_simulations(tmp_path
         assert own is not jobs._simulation(state, 'synthetic', 0.01)
     finally:
         state.close()
+
+
+def test_the_arm_ablation_plans_each_effect_alone_beside_the_preset(tmp_path):
+    result = study(tmp_path / 'ablation', '--plan', *SMALL, '--physical', '--arm-realism',
+                   'dvrk', '--arm-ablation', '--correction', 'both', '--arm-levels',
+                   'jaw_level=0')
+    assert result.returncode == 0, result.stderr
+    jobs = json.loads((tmp_path / 'ablation' / 'jobs.json').read_text())
+    extra = [j for j in jobs if j.get('physical') is not None]
+    folders = {j['key'].split('/')[1] for j in extra}
+    # the preset with every effect (jaw off, as asked) and each remaining effect alone, each
+    # corrected and open loop; the jaw, at 0, has no variant of its own
+    alone = {'calibration', 'transmission', 'servo', 'encoder', 'ecm', 'intrinsics'}
+    assert folders == ({'dvrk', 'dvrk-open'} | {f'dvrk-only-{e}' for e in alone}
+                       | {f'dvrk-only-{e}-open' for e in alone})
+    for j in extra:
+        levels = dict(j['physical']['arm_levels'])
+        name = j['key'].split('/')[1].removesuffix('-open')
+        if name == 'dvrk':
+            assert levels == {'jaw_level': 0.0}, j['key']
+        else:
+            effect = name.removeprefix('dvrk-only-')
+            assert levels.pop(f'{effect}_level') == 1.0 and set(levels.values()) == {0.0}
+        if j['kind'] == 'throw':  # learns from the demonstration of its own robot model
+            assert j['demo_key'].startswith(f'physical/{name}/demo/'), j
+    # one demonstration per model (7), one throw per variant (14)
+    assert sorted(j['kind'] for j in extra).count('demo') == 7
+    assert sorted(j['kind'] for j in extra).count('throw') == 14
+    for bad, message in ((['--arm-ablation'], 'need --arm-realism PRESET'),
+                         (['--arm-realism', 'dvrk', '--arm-levels', 'servo=1'],
+                          "--arm-levels takes KEY=LEVEL"),
+                         (['--arm-realism', 'dvrk', '--arm-levels', 'servo_level=-1'],
+                          "got 'servo_level=-1'")):
+        result = study(tmp_path / 'bad', '--plan', '--physical', *bad)
+        assert result.returncode == 2 and message in result.stderr, result.stderr
