@@ -33,7 +33,7 @@ from bench_physical import _config, _skill  # noqa: I100 (the bench folder's own
 import numpy as np
 from sim_bridge.realism.calibration import ARM_LEVELS, load_arm_realism
 from sim_bridge.simulation import Simulation
-from suture_lfd.skill.arm_registration import register_arms
+from suture_lfd.skill.arm_registration import ROLL_BAND, register_arms
 from suture_lfd.skill.executor import ExecutorConfig, execute_throw
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -95,7 +95,12 @@ def main():
             sim = _robot(seed, **robot)
             if correction != 'open':
                 start = time.process_time()
-                register_arms(sim, dead_bands=correction.startswith('bands'))
+                kept = register_arms(sim, dead_bands=correction.startswith('bands'))
+                if correction.endswith(('-stretch', '-cables')):
+                    kept.with_cable_model(roll_band=0.0 if correction.endswith('-stretch')
+                                          else ROLL_BAND)
+                elif correction.endswith('-roll'):
+                    kept.with_cable_model(stretch=np.zeros(6))
                 reg.append(time.process_time() - start)
             config = ExecutorConfig(script=script, fit_wrist=correction == 'bands-wrist')
             s, c, f = _throws(sim, skill, pairs, physical=True, correction=correction != 'open',
