@@ -8,7 +8,9 @@ the rendered stereo pair, the arms' own reports) on robots drawn at the ``dvrk``
 arm's calibration, transmission and servo, the encoders, the ECM's reported pose, the
 endoscope's intrinsics, the jaw's reading on a held needle), with
 the registration that fits the joints' dead bands (``bands``; ``bands-wrist``: and the wrist's
-offsets fitted with the grasp during the carry), with one that fits offsets only
+offsets fitted with the grasp during the carry; a suffix ``-stretch``, ``-roll`` or
+``-cables``: and the instrument's known cable model, the wrist's stretch, the roll's dead band
+or both), with one that fits offsets only
 (``offsets``), and open loop (``open``). Anchors measured in the same run: ground-truth mode
 (the simulation's truth) with the ground-truth executor settings and with the physical ones
 (the held start press), and the static-offset robots of ``--error-level`` (the wave-3 physical
@@ -69,7 +71,8 @@ def main():
                         "by '+' (calibration+transmission+servo)")
     parser.add_argument('--corrections', default='bands,offsets,open',
                         help='for the all-effects row: the registrations compared '
-                        '(bands, bands-wrist, offsets, open)')
+                        '(bands, bands-wrist, offsets, open; a suffix -stretch, -roll or '
+                        "-cables adds the instrument's known wrist stretch, roll band or both)")
     parser.add_argument('--row-corrections', default='bands',
                         help='for the other rows: the registrations compared')
     args = parser.parse_args()
@@ -102,7 +105,8 @@ def main():
                 elif correction.endswith('-roll'):
                     kept.with_cable_model(stretch=np.zeros(6))
                 reg.append(time.process_time() - start)
-            config = ExecutorConfig(script=script, fit_wrist=correction == 'bands-wrist')
+            config = ExecutorConfig(script=script,
+                                    fit_wrist=correction.startswith('bands-wrist'))
             s, c, f = _throws(sim, skill, pairs, physical=True, correction=correction != 'open',
                               config=config)
             scores += s
