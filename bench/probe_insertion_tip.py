@@ -9,7 +9,7 @@ its error at the start, a vector) -- what a relative motion from the insertion's
 still carry.
 
 Run: ``.venv/bin/python bench/probe_insertion_tip.py [--seeds 1,2] [--row
-calibration+transmission+servo] [--corrections bands,bands-cables]``
+calibration+transmission+servo | all | static] [--corrections bands,bands-cables]``
 """
 
 import argparse
@@ -36,16 +36,18 @@ def main():
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     skill = _skill('synthetic', 'synth1', True)
-    levels = None if args.row == 'all' else {
+    levels = None if args.row in ('all', 'static') else {
         k: float(any(k.startswith(p) for p in args.row.split('+'))) for k in LEVELS}
-    realism = load_arm_realism('dvrk', levels=levels)
+    # 'static': the static-offset robots of --error-level (offsets-only registration)
+    robot = ({'static_level': 1.0} if args.row == 'static'
+             else {'realism': load_arm_realism('dvrk', levels=levels)})
     print('| correction | robot | pair | score | tip at start, mm | mean, mm | max, mm | '
           'drift (x, y, z), mm |')
     print('|---|---|---|---|---|---|---|---|')
     for correction in args.corrections.split(','):
         for seed in (int(s) for s in args.seeds.split(',')):
-            sim = _robot(seed, realism=realism)
-            kept = register_arms(sim, dead_bands=True)
+            sim = _robot(seed, **robot)
+            kept = register_arms(sim, dead_bands=args.row != 'static')
             if correction.endswith(('-stretch', '-cables')):
                 kept.with_cable_model(roll_band=0.0 if correction.endswith('-stretch')
                                       else ROLL_BAND)
@@ -59,7 +61,9 @@ def main():
                     truth.append((sim.time, sim.needle_pose() @ tip_local))
 
                 out = execute_throw(sim, skill, pair, seed=0, physical=True,
-                                    config=ExecutorConfig(script=sim.config.scene.expert),
+                                    config=ExecutorConfig(
+                                        script=sim.config.scene.expert,
+                                        fit_wrist=correction.startswith('bands-wrist')),
                                     observer=probe)
                 if 'ii' not in out.executed:
                     print(f'| {correction} | {seed} | {pair} | {out.score:.2f} | - | - | - | - |')
