@@ -9,7 +9,9 @@ its error at the start, a vector) -- what a relative motion from the insertion's
 still carry.
 
 Run: ``.venv/bin/python bench/probe_insertion_tip.py [--seeds 1,2] [--row
-calibration+transmission+servo | all | static] [--corrections bands,bands-cables]``
+calibration+transmission+servo | all | static] [--corrections bands,bands-cables]``; a
+correction's suffix ``-truewrist`` adds the hidden wrist offsets to the registered correction
+(what a perfect wrist fit would give).
 """
 
 import argparse
@@ -48,11 +50,16 @@ def main():
         for seed in (int(s) for s in args.seeds.split(',')):
             sim = _robot(seed, **robot)
             kept = register_arms(sim, dead_bands=args.row != 'static')
-            if correction.endswith(('-stretch', '-cables')):
-                kept.with_cable_model(roll_band=0.0 if correction.endswith('-stretch')
+            if '-stretch' in correction or '-cables' in correction:
+                kept.with_cable_model(roll_band=0.0 if '-stretch' in correction
                                       else ROLL_BAND)
-            elif correction.endswith('-roll'):
+            elif '-roll' in correction:
                 kept.with_cable_model(stretch=np.zeros(6))
+            if '-truewrist' in correction:
+                # diagnostic: the hidden wrist offsets (roll, wrist pitch and yaw) put into the
+                # registered correction
+                for arm, fit in list(kept.arms.items()):
+                    kept.set_arm(fit.with_wrist_offset(sim._errors[arm].joint_offset[3:6]))
             tip_local = np.append(sim.needle_geometry.point_at(1.0), 1.0)
             for pair in args.pairs.split(','):
                 truth = []
