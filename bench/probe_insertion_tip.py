@@ -44,18 +44,23 @@ def main():
     robot = ({'static_level': 1.0} if args.row == 'static'
              else {'realism': load_arm_realism('dvrk', levels=levels)})
     print('| correction | robot | pair | score | tip at start, mm | mean, mm | max, mm | '
-          'drift (x, y, z), mm |')
-    print('|---|---|---|---|---|---|---|---|')
+          'drift (x, y, z), mm | true tip off the plan, mm | believed tip off the plan, mm | '
+          'failure |')
+    print('|---|---|---|---|---|---|---|---|---|---|---|')
     for correction in args.corrections.split(','):
         for seed in (int(s) for s in args.seeds.split(',')):
             sim = _robot(seed, **robot)
-            kept = register_arms(sim, dead_bands=args.row != 'static')
-            if '-stretch' in correction or '-cables' in correction:
+            # 'truth': the ground-truth executor on the same robot (its reference path)
+            kept = (register_arms(sim, dead_bands=args.row != 'static')
+                    if correction != 'truth' else None)
+            if kept is None:
+                pass
+            elif '-stretch' in correction or '-cables' in correction:
                 kept.with_cable_model(roll_band=0.0 if '-stretch' in correction
                                       else ROLL_BAND)
             elif '-roll' in correction:
                 kept.with_cable_model(stretch=np.zeros(6))
-            if '-truewrist' in correction:
+            if kept is not None and '-truewrist' in correction:
                 # diagnostic: the hidden wrist offsets (roll, wrist pitch and yaw) put into the
                 # registered correction
                 for arm, fit in list(kept.arms.items()):
@@ -67,7 +72,7 @@ def main():
                 def probe(truth=truth, sim=sim, tip_local=tip_local):
                     truth.append((sim.time, sim.needle_pose() @ tip_local))
 
-                out = execute_throw(sim, skill, pair, seed=0, physical=True,
+                out = execute_throw(sim, skill, pair, seed=0, physical=correction != 'truth',
                                     config=ExecutorConfig(
                                         script=sim.config.scene.expert,
                                         fit_wrist=correction.startswith('bands-wrist')),
@@ -86,9 +91,21 @@ def main():
                 errs = np.array(errs)
                 d = np.linalg.norm(errs, axis=1)
                 drift = errs[-1] - errs[0]
+                # the planned tip (the insertion's rollout), and how far the true tip and the
+                # believed one pass from it (largest distance to its nearest planned point)
+                _, P, Q = out.rollouts['ii']
+                plan = (transform_from_pose(np.hstack([P, Q])) @ tip_local)[:, :3]
+                believed = (transform_from_pose(poses) @ tip_local)[:, :3]
+                true_tips = believed - 1e-3 * errs
+
+                def off(tips, plan=plan):
+                    return 1e3 * max(np.linalg.norm(plan - x, axis=1).min() for x in tips)
+
                 print(f'| {correction} | {seed} | {pair} | {out.score:.2f} | {d[0]:.2f} | '
                       f'{d.mean():.2f} | {d.max():.2f} | '
-                      f'{", ".join(f"{v:.2f}" for v in drift)} |', flush=True)
+                      f'{", ".join(f"{v:.2f}" for v in drift)} | {off(true_tips):.2f} | '
+                      f'{off(believed):.2f} | {(out.failure or "-").split(";")[0]} |',
+                      flush=True)
             sim.close()
 
 
