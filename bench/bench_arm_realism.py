@@ -72,7 +72,8 @@ def main():
     parser.add_argument('--corrections', default='bands,offsets,open',
                         help='for the all-effects row: the registrations compared '
                         '(bands, bands-wrist, offsets, open; a suffix -stretch, -roll or '
-                        "-cables adds the instrument's known wrist stretch, roll band or both)")
+                        "-cables adds the instrument's known wrist stretch, roll band or both; "
+                        'a last -track the tool tracking loop)')
     parser.add_argument('--row-corrections', default='bands',
                         help='for the other rows: the registrations compared')
     args = parser.parse_args()
@@ -99,14 +100,15 @@ def main():
             if correction != 'open':
                 start = time.process_time()
                 kept = register_arms(sim, dead_bands=correction.startswith('bands'))
-                if correction.endswith(('-stretch', '-cables')):
-                    kept.with_cable_model(roll_band=0.0 if correction.endswith('-stretch')
+                if '-stretch' in correction or '-cables' in correction:
+                    kept.with_cable_model(roll_band=0.0 if '-stretch' in correction
                                           else ROLL_BAND)
-                elif correction.endswith('-roll'):
+                elif '-roll' in correction:
                     kept.with_cable_model(stretch=np.zeros(6))
                 reg.append(time.process_time() - start)
             config = ExecutorConfig(script=script,
-                                    fit_wrist=correction.startswith('bands-wrist'))
+                                    fit_wrist=correction.startswith('bands-wrist'),
+                                    track_tool=correction.endswith('-track'))
             s, c, f = _throws(sim, skill, pairs, physical=True, correction=correction != 'open',
                               config=config)
             scores += s

@@ -75,7 +75,8 @@ def main():
                 out = execute_throw(sim, skill, pair, seed=0, physical=correction != 'truth',
                                     config=ExecutorConfig(
                                         script=sim.config.scene.expert,
-                                        fit_wrist=correction.startswith('bands-wrist')),
+                                        fit_wrist=correction.startswith('bands-wrist'),
+                                    track_tool=correction.endswith('-track')),
                                     observer=probe)
                 if 'ii' not in out.executed:
                     print(f'| {correction} | {seed} | {pair} | {out.score:.2f} | - | - | - | - |')
