@@ -45,7 +45,7 @@ class ToolTracking:
 
     """
 
-    def __init__(self, controller: Controller, delay: float = 0.05, tau: float = 0.3,
+    def __init__(self, controller: Controller, delay: float = 0.1, tau: float = 1.0,
                  max_shift: float = 0.003, max_turn: float = 0.1,
                  subtasks: tuple[str, ...] = TASKS) -> None:
         self.controller = controller
