@@ -8,7 +8,9 @@ the rendered stereo pair, the arms' own reports) on robots drawn at the ``dvrk``
 arm's calibration, transmission and servo, the encoders, the ECM's reported pose, the
 endoscope's intrinsics, the jaw's reading on a held needle), with
 the registration that fits the joints' dead bands (``bands``; ``bands-wrist``: and the wrist's
-offsets fitted with the grasp during the carry), with one that fits offsets only
+offsets fitted with the grasp during the carry; a suffix ``-stretch``, ``-roll`` or
+``-cables``: and the instrument's known cable model, the wrist's stretch, the roll's dead band
+or both), with one that fits offsets only
 (``offsets``), and open loop (``open``). Anchors measured in the same run: ground-truth mode
 (the simulation's truth) with the ground-truth executor settings and with the physical ones
 (the held start press), and the static-offset robots of ``--error-level`` (the wave-3 physical
@@ -33,7 +35,7 @@ from bench_physical import _config, _skill  # noqa: I100 (the bench folder's own
 import numpy as np
 from sim_bridge.realism.calibration import ARM_LEVELS, load_arm_realism
 from sim_bridge.simulation import Simulation
-from suture_lfd.skill.arm_registration import register_arms
+from suture_lfd.skill.arm_registration import ROLL_BAND, register_arms
 from suture_lfd.skill.executor import ExecutorConfig, execute_throw
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -69,7 +71,9 @@ def main():
                         "by '+' (calibration+transmission+servo)")
     parser.add_argument('--corrections', default='bands,offsets,open',
                         help='for the all-effects row: the registrations compared '
-                        '(bands, bands-wrist, offsets, open)')
+                        '(bands, bands-wrist, offsets, open; a suffix -stretch, -roll or '
+                        "-cables adds the instrument's known wrist stretch, roll band or both; "
+                        'a last -track the tool tracking loop)')
     parser.add_argument('--row-corrections', default='bands',
                         help='for the other rows: the registrations compared')
     args = parser.parse_args()
@@ -95,9 +99,16 @@ def main():
             sim = _robot(seed, **robot)
             if correction != 'open':
                 start = time.process_time()
-                register_arms(sim, dead_bands=correction.startswith('bands'))
+                kept = register_arms(sim, dead_bands=correction.startswith('bands'))
+                if '-stretch' in correction or '-cables' in correction:
+                    kept.with_cable_model(roll_band=0.0 if '-stretch' in correction
+                                          else ROLL_BAND)
+                elif '-roll' in correction:
+                    kept.with_cable_model(stretch=np.zeros(6))
                 reg.append(time.process_time() - start)
-            config = ExecutorConfig(script=script, fit_wrist=correction == 'bands-wrist')
+            config = ExecutorConfig(script=script,
+                                    fit_wrist=correction.startswith('bands-wrist'),
+                                    track_tool=correction.endswith('-track'))
             s, c, f = _throws(sim, skill, pairs, physical=True, correction=correction != 'open',
                               config=config)
             scores += s

@@ -110,6 +110,11 @@ _BAND_START = np.array([0.0175, 0.0175, 0.0005, 0.05, 0.05])
 # homing leaves a few degrees and millimetres, its camera registration "a 5 mm to 10 mm cube";
 # a fit beyond is one of poses seen wrong.
 _PLAUSIBLE = np.array([0.1, 0.1, 0.012, 0.015, 0.015, 0.015])
+# The instrument's cable model a lab calibrates once per instrument type, not per robot
+# (:meth:`KinematicCorrection.with_cable_model`): the wrist's stretch (true minus reported per
+# unit deflection from straight: roll, wrist pitch, wrist yaw) and the roll's dead band (rad).
+WRIST_STRETCH = (0.0, 0.0, 0.0, 0.03, 0.03, 0.03)
+ROLL_BAND = 0.052
 # A pose whose RMS residual (pixels) is above this after a first fit is left out.
 _OUTLIER_PX = 2.0
 # A fit whose image residual (RMS, pixels) is above this is not trusted.
@@ -144,6 +149,12 @@ class ArmCorrection:
         Estimated full dead band per joint (rad, m; the instrument's roll not fitted, 0 where
         no backlash was found): the play (:mod:`suture_lfd.skill.hysteresis`) adds to the
         offsets, following the direction each joint last moved in.
+    stretch : ndarray, shape (6,)
+        Per joint, the cables' stretch: true minus reported joint per unit of the reported
+        joint's deflection from ``neutral`` (dimensionless; default none). Not fitted by the
+        registration: a compliance known for the instrument (:func:`with_cable_model`).
+    neutral : ndarray, shape (6,)
+        Joints (rad, m) at which the cables carry no extra load (the wrist straight).
 
     """
 
@@ -154,6 +165,16 @@ class ArmCorrection:
     translation: np.ndarray
     residual_px: float = 0.0
     backlash: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    stretch: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    neutral: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    def _true_joints(self, q: Joints) -> list[float]:
+        """Return the reported joints ``q`` with the offsets and (when modelled) the stretch."""
+        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        if np.any(self.stretch):
+            for j, (k, n) in enumerate(zip(self.stretch, self.neutral)):
+                qt[j] += float(k) * (float(q[j]) - float(n))
+        return qt
 
     def tool_pose(self, q: Joints, play: Sequence[float] | None = None) -> np.ndarray:
         """
@@ -170,7 +191,7 @@ class ArmCorrection:
         """
         # the reported joints are valid (the arm's own), the offsets a few degrees and
         # millimetres: no check, scalar forward kinematics (it runs every control step)
-        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        qt = self._true_joints(q)
         if play is not None:
             for j, p in enumerate(play):
                 qt[j] += p
@@ -214,7 +235,7 @@ class ArmCorrection:
             Offsets (rad) of joints 4, 5, ... (indices 3, 4, ...).
 
         """
-        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
+        qt = self._true_joints(q)
         moved = list(qt)
         for j, d in enumerate(offsets):
             moved[3 + j] += float(d)
@@ -251,6 +272,30 @@ class KinematicCorrection:
         """Correct ``fit.arm`` with ``fit`` from now on (its dead bands' play kept)."""
         self.arms[fit.arm] = fit
         self._cache.pop(fit.arm, None)
+
+    def with_cable_model(self, stretch: ArrayLike = WRIST_STRETCH,
+                         roll_band: float = ROLL_BAND) -> None:
+        """
+        Add the instrument's known cable model to every arm (in place, before its first use).
+
+        The registration sees the wrist too weakly to fit its cables: the instrument's roll
+        looks the same rolled, and the wrist's stretch (proportional to its deflection from
+        straight) is all but nil at the straight poses it looks at. A dVRK lab knows both for
+        its instrument from a bench calibration (Haghighipanah et al., IROS 2016: a cable's
+        stretch is proportional to its tension; Hwang et al., RA-L 2020: the dead bands); here
+        they are given: ``stretch`` (6, per unit deflection from the joints' zero) and the
+        roll's dead band ``roll_band`` (rad; 0 keeps the fitted one).
+
+        """
+        for arm, fit in list(self.arms.items()):
+            backlash = np.array(fit.backlash, dtype=float)
+            if roll_band > 0.0:
+                backlash[3] = roll_band
+            self.arms[arm] = replace(fit, backlash=backlash,
+                                     stretch=np.asarray(stretch, dtype=float).copy(),
+                                     neutral=np.zeros(6))
+            self._plays[arm] = PlayTracker(backlash)
+        self._cache.clear()
 
     def _play(self, arm: str, q: Joints) -> list[float] | None:
         """Return the arm's play at its new reported joints ``q`` (None: no backlash)."""

@@ -47,6 +47,7 @@ from suture_lfd.skill.arc_aim import aim_along_arc
 from suture_lfd.skill.arm_registration import CorrectedController, register_arms
 from suture_lfd.skill.perceived import PerceivedScene
 from suture_lfd.skill.slip_watch import TISSUE_LOOKS, SlipWatch, holding_arm, slip_checkpoints
+from suture_lfd.skill.tool_tracking import ToolTracking
 
 if TYPE_CHECKING:
     from sim_bridge.common.needle import NeedleGeometry
@@ -146,6 +147,10 @@ class ExecutorConfig:
         arm with them from then on: the registration sees the wrist too weakly to fit them, and
         a grasp alone takes them up at the wrist pose it was seen at only. Off by default: at
         the ``dvrk`` preset it did not raise the score (``doc/explanation/realism_arm.md``).
+    track_tool : bool
+        In physical mode with the registration, bring each tool onto its targets during the
+        DMP subtasks from where it is seen (:class:`suture_lfd.skill.tool_tracking.
+        ToolTracking`: an integral loop on the corrected tool pose). Off by default.
 
     """
 
@@ -166,6 +171,7 @@ class ExecutorConfig:
     arc_aim: bool = False
     aim_on_tissue: bool = True
     fit_wrist: bool = False
+    track_tool: bool = False
 
     def in_physical_mode(self) -> 'ExecutorConfig':
         """
@@ -860,7 +866,9 @@ def _execute(sim: 'Simulation', skill: ThrowSkill, pair_name: str, pair: 'Marker
     executor = ThrowExecutor(skill, pair, sim.needle_geometry, kinematics=sim.kinematics['PSM1'],
                              config=config, next_pair=nxt, look=look, facing=facing,
                              frame_time=None if perception is None else sim.delivered_frame)
-    controller = executor if kinematic is None else CorrectedController(executor, kinematic)
+    tracked = (ToolTracking(executor) if config.track_tool and kinematic is not None
+               else executor)
+    controller = executor if kinematic is None else CorrectedController(tracked, kinematic)
     recorder = _Recorder(controller, observer)
     t_start = sim.time
     try:
