@@ -248,15 +248,11 @@ class KinematicCorrection:
         # the backlash play of the arms with a dead band, advanced by each new report
         self._plays = {arm: PlayTracker(fit.backlash) for arm, fit in self.arms.items()
                        if np.any(np.asarray(fit.backlash) > 0.0)}
-        # per arm: (command with the present play, the joints the arm's inverse kinematics
-        # gives it) of the last backlash inverse
-        self._headed: dict[str, tuple[np.ndarray, tuple[float, ...]]] = {}
 
     def set_arm(self, fit: ArmCorrection) -> None:
         """Correct ``fit.arm`` with ``fit`` from now on (its dead bands' play kept)."""
         self.arms[fit.arm] = fit
         self._cache.pop(fit.arm, None)
-        self._headed.pop(fit.arm, None)
 
     def _play(self, arm: str, q: Joints) -> list[float] | None:
         """Return the arm's play at its new reported joints ``q`` (None: no backlash)."""
@@ -352,20 +348,12 @@ class KinematicCorrection:
         its dead band crossed in this command (:meth:`PlayTracker.heading`).
         """
         fit = self.arms[arm]
-        # a command the same as the last one to within 1e-9 (an arm holding still, or moving
-        # slower than that per step): its joints change by far less than the heading's
-        # ``still``, so the last inverse kinematics stands (it runs once per command otherwise)
-        hit = self._headed.get(arm)
-        if hit is not None and float(np.abs(target - hit[0]).max()) <= 1e-9:
-            q_to = hit[1]
-        else:
-            try:
-                local = invert_transform(fit.T_world_base) @ target
-                chain = cast('PsmKinematics', fit.kinematics)  # a PSM's: it has an inverse
-                q_to = chain.ik_unchecked(local, [float(v) for v in q])
-            except ValueError:
-                return target  # out of reach: the arm will say so for the command itself
-            self._headed[arm] = (target.copy(), q_to)
+        try:
+            local = invert_transform(fit.T_world_base) @ target
+            chain = cast('PsmKinematics', fit.kinematics)  # a PSM's: it has an inverse
+            q_to = chain.ik_unchecked(local, [float(v) for v in q])
+        except ValueError:
+            return target  # out of reach: the arm will say so for the command itself
         play = tracker.heading(q, q_to)
         if play == tracker.play:
             return target
