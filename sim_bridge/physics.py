@@ -237,17 +237,21 @@ class ScenePhysics:
         cfg = self.config
         self.client.restoreState(self._thread_world)
         arm_config = replace(cfg.arm, initial_jaw=cfg.loop.initial_jaw)
+        ecm_config = replace(arm_config, initial_jaw=0.0)
         if cfg.arm_realism is not None:
             arm_config = replace(arm_config, servo=servo_config(cfg.arm_realism))
+            ecm_config = replace(ecm_config, servo=servo_config(cfg.arm_realism, 'ECM'))
         self.arms.clear()
         for name in ARMS:
-            config = arm_config if name in PSMS else replace(arm_config, initial_jaw=0.0)
+            config = arm_config if name in PSMS else ecm_config
             rest = cfg.psm_rest_jp if name in PSMS else cfg.ecm_rest_jp
             if rest is not None:
                 config = replace(config, initial_jp=tuple(rest))
             self.arms[name] = Arm(name, self.kinematics[name], config)
         self._arm_list = [self.arms[n] for n in ARMS]
         self._tool_cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # per arm with encoders: (step, motor-side pose, the reported pose) of the last reading
+        self._reported_cache: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
         # ECM tool tip (RCM frame) the PSMs' frames were set from
         self._camera_local: np.ndarray | None = None
         if cfg.world.frames == 'cart':
@@ -386,8 +390,14 @@ class ScenePhysics:
 
         """
         if name in self._encoders:
-            return self._T_world_base[name] @ self.kinematics[name].fk_unchecked(
-                self.reported_jp(name).tolist())
+            # the encoders read once a step: within one, the same reading's pose (a copy)
+            local = self.arms[name].local_measured_cp_view
+            hit = self._reported_cache.get(name)
+            if hit is None or hit[0] != self._steps or hit[1] is not local:
+                hit = (self._steps, local, self._T_world_base[name] @ self.kinematics[
+                    name].fk_unchecked(self.reported_jp(name).tolist()))
+                self._reported_cache[name] = hit
+            return hit[2].copy()
         if name not in self._errors:
             return self._tool_pose(name).copy()
         return self._T_world_base[name] @ self.arms[name].local_measured_cp_view

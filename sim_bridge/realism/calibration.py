@@ -30,6 +30,9 @@ from sim_bridge.realism.servo import ServoConfig
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
 
 #: The per-effect levels of an :class:`ArmRealismConfig` (keys of a preset and of a sweep).
+#: a servoed joint rests on its setpoint within this fraction of an encoder count
+SERVO_REST_COUNTS = 0.1
+
 ARM_LEVELS = ('calibration_level', 'transmission_level', 'servo_level', 'encoder_level',
               'ecm_level', 'intrinsics_level', 'jaw_level')
 #: Streams of the seeded draws besides the PSMs' own (``default_rng([seed, stream])``).
@@ -148,13 +151,19 @@ class ArmRealismConfig:
                 raise ValueError(f'arm realism {key} must be a finite number >= 0, got {v}')
 
 
-def servo_config(config: ArmRealismConfig) -> ServoConfig | None:
+def servo_config(config: ArmRealismConfig, arm: str = 'PSM1') -> ServoConfig | None:
     """
-    Return the arms' servo loop at ``config``'s servo level (None at level 0).
+    Return an arm's servo loop at ``config``'s servo level (None at level 0).
+
+    A joint rests on its setpoint once within :data:`SERVO_REST_COUNTS` of one count of the
+    preset's encoders (whatever the encoder level: the arm's encoders are what they are; a
+    residual of a tenth of a count, under the reading's noise, no ``measured_js`` can show).
 
     Parameters
     ----------
     config : ArmRealismConfig
+    arm : str
+        ``'ECM'`` takes the ECM's encoder counts, any other arm the PSM's.
 
     Returns
     -------
@@ -163,8 +172,12 @@ def servo_config(config: ArmRealismConfig) -> ServoConfig | None:
     """
     if config.servo_level == 0.0:
         return None
+    counts = config.encoder.ecm if arm == 'ECM' else config.encoder.psm
+    rest = (tuple(SERVO_REST_COUNTS * float(c) for c in counts) if any(counts)
+            else config.servo.rest)
     return replace(config.servo,
-                   natural_frequency=config.servo.natural_frequency / config.servo_level)
+                   natural_frequency=config.servo.natural_frequency / config.servo_level,
+                   rest=rest)
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:

@@ -65,7 +65,9 @@ class JointEncoder:
         self.resolution = np.asarray(resolution, dtype=float)
         self.noise = float(noise)
         self._rng = rng
-        self._sample: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._res = self.resolution.tolist()
+        # (step, motor-side joints, reading) of the last sample, in plain floats
+        self._sample: tuple[int, list[float], list[float]] | None = None
 
     def read(self, q: np.ndarray, step: int) -> np.ndarray:
         """
@@ -84,13 +86,15 @@ class JointEncoder:
             A new array.
 
         """
-        q = np.asarray(q, dtype=float)
+        values = np.asarray(q, dtype=float).tolist()
         s = self._sample
-        if s is not None and s[0] == step and np.array_equal(s[1], q):
-            return s[2].copy()
-        res = self.resolution
-        counted = np.where(res > 0.0, np.round(q / np.where(res > 0.0, res, 1.0)) * res, q)
+        if s is not None and s[0] == step and s[1] == values:
+            return np.array(s[2])
+        # joint by joint in plain floats, the same operations as NumPy's (round half to even)
+        res = self._res
+        counted = [round(x / r) * r if r > 0.0 else x for x, r in zip(values, res)]
         if self.noise > 0.0:
-            counted = counted + self._rng.normal(0.0, self.noise, q.size) * res
-        self._sample = (step, q.copy(), counted)
-        return counted.copy()
+            noise = self._rng.normal(0.0, self.noise, len(values)).tolist()
+            counted = [c + n * r for c, n, r in zip(counted, noise, res)]
+        self._sample = (step, values, counted)
+        return np.array(counted)

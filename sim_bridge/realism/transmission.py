@@ -69,17 +69,20 @@ class JointTransmission:
 
     def __init__(self, config: TransmissionConfig, initial: np.ndarray | None = None) -> None:
         self.config = config
-        self._half = 0.5 * np.asarray(config.backlash, dtype=float)
-        self._stretch = np.asarray(config.stretch, dtype=float)
-        self._neutral = np.asarray(config.neutral, dtype=float)
-        self._play = (np.zeros_like(self._half) if initial is None
-                      else np.clip(np.asarray(initial, dtype=float), -self._half, self._half))
-        self._last: np.ndarray | None = None
+        half = 0.5 * np.asarray(config.backlash, dtype=float)
+        play = (np.zeros_like(half) if initial is None
+                else np.clip(np.asarray(initial, dtype=float), -half, half))
+        # plain floats: six joints are cheaper joint by joint than through NumPy calls
+        self._joints = tuple(zip((-half).tolist(), half.tolist(),
+                                 [float(v) for v in config.stretch],
+                                 [float(v) for v in config.neutral]))
+        self._play = play.tolist()
+        self._last: list[float] | None = None
 
     @property
     def play(self) -> np.ndarray:
         """The current backlash state per joint (true minus motor side, rad / m), a copy."""
-        return self._play.copy()
+        return np.array(self._play)
 
     def apply(self, reported: np.ndarray) -> np.ndarray:
         """
@@ -98,11 +101,15 @@ class JointTransmission:
             True joints (rad / m).
 
         """
-        q = np.asarray(reported, dtype=float)
-        if self._last is not None:
+        q = np.asarray(reported, dtype=float).tolist()
+        last, play = self._last, self._play
+        if last is not None:
             # the load side lags behind a moving motor by the half dead band, in the direction
-            # of motion; inside the band it stays put
-            moved = q - self._last
-            self._play = np.clip(self._play - moved, -self._half, self._half)
-        self._last = q.copy()
-        return q + self._play + self._stretch * (q - self._neutral)
+            # of motion; inside the band it stays put (np.clip's max, then min)
+            for j, (x, x0, (lo, hi, _, _)) in enumerate(zip(q, last, self._joints)):
+                p = play[j] - (x - x0)
+                p = lo if lo > p else p
+                play[j] = hi if hi < p else p
+        self._last = q
+        return np.array([x + p + s * (x - n)
+                         for x, p, (_, _, s, n) in zip(q, play, self._joints)])

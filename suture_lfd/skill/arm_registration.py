@@ -215,7 +215,9 @@ class ArmCorrection:
         ndarray, shape (4, 4)
 
         """
-        reported = self.T_world_base @ self.kinematics.fk(np.asarray(q, dtype=float))
+        # the arm's own valid joints: the unchecked forward kinematics gives the same floats
+        reported = self.T_world_base @ self.kinematics.fk_unchecked(
+            np.asarray(q, dtype=float).tolist())
         return self.tool_pose(q, play) @ invert_transform(reported)
 
 
@@ -438,25 +440,42 @@ class CorrectedController:
 
 
 def _model_points(kinematics: 'SerialChain', T_world_base: np.ndarray, q: ArrayLike,
-                  x: np.ndarray, jaw: Sequence[float]) -> np.ndarray:
+                  x: np.ndarray, jaw: Sequence[float],
+                  memo: dict[bytes, np.ndarray] | None = None) -> np.ndarray:
     """
     World points of the straight instrument: two shaft-axis points, then the closed jaws' end.
 
     ``jaw`` is ``(length, width, thickness)`` (m) of the closed jaws: their end face's centre
-    and its four corners follow the two shaft points.
+    and its four corners follow the two shaft points. ``memo`` (joints' bytes -> the points
+    before the translation ``x[3:6]``) spares the kinematics of joints seen before: a fit's
+    finite differences in the base translation move no joint.
     """
-    length, width, thickness = jaw
     d = np.zeros(6)
     d[:3] = x[:3]
-    link4, tip = kinematics.fk_wrist_and_tip(np.asarray(q, dtype=float) + d, 4)
+    qd = np.asarray(q, dtype=float) + d
+    key = qd.tobytes() if memo is not None else b''
+    pts = memo.get(key) if memo is not None else None
+    if pts is None:
+        pts = _chain_points(kinematics, T_world_base, qd, jaw)
+        if memo is not None:
+            if len(memo) > 4096:
+                memo.clear()
+            memo[key] = pts
+    return pts + x[3:6]
+
+
+def _chain_points(kinematics: 'SerialChain', T_world_base: np.ndarray, qd: np.ndarray,
+                  jaw: Sequence[float]) -> np.ndarray:
+    """:func:`_model_points` at the joints ``qd`` (offsets added), before the translation."""
+    length, width, thickness = jaw
+    link4, tip = kinematics.fk_wrist_and_tip(qd, 4)
     z4 = link4[:3, 2]
     local = [link4[:3, 3] - s * z4 for s in _SHAFT_POINTS]
     R, end = tip[:3, :3], tip[:3, 3] + length * tip[:3, 2]
     local.append(end)
     for a, b in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
         local.append(end + R @ np.array([0.5 * a * width, b * thickness, 0.0]))
-    pts = np.array(local) @ T_world_base[:3, :3].T + T_world_base[:3, 3]
-    return pts + x[3:6]
+    return np.array(local) @ T_world_base[:3, :3].T + T_world_base[:3, 3]
 
 
 def _robust_fit(used: list[Any], x_start: np.ndarray, solve: Any, residuals: Any,
@@ -564,13 +583,15 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
         full[list(_BAND_JOINTS)] = x[6:]
         return full
 
+    memo: dict[bytes, np.ndarray] = {}
+
     def residuals(x: np.ndarray, poses: list[Any]) -> np.ndarray:
         out: list[float] = []
         plays = None if len(x) == 6 or runs is None else plays_at(runs, bands(x))
         for q, T_cw, left, right, k in poses:
             if plays is not None:
                 q = np.asarray(q, dtype=float) + plays[k]
-            pts = _model_points(kinematics, T_world_base, q, x, jaw)
+            pts = _model_points(kinematics, T_world_base, q, x, jaw, memo)
             pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
             uv_l, uv_r = stereo.project(pc)
             for view, uv in ((left, uv_l), (right, uv_r)):
