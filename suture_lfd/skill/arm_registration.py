@@ -67,7 +67,7 @@ from sim_bridge.control import Command, Controller, Observation
 from suture_lfd.perception import detect_markers, stereo_from_camera_info
 from suture_lfd.perception.instrument import InstrumentView, find_instrument
 from suture_lfd.perception.window import points_window
-from suture_lfd.skill.hysteresis import PlayTracker, plays_at, run_lengths
+from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, plays_at, run_lengths
 
 if TYPE_CHECKING:
     from sim_bridge.kinematics import PsmKinematics, SerialChain
@@ -399,7 +399,7 @@ class KinematicCorrection:
             q_to = chain.ik_unchecked(local, [float(v) for v in q])
         except ValueError:
             return target  # out of reach: the arm will say so for the command itself
-        play = tracker.heading(q, q_to)
+        play = tracker.heading(q, q_to, PSM_STILL)
         if play == tracker.play:
             return target
         return invert_transform(fit.error(q, play)) @ np.asarray(T, dtype=float)

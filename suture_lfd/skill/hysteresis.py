@@ -24,7 +24,12 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['PlayTracker', 'plays_at', 'run_lengths']
+__all__ = ['PSM_STILL', 'PlayTracker', 'plays_at', 'run_lengths']
+
+#: A PSM's smallest joint motion (rad, rad, m, rad, rad, rad) that tells a direction: five
+#: counts of a dVRK encoder (1e-4 rad, 2 um), ten times the encoders' noise, so that a joint
+#: at rest, its reading jittering by a count, keeps its play instead of flipping it
+PSM_STILL = (5e-4, 5e-4, 1e-5, 5e-4, 5e-4, 5e-4)
 
 
 class PlayTracker:
@@ -72,7 +77,8 @@ class PlayTracker:
         self._last = values
         return list(self.play)
 
-    def heading(self, q: ArrayLike, q_to: ArrayLike, still: float = 1e-5) -> list[float]:
+    def heading(self, q: ArrayLike, q_to: ArrayLike,
+                still: float | Sequence[float] = 1e-5) -> list[float]:
         """
         Return the play the joints will have once moved from ``q`` towards ``q_to``.
 
@@ -86,16 +92,18 @@ class PlayTracker:
         ----------
         q, q_to : array_like, shape (n,) or longer
             Reported joints now and the joints commanded next (rad / m).
-        still : float
-            Smallest motion (rad / m) that counts as a direction.
+        still : float or sequence of float
+            Smallest motion (rad / m) that counts as a direction, one for every joint or one
+            per joint (:data:`PSM_STILL`).
 
         """
         a = np.asarray(q, dtype=float).ravel()
         b = np.asarray(q_to, dtype=float).ravel()
         out = list(self.play)
+        limits = [float(still)] * len(self.half) if isinstance(still, (int, float)) else still
         for j, h in enumerate(self.half):
             d = float(b[j]) - float(a[j])
-            if h > 0.0 and abs(d) > still:
+            if h > 0.0 and abs(d) > limits[j]:
                 out[j] = -h if d > 0.0 else h
         return out
 

@@ -10,7 +10,7 @@ motion reduced to its monotone runs.
 
 import numpy as np
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
-from suture_lfd.skill.hysteresis import PlayTracker, plays_at, run_lengths
+from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, plays_at, run_lengths
 
 BAND = (0.0175, 0.0175, 0.0005, 0.052, 0.052, 0.052)
 
@@ -63,3 +63,19 @@ def test_heading_crosses_the_band_of_a_joint_about_to_reverse_and_keeps_a_still_
     heading = tracker.heading(q, q_to)
     half = 0.5 * np.asarray(BAND)
     assert np.allclose(heading, [half[0], -half[1], -half[2], -half[3], -half[4], half[5]])
+
+
+def test_a_joint_at_rest_keeps_its_play_through_its_encoders_jitter():
+    """A reading that jitters by a count or two is no direction: no dead band flipped at rest."""
+    tracker = PlayTracker(BAND)
+    tracker.update(np.zeros(6))
+    q = np.full(6, 0.1)
+    tracker.update(q)                   # every joint moved up: play at -b/2
+    rng = np.random.default_rng(0)
+    count = np.array([1e-4, 1e-4, 2e-6, 1e-4, 1e-4, 1e-4])  # a dVRK encoder's count
+    for _ in range(200):                # at rest: the command is where the arm is
+        jitter = q + count * np.round(rng.normal(0.0, 0.7, 6))  # 0.5 rms and a count
+        assert tracker.heading(jitter, q, PSM_STILL) == tracker.play
+    # a real reversal still crosses the band at once
+    half = 0.5 * np.asarray(BAND)
+    assert np.allclose(tracker.heading(q, q - 10 * np.asarray(PSM_STILL), PSM_STILL), half)
