@@ -142,8 +142,8 @@ class PerceivedScene:
         The images are the endoscope's
         (:meth:`sim_bridge.simulation.Simulation.endoscope_frame`): with a frame timing the
         newest delivered frame, never the scene now. Looked at twice in the same frame (the
-        markers, then the needle) it is rendered once; a window of a frame already rendered
-        whole is cut from it. ``window``: only that region of both images
+        markers, then the needle) it is rendered once; a window of a frame (or of a larger
+        window) already rendered is cut from it. ``window``: only that region of both images
         (:mod:`suture_lfd.perception.window`), with its camera.
         """
         if self._stereo is None:
@@ -155,12 +155,15 @@ class PerceivedScene:
             self._frame = (key, {}, T_world_camera)
         _, views, T_world_camera = self._frame
         frame = views.get(window)
-        if frame is None and window is not None and None in views:
-            whole = views[None]
-            frame = StereoFrame(left_rgb=crop(whole.left_rgb, window), left_depth=None,
-                                right_rgb=crop(whole.right_rgb, window), right_depth=None,
-                                T_world_left=whole.T_world_left,
-                                T_world_right=whole.T_world_right)
+        if frame is None and window is not None:
+            for held, view in views.items():
+                part = _within(window, held)
+                if part is not None:
+                    frame = StereoFrame(left_rgb=crop(view.left_rgb, part), left_depth=None,
+                                        right_rgb=crop(view.right_rgb, part), right_depth=None,
+                                        T_world_left=view.T_world_left,
+                                        T_world_right=view.T_world_right)
+                    break
         if frame is None:
             _, frame = sim.endoscope_frame(window)
             self.renders += 1
@@ -227,8 +230,16 @@ class PerceivedScene:
             The perceived pair in ``world``; None when it is not seen.
 
         """
-        frame, T, stereo = self._look(sim)  # searched for: the whole frame
+        window = self._layout_window(sim)
+        frame, T, stereo = self._look(sim, window)
         found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
+        laid = 0 if self.layout is None else len(self.layout.markers)
+        if window is not None and found.n_pairs < laid:
+            # a pair cut off would number the others wrong (a dot hidden under the needle or
+            # the thread is hidden in the whole frame as well)
+            _LOG.info('markers not all where the layout puts them: the whole frame looked at')
+            frame, T, stereo = self._look(sim)
+            found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
         i = self.pair_index - 1
         if not 0 <= i < found.n_pairs:
             _LOG.warning('pair %s: %d marker pairs seen, pair %d is not among them',
@@ -319,6 +330,26 @@ class PerceivedScene:
         self._wrist_new: dict[str, np.ndarray] = {}
         self._next_look = -np.inf
         self._laid_look = True  # the first look at the free needle may start from the layout
+
+    def _layout_window(self, sim: Any) -> Window | None:
+        """
+        Return the window around the layout's markers and needle, or None (the whole frame).
+
+        Placed through the camera's reported pose, widened by :attr:`layout_margin` (the
+        reported pose's error and the needle's jitter); the markers' look is taken in it, and
+        taken again in the whole frame when not every pair of the layout is seen.
+        """
+        if self.layout is None:
+            return None
+        if self._stereo is None:
+            self._look_setup(sim)
+        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        inv = np.linalg.inv(T)
+        points = np.vstack([np.asarray(self.layout.markers, dtype=float).reshape(-1, 3),
+                            self._tracker.geometry.points_world(
+                                np.asarray(self.layout.T_world_needle, dtype=float), 24)])
+        return points_window(self._stereo, points @ inv[:3, :3].T + inv[:3, 3],
+                             self.layout_margin)
 
     def _laid_prior(self, sim: Any) -> np.ndarray | None:
         """
@@ -592,6 +623,8 @@ class PerceivedScene:
     window_margin = 0.005
     #: m (rms): the markers seen fit the layout's within this, or its needle is not a prior
     layout_misfit = 0.002
+    #: m: the layout's markers and needle are looked for in the window widened by this
+    layout_margin = 0.010
     #: A held needle facing the camera less than this (:meth:`facing`) is not looked at: edge
     #: on, 2-3 % of its wire shows, far below what the tracker needs.
     min_facing = 0.2
@@ -660,6 +693,17 @@ class PerceivedScene:
             left = in_frame(left, window, self._stereo)
             right = in_frame(right, window, self._stereo)
         return (left, right, T_world_camera, [np.asarray(T, dtype=float) for T in tools.values()])
+
+
+def _within(window: Window, held: Window | None) -> Window | None:
+    """Return ``window`` in the pixels of a view ``held`` (None: whole) holding it, or None."""
+    if held is None:
+        return window
+    u, v, w, h = window
+    U, V, W, H = held
+    if U <= u and V <= v and u + w <= U + W and v + h <= V + H:
+        return u - U, v - V, w, h
+    return None
 
 
 def _wrist_view(seen: tuple[Any, ...], q: np.ndarray, behind: np.ndarray,

@@ -118,6 +118,10 @@ def test_a_throws_first_look_finds_the_needle_near_where_the_layout_lays_it(scen
     # whatever the camera's reported pose
     expected = seen._laid_prior(scene)
     assert np.linalg.norm(expected[:3, 3] - true[:3, 3]) < 4e-3
+    # markers and needle seen in the one window around the layout, rendered once
+    assert seen.renders == 1 and None not in seen._frame[1]
+    assert np.linalg.norm(obs.pair.entry - truth.entry) < 1e-3
+    assert np.linalg.norm(obs.pair.exit - truth.exit) < 1e-3
 
 
 def test_a_needle_not_where_the_layout_lays_it_is_searched_for(scene):
