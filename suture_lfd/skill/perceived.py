@@ -114,7 +114,7 @@ class PerceivedScene:
                  layout: SceneLayout | None = None) -> None:
         self.pair_name = str(pair_name)
         self.layout = layout
-        self._markers_c: tuple[np.ndarray, np.ndarray] | None = None  # entries, exits seen
+        self._markers_seen: tuple[np.ndarray, np.ndarray] | None = None  # entries, exits seen
         self.pair_index = int(pair_index)
         self.look_again = bool(look_again)
         self.refit_facing = None if refit_facing is None else float(refit_facing)
@@ -253,7 +253,7 @@ class PerceivedScene:
         normal = R @ pair_normal(found.entries, found.exits, i, found.normal)
         self._support_normal = found.normal
         self._support_point = found.points.mean(axis=0)
-        self._markers_c = (found.entries, found.exits)
+        self._markers_seen = (found.entries, found.exits)
         self._pair = MarkerPair(name=self.pair_name, entry=R @ entry_c + p, exit=R @ exit_c + p,
                                 normal=normal, entry_normal=normal, exit_normal=normal,
                                 index=self.pair_index)
@@ -360,9 +360,9 @@ class PerceivedScene:
         when the markers seen are more than :attr:`layout_misfit` (rms) off the layout's shape
         (a pair missed, the pairs numbered otherwise).
         """
-        if self.layout is None or self._markers_c is None:
+        if self.layout is None or self._markers_seen is None:
             return None
-        entries, exits = self._markers_c
+        entries, exits = self._markers_seen
         laid = np.asarray(self.layout.markers, dtype=float)
         n = min(len(laid), len(entries))
         model = np.vstack([laid[:n, 0], laid[:n, 1]])
