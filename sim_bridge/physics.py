@@ -328,6 +328,15 @@ class ScenePhysics:
         self.world.set_needle_pose(T)
         return T
 
+    def laid_on_support(self, T: np.ndarray) -> np.ndarray:
+        """
+        Return the flat needle pose ``T`` laid on the support, tilted to its local plane.
+
+        Where a needle put down at ``T``'s position and yaw lies (touching), as the scene's
+        layout tells it; the world is not changed.
+        """
+        return self._laid_on_support(T)
+
     def _laid_on_support(self, T: np.ndarray) -> np.ndarray:
         """Lay the flat needle pose ``T`` on the support, tilted to its local plane, touching."""
         geometry = self.needle_geometry

@@ -635,7 +635,8 @@ class NeedleTracker:
     def estimate(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel,
                  prior: ArrayLike | None = None, tools: Sequence[ArrayLike] = (),
                  support_normal: ArrayLike | None = None, search: int = 0,
-                 support_point: ArrayLike | None = None) -> NeedleEstimate:
+                 support_point: ArrayLike | None = None,
+                 expected: ArrayLike | None = None) -> NeedleEstimate:
         """
         Estimate the needle's pose in the camera frame from a rectified stereo pair.
 
@@ -666,6 +667,14 @@ class NeedleTracker:
             With a prior: also start from the prior moved to where the images show the needle
             within this many pixels (:func:`suture_lfd.perception.reacquire.shifted_priors`),
             to re-acquire a needle lost by tracking; 0: from the prior only.
+        expected : array_like, shape (4, 4), optional
+            Without a prior, where a needle lying free is expected (``T_camera_needle``, e.g.
+            a scene's layout, a millimetre or so and some degrees off): with
+            ``support_normal`` and ``support_point``, detection starts only from the left
+            image's blobs laid on the surface (either way round) whose arc is within
+            :attr:`expected_reach` of it and whose plane faces as its does, not from every
+            triangulated blob and its mirror; when none is, it detects as without it. The
+            blobs are laid on the surface's plane and on the expected pose's own.
 
         Returns
         -------
@@ -684,7 +693,14 @@ class NeedleTracker:
             normal = np.asarray(support_normal, dtype=float).reshape(3)
             normal = normal / np.linalg.norm(normal)
         points = None
-        if prior is not None:
+        laid = None
+        if prior is None and expected is not None and normal is not None \
+                and support_point is not None:
+            laid = self._expected_starts(stereo, fields, normal, np.asarray(
+                support_point, dtype=float).reshape(3), _pose(expected, 'expected pose'))
+        if laid:
+            starts = laid
+        elif prior is not None:
             starts = [_pose(prior, 'prior')]
             if search > 0:
                 starts += shifted_priors(starts[0], (fields[0].mask, fields[1].mask), stereo,
@@ -717,7 +733,7 @@ class NeedleTracker:
         candidates = self._candidates(starts, stereo, fields, capsules, points)
         if normal is not None:
             # a needle lying free lies on the tissue: its plane near the surface's
-            if prior is None and support_point is not None:
+            if prior is None and support_point is not None and not laid:
                 candidates += self._laid_candidates(stereo, fields, capsules, points,
                                                     candidates, normal, np.asarray(
                                                         support_point, dtype=float).reshape(3))
@@ -755,6 +771,33 @@ class NeedleTracker:
                               visible_right=float(share_r),
                               partial=bool(share < c.partial_below), reason=reason,
                               rival_distance=apart if reason.startswith('ambiguous') else math.inf)
+
+    #: m: a start laid on the surface is taken near an expected pose within this (mean of
+    #: tail, middle and tip, either way round): a layout's millimetre and the yaw's degrees
+    expected_reach = 0.004
+
+    def _expected_starts(self, stereo: StereoModel, fields: Fields, normal: np.ndarray,
+                         point: np.ndarray, expected: np.ndarray) -> list[np.ndarray]:
+        """
+        Return the blobs laid near ``expected`` on two planes, each the way round it faces.
+
+        The planes: the surface's (``normal``, ``point``) and the expected needle's own (a
+        layout's tilt of the surface under it, which on a curved pad the markers' plane misses
+        by degrees; where the layout's tilt is wrong, the surface's start fits better).
+        """
+        own = expected[:3, 2] if expected[:3, 2] @ expected[:3, 3] < 0.0 else -expected[:3, 2]
+        laid = self._laid_starts(stereo, fields, normal, point) + self._laid_starts(
+            stereo, fields, own, expected[:3, 3] - 0.5 * self.geometry.wire_diameter * own)
+        starts = []
+        for T in laid:
+            if self.arc_distance(T, expected) > self.expected_reach:
+                continue
+            # tail and tip the other way round turn the plane over: keep the one facing as
+            # the expected pose does
+            flipped = T @ self._flip
+            starts.append(T if T[:3, 2] @ expected[:3, 2] >= flipped[:3, 2] @ expected[:3, 2]
+                          else flipped)
+        return starts
 
     def _candidates(self, starts: list[np.ndarray], stereo: StereoModel, fields: Fields,
                     capsules: list[Any], points: np.ndarray | None) -> list[tuple[Any, ...]]:

@@ -45,7 +45,7 @@ from suture_lfd.planning.waypoints import RigidPath, rotation_exp, rotation_log
 from suture_lfd.skill import PairGeometry, ThrowSkill
 from suture_lfd.skill.arc_aim import aim_along_arc
 from suture_lfd.skill.arm_registration import CorrectedController, register_arms
-from suture_lfd.skill.perceived import PerceivedScene
+from suture_lfd.skill.perceived import PerceivedScene, SceneLayout
 from suture_lfd.skill.slip_watch import TISSUE_LOOKS, SlipWatch, holding_arm, slip_checkpoints
 from suture_lfd.skill.tool_tracking import ToolTracking
 
@@ -794,7 +794,7 @@ def execute_throw(sim: 'Simulation', skill: ThrowSkill, pair_name: str, seed: in
     if physical:
         previous = sim.observer
         perception = PerceivedScene(pair_name, pair.index, sim.needle_geometry,
-                                    look_again=correction)
+                                    look_again=correction, layout=scene_layout(sim))
         sim.observer = PhysicalObserver(sim, perception, correction=kinematic)
         try:
             return _execute_on_what_is_seen(sim, skill, pair_name, perception, timeout, config,
@@ -803,6 +803,25 @@ def execute_throw(sim: 'Simulation', skill: ThrowSkill, pair_name: str, seed: in
             sim.observer = previous
     return _execute(sim, skill, pair_name, pair, timeout, config, control_period, next_pair,
                     observer)
+
+
+def scene_layout(sim: 'Simulation') -> SceneLayout:
+    """
+    Return the scene's layout by design: the phantom's markers, the needle's nominal start.
+
+    The needle is put at the start's position and yaw (``loop.needle_start``, without the
+    seed's jitter), on the support under it, tilted as its surface is there (the phantom's
+    shape); a physical set-up knows as much of where its operator lays the needle.
+    """
+    start = sim.config.loop.needle_start
+    c, s = math.cos(start.yaw), math.sin(start.yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:2, 3] = np.asarray(start.position, dtype=float)
+    T = sim.physics.laid_on_support(T)
+    pairs = sorted(sim.phantom.markers.values(), key=lambda m: m.index)
+    return SceneLayout(T_world_needle=T,
+                       markers=np.array([[m.entry, m.exit] for m in pairs], dtype=float))
 
 
 def _not_executed(pair_name: str, failure: str,

@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike
 from sim_bridge.scene.camera import StereoFrame
 from sim_bridge.scene.markers import MarkerPair
 from suture_lfd.perception import HeldView, NeedleTracker, detect_markers, stereo_from_camera_info
+from suture_lfd.perception.arc_poses import kabsch
 from suture_lfd.perception.markers import pair_normal
 from suture_lfd.perception.window import Window, crop, in_frame, points_window, window_stereo
 
@@ -54,6 +55,29 @@ class NeedleView:
     estimate: object
 
 
+@dataclass(frozen=True, eq=False)
+class SceneLayout:
+    """
+    Where a throw's scene is laid out by design (``world``): the markers, and the needle.
+
+    At a throw's start the needle lies where it was put, within a millimetre or two of its
+    layout. Placed on the markers seen (the rigid fit of ``markers`` onto them, so that the
+    camera's reported pose does not enter), that place is the first look's prior: the needle
+    is tracked in the window around it instead of searched for in the whole frame.
+
+    Attributes
+    ----------
+    T_world_needle : ndarray, shape (4, 4)
+        The needle's pose as laid out (the start's nominal position and yaw, on the support).
+    markers : ndarray, shape (n, 2, 3)
+        Entry and exit of each pair, in the order of their index (1, 2, ...).
+
+    """
+
+    T_world_needle: np.ndarray
+    markers: np.ndarray
+
+
 class PerceivedScene:
     """
     Markers and needle from the simulated endoscope, in the robot's ``world``.
@@ -77,13 +101,20 @@ class PerceivedScene:
         is recorded from then on carries the grasp as seen turned, not only as seen lying.
         None (default): only when :meth:`look_at_grasp` is called (the executor chooses the
         instant from its plan).
+    layout : SceneLayout, optional
+        Where the scene is laid out: the first look at the needle tracks it from there (in the
+        window around it) and searches the whole frame only when it is not found so. None:
+        searched for.
 
     """
 
     def __init__(self, pair_name: str, pair_index: int,
                  needle_geometry: 'NeedleGeometry | None' = None,
-                 look_again: bool = True, refit_facing: float | None = None) -> None:
+                 look_again: bool = True, refit_facing: float | None = None,
+                 layout: SceneLayout | None = None) -> None:
         self.pair_name = str(pair_name)
+        self.layout = layout
+        self._markers_seen: tuple[np.ndarray, np.ndarray] | None = None  # entries, exits seen
         self.pair_index = int(pair_index)
         self.look_again = bool(look_again)
         self.refit_facing = None if refit_facing is None else float(refit_facing)
@@ -111,8 +142,8 @@ class PerceivedScene:
         The images are the endoscope's
         (:meth:`sim_bridge.simulation.Simulation.endoscope_frame`): with a frame timing the
         newest delivered frame, never the scene now. Looked at twice in the same frame (the
-        markers, then the needle) it is rendered once; a window of a frame already rendered
-        whole is cut from it. ``window``: only that region of both images
+        markers, then the needle) it is rendered once; a window of a frame (or of a larger
+        window) already rendered is cut from it. ``window``: only that region of both images
         (:mod:`suture_lfd.perception.window`), with its camera.
         """
         if self._stereo is None:
@@ -124,12 +155,15 @@ class PerceivedScene:
             self._frame = (key, {}, T_world_camera)
         _, views, T_world_camera = self._frame
         frame = views.get(window)
-        if frame is None and window is not None and None in views:
-            whole = views[None]
-            frame = StereoFrame(left_rgb=crop(whole.left_rgb, window), left_depth=None,
-                                right_rgb=crop(whole.right_rgb, window), right_depth=None,
-                                T_world_left=whole.T_world_left,
-                                T_world_right=whole.T_world_right)
+        if frame is None and window is not None:
+            for held, view in views.items():
+                part = _within(window, held)
+                if part is not None:
+                    frame = StereoFrame(left_rgb=crop(view.left_rgb, part), left_depth=None,
+                                        right_rgb=crop(view.right_rgb, part), right_depth=None,
+                                        T_world_left=view.T_world_left,
+                                        T_world_right=view.T_world_right)
+                    break
         if frame is None:
             _, frame = sim.endoscope_frame(window)
             self.renders += 1
@@ -196,8 +230,16 @@ class PerceivedScene:
             The perceived pair in ``world``; None when it is not seen.
 
         """
-        frame, T, stereo = self._look(sim)  # searched for: the whole frame
+        window = self._layout_window(sim)
+        frame, T, stereo = self._look(sim, window)
         found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
+        laid = 0 if self.layout is None else len(self.layout.markers)
+        if window is not None and found.n_pairs < laid:
+            # a pair cut off would number the others wrong (a dot hidden under the needle or
+            # the thread is hidden in the whole frame as well)
+            _LOG.info('markers not all where the layout puts them: the whole frame looked at')
+            frame, T, stereo = self._look(sim)
+            found = detect_markers(frame.left_rgb, frame.right_rgb, stereo)
         i = self.pair_index - 1
         if not 0 <= i < found.n_pairs:
             _LOG.warning('pair %s: %d marker pairs seen, pair %d is not among them',
@@ -211,6 +253,7 @@ class PerceivedScene:
         normal = R @ pair_normal(found.entries, found.exits, i, found.normal)
         self._support_normal = found.normal
         self._support_point = found.points.mean(axis=0)
+        self._markers_seen = (found.entries, found.exits)
         self._pair = MarkerPair(name=self.pair_name, entry=R @ entry_c + p, exit=R @ exit_c + p,
                                 normal=normal, entry_normal=normal, exit_normal=normal,
                                 index=self.pair_index)
@@ -218,7 +261,8 @@ class PerceivedScene:
 
     # ------------------------------------------------------------------ needle
     def needle(self, sim: Any, prior: ArrayLike | None = None,
-               tools: Sequence[ArrayLike] = ()) -> NeedleView:
+               tools: Sequence[ArrayLike] = (), expected: ArrayLike | None = None
+               ) -> NeedleView:
         """
         Look for the needle.
 
@@ -229,6 +273,10 @@ class PerceivedScene:
             Where it is thought to be (``T_world_needle``).
         tools : sequence of array_like, shape (4, 4)
             Reported tool-tip poses (``world``) of the arms near it.
+        expected : array_like, shape (4, 4), optional
+            Without a prior, where it is expected to lie (``T_world_needle``, a layout's): it is
+            detected from the blobs near there only, in the window around it
+            (``NeedleTracker.estimate``'s ``expected``).
 
         Returns
         -------
@@ -241,15 +289,19 @@ class PerceivedScene:
         (:attr:`window_margin`); without one it is searched for in the whole frame.
 
         """
-        window = None if prior is None else self._needle_window(sim, prior)
+        near = prior if prior is not None else expected
+        window = None if near is None else self._needle_window(sim, near)
         frame, T, stereo = self._look(sim, window)
         T_camera_world = np.linalg.inv(T)
         prior_c = None if prior is None else T_camera_world @ np.asarray(prior, dtype=float)
+        expected_c = None if expected is None or prior is not None \
+            else T_camera_world @ np.asarray(expected, dtype=float)
         tools_c = [T_camera_world @ np.asarray(t, dtype=float) for t in tools]
         estimate = self._tracker.estimate(frame.left_rgb, frame.right_rgb, stereo,
                                           prior=prior_c, tools=tools_c,
                                           support_normal=self._support_normal,
-                                          support_point=self._support_point)
+                                          support_point=self._support_point,
+                                          expected=expected_c)
         close = estimate.rival_distance <= self.close_ambiguity
         if not estimate.found and not close:
             _LOG.info('needle not found: %s', estimate.reason)
@@ -277,6 +329,64 @@ class PerceivedScene:
         # per arm, the wrist offsets (rad) a look has fitted and not yet taken (wrist_offsets)
         self._wrist_new: dict[str, np.ndarray] = {}
         self._next_look = -np.inf
+        self._laid_look = True  # the first look at the free needle may start from the layout
+
+    def _layout_window(self, sim: Any) -> Window | None:
+        """
+        Return the window around the layout's markers and needle, or None (the whole frame).
+
+        Placed through the camera's reported pose, widened by :attr:`layout_margin` (the
+        reported pose's error and the needle's jitter); the markers' look is taken in it, and
+        taken again in the whole frame when not every pair of the layout is seen.
+        """
+        if self.layout is None:
+            return None
+        if self._stereo is None:
+            self._look_setup(sim)
+        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        inv = np.linalg.inv(T)
+        points = np.vstack([np.asarray(self.layout.markers, dtype=float).reshape(-1, 3),
+                            self._tracker.geometry.points_world(
+                                np.asarray(self.layout.T_world_needle, dtype=float), 24)])
+        return points_window(self._stereo, points @ inv[:3, :3].T + inv[:3, 3],
+                             self.layout_margin)
+
+    def _laid_prior(self, sim: Any) -> np.ndarray | None:
+        """
+        Return where the layout puts the needle (``world``, through the camera's report), or None.
+
+        The layout's markers are fitted rigidly onto those seen (camera frame) and the needle's
+        laid pose carried along; None without a layout, with fewer than three markers seen, or
+        when the markers seen are more than :attr:`layout_misfit` (rms) off the layout's shape
+        (a pair missed, the pairs numbered otherwise).
+        """
+        if self.layout is None or self._markers_seen is None:
+            return None
+        entries, exits = self._markers_seen
+        laid = np.asarray(self.layout.markers, dtype=float)
+        n = min(len(laid), len(entries))
+        model = np.vstack([laid[:n, 0], laid[:n, 1]])
+        seen = np.vstack([entries[:n], exits[:n]])
+        ok = np.isfinite(seen).all(axis=1)
+        if ok.sum() < 3:
+            return None
+        T_camera_world = kabsch(model[ok], seen[ok])
+        moved = model[ok] @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+        if float(np.sqrt(np.mean(np.sum((moved - seen[ok]) ** 2, axis=1)))) > self.layout_misfit:
+            return None
+        T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        return T_world_camera @ T_camera_world @ np.asarray(self.layout.T_world_needle, float)
+
+    def _first_look(self, sim: Any, tools: Mapping[str, ArrayLike]) -> NeedleView:
+        """Look for the free needle: near the layout's at a throw's first look, else anywhere."""
+        expected = self._laid_prior(sim) if self._laid_look else None
+        self._laid_look = False
+        if expected is not None:
+            view = self.needle(sim, tools=list(tools.values()), expected=expected)
+            if view.T_world_needle is not None:
+                return view
+            _LOG.info('needle not near where the layout puts it: searched for')
+        return self.needle(sim, tools=list(tools.values()))
 
     def estimate(self, sim: Any, arm_state: 'Observation'
                  ) -> tuple[np.ndarray | None, tuple[str, ...], MarkerPair | None]:
@@ -307,7 +417,7 @@ class PerceivedScene:
         # due unless a look failed less than look_period ago (a scene reset turns time back)
         due = not arm_state.t < self._next_look <= arm_state.t + self.look_period
         if not self._holders and self._free_needle is None and due:
-            self._free_needle = self.needle(sim, tools=list(tools.values())).T_world_needle
+            self._free_needle = self._first_look(sim, tools).T_world_needle
             self._free_view = self._seen_view(tools, self._free_needle)
             if self._free_needle is None:
                 self._next_look = arm_state.t + self.look_period
@@ -511,6 +621,10 @@ class PerceivedScene:
     #: m: how far a tracked needle may be from where it is expected (a grasp's error, a few
     #: millimetres of fall when let go): the window of the images looked at is widened by it.
     window_margin = 0.005
+    #: m (rms): the markers seen fit the layout's within this, or its needle is not a prior
+    layout_misfit = 0.002
+    #: m: the layout's markers and needle are looked for in the window widened by this
+    layout_margin = 0.010
     #: A held needle facing the camera less than this (:meth:`facing`) is not looked at: edge
     #: on, 2-3 % of its wire shows, far below what the tracker needs.
     min_facing = 0.2
@@ -579,6 +693,17 @@ class PerceivedScene:
             left = in_frame(left, window, self._stereo)
             right = in_frame(right, window, self._stereo)
         return (left, right, T_world_camera, [np.asarray(T, dtype=float) for T in tools.values()])
+
+
+def _within(window: Window, held: Window | None) -> Window | None:
+    """Return ``window`` in the pixels of a view ``held`` (None: whole) holding it, or None."""
+    if held is None:
+        return window
+    u, v, w, h = window
+    U, V, W, H = held
+    if U <= u and V <= v and u + w <= U + W and v + h <= V + H:
+        return u - U, v - V, w, h
+    return None
 
 
 def _wrist_view(seen: tuple[Any, ...], q: np.ndarray, behind: np.ndarray,

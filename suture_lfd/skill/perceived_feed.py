@@ -270,13 +270,14 @@ class PerceptionFeed(PerceivedScene):
                                 exit_normal=normal, index=self.pair_index)
         return self._pair
 
-    def needle(self, sim: Any = None, prior: Any = None, tools: Any = ()) -> NeedleView:
+    def needle(self, sim: Any = None, prior: Any = None, tools: Any = (),
+               expected: Any = None) -> NeedleView:
         """
         Return the needle as last seen (``world``).
 
         Parameters
         ----------
-        sim, prior, tools
+        sim, prior, tools, expected
             Unused: the perception process tracks the needle on its own.
 
         Returns

@@ -13,6 +13,7 @@ import pytest
 from sim_bridge.observers import PhysicalObserver
 from sim_bridge.simulation import Simulation, load_simulation_config
 from suture_lfd.planning.episode import start_episode
+from suture_lfd.skill.executor import scene_layout
 from suture_lfd.skill.perceived import PerceivedScene
 
 
@@ -100,3 +101,38 @@ def test_a_lying_needle_tied_with_a_close_pose_is_taken_as_the_better_fit():
         assert max(points) < 1.5e-3
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize('seed', [0, 3])
+def test_a_throws_first_look_finds_the_needle_near_where_the_layout_lays_it(scene, seed):
+    truth = start_episode(scene, 'synth1', seed=seed)
+    layout = scene_layout(scene)
+    seen = PerceivedScene('synth1', truth.index, scene.needle_geometry, layout=layout)
+    obs = PhysicalObserver(scene, seen).observe()
+    T, true = obs.T_world_needle, scene.needle_pose()
+    assert T is not None
+    tip = scene.needle_geometry.tip
+    assert np.linalg.norm(T[:3, 3] - true[:3, 3]) < 1.5e-3
+    assert np.linalg.norm(T[:3, :3] @ tip + T[:3, 3] - (true[:3, :3] @ tip + true[:3, 3])) < 1.5e-3
+    # the markers' fit carries the layout's needle to within a few millimetres of the truth,
+    # whatever the camera's reported pose
+    expected = seen._laid_prior(scene)
+    assert np.linalg.norm(expected[:3, 3] - true[:3, 3]) < 4e-3
+    # markers and needle seen in the one window around the layout, rendered once
+    assert seen.renders == 1 and None not in seen._frame[1]
+    assert np.linalg.norm(obs.pair.entry - truth.entry) < 1e-3
+    assert np.linalg.norm(obs.pair.exit - truth.exit) < 1e-3
+
+
+def test_a_needle_not_where_the_layout_lays_it_is_searched_for(scene):
+    truth = start_episode(scene, 'synth1', seed=0)
+    layout = scene_layout(scene)
+    T = layout.T_world_needle.copy()
+    T[:2, 3] += [0.03, 0.03]  # 4 cm away: no blob near it
+    moved = PerceivedScene('synth1', truth.index, scene.needle_geometry,
+                           layout=replace(layout, T_world_needle=T))
+    searched = PerceivedScene('synth1', truth.index, scene.needle_geometry)
+    a = PhysicalObserver(scene, moved).observe().T_world_needle
+    b = PhysicalObserver(scene, searched).observe().T_world_needle
+    assert a is not None and b is not None
+    np.testing.assert_allclose(a, b, atol=1e-9)
