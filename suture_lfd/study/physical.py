@@ -560,7 +560,7 @@ def report_section(summaries: dict[Variant, dict[str, Any]],
         md += _table(header, rows) + ['']
     if physical.get('ablation'):
         md += ablation_section(ablation_rows(summaries, ground_truth), realism)
-    if len(keys) > 1 and realism == 'static':
+    if has_curve(physical):
         curve = curve_rows(summaries, ground_truth)
         md += ['### Generality against the error level', '',
                'Overall generality in physical mode per error level (mm class), with the '
@@ -577,6 +577,12 @@ def report_section(summaries: dict[Variant, dict[str, Any]],
         if curve_png:
             md += [f'![generality against the error level]({curve_png})', '']
     return md
+
+
+def has_curve(physical: dict[str, Any]) -> bool:
+    """Return whether a configuration draws the curve: static errors, several variants."""
+    return (physical.get('arm_realism', 'static') == 'static'
+            and len(physical['levels']) * len(physical['corrections']) > 1)
 
 
 def ablation_section(rows: Sequence[dict[str, Any]], realism: str) -> list[str]:

@@ -478,9 +478,8 @@ def _write_physical(out: Path, report: Path, ground_records: Sequence[Record],
         write_report(folder, mine, variant_config, run_info)
         summaries[v] = summarise(mine)
     curve = None
-    rows = physical.curve_rows(summaries, ground_truth)
-    if (len({(r['error_level'], r['correction']) for r in rows}) > 1
-            and config['physical'].get('arm_realism', 'static') == 'static'):
+    if physical.has_curve(config['physical']):
+        rows = physical.curve_rows(summaries, ground_truth)
         write_csv(out / 'physical_curve.csv', rows, physical.CURVE_COLUMNS)
         curve = physical.curve_figure(rows, out / 'physical_curve.png').name
     if config['physical'].get('ablation'):
