@@ -240,7 +240,7 @@ def test_the_arm_ablation_plans_each_effect_alone_beside_the_preset(tmp_path):
     assert sorted(j['kind'] for j in extra).count('throw') == 14
     for bad, message in ((['--arm-ablation'], 'need --arm-realism PRESET'),
                          (['--arm-realism', 'dvrk', '--arm-levels', 'servo=1'],
-                          "--arm-levels takes KEY=LEVEL"),
+                          '--arm-levels takes KEY=LEVEL'),
                          (['--arm-realism', 'dvrk', '--arm-levels', 'servo_level=-1'],
                           "got 'servo_level=-1'")):
         result = study(tmp_path / 'bad', '--plan', '--physical', *bad)
