@@ -29,10 +29,9 @@ from sim_bridge.realism.presets import read_preset
 from sim_bridge.realism.servo import ServoConfig
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
 
-#: The per-effect levels of an :class:`ArmRealismConfig` (keys of a preset and of a sweep).
-#: a servoed joint rests on its setpoint within this fraction of an encoder count
+#: A servoed joint rests on its setpoint within this fraction of an encoder count.
 SERVO_REST_COUNTS = 0.1
-
+#: The per-effect levels of an :class:`ArmRealismConfig` (keys of a preset and of a sweep).
 ARM_LEVELS = ('calibration_level', 'transmission_level', 'servo_level', 'encoder_level',
               'ecm_level', 'intrinsics_level', 'jaw_level')
 #: Streams of the seeded draws besides the PSMs' own (``default_rng([seed, stream])``).
