@@ -8,7 +8,9 @@ side-by-side 3-D display takes; the scene is hidden meanwhile. Pressed again, th
 
 The images come from :meth:`StereoPanel.set_image` (any thread, RGB ``(h, w, 3)`` uint8, as the
 simulator publishes them on ``ECM/left|right/image_raw`` when its ``camera_rate`` is set);
-:meth:`StereoPanel.render` sends the pair when it changed, only while it is shown.
+:meth:`StereoPanel.render` sends the pair when it changed, only while it is shown. Sending and
+turning the pair off exclude each other: a pair sent just after the scene came back would stay
+on the page in its place, with nothing left to take it off.
 """
 
 import threading
@@ -70,6 +72,8 @@ class StereoPanel:
     def __init__(self) -> None:
         self.shown = False
         self._lock = threading.Lock()
+        # held while the page is changed: render's send and show's switch, one at a time
+        self._page_lock = threading.Lock()
         self._images: dict[str, np.ndarray | None] = dict.fromkeys(SIDES)
         self._version = 0       # of the images set
         self._sent = -1         # version of the pair on the page (-1: none)
@@ -86,16 +90,17 @@ class StereoPanel:
 
     def show(self, shown: bool) -> None:
         """Show the pair in place of the scene (True) or the scene again (False)."""
-        with self._lock:
-            self.shown = bool(shown)
-            self._sent = -1
-        if self._page is None:
-            return
-        scene = self._page.server.scene
-        scene.set_global_visibility(not shown)
-        if not shown:
-            scene.set_background_image(None)
-        self.button.label = HIDE_LABEL if shown else SHOW_LABEL
+        with self._page_lock:
+            with self._lock:
+                self.shown = bool(shown)
+                self._sent = -1
+            if self._page is None:
+                return
+            scene = self._page.server.scene
+            scene.set_global_visibility(not shown)
+            if not shown:
+                scene.set_background_image(None)
+            self.button.label = HIDE_LABEL if shown else SHOW_LABEL
 
     def set_image(self, side: str, rgb: ArrayLike) -> None:
         """Take the latest image of one side (``left`` or ``right``): RGB ``(h, w, 3)`` uint8."""
@@ -107,15 +112,16 @@ class StereoPanel:
 
     def render(self) -> bool:
         """Send the pair to the page if it is shown and changed; return whether it was sent."""
-        with self._lock:
-            left, right = self._images['left'], self._images['right']
-            if (not self.shown or self._page is None or left is None or right is None
-                    or left.shape != right.shape or self._sent == self._version):
-                return False
-            self._sent = self._version
-        cameras = self._page.client_cameras()
-        aspect = cameras[0]['width'] / cameras[0]['height'] \
-            if cameras and cameras[0]['height'] > 0 else None
-        self._page.server.scene.set_background_image(
-            side_by_side(left, right, aspect), format='jpeg', jpeg_quality=JPEG_QUALITY)
-        return True
+        with self._page_lock:
+            with self._lock:
+                left, right = self._images['left'], self._images['right']
+                if (not self.shown or self._page is None or left is None or right is None
+                        or left.shape != right.shape or self._sent == self._version):
+                    return False
+                self._sent = self._version
+            cameras = self._page.client_cameras()
+            aspect = cameras[0]['width'] / cameras[0]['height'] \
+                if cameras and cameras[0]['height'] > 0 else None
+            self._page.server.scene.set_background_image(
+                side_by_side(left, right, aspect), format='jpeg', jpeg_quality=JPEG_QUALITY)
+            return True
