@@ -78,6 +78,11 @@ class SceneLayout:
     markers: np.ndarray
 
 
+def _reported_camera(sim: Any) -> np.ndarray:
+    """Return the left camera's pose as the robot reports it (``T_world_camera``: the ECM's)."""
+    return sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+
+
 class PerceivedScene:
     """
     Markers and needle from the simulated endoscope, in the robot's ``world``.
@@ -151,7 +156,7 @@ class PerceivedScene:
         key = sim.delivered_frame()
         key = sim.time if key is None else key
         if self._frame is None or self._frame[0] != key:
-            T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+            T_world_camera = _reported_camera(sim)
             self._frame = (key, {}, T_world_camera)
         _, views, T_world_camera = self._frame
         frame = views.get(window)
@@ -176,7 +181,7 @@ class PerceivedScene:
         """Return the window of the images around a needle expected at ``T_world_needle``."""
         if self._stereo is None:
             self._look_setup(sim)
-        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        T = _reported_camera(sim)
         points = self._tracker.geometry.points_world(
             np.linalg.inv(T) @ np.asarray(T_world_needle, dtype=float), 24)
         return points_window(self._stereo, points, self.window_margin)
@@ -343,7 +348,7 @@ class PerceivedScene:
             return None
         if self._stereo is None:
             self._look_setup(sim)
-        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        T = _reported_camera(sim)
         inv = np.linalg.inv(T)
         points = np.vstack([np.asarray(self.layout.markers, dtype=float).reshape(-1, 3),
                             self._tracker.geometry.points_world(
@@ -374,7 +379,7 @@ class PerceivedScene:
         moved = model[ok] @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
         if float(np.sqrt(np.mean(np.sum((moved - seen[ok]) ** 2, axis=1)))) > self.layout_misfit:
             return None
-        T_world_camera = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        T_world_camera = _reported_camera(sim)
         return T_world_camera @ T_camera_world @ np.asarray(self.layout.T_world_needle, float)
 
     def _first_look(self, sim: Any, tools: Mapping[str, ArrayLike]) -> NeedleView:
@@ -613,7 +618,7 @@ class PerceivedScene:
 
         """
         N = np.asarray(T_world_needle, dtype=float)
-        T = sim.reported_tool_pose('ECM') @ sim.camera.T_tip_left
+        T = _reported_camera(sim)
         sight = N[:3, 3] - T[:3, 3]
         norm = float(np.linalg.norm(sight))
         return abs(float(N[:3, 2] @ sight)) / norm if norm > 0.0 else 0.0
