@@ -11,13 +11,14 @@ operator's roll is ``math.acos`` of the dot product of the MTM's and the PSM's y
 (an MTM that lands exactly on the PSM's orientation gives 1 + 2e-16 and a ValueError); every
 getter refuses data older than four 5 ms periods, the gripper's and the jaw's too; nothing waits
 for data after homing. The getters' data-age errors, which would stop the script, are counted
-and asserted to be rare (at most 0.1 % of the cycles) when the machine is quiet (while the test
+and asserted to be none when the machine is quiet (while the test
 ran, other processes took at most a quarter of a CPU and the machine, these processes included,
 at most three quarters of its CPUs); when it is not, they are reported and the test says it
 does not assert them.
 """
 
 from collections import Counter
+import gc
 import math
 import os
 from pathlib import Path
@@ -27,6 +28,7 @@ import time
 from geometry_msgs.msg import PoseStamped
 from harness import wait_for
 import numpy as np
+import pytest
 from sim_bridge.ros import conversions as cv
 from teleop_rig import STATE, BrowserOperator, SceneWatch, stream
 
@@ -120,18 +122,18 @@ class MachineUse:
         return busy / span, max(0.0, busy - (self._own() - self.own0)) / span
 
 
-# The stale getters are asserted to be rare (STALE of the cycles at most) when other processes took
-# at most OTHERS CPUs and the machine as a whole (this test's four processes included) at most
-# BUSY of its CPUs: on a machine slower than ours the four take a larger share, and at some point
-# no Python process is scheduled within 20 ms every time. Measured on a quiet two-core machine:
-# none in five runs alone, one in a run of the whole suite (PSM1's setpoint_cp, 23 ms old).
-OTHERS, BUSY, STALE = 0.25, 0.75, 0.001
+# The stale getters are asserted to be none when other processes took at most OTHERS CPUs and the
+# machine as a whole (this test's four processes included) at most BUSY of its CPUs: on a machine
+# slower than ours the four take a larger share, and at some point no Python process is scheduled
+# within 20 ms every time. Measured on a quiet two-core machine: none in six runs alone; one in a
+# run of the whole suite (PSM1's setpoint_cp, 23 ms old) before this test froze its own process's
+# heap (see ``frozen_heap``); two in a run alone with 1.5 million objects added to this process.
+OTHERS, BUSY = 0.25, 0.75
 
 
-def assert_stale_getters_rare(client, use, seconds):
+def assert_no_stale_getters(client, use, seconds):
     """
-    The getters that found stale data: reported, and at most ``STALE`` of the cycles while the
-    machine was quiet.
+    The getters that found stale data: reported, and none while the machine was quiet.
 
     A publisher that stalls (stepping, discovery, garbage collection) makes every cycle of the
     stall stale, tens in a row; the dVRK's own console on its real-time loop never does.
@@ -145,14 +147,30 @@ def assert_stale_getters_rare(client, use, seconds):
           + f'; the machine was busy on {busy:.2f} of {os.cpu_count()} CPUs, other processes '
           f'on {others:.2f}')
     if others <= OTHERS and busy <= BUSY * (os.cpu_count() or 1):
-        assert len(ages) <= STALE * cycles, client.proc.log()[-20000:]
+        assert not ages, client.proc.log()[-20000:]
     else:
         print(f'the machine was not quiet (other processes on more than {OTHERS} CPUs, or '
               f'more than {BUSY:.0%} of them busy): the stale getters are reported, not '
               'asserted')
 
 
-def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(ros, launch):
+@pytest.fixture
+def frozen_heap():
+    """
+    This process's heap exempt from its cyclic collector while the test runs.
+
+    After hundreds of tests the test process holds millions of objects; a full collection of
+    them (0.4 s for 1.5 million) takes a core from the simulator, the MTMs and the client for
+    that long on a two-core machine. A person's browser does not share the dVRK's machine.
+    """
+    gc.collect()
+    gc.freeze()
+    yield
+    gc.unfreeze()
+
+
+def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(
+        ros, launch, frozen_heap):
     use = MachineUse()
     sim = launch('simulator')                                  # the default configuration
     mtms = launch('mtms')
@@ -242,5 +260,5 @@ def test_the_dvrk_teleoperation_script_follows_in_the_camera_view_for_a_minute(r
     assert client.proc.running() and sim.running() and mtms.running()
     assert homed <= 5.0, f'both arms enabled and homed after {homed:.2f} s'
     # each stale getter would have stopped the dVRK's script
-    assert_stale_getters_rare(client, use, time.monotonic() - started)
+    assert_no_stale_getters(client, use, time.monotonic() - started)
 
