@@ -72,6 +72,9 @@ Fields = tuple[WireImage, WireImage]  # the left and right images' wire fields
 
 _OUT_OF_VIEW = 30.0  # cost (pixels) of an arc point outside an image
 _BEYOND = np.arange(0.5, 4.6, 1.0)  # pixels past a wire's end where the thread is looked for
+# the arc fit's relative step of its forward differences, and where a variable is 0 the
+# square root of the doubles' epsilon (least_squares's own 2-point scheme)
+_DIFF_STEP, _EPS_STEP = 0.02, math.sqrt(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -266,27 +269,54 @@ class NeedleTracker:
 
     def _residuals(self, x: np.ndarray, T0: np.ndarray, stereo: StereoModel, fields: Fields,
                    keep: np.ndarray) -> np.ndarray:
-        R = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
-        t = T0[:3, 3] + x[3:] * self._scale[3:]
-        points = self._model[keep] @ R.T + t
-        z = points[:, 2]
-        if np.any(z <= 1e-4):
-            return np.full(2 * int(keep.sum()), _OUT_OF_VIEW)
+        return self._batch_residuals(x[None, :], T0, stereo, fields, keep)[0]
+
+    def _batch_residuals(self, xs: np.ndarray, T0: np.ndarray, stereo: StereoModel,
+                         fields: Fields, keep: np.ndarray) -> np.ndarray:
+        """Return the fit's residuals (m, 2k) at ``m`` poses, projected and sampled together."""
+        model = self._model[keep]
+        k = len(model)
+        points = []
+        for x in xs:
+            R = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
+            points.append(model @ R.T + (T0[:3, 3] + x[3:] * self._scale[3:]))
+        points = np.concatenate(points)
+        behind = (points[:, 2] <= 1e-4).reshape(len(xs), k).any(axis=1)
+        points[:, 2] = np.where(points[:, 2] <= 1e-4, 1.0, points[:, 2])
         uv_l, uv_r = stereo.project(points)
-        r_l = sample(fields[0].cost, uv_l)
-        r_r = sample(fields[1].cost, uv_r)
-        r = np.concatenate([r_l, r_r])
-        return np.where(np.isnan(r), _OUT_OF_VIEW, r)
+        r = np.concatenate([sample(fields[0].cost, uv_l).reshape(len(xs), k),
+                            sample(fields[1].cost, uv_r).reshape(len(xs), k)], axis=1)
+        r = np.where(np.isnan(r), _OUT_OF_VIEW, r)
+        r[behind] = _OUT_OF_VIEW
+        return r
+
+    def _jacobian(self, x: np.ndarray, T0: np.ndarray, stereo: StereoModel, fields: Fields,
+                  keep: np.ndarray) -> np.ndarray:
+        """
+        Forward differences of :meth:`_residuals`, the six steps evaluated in one pass.
+
+        The steps are those of ``least_squares``'s own ``2-point`` scheme with ``diff_step``
+        ``_DIFF_STEP`` (relative to each variable; the square root of the doubles' epsilon
+        where the variable is 0), so the fit is the same; one pass saves the Python of six.
+        """
+        sign = np.where(x >= 0.0, 1.0, -1.0)
+        h = _DIFF_STEP * sign * np.abs(x)
+        h = np.where((x + h) - x == 0.0, _EPS_STEP * sign * np.maximum(1.0, np.abs(x)), h)
+        xs = np.repeat(x[None, :], 7, axis=0)
+        xs[np.arange(1, 7), np.arange(6)] += h
+        r = self._batch_residuals(xs, T0, stereo, fields, keep)
+        dx = np.array([(x[i] + h[i]) - x[i] for i in range(6)])
+        return ((r[1:] - r[0]) / dx[:, None]).T
 
     def _fit(self, T0: np.ndarray, stereo: StereoModel, fields: Fields,
              hidden: np.ndarray) -> np.ndarray:
         keep = ~hidden.any(axis=0)
         if keep.sum() < 4:
             return T0
-        result = least_squares(self._residuals, np.zeros(6), args=(T0, stereo, fields, keep),
-                               loss='soft_l1', f_scale=self.config.loss_scale, method='trf',
-                               diff_step=0.02, x_scale=1.0, max_nfev=60, xtol=1e-4,
-                               ftol=1e-6)
+        result = least_squares(self._residuals, np.zeros(6), jac=self._jacobian,
+                               args=(T0, stereo, fields, keep), loss='soft_l1',
+                               f_scale=self.config.loss_scale, method='trf', x_scale=1.0,
+                               max_nfev=60, xtol=1e-4, ftol=1e-6)
         x = result.x
         T = np.eye(4)
         T[:3, :3] = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
