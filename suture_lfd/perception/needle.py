@@ -351,33 +351,43 @@ class NeedleTracker:
         width = self.geometry.wire_diameter * stereo.fx / points[:, 2]
         index = np.concatenate([np.arange(n), [0, n - 1]])
         steps = self._steps
+        m = len(steps)
+        # both images at once (each row's arithmetic is its own): pixels of the points and of
+        # the points a little ahead, (2, n, 2)
+        seen = np.array(stereo.project(points))
+        direction = np.array(stereo.project(ahead)) - seen
+        direction /= np.maximum(np.sqrt(np.sum(direction * direction, axis=2, keepdims=True)),
+                                1e-12)
+        normal = np.stack([-direction[..., 1], direction[..., 0]], axis=2)
+        dirs = np.concatenate([normal, -direction[:, :1], direction[:, -1:]], axis=1)
+        origin = seen[:, index]
+        samples = origin[:, :, None, :] + steps[None, None, :, None] * dirs[:, :, None, :]
+        k = len(index) * m
+        flat = samples.reshape(2, k, 2)
+        profile = np.concatenate([sample(fields[0].soft, flat[0], 0.0),
+                                  sample(fields[1].soft, flat[1], 0.0)]).reshape(
+                                      2 * len(index), m)
+        # the normals' runs closed on both sides, the ends' open outwards
+        closed = np.tile(np.arange(len(index)) < n, 2)
+        edges, valid = runs(profile, steps, c.profile_step, closed=closed)
+        edges = edges.reshape(2, 2, len(index))
+        valid = valid.reshape(2, len(index))
+        wide = edges[1, :, :n] - edges[0, :, :n]
+        normals_valid = (valid[:, :n] & ~hidden & (wide >= 0.5 * width)
+                         & (wide <= 1.6 * width + 1.0))
+        offset = np.where(normals_valid, 0.5 * (edges[0, :, :n] + edges[1, :, :n]), 0.0)
+        end = edges[1, :, n:]
+        ends_valid = valid[:, n:] & ~hidden[:, [0, n - 1]] & (np.abs(end) <= c.end_gate)
+        # an end that runs into the thread (tied to the tail) is hidden, not seen
+        beyond = (origin[:, n:, None, :] + (end[:, :, None, None] + _BEYOND[None, None, :, None])
+                  * dirs[:, n:, None, :]).reshape(2, -1, 2)
         out = []
-        # both images' pixels of the points and of the points a little ahead, projected once
-        seen, seen_ahead = stereo.project(points), stereo.project(ahead)
         for side, field in enumerate(fields):
-            uv = seen[side]
-            direction = seen_ahead[side] - uv
-            direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
-            normal = np.column_stack([-direction[:, 1], direction[:, 0]])
-            dirs = np.vstack([normal, -direction[:1], direction[-1:]])
-            origin = uv[index]
-            samples = origin[:, None, :] + steps[None, :, None] * dirs[:, None, :]
-            profile = sample(field.soft, samples.reshape(-1, 2)).reshape(len(index),
-                                                                           len(steps))
-            profile = np.nan_to_num(profile, nan=0.0)
-            edges, valid = runs(profile[:n], steps, c.profile_step)
-            wide = edges[1] - edges[0]
-            valid &= ~hidden[side] & (wide >= 0.5 * width) & (wide <= 1.6 * width + 1.0)
-            offset = np.where(valid, 0.5 * (edges[0] + edges[1]), 0.0)
-            ends, ends_valid = runs(profile[n:], steps, c.profile_step, closed=False)
-            ends_valid &= ~hidden[side, [0, n - 1]] & (np.abs(ends[1]) <= c.end_gate)
-            # an end that runs into the thread (tied to the tail) is hidden, not seen
-            beyond = (origin[n:, None, :] + (ends[1][:, None, None] + _BEYOND[None, :, None])
-                      * dirs[n:, None, :])
-            thread = sample(field.thread_soft, beyond.reshape(-1, 2)).reshape(2, -1)
-            ends_valid &= ~(np.nan_to_num(thread, nan=0.0) > 0.25).any(axis=1)
-            offset = np.concatenate([offset, np.where(ends_valid, ends[1], 0.0)])
-            out.append((index, dirs, offset, np.concatenate([valid, ends_valid])))
+            thread = sample(field.thread_soft, beyond[side], 0.0).reshape(2, -1)
+            ok = ends_valid[side] & ~(thread > 0.25).any(axis=1)
+            out.append((index, dirs[side],
+                        np.concatenate([offset[side], np.where(ok, end[side], 0.0)]),
+                        np.concatenate([normals_valid[side], ok])))
         return out
 
     def _seen(self, left: np.ndarray, right: np.ndarray, stereo: StereoModel,
@@ -408,32 +418,32 @@ class NeedleTracker:
         weight = np.ones(n + 2)
         weight[n:] = c.end_weight
         fx, fy, b = stereo.fx, stereo.fy, stereo.baseline
-        rows, rhs, weights = [], [], []
-        for side, (index, dirs, offset, valid) in enumerate(
-                self._profiles(T, stereo, fields, hidden)):
-            if not valid.any():
-                continue
-            points = self._model[index[valid]] @ T[:3, :3].T + T[:3, 3]
-            lever = points - T[:3, 3]
-            x, y, z = points[:, 0], points[:, 1], points[:, 2]
-            du = np.column_stack([fx / z, np.zeros_like(z),
-                                  (-fx * x + (fx * b if side else 0.0)) / z ** 2])
-            dv = np.column_stack([np.zeros_like(z), fy / z, -fy * y / z ** 2])
-            d = dirs[valid]
-            g = d[:, :1] * du + d[:, 1:] * dv  # d(offset along the direction)/dX
-            # dX/domega = -[lever]_x, dX/dtau = I; lever x g by its components (np.cross's
-            # products and differences, without its axis handling on this hot path)
-            lx, ly, lz = lever[:, 0], lever[:, 1], lever[:, 2]
-            gx, gy, gz = g[:, 0], g[:, 1], g[:, 2]
-            rows.append(np.column_stack([ly * gz - lz * gy, lz * gx - lx * gz,
-                                         lx * gy - ly * gx, g]))
-            r = offset[valid]
-            rhs.append(r)
-            weights.append(weight[valid] * np.minimum(1.0, c.huber / np.maximum(np.abs(r),
-                                                                              1e-9)))
-        if not rows:
+        (index, dirs_l, offset_l, valid_l), (_, dirs_r, offset_r, valid_r) = self._profiles(
+            T, stereo, fields, hidden)
+        # both images' seen edges at once, the left's rows first (each row's arithmetic is its
+        # own)
+        k_l = int(np.count_nonzero(valid_l))
+        if not k_l + np.count_nonzero(valid_r):
             return np.zeros((0, 6)), np.zeros(0), np.zeros(0)
-        return np.vstack(rows), np.concatenate(rhs), np.concatenate(weights)
+        seen = np.concatenate([index[valid_l], index[valid_r]])
+        points = self._model[seen] @ T[:3, :3].T + T[:3, 3]
+        lever = points - T[:3, 3]
+        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        zeros = np.zeros_like(z)
+        shift = np.zeros_like(z)
+        shift[k_l:] = fx * b
+        du = np.column_stack([fx / z, zeros, (-fx * x + shift) / z ** 2])
+        dv = np.column_stack([zeros, fy / z, -fy * y / z ** 2])
+        d = np.concatenate([dirs_l[valid_l], dirs_r[valid_r]])
+        g = d[:, :1] * du + d[:, 1:] * dv  # d(offset along the direction)/dX
+        # dX/domega = -[lever]_x, dX/dtau = I; lever x g by its components (np.cross's
+        # products and differences, without its axis handling on this hot path)
+        lx, ly, lz = lever[:, 0], lever[:, 1], lever[:, 2]
+        gx, gy, gz = g[:, 0], g[:, 1], g[:, 2]
+        rows = np.column_stack([ly * gz - lz * gy, lz * gx - lx * gz, lx * gy - ly * gx, g])
+        r = np.concatenate([offset_l[valid_l], offset_r[valid_r]])
+        w = np.concatenate([weight[valid_l], weight[valid_r]])
+        return rows, r, w * np.minimum(1.0, c.huber / np.maximum(np.abs(r), 1e-9))
 
     def _refine(self, T: np.ndarray, stereo: StereoModel, fields: Fields,
                 hidden: np.ndarray) -> np.ndarray:
