@@ -256,6 +256,11 @@ class NeedleTracker:
         c = self.config
         self._steps = np.arange(-c.profile_half_length, c.profile_half_length + 1e-9,
                                 c.profile_step)
+        # the profiles' arc points: every one across the arc, then the tail and the tip along
+        # it; the runs across closed on both sides, those along open outwards (both images)
+        n = self.config.n_points
+        self._index = np.concatenate([np.arange(n), [0, n - 1]])
+        self._closed = np.tile(np.arange(n + 2) < n, 2)
         # units of the fit's variables: rotation as arc length at the radius, translation in
         # mm, so that one unit of either moves the arc about a millimetre
         self._scale = np.array([1.0 / (1000.0 * self.geometry.radius)] * 3 + [1e-3] * 3)
@@ -277,8 +282,11 @@ class NeedleTracker:
         model = self._model[keep]
         k = len(model)
         points = []
+        turn, R = None, np.eye(3)
         for x in xs:
-            R = rotvec_matrix(x[:3] * self._scale[:3]) @ T0[:3, :3]
+            if turn is None or np.any(x[:3] != turn):  # poses that only shift share a turn
+                turn = x[:3]
+                R = rotvec_matrix(turn * self._scale[:3]) @ T0[:3, :3]
             points.append(model @ R.T + (T0[:3, 3] + x[3:] * self._scale[3:]))
         points = np.concatenate(points)
         behind = (points[:, 2] <= 1e-4).reshape(len(xs), k).any(axis=1)
@@ -349,13 +357,14 @@ class NeedleTracker:
         tangents = self._tangents @ T[:3, :3].T
         ahead = points + 1e-4 * tangents
         width = self.geometry.wire_diameter * stereo.fx / points[:, 2]
-        index = np.concatenate([np.arange(n), [0, n - 1]])
+        index = self._index
         steps = self._steps
         m = len(steps)
         # both images at once (each row's arithmetic is its own): pixels of the points and of
         # the points a little ahead, (2, n, 2)
-        seen = np.array(stereo.project(points))
-        direction = np.array(stereo.project(ahead)) - seen
+        both = np.array(stereo.project(np.concatenate([points, ahead])))
+        seen = both[:, :n]
+        direction = both[:, n:] - seen
         direction /= np.maximum(np.sqrt(np.sum(direction * direction, axis=2, keepdims=True)),
                                 1e-12)
         normal = np.stack([-direction[..., 1], direction[..., 0]], axis=2)
@@ -367,9 +376,7 @@ class NeedleTracker:
         profile = np.concatenate([sample(fields[0].soft, flat[0], 0.0),
                                   sample(fields[1].soft, flat[1], 0.0)]).reshape(
                                       2 * len(index), m)
-        # the normals' runs closed on both sides, the ends' open outwards
-        closed = np.tile(np.arange(len(index)) < n, 2)
-        edges, valid = runs(profile, steps, c.profile_step, closed=closed)
+        edges, valid = runs(profile, steps, c.profile_step, closed=self._closed)
         edges = edges.reshape(2, 2, len(index))
         valid = valid.reshape(2, len(index))
         wide = edges[1, :, :n] - edges[0, :, :n]
@@ -383,8 +390,10 @@ class NeedleTracker:
                   * dirs[:, n:, None, :]).reshape(2, -1, 2)
         out = []
         for side, field in enumerate(fields):
-            thread = sample(field.thread_soft, beyond[side], 0.0).reshape(2, -1)
-            ok = ends_valid[side] & ~(thread > 0.25).any(axis=1)
+            ok = ends_valid[side]
+            if ok.any():
+                thread = sample(field.thread_soft, beyond[side], 0.0).reshape(2, -1)
+                ok = ok & ~(thread > 0.25).any(axis=1)
             out.append((index, dirs[side],
                         np.concatenate([offset[side], np.where(ok, end[side], 0.0)]),
                         np.concatenate([normals_valid[side], ok])))

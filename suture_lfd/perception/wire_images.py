@@ -91,11 +91,12 @@ def sample(image: np.ndarray, uv: np.ndarray, outside: float = np.nan) -> np.nda
     u0 = u.astype(np.intp)
     v0 = v.astype(np.intp)
     a, b = u - u0, v - v0
+    a1, b1 = 1 - a, 1 - b
     # the four neighbours gathered by flat index (the same values as image[v, u], cheaper)
     flat = image.reshape(-1)
     k = v0 * w + u0
-    f = (flat.take(k) * (1 - a) * (1 - b) + flat.take(k + 1) * a * (1 - b)
-         + flat.take(k + w) * (1 - a) * b + flat.take(k + w + 1) * a * b)
+    f = (flat.take(k) * a1 * b1 + flat.take(k + 1) * a * b1
+         + flat.take(k + w) * a1 * b + flat.take(k + w + 1) * a * b)
     return np.where(inside, f, outside)
 
 
