@@ -281,14 +281,14 @@ class NeedleTracker:
         """Return the fit's residuals (m, 2k) at ``m`` poses, projected and sampled together."""
         model = self._model[keep]
         k = len(model)
-        points = []
+        moved = []
         turn, R = None, np.eye(3)
         for x in xs:
             if turn is None or np.any(x[:3] != turn):  # poses that only shift share a turn
                 turn = x[:3]
                 R = rotvec_matrix(turn * self._scale[:3]) @ T0[:3, :3]
-            points.append(model @ R.T + (T0[:3, 3] + x[3:] * self._scale[3:]))
-        points = np.concatenate(points)
+            moved.append(model @ R.T + (T0[:3, 3] + x[3:] * self._scale[3:]))
+        points = np.concatenate(moved)
         behind = (points[:, 2] <= 1e-4).reshape(len(xs), k).any(axis=1)
         points[:, 2] = np.where(points[:, 2] <= 1e-4, 1.0, points[:, 2])
         uv_l, uv_r = stereo.project(points)
