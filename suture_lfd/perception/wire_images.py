@@ -81,8 +81,8 @@ class WireImage:
         return self._thread
 
 
-def sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a float image at pixels ``uv`` (n, 2); NaN outside."""
+def sample(image: np.ndarray, uv: np.ndarray, outside: float = np.nan) -> np.ndarray:
+    """Bilinear samples of a float image at pixels ``uv`` (n, 2); ``outside`` (NaN) outside."""
     h, w = image.shape
     u, v = uv[:, 0], uv[:, 1]
     inside = (u >= 0.0) & (v >= 0.0) & (u <= w - 1.001) & (v <= h - 1.001)
@@ -91,16 +91,17 @@ def sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     u0 = u.astype(np.intp)
     v0 = v.astype(np.intp)
     a, b = u - u0, v - v0
+    a1, b1 = 1 - a, 1 - b
     # the four neighbours gathered by flat index (the same values as image[v, u], cheaper)
     flat = image.reshape(-1)
     k = v0 * w + u0
-    f = (flat.take(k) * (1 - a) * (1 - b) + flat.take(k + 1) * a * (1 - b)
-         + flat.take(k + w) * (1 - a) * b + flat.take(k + w + 1) * a * b)
-    return np.where(inside, f, np.nan)
+    f = (flat.take(k) * a1 * b1 + flat.take(k + 1) * a * b1
+         + flat.take(k + w) * a1 * b + flat.take(k + w + 1) * a * b)
+    return np.where(inside, f, outside)
 
 
 def runs(profile: np.ndarray, steps: np.ndarray, step: float,
-         closed: bool = True) -> tuple[np.ndarray, np.ndarray]:
+         closed: bool | np.ndarray = True) -> tuple[np.ndarray, np.ndarray]:
     """
     Edges (sub-pixel) of the run of needle samples through or nearest each profile's middle.
 
@@ -111,6 +112,8 @@ def runs(profile: np.ndarray, steps: np.ndarray, step: float,
     steps : ndarray, shape (m,)
     step : float
         Spacing of ``steps``.
+    closed : bool or ndarray, shape (n,)
+        Whether a run must end inside the profile on both sides (per profile, or for all).
 
     Returns
     -------
@@ -131,16 +134,18 @@ def runs(profile: np.ndarray, steps: np.ndarray, step: float,
     lo_out = np.where(outside & (idx[None, :] < j[:, None]), idx[None, :], -1).max(axis=1)
     hi_out = np.where(outside & (idx[None, :] > j[:, None]), idx[None, :], m).min(axis=1)
     valid = any_inside & (hi_out <= m - 1)
-    if closed:
-        valid &= lo_out >= 0
-    lo_out = np.clip(lo_out, 0, m - 2)
-    hi_out = np.clip(hi_out, 1, m - 1)
+    if np.ndim(closed) or closed:
+        valid &= (lo_out >= 0) | ~np.asarray(closed, dtype=bool)
+    # np.minimum and np.maximum rather than np.clip: the same values, less overhead on this
+    # hot path
+    lo_out = np.minimum(np.maximum(lo_out, 0), m - 2)
+    hi_out = np.minimum(np.maximum(hi_out, 1), m - 1)
     rows = np.arange(n)
     p0, p1 = profile[rows, lo_out], profile[rows, lo_out + 1]
     q0, q1 = profile[rows, hi_out - 1], profile[rows, hi_out]
     with np.errstate(divide='ignore', invalid='ignore'):
-        a = steps[lo_out] + np.clip((0.5 - p0) / (p1 - p0), 0.0, 1.0) * step
-        b = steps[hi_out - 1] + np.clip((q0 - 0.5) / (q0 - q1), 0.0, 1.0) * step
+        a = steps[lo_out] + np.minimum(np.maximum((0.5 - p0) / (p1 - p0), 0.0), 1.0) * step
+        b = steps[hi_out - 1] + np.minimum(np.maximum((q0 - 0.5) / (q0 - q1), 0.0), 1.0) * step
     return np.array([a, b]), valid
 
 
