@@ -10,7 +10,8 @@ endoscope's intrinsics, the jaw's reading on a held needle), with
 the registration that fits the joints' dead bands (``bands``; ``bands-wrist``: and the wrist's
 offsets fitted with the grasp during the carry; a suffix ``-stretch``, ``-roll`` or
 ``-cables``: and the instrument's known cable model, the wrist's stretch, the roll's dead band
-or both), with one that fits offsets only
+or both; ``-reports``: the backlash inverse judging each joint's direction from the reported
+joints, as the code did before it judged it from the targets), with one that fits offsets only
 (``offsets``), and open loop (``open``). Anchors measured in the same run: ground-truth mode
 (the simulation's truth) with the ground-truth executor settings and with the physical ones
 (the held start press), and the static-offset robots of ``--error-level`` (the wave-3 physical
@@ -105,6 +106,9 @@ def main():
                                           else ROLL_BAND)
                 elif '-roll' in correction:
                     kept.with_cable_model(stretch=np.zeros(6))
+                # '-reports': the backlash inverse judging directions against the reported
+                # joints, as the code did before it judged them from the targets
+                kept.inverse_on_targets = '-reports' not in correction
                 reg.append(time.process_time() - start)
             config = ExecutorConfig(script=script,
                                     fit_wrist=correction.startswith('bands-wrist'),

@@ -67,7 +67,7 @@ from sim_bridge.control import Command, Controller, Observation
 from suture_lfd.perception import detect_markers, stereo_from_camera_info
 from suture_lfd.perception.instrument import InstrumentView, find_instrument
 from suture_lfd.perception.window import points_window
-from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, plays_at, run_lengths
+from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, TargetPlay, plays_at, run_lengths
 
 if TYPE_CHECKING:
     from sim_bridge.kinematics import PsmKinematics, SerialChain
@@ -115,6 +115,9 @@ _PLAUSIBLE = np.array([0.1, 0.1, 0.012, 0.015, 0.015, 0.015])
 # unit deflection from straight: roll, wrist pitch, wrist yaw) and the roll's dead band (rad).
 WRIST_STRETCH = (0.0, 0.0, 0.0, 0.03, 0.03, 0.03)
 ROLL_BAND = 0.052
+# Longest time (s) between two commands of an arm that continue one motion for the backlash
+# inverse (:meth:`KinematicCorrection._to_play`): ten control periods of the study.
+_COMMAND_GAP = 0.1
 # A pose whose RMS residual (pixels) is above this after a first fit is left out.
 _OUTLIER_PX = 2.0
 # A fit whose image residual (RMS, pixels) is above this is not trusted.
@@ -269,6 +272,11 @@ class KinematicCorrection:
         # the backlash play of the arms with a dead band, advanced by each new report
         self._plays = {arm: PlayTracker(fit.backlash) for arm, fit in self.arms.items()
                        if np.any(np.asarray(fit.backlash) > 0.0)}
+        #: the backlash inverse judges a joint's direction from its targets (True) or, as
+        #: before, from the target against the reported joints (False: the lagging motor's
+        #: overshoot then reads as a reversal, and a joint cycles by its band)
+        self.inverse_on_targets = True
+        self._inverse: dict[str, TargetPlay] = {}
 
     def set_arm(self, fit: ArmCorrection) -> None:
         """Correct ``fit.arm`` with ``fit`` from now on (its dead bands' play kept)."""
@@ -297,6 +305,7 @@ class KinematicCorrection:
                                      stretch=np.asarray(stretch, dtype=float).copy(),
                                      neutral=np.zeros(6))
             self._plays[arm] = PlayTracker(backlash)
+            self._inverse.pop(arm, None)
         self._cache.clear()
 
     def _play(self, arm: str, q: Joints) -> list[float] | None:
@@ -378,10 +387,48 @@ class KinematicCorrection:
                 continue
             target = invert_transform(self._error(arm, q[arm])) @ np.asarray(T, dtype=float)
             tracker = self._plays.get(arm)
-            if tracker is not None:
+            if tracker is not None and self.inverse_on_targets:
+                target = self._to_play(arm, tracker, q[arm], target, T, float(cmd.t))
+            elif tracker is not None:
                 target = self._across_play(arm, tracker, q[arm], target, T)
             tools[arm] = target
         return Command(t=cmd.t, T_world_tool=tools, jaw=cmd.jaw, subtask=cmd.subtask)
+
+    def _to_play(self, arm: str, tracker: PlayTracker, q: Joints, target: np.ndarray,
+                 T: ArrayLike, t: float) -> np.ndarray:
+        """
+        Return the command for the pose ``T`` with the play the joints will have there.
+
+        ``target`` is the command with the present play. Where the joints should truly go is
+        the corrected kinematics' inverse of ``T`` (less the offsets: in the reports' terms);
+        its direction from one command to the next (:class:`~suture_lfd.skill.hysteresis.
+        TargetPlay`) sets the play of this command. A command more than
+        :data:`_COMMAND_GAP` after the last (or before it: a new episode) starts from the
+        present play, with no direction.
+        """
+        fit = self.arms[arm]
+        inverse = self._inverse.get(arm)
+        if inverse is None:
+            inverse = self._inverse[arm] = TargetPlay(fit.backlash, PSM_STILL)
+        fresh = inverse.t is None or not 0.0 <= t - inverse.t <= _COMMAND_GAP
+        play = list(tracker.play) if fresh or inverse.play is None else inverse.play
+        offset = [float(v) for v in fit.joint_offset]
+        try:
+            goal = np.array(T, dtype=float)
+            goal[:3, 3] -= fit.translation
+            chain = cast('PsmKinematics', fit.kinematics)  # a PSM's: it has an inverse
+            true_q = chain.ik_unchecked(invert_transform(fit.T_world_base) @ goal,
+                                        [float(a) + b + p for a, b, p in zip(q, offset, play)])
+        except ValueError:
+            return target  # out of reach: the arm will say so for the command itself
+        load = [float(a) - b for a, b in zip(true_q, offset)]
+        if fresh or inverse.play is None:
+            inverse.start(play, load)
+        inverse.t = t
+        heading = inverse.update(load, q, tracker.play)
+        if heading == tracker.play:
+            return target
+        return invert_transform(fit.error(q, heading)) @ np.asarray(T, dtype=float)
 
     def _across_play(self, arm: str, tracker: PlayTracker, q: Joints, target: np.ndarray,
                      T: ArrayLike) -> np.ndarray:

@@ -12,6 +12,8 @@ follow it from the reports it receives, and a registration that sees the tool at
 from different directions can fit the band (:mod:`suture_lfd.skill.arm_registration`).
 
 - :class:`PlayTracker` follows the play of one arm's joints from each new report.
+- :class:`TargetPlay` is the backlash inverse: the play a command must allow for, from the
+  direction the load-side joint targets move in (not the lagging, overshooting reports).
 - :func:`run_lengths` and :func:`plays_at` evaluate the play at a registration's poses for a
   candidate band quickly: a motion's reports are reduced once to their monotone runs (a play
   operator's output depends only on those), the band then costs a few hundred float operations.
@@ -24,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['PSM_STILL', 'PlayTracker', 'plays_at', 'run_lengths']
+__all__ = ['PSM_STILL', 'PlayTracker', 'TargetPlay', 'plays_at', 'run_lengths']
 
 #: A PSM's smallest joint motion (rad, rad, m, rad, rad, rad) that tells a direction: five
 #: counts of a dVRK encoder (1e-4 rad, 2 um), ten times the encoders' noise, so that a joint
@@ -106,6 +108,86 @@ class PlayTracker:
             if h > 0.0 and abs(d) > limits[j]:
                 out[j] = -h if d > 0.0 else h
         return out
+
+
+class TargetPlay:
+    """
+    The backlash inverse of one arm: the play each joint will have where it is commanded to.
+
+    To put a cable-driven joint truly at ``x`` its motor goes to ``x - p``, where ``p`` is
+    ``-b/2`` while the joint's target rises and ``+b/2`` while it falls: the direction is that
+    of the *targets* (the true joints the commands ask for), which move as smoothly as the plan,
+    once a joint has one (a joint without takes it from its target against the reports, as
+    :meth:`PlayTracker.heading` does). Judged against the reported joints throughout, a motor
+    that overshoots its command after crossing a band by more than a few counts (the servo's
+    lag, then its small overshoot) reads as a reversal, the next command crosses the band
+    back, and the joint cycles by its whole band (up to 1 mm at the tool, period a few tenths
+    of a second; measured at the ``dvrk`` preset). A target must come back ``still`` from its
+    furthest point for a reversal.
+
+    Parameters
+    ----------
+    band : array_like, shape (n,)
+        Full dead band per joint (rad / m, >= 0).
+    still : sequence of float
+        Per joint, how far (rad / m) a target must turn back to count as a reversal.
+
+    """
+
+    def __init__(self, band: ArrayLike, still: Sequence[float] = PSM_STILL) -> None:
+        self.half = [0.5 * float(b) for b in np.asarray(band, dtype=float).ravel()]
+        self.still = [float(v) for v in still]
+        #: the commands' play (None: not started); the time of the last target
+        self.play: list[float] | None = None
+        self.t: float | None = None
+        self._peak: list[float] = []
+        self._rising: list[int] = []
+
+    def start(self, play: Sequence[float], target: Sequence[float]) -> None:
+        """Start from the joints' present ``play`` at the load-side ``target`` (no direction)."""
+        self.play = [float(p) for p in play]
+        self._peak = [float(x) for x in target[:len(self.half)]]
+        self._rising = [0] * len(self.half)
+
+    def update(self, target: Sequence[float], reported: 'Sequence[float] | np.ndarray',
+               present: Sequence[float]) -> list[float]:
+        """
+        Return the play for the next load-side joint ``target`` (rad / m), the direction kept.
+
+        A joint with no direction yet takes it as :meth:`PlayTracker.heading` does, from the
+        target against where the reports put the joint (``reported`` plus ``present``), and
+        keeps the present play while within ``still`` of it; once it has a direction, only the
+        targets turn it.
+
+        Parameters
+        ----------
+        target : sequence of float
+            Where the joints should truly go (reported joints plus play, offsets aside).
+        reported : sequence of float
+            The reported joints now.
+        present : sequence of float
+            The play the reports show now (:class:`PlayTracker`).
+
+        """
+        assert self.play is not None  # start() first
+        play, peak, rising = self.play, self._peak, self._rising
+        for j, h in enumerate(self.half):
+            if h <= 0.0:
+                continue
+            x, r, s = float(target[j]), rising[j], self.still[j]
+            if r == 0:
+                d = x - float(reported[j]) - float(present[j])
+                if abs(d) > s:
+                    rising[j], peak[j], play[j] = (1, x, -h) if d > 0.0 else (-1, x, h)
+                else:
+                    play[j] = float(present[j])
+            elif (r > 0 and x >= peak[j]) or (r < 0 and x <= peak[j]):
+                peak[j] = x  # further the same way
+            elif r > 0 and x < peak[j] - s:
+                rising[j], peak[j], play[j] = -1, x, h
+            elif r < 0 and x > peak[j] + s:
+                rising[j], peak[j], play[j] = 1, x, -h
+        return list(play)
 
 
 def run_lengths(paths: Sequence[ArrayLike], joints: int) -> list[list[list[float]]]:

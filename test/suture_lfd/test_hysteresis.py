@@ -10,7 +10,7 @@ motion reduced to its monotone runs.
 
 import numpy as np
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
-from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, plays_at, run_lengths
+from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, TargetPlay, plays_at, run_lengths
 
 BAND = (0.0175, 0.0175, 0.0005, 0.052, 0.052, 0.052)
 
@@ -79,3 +79,27 @@ def test_a_joint_at_rest_keeps_its_play_through_its_encoders_jitter():
     # a real reversal still crosses the band at once
     half = 0.5 * np.asarray(BAND)
     assert np.allclose(tracker.heading(q, q - 10 * np.asarray(PSM_STILL), PSM_STILL), half)
+
+
+def test_the_backlash_inverse_follows_the_targets_direction_not_a_reading():
+    """The play a command allows for turns with its targets, a few counts' wiggle aside."""
+    band = np.array(BAND)
+    band[3] = 0.0                        # a joint without backlash keeps its play
+    half = 0.5 * band
+    inverse = TargetPlay(band, PSM_STILL)
+    start = np.full(6, 0.1)
+    inverse.start([0.002] * 6, start)
+    still = np.asarray(PSM_STILL)
+    # the joints where the target is: no direction yet, the play the reports show kept
+    assert inverse.update(start + 0.5 * still, start - 0.002, [0.002] * 6) == [0.002] * 6
+    rising = [start + k * 2 * still for k in range(1, 6)]
+    for target in rising:
+        play = inverse.update(target, start, [0.0] * 6)
+    assert np.allclose(play, np.where(band > 0, -half, 0.002))
+    # back by less than `still` from the furthest target: still rising, wherever the reports
+    # say the joint is (a servo's overshoot)
+    assert np.allclose(inverse.update(rising[-1] - 0.5 * still, rising[-1] + 3 * still, half),
+                       play)
+    # back by more: the band is crossed in this very command
+    assert np.allclose(inverse.update(rising[-1] - 1.5 * still, rising[-1], [0.0] * 6),
+                       np.where(band > 0, half, 0.002))
