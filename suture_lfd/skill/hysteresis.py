@@ -110,6 +110,8 @@ class PlayTracker:
 
 def _floats(q: ArrayLike) -> list[float]:
     """Return joints as a flat list of plain floats (a list or tuple of floats as it is)."""
+    if type(q) is np.ndarray and q.dtype == np.float64:
+        return q.ravel().tolist()
     if isinstance(q, (list, tuple)) and all(type(v) is float for v in q):
         return list(q)
     return np.asarray(q, dtype=float).ravel().tolist()
