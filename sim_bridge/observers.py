@@ -152,6 +152,9 @@ class PhysicalObserver:
         self._sim = sim
         self._estimator = estimator
         self._correction = correction
+        # the believed bases (a robot's registration does not change while it runs): read
+        # once, shared read-only by every observation
+        self._bases: dict[str, np.ndarray] | None = None
 
     def arm_state(self) -> Observation:
         """
@@ -162,16 +165,20 @@ class PhysicalObserver:
         sim_bridge.control.Observation
             ``T_world_tool``: each PSM's ``measured_cp`` through its believed base (moved by
             the correction, when there is one);
-            ``T_world_base``: the believed bases; ``q``: the measured joints (as the encoders
-            report them).
+            ``T_world_base``: the believed bases (read-only arrays); ``q``: the measured
+            joints (as the encoders report them).
 
         """
         sim = self._sim
+        if self._bases is None:
+            self._bases = {n: sim.believed_base(n) for n in sim.arms}
+            for T in self._bases.values():
+                T.flags.writeable = False
         obs = Observation(t=sim.time,
                           T_world_tool={n: sim.reported_tool_pose(n) for n in PSMS},
                           jaw={n: sim.reported_jaw(n)[0] for n in PSMS},
                           T_world_needle=None, holders=(), pair=None,
-                          T_world_base={n: sim.believed_base(n) for n in sim.arms},
+                          T_world_base=dict(self._bases),
                           q={n: sim.reported_jp(n) for n in PSMS})
         return obs if self._correction is None else self._correction.observe(obs)
 

@@ -420,6 +420,10 @@ def pose_from_transform(T: ArrayLike) -> FloatArray:
     return np.concatenate((T[..., :3, 3], quaternion_from_matrix(T[..., :3, :3])), axis=-1)
 
 
+# the identity the single inverse starts from (copied: cheaper than making one)
+_EYE4 = np.eye(4)
+
+
 def invert_transform(T: ArrayLike) -> FloatArray:
     """
     Return the inverse of rigid transforms, ``T_b_a`` from ``T_a_b``.
@@ -437,7 +441,7 @@ def invert_transform(T: ArrayLike) -> FloatArray:
     """
     T = np.asarray(T, dtype=float)
     if T.ndim == 2:  # one transform (the simulator's hot path): no einsum overhead
-        out = np.eye(4)
+        out = _EYE4.copy()
         Rt = T[:3, :3].T
         out[:3, :3] = Rt
         out[:3, 3] = -Rt @ T[:3, 3]

@@ -50,6 +50,7 @@ optical frame ``camera``, each arm's RCM frame; 4x4 poses; metres, radians.
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 import itertools
 import json
 import logging
@@ -171,12 +172,29 @@ class ArmCorrection:
     stretch: np.ndarray = field(default_factory=lambda: np.zeros(6))
     neutral: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
+    @cached_property
+    def _constants(self) -> tuple[list[float], list[tuple[float, float]] | None]:
+        """The offsets and (when modelled) each joint's stretch and neutral, as plain floats."""
+        stretch = (list(zip(np.asarray(self.stretch, dtype=float).tolist(),
+                            np.asarray(self.neutral, dtype=float).tolist()))
+                   if np.any(self.stretch) else None)
+        return np.asarray(self.joint_offset, dtype=float).tolist(), stretch
+
+    @cached_property
+    def T_base_world(self) -> np.ndarray:  # noqa: N802 (the project names poses T_a_b)
+        """The inverse of the believed base (read-only; it runs every control step)."""
+        T = invert_transform(self.T_world_base)
+        T.flags.writeable = False
+        return T
+
     def _true_joints(self, q: Joints) -> list[float]:
         """Return the reported joints ``q`` with the offsets and (when modelled) the stretch."""
-        qt = [float(a) + float(b) for a, b in zip(q, self.joint_offset)]
-        if np.any(self.stretch):
-            for j, (k, n) in enumerate(zip(self.stretch, self.neutral)):
-                qt[j] += float(k) * (float(q[j]) - float(n))
+        values = q.tolist() if isinstance(q, np.ndarray) else [float(v) for v in q]
+        offsets, stretch = self._constants
+        qt = [a + b for a, b in zip(values, offsets)]
+        if stretch is not None:
+            for j, (k, n) in enumerate(stretch):
+                qt[j] += k * (values[j] - n)
         return qt
 
     def tool_pose(self, q: Joints, play: Sequence[float] | None = None) -> np.ndarray:
@@ -440,13 +458,14 @@ class KinematicCorrection:
         its dead band crossed in this command (:meth:`PlayTracker.heading`).
         """
         fit = self.arms[arm]
+        values = q.tolist() if isinstance(q, np.ndarray) else [float(v) for v in q]
         try:
-            local = invert_transform(fit.T_world_base) @ target
+            local = fit.T_base_world @ target
             chain = cast('PsmKinematics', fit.kinematics)  # a PSM's: it has an inverse
-            q_to = chain.ik_unchecked(local, [float(v) for v in q])
+            q_to = chain.ik_unchecked(local, values)
         except ValueError:
             return target  # out of reach: the arm will say so for the command itself
-        play = tracker.heading(q, q_to, PSM_STILL)
+        play = tracker.heading(values, q_to, PSM_STILL)
         if play == tracker.play:
             return target
         return invert_transform(fit.error(q, play)) @ np.asarray(T, dtype=float)

@@ -68,7 +68,7 @@ class PlayTracker:
             Reported joints; the first ``n`` are used.
 
         """
-        values = [float(v) for v in np.asarray(q, dtype=float).ravel()[:len(self.half)]]
+        values = _floats(q)[:len(self.half)]
         last = self._last
         if last is not None:
             play = self.play
@@ -99,12 +99,12 @@ class PlayTracker:
             per joint (:data:`PSM_STILL`).
 
         """
-        a = np.asarray(q, dtype=float).ravel()
-        b = np.asarray(q_to, dtype=float).ravel()
+        a = _floats(q)
+        b = _floats(q_to)
         out = list(self.play)
         limits = [float(still)] * len(self.half) if isinstance(still, (int, float)) else still
         for j, h in enumerate(self.half):
-            d = float(b[j]) - float(a[j])
+            d = b[j] - a[j]
             if h > 0.0 and abs(d) > limits[j]:
                 out[j] = -h if d > 0.0 else h
         return out
@@ -188,6 +188,15 @@ class TargetPlay:
             elif r < 0 and x > peak[j] + s:
                 rising[j], peak[j], play[j] = 1, x, -h
         return list(play)
+
+
+def _floats(q: ArrayLike) -> list[float]:
+    """Return joints as a flat list of plain floats (a list or tuple of floats as it is)."""
+    if type(q) is np.ndarray and q.dtype == np.float64:
+        return q.ravel().tolist()
+    if isinstance(q, (list, tuple)) and all(type(v) is float for v in q):
+        return list(q)
+    return np.asarray(q, dtype=float).ravel().tolist()
 
 
 def run_lengths(paths: Sequence[ArrayLike], joints: int) -> list[list[list[float]]]:
