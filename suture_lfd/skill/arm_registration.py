@@ -54,6 +54,7 @@ from functools import cached_property
 import itertools
 import json
 import logging
+import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -121,6 +122,8 @@ ROLL_BAND = 0.052
 _COMMAND_GAP = 0.1
 # A pose whose RMS residual (pixels) is above this after a first fit is left out.
 _OUTLIER_PX = 2.0
+# Pixels: the most a seen jaws' end SHORTER than the model's counts (:func:`_hidden_end`).
+_HIDDEN_END_PX = 2.0
 # A fit whose image residual (RMS, pixels) is above this is not trusted.
 MAX_RESIDUAL_PX = 3.0
 # One arm's joints (rad, m), and one registration pose as seen: reported joints, the camera's
@@ -544,8 +547,21 @@ def _chain_points(kinematics: 'SerialChain', T_world_base: np.ndarray, qd: np.nd
     return np.array(local) @ T_world_base[:3, :3].T + T_world_base[:3, 3]
 
 
+def _hidden_end(along: float) -> float:
+    """
+    Return the jaws' end residual ``along`` (pixels: model's end beyond the seen end), capped.
+
+    Of a pose whose jaws' end may be hidden (:func:`_robust_fit`): a seen end short of the
+    model's counts up to :data:`_HIDDEN_END_PX` (a smooth cap, the same as the residual near
+    zero); a seen end beyond the model's end has no such excuse and counts in full.
+    """
+    if along <= 0.0:
+        return along
+    return _HIDDEN_END_PX * math.tanh(along / _HIDDEN_END_PX)
+
+
 def _robust_fit(used: list[Any], x_start: np.ndarray, solve: Any, residuals: Any,
-                arm: str) -> tuple[Any, list[Any]]:
+                arm: str, hidden: set[int]) -> tuple[Any, list[Any]]:
     """
     Fit ``used`` poses, leaving out those whose image disagrees with the others.
 
@@ -553,18 +569,36 @@ def _robust_fit(used: list[Any], x_start: np.ndarray, solve: Any, residuals: Any
     again; when so many disagree that the fit of all of them is the outliers', each subset of
     three poses is fitted alone and the one the most poses agree with is kept.
 
+    In the subsets' count, a pose whose jaws' end may be hidden (dipping into the pad at a low
+    pose, or otherwise cut short in the image) agrees when it would with its end's residual
+    capped (``residuals(x, poses, True)``: :func:`_hidden_end`); such a pose, when it
+    disagrees in full with the subset kept, is added to ``hidden`` (the indices, ``pose[4]``,
+    of the poses whose end residual ``residuals`` caps) and kept. Several low poses each seen
+    shorter would otherwise agree with one another on a shorter instrument and, as many as the
+    rest, could win the count; the cap is one-sided, so the poses whose end is seen in full
+    still refuse that instrument. (The fit of every pose is judged in full: a wrong one would
+    let poses seen shorter agree.)
+
     Returns
     -------
     tuple
         The least-squares result and the poses it was fitted to.
 
     """
-    def per_pose(x: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.mean(residuals(x, used).reshape(len(used), -1) ** 2, axis=1))
+    def per_pose(x: np.ndarray, eased: bool = True) -> np.ndarray:
+        r = residuals(x, used, eased).reshape(len(used), -1)
+        return np.sqrt(np.mean(r ** 2, axis=1))
+
+    def ease(x: np.ndarray) -> bool:
+        """Add to ``hidden`` the poses that agree at ``x`` only with their end capped."""
+        short = (per_pose(x) <= _OUTLIER_PX) & (per_pose(x, False) > _OUTLIER_PX)
+        new = {u[4] for u, s in zip(used, short) if s} - hidden
+        hidden.update(new)
+        return bool(new)
 
     fit = solve(used, x_start)
     x0 = fit.x
-    errors = per_pose(x0)
+    errors = per_pose(x0, False)
     good = errors <= _OUTLIER_PX
     _LOG.debug('%s per-pose residuals %s', arm, errors.round(2))
     if good.sum() < 3 and len(used) > 3:
@@ -578,7 +612,9 @@ def _robust_fit(used: list[Any], x_start: np.ndarray, solve: Any, residuals: Any
                 best = (*key, x)
         assert best is not None
         x0 = best[2]
-        good = per_pose(x0) <= _OUTLIER_PX
+        if ease(x0):
+            _LOG.debug("%s: jaws' end maybe hidden at poses %s", arm, sorted(hidden))
+        good = per_pose(x0, False) <= _OUTLIER_PX
         _LOG.debug('%s: %d of %d poses agree with the best subset', arm, good.sum(), len(used))
         if good.all():
             fit = solve(used, x0)
@@ -651,7 +687,11 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
 
     memo: dict[bytes, np.ndarray] = {}
 
-    def residuals(x: np.ndarray, poses: list[Any]) -> np.ndarray:
+    # poses whose jaws' end may be hidden: their end's residual is capped (_robust_fit)
+    hidden: set[int] = set()
+
+    def residuals(x: np.ndarray, poses: list[Any], eased: bool = False) -> np.ndarray:
+        """Image residuals; ``eased``: every pose's end residual capped as if maybe hidden."""
         out: list[float] = []
         plays = None if len(x) == 6 or runs is None else plays_at(runs, bands(x))
         for q, T_cw, left, right, k in poses:
@@ -663,7 +703,8 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
             for view, uv in ((left, uv_l), (right, uv_r)):
                 out.extend(view.distance(uv[:2]))
                 # the jaws' end as seen: the corner of their end face farthest along the axis
-                out.append(float(view.along(uv[3:]).max()))
+                along = float(view.along(uv[3:]).max())
+                out.append(_hidden_end(along) if eased or k in hidden else along)
                 out.append(float(view.distance(uv[2:3])[0]))
         return np.asarray(out)
 
@@ -695,10 +736,14 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
              else used)
     if len(spots) < 3:
         spots = used
-    fit, kept = _robust_fit(spots, np.zeros(6), solve, residuals, arm)
+    fit, kept = _robust_fit(spots, np.zeros(6), solve, residuals, arm, hidden)
     if runs is None:
         used = kept
     else:
+        # the revisits and the bends (at the last spot) of a spot whose jaws' end may be
+        # hidden: the same pose, its end as hidden
+        low = {_SPOTS[min(k, len(_SPOTS) - 1)] for k in hidden}
+        hidden.update(u[4] for u in used if _SPOTS[min(u[4], len(_SPOTS) - 1)] in low)
         candidates = [fit,
                       pruned([np.zeros(6 + n_b), np.concatenate([np.zeros(6), _BAND_START])]),
                       pruned([np.concatenate([fit.x, np.zeros(n_b)]),
