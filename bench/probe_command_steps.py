@@ -17,6 +17,7 @@ Run: ``.venv/bin/python bench/probe_command_steps.py [--seeds 1] [--pairs synth1
 
 import argparse
 import logging
+import math
 import os
 
 from bench_arm_realism import LEVELS, _robot  # noqa: I100 (the bench folder's own helpers)
@@ -28,12 +29,9 @@ from suture_lfd.skill import arm_registration
 from suture_lfd.skill.arm_registration import register_arms
 from suture_lfd.skill.executor import ExecutorConfig, execute_throw
 from suture_lfd.skill.hysteresis import PSM_STILL
+from suture_lfd.teleop.mapping import rotation_angle
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-
-
-def _angle(R):
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def main():
@@ -109,7 +107,8 @@ def main():
                     s, nxt = steps[k], steps[k + 1]
                     d = nxt['believed'][:3, 3] - s['target'][:3, 3]
                     dp.append(1e3 * np.linalg.norm(d))
-                    da.append(_angle(s['target'][:3, :3].T @ nxt['believed'][:3, :3]))
+                    R = s['target'][:3, :3].T @ nxt['believed'][:3, :3]
+                    da.append(math.degrees(rotation_angle(R)))
                     cp.append(1e3 * np.linalg.norm(s['sent'][:3, 3] - s['target'][:3, 3]))
                     hp.append(np.abs(s['heading'] - s['play']))
                     lim.append(np.minimum(s['q_to'] - lower, upper - s['q_to']))
