@@ -438,7 +438,7 @@ class KinematicCorrection:
             goal = np.array(T, dtype=float)
             goal[:3, 3] -= fit.translation
             chain = cast('PsmKinematics', fit.kinematics)  # a PSM's: it has an inverse
-            true_q = chain.ik_unchecked(invert_transform(fit.T_world_base) @ goal,
+            true_q = chain.ik_unchecked(fit.T_base_world @ goal,
                                         [float(a) + b + p for a, b, p in zip(q, offset, play)])
         except ValueError:
             return target  # out of reach: the arm will say so for the command itself
