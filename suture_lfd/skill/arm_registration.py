@@ -69,7 +69,7 @@ from sim_bridge.control import Command, Controller, Observation
 from suture_lfd.perception import detect_markers, stereo_from_camera_info
 from suture_lfd.perception.instrument import InstrumentView, find_instrument
 from suture_lfd.perception.window import points_window
-from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, TargetPlay, plays_at, run_lengths
+from suture_lfd.skill.hysteresis import PSM_STILL, PlaysMemo, PlayTracker, TargetPlay, run_lengths
 
 if TYPE_CHECKING:
     from sim_bridge.kinematics import PsmKinematics, SerialChain
@@ -686,6 +686,8 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
         return full
 
     memo: dict[bytes, np.ndarray] = {}
+    # each joint's plays per band: a finite difference moves one band, or none
+    plays_at = None if runs is None else PlaysMemo(runs)
 
     # poses whose jaws' end may be hidden: their end's residual is capped (_robust_fit)
     hidden: set[int] = set()
@@ -693,7 +695,7 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
     def residuals(x: np.ndarray, poses: list[Any], eased: bool = False) -> np.ndarray:
         """Image residuals; ``eased``: every pose's end residual capped as if maybe hidden."""
         out: list[float] = []
-        plays = None if len(x) == 6 or runs is None else plays_at(runs, bands(x))
+        plays = None if len(x) == 6 or plays_at is None else plays_at(bands(x))
         for q, T_cw, left, right, k in poses:
             if plays is not None:
                 q = np.asarray(q, dtype=float) + plays[k]

@@ -16,7 +16,8 @@ from different directions can fit the band (:mod:`suture_lfd.skill.arm_registrat
   direction the load-side joint targets move in (not the lagging, overshooting reports).
 - :func:`run_lengths` and :func:`plays_at` evaluate the play at a registration's poses for a
   candidate band quickly: a motion's reports are reduced once to their monotone runs (a play
-  operator's output depends only on those), the band then costs a few hundred float operations.
+  operator's output depends only on those), the band then costs a few hundred float operations;
+  :class:`PlaysMemo` keeps each joint's plays per band for a fit's finite differences.
 
 Joints in the arm's ``measured_js`` order, rad (rotary) and m (prismatic). Core module: numpy only.
 """
@@ -26,7 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['PSM_STILL', 'PlayTracker', 'TargetPlay', 'plays_at', 'run_lengths']
+__all__ = ['PSM_STILL', 'PlayTracker', 'PlaysMemo', 'TargetPlay', 'plays_at', 'run_lengths']
 
 #: A PSM's smallest joint motion (rad, rad, m, rad, rad, rad) that tells a direction: five
 #: counts of a dVRK encoder (1e-4 rad, 2 um), ten times the encoders' noise, so that a joint
@@ -258,14 +259,58 @@ def plays_at(runs: list[list[list[float]]], band: ArrayLike) -> np.ndarray:
 
     """
     half = [0.5 * abs(float(b)) for b in np.asarray(band, dtype=float).ravel()]
-    play = [0.0] * len(half)
     out = np.zeros((len(runs), len(half)))
-    for k, per_joint in enumerate(runs):
-        for j, h in enumerate(half):
-            p = play[j]
-            for r in per_joint[j]:
-                p -= r
-                p = h if p > h else (-h if p < -h else p)
-            play[j] = p
-            out[k, j] = p
+    for j, h in enumerate(half):
+        out[:, j] = _joint_plays(runs, j, h)
     return out
+
+
+def _joint_plays(runs: list[list[list[float]]], j: int, h: float) -> list[float]:
+    """Return joint ``j``'s play at each pose for the half band ``h`` (:func:`plays_at`)."""
+    p = 0.0
+    out = []
+    for per_joint in runs:
+        for r in per_joint[j]:
+            p -= r
+            p = h if p > h else (-h if p < -h else p)
+        out.append(p)
+    return out
+
+
+class PlaysMemo:
+    """
+    :func:`plays_at` of one motion for many candidate bands, each joint's plays kept per band.
+
+    A fit's finite differences change one joint's band at a time (or none): the other joints'
+    plays are taken from the memo, the same floats as computed afresh.
+
+    Parameters
+    ----------
+    runs : list
+        ``run_lengths(paths, joints)``.
+    size : int
+        Plays kept per joint before the memo starts again.
+
+    """
+
+    def __init__(self, runs: list[list[list[float]]], size: int = 256) -> None:
+        self.runs = runs
+        self._size = size
+        self._memo: dict[tuple[int, float], list[float]] = {}
+
+    def __call__(self, band: ArrayLike) -> np.ndarray:
+        """Return :func:`plays_at` ``(runs, band)``."""
+        half = [0.5 * abs(float(b)) for b in np.asarray(band, dtype=float).ravel()]
+        memo = self._memo
+        columns = []
+        for j, h in enumerate(half):
+            column = memo.get((j, h))
+            if column is None:
+                if len(memo) >= self._size * len(half):
+                    memo.clear()
+                column = memo[(j, h)] = _joint_plays(self.runs, j, h)
+            columns.append(column)
+        out = np.zeros((len(self.runs), len(half)))
+        for j, column in enumerate(columns):
+            out[:, j] = column
+        return out
