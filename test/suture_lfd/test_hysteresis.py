@@ -10,7 +10,14 @@ motion reduced to its monotone runs.
 
 import numpy as np
 from sim_bridge.realism.transmission import JointTransmission, TransmissionConfig
-from suture_lfd.skill.hysteresis import PSM_STILL, PlayTracker, TargetPlay, plays_at, run_lengths
+from suture_lfd.skill.hysteresis import (
+    PSM_STILL,
+    PlaysMemo,
+    PlayTracker,
+    TargetPlay,
+    plays_at,
+    run_lengths,
+)
 
 BAND = (0.0175, 0.0175, 0.0005, 0.052, 0.052, 0.052)
 
@@ -52,6 +59,20 @@ def test_the_play_at_poses_from_run_lengths_equals_the_step_by_step_play():
             expected.append(play)
     got = plays_at(run_lengths(paths, 6), BAND)
     assert np.allclose(got, np.asarray(expected), atol=1e-12)
+
+
+def test_the_plays_memo_gives_plays_at_of_every_band_bit_for_bit():
+    """A fit's finite differences: one joint's band moved at a time, the memo full and reset."""
+    rng = np.random.default_rng(5)
+    Q = _motion(rng, 400)
+    runs = run_lengths([Q[:100], Q[99:250], Q[249:]], 6)
+    memo = PlaysMemo(runs, size=3)
+    band = np.asarray(BAND, dtype=float)
+    for k in range(20):
+        moved = band.copy()
+        moved[k % 6] += 1e-8 * (k + 1)
+        for b in (band, moved, 0.5 * band, np.zeros(6)):
+            assert np.array_equal(memo(b), plays_at(runs, b))
 
 
 def test_heading_crosses_the_band_of_a_joint_about_to_reverse_and_keeps_a_still_one():
