@@ -692,23 +692,58 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
     # poses whose jaws' end may be hidden: their end's residual is capped (_robust_fit)
     hidden: set[int] = set()
 
+    # the camera's constants as StereoModel.project reads them (the same floats)
+    fx, fy, cx, cy = stereo.fx, stereo.fy, stereo.cx, stereo.cy
+    fx_b = stereo.fx * stereo.baseline
+    views: dict[int, tuple[Any, ...]] = {}
+
+    def axes(poses: list[Any]) -> tuple[Any, ...]:
+        """Per image (left, right): each pose's seen axis point, direction and end."""
+        hit = views.get(id(poses))
+        if hit is None or hit[0] is not poses:
+            arrays = tuple(np.array([getattr(u[2 + side], name) for u in poses])
+                           for side in (0, 1) for name in ('point', 'direction', 'end'))
+            hit = views[id(poses)] = (poses, *arrays)
+        return hit[1:]
+
     def residuals(x: np.ndarray, poses: list[Any], eased: bool = False) -> np.ndarray:
-        """Image residuals; ``eased``: every pose's end residual capped as if maybe hidden."""
-        out: list[float] = []
+        """
+        Image residuals; ``eased``: every pose's end residual capped as if maybe hidden.
+
+        Per pose, in each image (left, right): the two shaft points' distances from the seen
+        axis, the jaws' end along it (the corner of their end face farthest along the axis),
+        the end face centre's distance from the axis. Every pose is projected at once, with
+        the operations of :meth:`StereoModel.project` and :class:`InstrumentView` (the same
+        floats as pose by pose).
+        """
         plays = None if len(x) == 6 or plays_at is None else plays_at(bands(x))
-        for q, T_cw, left, right, k in poses:
+        pcs = []
+        for q, T_cw, _, _, k in poses:
             if plays is not None:
                 q = np.asarray(q, dtype=float) + plays[k]
             pts = _model_points(kinematics, T_world_base, q, x, jaw, memo)
-            pc = pts @ T_cw[:3, :3].T + T_cw[:3, 3]
-            uv_l, uv_r = stereo.project(pc)
-            for view, uv in ((left, uv_l), (right, uv_r)):
-                out.extend(view.distance(uv[:2]))
-                # the jaws' end as seen: the corner of their end face farthest along the axis
-                along = float(view.along(uv[3:]).max())
-                out.append(_hidden_end(along) if eased or k in hidden else along)
-                out.append(float(view.distance(uv[2:3])[0]))
-        return np.asarray(out)
+            pcs.append(pts @ T_cw[:3, :3].T + T_cw[:3, 3])
+        n = len(poses)
+        P = np.concatenate(pcs).reshape(n, -1, 3)
+        z = P[:, :, 2]
+        u = fx * P[:, :, 0] / z + cx
+        v = fy * P[:, :, 1] / z + cy
+        seen = axes(poses)
+        out = np.empty((n, 2, 4))
+        for side, us in enumerate((u, u - fx_b / z)):
+            point, direction, end = seen[3 * side:3 * side + 3]
+            # distance: (uv - point) x direction; along: (uv - end) . direction (a matmul)
+            dist = (us[:, :3] - point[:, 0:1]) * direction[:, 1:2] \
+                - (v[:, :3] - point[:, 1:2]) * direction[:, 0:1]
+            corners = np.stack((us[:, 3:], v[:, 3:]), axis=-1) - end[:, None, :]
+            out[:, side, 0:2] = dist[:, :2]
+            out[:, side, 2] = np.matmul(corners, direction[:, :, None])[..., 0].max(axis=1)
+            out[:, side, 3] = dist[:, 2]
+        for i, pose in enumerate(poses):
+            if eased or pose[4] in hidden:
+                for side in (0, 1):
+                    out[i, side, 2] = _hidden_end(float(out[i, side, 2]))
+        return out.ravel()
 
     def solve(poses: list[Any], x0: np.ndarray) -> Any:
         if len(x0) == 6:
