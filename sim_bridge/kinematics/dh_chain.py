@@ -634,6 +634,27 @@ class SerialChain:
         tip, frame = self._fk_values(self.check_q(q).tolist(), link)
         return _matrix(*cast(_Pose12, frame)), _matrix(*tip)
 
+    def wrist_and_tip_values(self, q: Sequence[float], link: int) -> tuple[_Pose12, _Pose12]:
+        """
+        :meth:`fk_wrist_and_tip` of joints already known to be valid, as plain floats.
+
+        Parameters
+        ----------
+        q : sequence of float
+            ``n_joints`` finite joint values (rad / m).
+        link : int
+            Link index ``1..n``.
+
+        Returns
+        -------
+        T_link, T_tip : tuple of 12 float
+            Each pose's rotation rows then translation: the floats of
+            :meth:`fk_wrist_and_tip`'s arrays, without making them.
+
+        """
+        tip, frame = self._fk_values(q, link)
+        return cast(_Pose12, frame), tip
+
     def _fk_floats(self, q: Sequence[float],
                    link: int | None = None) -> tuple[FloatArray, FloatArray | None]:
         """Return (tip pose, link frame or None) of ``q`` (list of floats) in plain floats."""

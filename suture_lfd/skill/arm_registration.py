@@ -537,11 +537,15 @@ def _chain_points(kinematics: 'SerialChain', T_world_base: np.ndarray, qd: np.nd
                   jaw: Sequence[float]) -> np.ndarray:
     """:func:`_model_points` at the joints ``qd`` (offsets added), before the translation."""
     length, width, thickness = jaw
-    link4, tip = kinematics.fk_wrist_and_tip(qd, 4)
-    z4 = link4[:3, 2]
-    local = [link4[:3, 3] - s * z4 for s in _SHAFT_POINTS]
-    R, end = tip[:3, :3], tip[:3, 3] + length * tip[:3, 2]
+    # the link's and the tip's floats (rotation rows, translation): the same operations as on
+    # their 4x4 arrays, without making them
+    link4, tip = kinematics.wrist_and_tip_values(qd.tolist(), 4)
+    _, _, c, _, _, f, _, _, i, x, y, z = link4
+    local: list[Any] = [(x - s * c, y - s * f, z - s * i) for s in _SHAFT_POINTS]
+    end = np.array((tip[9] + length * tip[2], tip[10] + length * tip[5],
+                    tip[11] + length * tip[8]))
     local.append(end)
+    R = np.array(tip[:9]).reshape(3, 3)
     for a, b in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
         local.append(end + R @ np.array([0.5 * a * width, b * thickness, 0.0]))
     return np.array(local) @ T_world_base[:3, :3].T + T_world_base[:3, 3]
