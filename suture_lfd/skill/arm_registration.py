@@ -433,7 +433,7 @@ class KinematicCorrection:
             inverse = self._inverse[arm] = TargetPlay(fit.backlash, PSM_STILL)
         fresh = inverse.t is None or not 0.0 <= t - inverse.t <= _COMMAND_GAP
         play = list(tracker.play) if fresh or inverse.play is None else inverse.play
-        offset = [float(v) for v in fit.joint_offset]
+        offset = fit._constants[0]  # the offsets as plain floats, kept per fit
         try:
             goal = np.array(T, dtype=float)
             goal[:3, 3] -= fit.translation

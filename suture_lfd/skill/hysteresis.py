@@ -258,11 +258,7 @@ def plays_at(runs: list[list[list[float]]], band: ArrayLike) -> np.ndarray:
         ``q_true - q_reported`` from the backlash at each pose (the play starts at 0).
 
     """
-    half = [0.5 * abs(float(b)) for b in np.asarray(band, dtype=float).ravel()]
-    out = np.zeros((len(runs), len(half)))
-    for j, h in enumerate(half):
-        out[:, j] = _joint_plays(runs, j, h)
-    return out
+    return PlaysMemo(runs)(band)
 
 
 def _joint_plays(runs: list[list[list[float]]], j: int, h: float) -> list[float]:
