@@ -117,6 +117,16 @@ class ExecutorConfig:
         Shortest time (s) of lowering the needle from ``start_lift`` onto the DMP ii start
         (the tip onto the entry marker): slow, so a lagging arm does not overshoot into the
         tissue.
+    carry_lift : float
+        Height (m, along the pair normal) above ``start_lift`` at which subtask i's carry
+        ends; the needle is then lowered to ``start_lift`` before the slow final approach (0:
+        the carry ends at ``start_lift``). The carry turns the needle from where it lay into
+        the insertion's pose on a straight path, its tip sweeping low on the way; ending it
+        higher keeps the tip off a pad it passes over.
+    physical_carry_lift : float
+        ``carry_lift`` (m) in physical mode: a tool known to a few millimetres across the
+        workspace (a ``dvrk``-like arm away from where it was registered) let the turning tip
+        graze a curved pad mid-carry, an entry far from the marker.
     resend_unchanged : bool
         Send a tool target every step even when it equals the last one sent (False: send
         None, so a resting arm is not asked to solve its inverse kinematics again).
@@ -163,6 +173,8 @@ class ExecutorConfig:
     physical_start_press: float = 0.0008
     hold_press: bool = False
     final_approach_time: float = 1.0
+    carry_lift: float = 0.0
+    physical_carry_lift: float = 0.007
     resend_unchanged: bool = False
     slip_turn: float = 0.0035
     slip_shift: float = 0.0001
@@ -179,9 +191,10 @@ class ExecutorConfig:
 
         The one place physical mode changes the executor's settings (in-process and in the
         executor node alike): ``start_press`` becomes ``physical_start_press``, held
-        (``hold_press``).
+        (``hold_press``), and ``carry_lift`` becomes ``physical_carry_lift``.
         """
-        return replace(self, start_press=self.physical_start_press, hold_press=True)
+        return replace(self, start_press=self.physical_start_press, hold_press=True,
+                       carry_lift=self.physical_carry_lift)
 
     def on_tissue(self) -> 'ExecutorConfig':
         """
@@ -452,13 +465,19 @@ class ThrowExecutor:
         # the others of that span (a rollout on another pair can put the preferred one out of
         # the arm's reach).
         lo_1 = s_g + _JAW_GAP_S if s_out is None else s_out + 0.25 * (1.0 - s_out)
+        lowered = Carry(RigidPath(S2_hi, S2),
+                        min_duration=self.executor_config.final_approach_time)
+        above, approach, reach = S2_hi, (lowered, Hold(c.settle_time)), [RigidPath(S2_hi, S2)]
+        carry_lift = self.executor_config.carry_lift
+        if carry_lift > 0.0:
+            above = translated(S2_hi, carry_lift * normal)
+            approach = (Carry(RigidPath(above, S2_hi)),) + approach
+            reach = [RigidPath(above, S2_hi)] + reach
         return ThrowPaths(
-            above=S2_hi,
-            approach=(Carry(RigidPath(S2_hi, S2),
-                            min_duration=self.executor_config.final_approach_time),
-                      Hold(c.settle_time)),
+            above=above,
+            approach=approach,
             insertion=(Follow(path2, skill.duration('ii')),),
-            insertion_reach=tuple([RigidPath(S2_hi, S2)] + path2.pieces(3)),
+            insertion_reach=tuple(reach + path2.pieces(3)),
             insertion_clear=tuple(path2(x) for x in np.linspace(0.0, 1.0, 9)),
             insertion_end=N_ins,
             extraction=(Follow(path4, skill.duration('iv')),),
