@@ -112,6 +112,16 @@ _BAND_START = np.array([0.0175, 0.0175, 0.0005, 0.05, 0.05])
 # homing leaves a few degrees and millimetres, its camera registration "a 5 mm to 10 mm cube";
 # a fit beyond is one of poses seen wrong.
 _PLAUSIBLE = np.array([0.1, 0.1, 0.012, 0.015, 0.015, 0.015])
+# The prior of the fit with dead bands (a dVRK-like arm): each offset and base coordinate costs
+# _PRIOR_PX pixels per _PRIOR_SCALE (rad, rad, m, m, m, m; a dVRK's homing and camera
+# registration, config/realism_arm.yaml's dvrk preset with the ECM's share). Its registration
+# poses share nearly one shaft direction, along which an insertion offset and a base translation
+# trade almost freely; a camera turned off by its ECM's error (a base rotation the fit does not
+# model) slid such fits 10-20 mm along that valley, at a low residual, and left the tool 3-5 mm
+# off where the shaft points elsewhere (the regrasp). One pixel per that scale is far below
+# what the poses tell of any other direction.
+_PRIOR_SCALE = np.array([0.035, 0.035, 0.003, 0.005, 0.005, 0.005])
+_PRIOR_PX = 1.0
 # The instrument's cable model a lab calibrates once per instrument type, not per robot
 # (:meth:`KinematicCorrection.with_cable_model`): the wrist's stretch (true minus reported per
 # unit deflection from straight: roll, wrist pitch, wrist yaw) and the roll's dead band (rad).
@@ -749,11 +759,18 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
                     out[i, side, 2] = _hidden_end(float(out[i, side, 2]))
         return out.ravel()
 
+    prior = None if runs is None else _PRIOR_PX / _PRIOR_SCALE
+
+    def fitted(x: np.ndarray, poses: list[Any]) -> np.ndarray:
+        """Return the residuals the fit minimises: the images', and with dead bands the prior's."""
+        r = residuals(x, poses)
+        return r if prior is None else np.concatenate([r, prior * x[:6]])
+
     def solve(poses: list[Any], x0: np.ndarray) -> Any:
         if len(x0) == 6:
-            return least_squares(residuals, x0, args=(poses,), x_scale=_X_SCALE,
+            return least_squares(fitted, x0, args=(poses,), x_scale=_X_SCALE,
                                  loss='soft_l1', f_scale=2.0)
-        return least_squares(residuals, x0, args=(poses,), x_scale=x_scale, loss='soft_l1',
+        return least_squares(fitted, x0, args=(poses,), x_scale=x_scale, loss='soft_l1',
                              f_scale=2.0, bounds=bounds)
 
     def per_pose(x: np.ndarray, poses: list[Any]) -> np.ndarray:
@@ -798,7 +815,7 @@ def fit_arm_correction(arm: str, kinematics: 'SerialChain', T_world_base: np.nda
                     -float(errors[agree].mean()) if agree.any() else 0.0)
 
         fit = max(candidates, key=rank)
-    rms = float(np.sqrt(np.mean(fit.fun ** 2)))
+    rms = float(np.sqrt(np.mean((fit.fun if prior is None else fit.fun[:-6]) ** 2)))
     offset = np.zeros(6)
     offset[:3] = fit.x[:3]
     band = np.zeros(6) if len(fit.x) == 6 else bands(fit.x)
