@@ -205,3 +205,44 @@ def test_physical_mode_holds_the_start_press_until_the_rollout_is_as_deep(skill)
     # faded by time instead, the press is gone at a quarter of the insertion
     assert holding[len(raw) // 4]
     np.testing.assert_allclose(pressed[~holding], raw[~holding], atol=1e-12)
+
+
+def test_physical_mode_ends_the_carry_higher_and_lowers_the_needle_in_two_legs(skill):
+    # A tool off by millimetres away from where it was registered let the carried needle's
+    # turning tip graze a curved pad mid-carry: an entry far from the marker. In physical mode
+    # the carry ends physical_carry_lift higher along the pair's normal; the needle is lowered
+    # to the start lift first, then as slowly as before onto the insertion's start. Ground truth
+    # plans as before.
+    from suture_lfd.planning.throw import Carry, Hold
+    from suture_lfd.skill.executor import ThrowExecutor
+
+    sim = Simulation()
+    try:
+        pair, geometry = sim.phantom.markers['synth2'], sim.needle_geometry
+        plain = ExecutorConfig(script=sim.config.scene.expert)
+        physical = plain.in_physical_mode()
+        assert plain.carry_lift == 0.0 and physical.carry_lift == physical.physical_carry_lift > 0
+        truth = ThrowExecutor(skill, pair, geometry, config=plain).rollout_paths()
+        robot = ThrowExecutor(skill, pair, geometry, config=physical).rollout_paths()
+    finally:
+        sim.close()
+    lowered, settle = truth.approach
+    assert isinstance(lowered, Carry) and isinstance(settle, Hold)
+    assert lowered.min_duration == plain.final_approach_time
+    np.testing.assert_array_equal(lowered.path.A, truth.above)
+    start = lowered.path.B  # the insertion's start (ground truth's press)
+    assert len(robot.approach) == 3
+    down, last, _ = robot.approach
+    assert down.min_duration is None and last.min_duration == physical.final_approach_time
+    np.testing.assert_array_equal(down.path.A, robot.above)
+    np.testing.assert_array_equal(down.path.B, last.path.A)
+    normal = np.asarray(pair.normal)
+    # the carry ends carry_lift above where the final approach starts, start_lift above the
+    # insertion's start (the physical press moves that start into the tissue)
+    np.testing.assert_allclose(robot.above[:3, :3], last.path.A[:3, :3], atol=1e-12)
+    np.testing.assert_allclose((robot.above[:3, 3] - last.path.A[:3, 3]) @ normal,
+                               physical.physical_carry_lift, atol=1e-12)
+    np.testing.assert_allclose((last.path.A[:3, 3] - last.path.B[:3, 3]) @ normal,
+                               physical.start_lift, atol=1e-12)
+    np.testing.assert_allclose((truth.above[:3, 3] - start[:3, 3]) @ normal, plain.start_lift,
+                               atol=1e-12)
