@@ -467,7 +467,8 @@ class ThrowExecutor:
         lo_1 = s_g + _JAW_GAP_S if s_out is None else s_out + 0.25 * (1.0 - s_out)
         lowered = Carry(RigidPath(S2_hi, S2),
                         min_duration=self.executor_config.final_approach_time)
-        above, approach, reach = S2_hi, (lowered, Hold(c.settle_time)), [RigidPath(S2_hi, S2)]
+        above, reach = S2_hi, [RigidPath(S2_hi, S2)]
+        approach: tuple[Carry | Hold, ...] = (lowered, Hold(c.settle_time))
         carry_lift = self.executor_config.carry_lift
         if carry_lift > 0.0:
             above = translated(S2_hi, carry_lift * normal)
