@@ -74,6 +74,11 @@ class Lens:
         self.size = (int(size[0]), int(size[1]))
         self.is_ideal = not self.D.any()
         self._maps: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # each map's integer source columns and rows as contiguous planes (built once): the
+        # extent a window reads is their minimum and maximum over it
+        self._planes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._region_memo: dict[tuple[int, int, int, int],
+                                tuple[tuple[int, int, int, int], tuple[int, int, int, int]]] = {}
 
     def distort_points(self, uv: ArrayLike) -> np.ndarray:
         """
@@ -197,18 +202,31 @@ class Lens:
         remap reads (bilinear: one more on each side) for the window, then those the lens's
         remap reads for them.
         """
+        window = (int(window[0]), int(window[1]), int(window[2]), int(window[3]))
+        hit = self._region_memo.get(window)
+        if hit is None:
+            raw = self._reach('raw', *window)
+            hit = (raw, self._reach('ideal', *raw))
+            if len(self._region_memo) >= 4096:
+                self._region_memo.clear()
+            self._region_memo[window] = hit
+        return hit
+
+    def _reach(self, source: str, u0: int, v0: int, uw: int, vh: int
+               ) -> tuple[int, int, int, int]:
+        """Return the region (inside the image) the map ``source`` reads for a region of it."""
+        planes = self._planes.get(source)
+        if planes is None:
+            m1 = self._map(source)[0]
+            planes = self._planes[source] = (np.ascontiguousarray(m1[:, :, 0]),
+                                             np.ascontiguousarray(m1[:, :, 1]))
         w, h = self.size
-
-        def reach(m1: np.ndarray, u0: int, v0: int, uw: int, vh: int
-                  ) -> tuple[int, int, int, int]:
-            sub = m1[v0:v0 + vh, u0:u0 + uw].reshape(-1, 2)
-            lo = np.maximum(sub.min(axis=0), 0)
-            hi = np.minimum(sub.max(axis=0) + 1, (w - 1, h - 1))
-            hi = np.maximum(hi, lo + 1)
-            return int(lo[0]), int(lo[1]), int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
-
-        raw = reach(self._map('raw')[0], *window)
-        return raw, reach(self._map('ideal')[0], *raw)
+        cols = planes[0][v0:v0 + vh, u0:u0 + uw]
+        rows = planes[1][v0:v0 + vh, u0:u0 + uw]
+        lo_u, lo_v = max(int(cols.min()), 0), max(int(rows.min()), 0)
+        hi_u = max(min(int(cols.max()) + 1, w - 1), lo_u + 1)
+        hi_v = max(min(int(rows.max()) + 1, h - 1), lo_v + 1)
+        return lo_u, lo_v, hi_u - lo_u + 1, hi_v - lo_v + 1
 
     def window_source(self, window: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
         """
