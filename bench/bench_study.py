@@ -31,6 +31,9 @@ is printed (``--correction off`` among ``--args`` for open loop).
 truth at most 1.3x): the design without it, then with ``--tissue PRESET``, each in its own
 folder; the ratio of the mean CPU per executed throw (``cpu_s`` of the records) is printed.
 
+With ``--physical L --before REF`` the same rows run on the code of ``REF`` too (its own
+ground truth and physical rows, in one run with these), and the ratios now / before print.
+
 Usage: ``python bench/bench_study.py [--workers 2] [--full | --subjects N] [--before REF]
 [--engines local dask] [--physical L] [--tissue PRESET]``
 """
@@ -109,7 +112,7 @@ def _stored(folder):
     return len(path.read_text().splitlines()) if path.exists() else 0
 
 
-def physical_rows(design, workers, level, realisms=('dvrk',)):
+def physical_rows(design, workers, level, realisms=('dvrk',), code=None, prefix=''):
     """
     Ground truth, then physical mode at ``level`` in the same folder (its own jobs only).
 
@@ -118,13 +121,14 @@ def physical_rows(design, workers, level, realisms=('dvrk',)):
 
     Each row also gets ``throw_cpu_s``: the mean CPU time of its executed throws as their
     worker processes measured it (``cpu_s`` of the records), throws that ran nothing (no
-    demonstration to learn from) left out.
+    demonstration to learn from) left out. ``code``: run that tree's code (a ``--before``
+    revision), its rows' labels starting with ``prefix``.
     """
     with tempfile.TemporaryDirectory() as tmp:
-        ground = run('ground truth', design, workers, folder=tmp)
-        physical = [run(f'physical {m}' + (f' L{level:g}' if m == 'static' else ''),
+        ground = run(f'{prefix}ground truth', design, workers, folder=tmp, code=code)
+        physical = [run(f'{prefix}physical {m}' + (f' L{level:g}' if m == 'static' else ''),
                         design + ['--physical', '--error-level', f'{level:g}',
-                                  '--arm-realism', m], workers, folder=tmp)
+                                  '--arm-realism', m], workers, folder=tmp, code=code)
                     for m in realisms]
         records = [json.loads(line)
                    for line in (Path(tmp) / 'results.jsonl').read_text().splitlines()]
@@ -199,7 +203,13 @@ def main():
         rows = tissue_rows(design, args.workers, args.tissue)
     else:
         rows = [run(e, design, args.workers, engine=e) for e in args.engines]
-    if args.before:
+    before_physical = []
+    if args.before and args.physical is not None:
+        before_physical = measure_before(args.before, lambda code: physical_rows(
+            design, args.workers, args.physical, args.arm_realism, code=code,
+            prefix='before '))
+        rows += before_physical
+    elif args.before:
         rows.append(measure_before(
             args.before, lambda code: run(f'before ({args.before})', design, args.workers,
                                           code=code)))
@@ -220,7 +230,7 @@ def main():
         print(f'dask / local wall time: {by["dask"]["wall_s"] / by["local"]["wall_s"]:.3f} '
               '(target <= 1.10)')
     if args.physical is not None:
-        g, p, *more = rows
+        g, p, *more = rows[:len(rows) - len(before_physical)]
         for q in more:
             print(f'CPU per job, {q["label"]} / {p["label"]}: '
                   f'{(q["cpu_s"] / q["jobs"]) / (p["cpu_s"] / p["jobs"]):.3f} (target <= 1.20)')
@@ -231,6 +241,14 @@ def main():
         print(f'CPU per executed throw (in its worker), physical / ground truth: '
               f'{p["throw_cpu_s"]:.3f} ({p["throws"]}) / {g["throw_cpu_s"]:.3f} '
               f'({g["throws"]}) s = {p["throw_cpu_s"] / g["throw_cpu_s"]:.3f}')
+        if before_physical:
+            bg, bp = before_physical[:2]
+            print(f'before ({args.before}): CPU per job, physical / ground truth: '
+                  f'{bp["cpu_s"] / bp["jobs"]:.3f} / {bg["cpu_s"] / bg["jobs"]:.3f} s = '
+                  f'{(bp["cpu_s"] / bp["jobs"]) / (bg["cpu_s"] / bg["jobs"]):.3f}')
+            for now, then in zip(rows, before_physical):
+                print(f'CPU per job, {now["label"]} now / before: '
+                      f'{(now["cpu_s"] / now["jobs"]) / (then["cpu_s"] / then["jobs"]):.3f}')
     if args.tissue is not None:
         off, on = rows
         print(f'CPU per executed throw (in its worker), tissue {args.tissue} / none: '
