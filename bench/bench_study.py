@@ -127,8 +127,9 @@ def physical_rows(design, workers, level, realisms=('dvrk',), code=None, prefix=
     with tempfile.TemporaryDirectory() as tmp:
         ground = run(f'{prefix}ground truth', design, workers, folder=tmp, code=code)
         physical = [run(f'{prefix}physical {m}' + (f' L{level:g}' if m == 'static' else ''),
-                        design + ['--physical', '--error-level', f'{level:g}',
-                                  '--arm-realism', m], workers, folder=tmp, code=code)
+                        design + ['--physical', '--arm-realism', m]
+                        + (['--error-level', f'{level:g}'] if m == 'static' else []),
+                        workers, folder=tmp, code=code)
                     for m in realisms]
         records = [json.loads(line)
                    for line in (Path(tmp) / 'results.jsonl').read_text().splitlines()]

@@ -2,8 +2,10 @@
 The study in physical mode: the same design on what a physical dVRK provides.
 
 ``--physical`` runs, beside the study's ground-truth jobs (reused when stored), the same
-demonstrations and throws in physical mode, in-process, once per *variant*: an error level
-(``--error-level``, a mm class of :mod:`sim_bridge.kinematic_errors`, several as a
+demonstrations and throws in physical mode, in-process, once per *variant*: the arm model
+(``--arm-realism``: by default the ``dvrk`` preset of ``config/realism_arm.yaml``, a physical
+dVRK's imperfection; ``static`` the constant offsets of earlier releases, at an error level
+``--error-level``, a mm class of :mod:`sim_bridge.kinematic_errors`, several as a
 comma-separated list) and whether the executor corrects on what it sees (``--correction
 on|off|both``, ``--no-correction`` for ``off``):
 
@@ -91,21 +93,29 @@ class Variant(NamedTuple):
     effects: str = ''
 
 
+#: The arm model of ``--physical`` when none is named: a physical dVRK's imperfection
+#: (``config/realism_arm.yaml``); ``static`` names the constant offsets of earlier releases.
+DEFAULT_ARM_REALISM = 'dvrk'
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the physical-mode options to the study's argparse parser."""
     parser.add_argument('--physical', action='store_true',
                         help='also run the study in physical mode: hidden kinematic errors, '
                              'demonstrations recorded and throws executed on what the robot '
                              'reports and the endoscope shows; reported beside ground truth')
-    parser.add_argument('--error-level', default='3', metavar='L[,L...]',
-                        help='kinematic error class(es) of --physical, mm (default 3; '
-                             f'{",".join(_text(v) for v in CURVE_LEVELS)} draws the curve)')
-    parser.add_argument('--arm-realism', default='static', metavar='NAME|static',
-                        help="with --physical: the arms' imperfection, static (default: the "
-                             'constant offsets of class --error-level) or a preset of '
-                             'config/realism_arm.yaml (dvrk: calibration errors, cable '
-                             'hysteresis and stretch, servo lag; the executor does not master it '
-                             'yet)')
+    parser.add_argument('--error-level', default=None, metavar='L[,L...]',
+                        help="with --arm-realism static: the constant offsets' class(es), mm "
+                             f'(default 3; {",".join(_text(v) for v in CURVE_LEVELS)} draws the '
+                             'curve)')
+    parser.add_argument('--arm-realism', default=DEFAULT_ARM_REALISM, metavar='NAME|static',
+                        help="with --physical: the arms' imperfection, a preset of "
+                             'config/realism_arm.yaml (default dvrk: calibration errors with '
+                             'base rotation and wrist offsets, cable hysteresis and stretch, '
+                             "servo lag, encoders, the ECM's hand-eye error, intrinsics a "
+                             'calibration leaves off, a jaw that stalls; the executor does not '
+                             'master it yet) or static (constant offsets of class --error-level, '
+                             'the model of earlier releases)')
     parser.add_argument('--arm-levels', default='', metavar='KEY=V[,KEY=V...]',
                         help='with --arm-realism PRESET: levels of its effects (0: off, 1: the '
                              f'preset), keys {", ".join(ARM_LEVELS)} (e.g. servo_level=0)')
@@ -155,7 +165,8 @@ def physical_config(args: argparse.Namespace) -> dict[str, Any] | None:
     if not getattr(args, 'physical', False):
         return None
     levels = []
-    for part in str(getattr(args, 'error_level', '3')).split(','):
+    given = getattr(args, 'error_level', None)
+    for part in str('3' if given is None else given).split(','):
         try:
             level = float(part)
         except ValueError:
@@ -168,11 +179,15 @@ def physical_config(args: argparse.Namespace) -> dict[str, Any] | None:
     correction = getattr(args, 'correction', 'on')
     corrections = {'on': [True], 'off': [False], 'both': [True, False]}[correction]
     demos = getattr(args, 'physical_demos', 'recorded')
-    realism = str(getattr(args, 'arm_realism', 'static'))
+    realism = str(getattr(args, 'arm_realism', DEFAULT_ARM_REALISM))
     arm_levels = parse_arm_levels(str(getattr(args, 'arm_levels', '') or ''))
     ablation = bool(getattr(args, 'arm_ablation', False))
     if realism != 'static':
         load_arm_realism(realism, levels=arm_levels)  # a bad name fails here, naming the presets
+        if given is not None:
+            raise ValueError(f'--error-level is the class of the static offsets; the arms are the '
+                             f'{realism!r} preset (the default): add --arm-realism static to run '
+                             'the static offsets, or drop --error-level')
         levels = [0.0]  # the static class is unused with a preset
     elif arm_levels or ablation:
         raise ValueError('--arm-levels and --arm-ablation need --arm-realism PRESET (a preset '

@@ -141,6 +141,25 @@ def test_physical_mode_runs_the_dvrk_preset_by_name_and_names_a_bad_preset(tmp_p
     assert "no preset 'nope'" in result.stderr
 
 
+def test_physical_mode_runs_the_dvrk_preset_by_default_and_static_by_name(tmp_path):
+    result = study(tmp_path / 'default', '--plan', '--physical')
+    assert result.returncode == 0, result.stderr
+    jobs = json.loads((tmp_path / 'default' / 'jobs.json').read_text())
+    extra = [j for j in jobs if j.get('physical') is not None]
+    assert extra and {j['physical']['arm_realism'] for j in extra} == {'dvrk'}
+    # an error class belongs to the static offsets: asked without them, the study says so
+    result = study(tmp_path / 'class', '--plan', '--physical', '--error-level', '1')
+    assert result.returncode == 2
+    assert '--error-level is the class of the static offsets' in result.stderr
+    assert '--arm-realism static' in result.stderr
+    result = study(tmp_path / 'static', '--plan', '--physical', '--arm-realism', 'static')
+    assert result.returncode == 0, result.stderr
+    jobs = json.loads((tmp_path / 'static' / 'jobs.json').read_text())
+    extra = [j for j in jobs if j.get('physical') is not None]
+    assert extra and {j['physical'].get('arm_realism', 'static') for j in extra} == {'static'}
+    assert {j['physical']['error_level'] for j in extra} == {3.0}
+
+
 def test_physical_throws_may_learn_from_the_ground_truth_demonstrations(tmp_path):
     result = study(tmp_path, '--plan', '--physical', '--arm-realism', 'static',
                    '--error-level', '1,5', '--physical-demos', 'ground-truth')
