@@ -185,9 +185,10 @@ def physical_config(args: argparse.Namespace) -> dict[str, Any] | None:
     if realism != 'static':
         load_arm_realism(realism, levels=arm_levels)  # a bad name fails here, naming the presets
         if given is not None:
-            raise ValueError(f'--error-level is the class of the static offsets; the arms are the '
-                             f'{realism!r} preset (the default): add --arm-realism static to run '
-                             'the static offsets, or drop --error-level')
+            raise ValueError(f'--error-level is the class of the static offsets, and the arms are '
+                             f"the {realism!r} preset (physical mode's default unless named): "
+                             'add --arm-realism static to run the static offsets, or drop '
+                             '--error-level')
         levels = [0.0]  # the static class is unused with a preset
     elif arm_levels or ablation:
         raise ValueError('--arm-levels and --arm-ablation need --arm-realism PRESET (a preset '
