@@ -257,7 +257,8 @@ def test_the_arm_ablation_plans_each_effect_alone_beside_the_preset(tmp_path):
     # one demonstration per model (7), one throw per variant (14)
     assert sorted(j['kind'] for j in extra).count('demo') == 7
     assert sorted(j['kind'] for j in extra).count('throw') == 14
-    for bad, message in ((['--arm-ablation'], 'need --arm-realism PRESET'),
+    for bad, message in ((['--arm-realism', 'static', '--arm-ablation'],
+                          'need --arm-realism PRESET'),
                          (['--arm-realism', 'dvrk', '--arm-levels', 'servo=1'],
                           '--arm-levels takes KEY=LEVEL'),
                          (['--arm-realism', 'dvrk', '--arm-levels', 'servo_level=-1'],
